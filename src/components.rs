@@ -1,0 +1,90 @@
+//! Entities and their components.
+//!
+//! * A **material point** carries its reference state (`ReferencePosition`, `ReferenceVolume`,
+//!   `Mass`, `Elastic`), its converged state at the start of the load step (`Position`,
+//!   `Displacement`, `DeformationGradient`, `Volume`), the basis of the step (`Support`) and the
+//!   state of the current Newton iterate (`Trial`).
+//! * A **grid node** (a control point of the background basis) carries its index and position
+//!   (`GridNode`) and its constraints (`Fixity`). The fields that live on the grid during a load
+//!   step (displacement increment, forces, DOF numbers) are dense arrays in `GridFields`, indexed
+//!   by node, because every stage gathers and scatters them by node index.
+
+use bevy_ecs::prelude::*;
+use nalgebra::{SMatrix, SVector};
+
+use crate::basis::NodeWeight;
+use crate::material::Hencky;
+use crate::mechanics::TrialState;
+
+/// Stable index of a material point (its order in the scene and in the output).
+#[derive(Component, Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub struct PointId(pub u32);
+
+/// Current position x_p (converged, start of the load step).
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct Position<const D: usize>(pub SVector<f64, D>);
+
+/// Reference position X_p.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct ReferencePosition<const D: usize>(pub SVector<f64, D>);
+
+/// Total displacement u_p = x_p - X_p.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct Displacement<const D: usize>(pub SVector<f64, D>);
+
+/// Converged deformation gradient F^n.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct DeformationGradient<const D: usize>(pub SMatrix<f64, D, D>);
+
+/// Point mass m_p = rho0 V0_p.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct Mass(pub f64);
+
+/// Reference volume V0_p.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct ReferenceVolume(pub f64);
+
+/// Current volume V_p = J V0_p.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct Volume(pub f64);
+
+/// The point's material: Hencky elasticity.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct Elastic(pub Hencky);
+
+/// Index of the body the point belongs to (into the scene's bodies).
+#[derive(Component, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BodyIndex(pub u32);
+
+/// The grid functions supporting the point in this load step: nodes, values N_i(x_p^n) and
+/// gradients ∇_n N_i(x_p^n), evaluated once at the start of the step.
+#[derive(Component, Clone, Debug, Default, PartialEq)]
+pub struct Support<const D: usize>(pub Vec<NodeWeight<D>>);
+
+/// The point's state at the current Newton iterate (stress, tangent, F).
+#[derive(Component, Clone, Debug, PartialEq)]
+pub struct Trial<const D: usize>(pub TrialState<D>);
+
+/// A grid node (control point): global index (axis 0 fastest) and position.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct GridNode<const D: usize> {
+    pub index: usize,
+    pub position: SVector<f64, D>,
+}
+
+/// Constraints of a node: which displacement components are prescribed, and the prescribed
+/// total displacement at load factor 1 (zero for a plain fixity).
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct Fixity<const D: usize> {
+    pub fixed: [bool; D],
+    pub prescribed: SVector<f64, D>,
+}
+
+impl<const D: usize> Default for Fixity<D> {
+    fn default() -> Self {
+        Self {
+            fixed: [false; D],
+            prescribed: SVector::zeros(),
+        }
+    }
+}

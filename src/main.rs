@@ -1,0 +1,180 @@
+//! The `impm` command line: run or check a Rhai scene.
+
+use std::io::{IsTerminal, Write};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+use impm::scene::{load_scene, scene_parameters};
+use impm::simulation::{default_output_dir, effects_of, run_scene};
+use impm::summary::StepRecord;
+
+#[derive(Parser)]
+#[command(
+    name = "impm",
+    version,
+    about = "Implicit high-order Material Point Method"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run a scene and write VTK results for ParaView.
+    Run {
+        /// The Rhai scene file.
+        scene: PathBuf,
+        /// Output folder (default: out/<scene name>/).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Override a scene parameter (a top-level `let`), e.g. --set cells=100.
+        #[arg(long = "set", value_name = "NAME=VALUE")]
+        set: Vec<String>,
+    },
+    /// Validate a scene without solving; list its parameters.
+    Check {
+        scene: PathBuf,
+        #[arg(long = "set", value_name = "NAME=VALUE")]
+        set: Vec<String>,
+    },
+}
+
+fn parse_overrides(set: &[String]) -> Result<Vec<(String, String)>, String> {
+    set.iter()
+        .map(|s| match s.split_once('=') {
+            Some((name, value)) if !name.trim().is_empty() => {
+                Ok((name.trim().to_string(), value.trim().to_string()))
+            }
+            _ => Err(format!("--set expects NAME=VALUE, got '{s}'")),
+        })
+        .collect()
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(message) => {
+            eprintln!("error: {message}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<(), String> {
+    match cli.command {
+        Command::Run { scene, out, set } => {
+            let overrides = parse_overrides(&set)?;
+            let spec = load_scene(&scene, &overrides).map_err(|e| e.to_string())?;
+            let out_dir = out.unwrap_or_else(|| default_output_dir(&spec));
+            let steps = spec.load_factors.len();
+            let mut progress = Progress::new(steps);
+            eprintln!(
+                "{}: {}D, {} points, {} load steps -> {}",
+                spec.name,
+                spec.dim(),
+                spec.bodies.iter().map(|b| b.points.len()).sum::<usize>(),
+                steps,
+                out_dir.display()
+            );
+            let result = run_scene(&spec, &out_dir, |record| progress.step(record));
+            progress.finish();
+            match result {
+                Ok(summary) => {
+                    let (_, wall) = summary.total_seconds();
+                    let mut line = format!(
+                        "done: {} steps, {} Newton iterations, {:.2} s",
+                        summary.steps.len(),
+                        summary.total_iterations(),
+                        wall
+                    );
+                    if let Some(e) = summary.final_error() {
+                        line += &format!(", error (eq. 15) {e:.3e}");
+                    }
+                    eprintln!("{line}");
+                    eprintln!(
+                        "results: {}/particles.pvd (open in ParaView)",
+                        out_dir.display()
+                    );
+                    Ok(())
+                }
+                Err(e) => Err(format!(
+                    "{e}\nresults up to the last completed step are in {}",
+                    out_dir.display()
+                )),
+            }
+        }
+        Command::Check { scene, set } => {
+            let overrides = parse_overrides(&set)?;
+            let parameters = scene_parameters(&scene).map_err(|e| e.to_string())?;
+            let spec = load_scene(&scene, &overrides).map_err(|e| e.to_string())?;
+            println!("scene {} is valid", spec.name);
+            println!("parameters (override with --set NAME=VALUE):");
+            for p in &parameters {
+                println!("  {:<14} = {:<30} (line {})", p.name, p.default, p.line);
+            }
+            let effects = effects_of(&spec);
+            println!(
+                "{}D grid {:?} cells, basis {}, {} bodies, {} points, {} constraints, {} load steps",
+                spec.dim(),
+                spec.grid.cells,
+                impm::simulation::basis_name(spec.grid.basis),
+                spec.bodies.len(),
+                spec.bodies.iter().map(|b| b.points.len()).sum::<usize>(),
+                spec.constraints.len(),
+                spec.load_factors.len()
+            );
+            println!(
+                "effects: body force {}, prescribed displacements {}",
+                effects.body_force, effects.prescribed_displacements
+            );
+            Ok(())
+        }
+    }
+}
+
+/// A one-line progress display on a terminal; silent otherwise.
+struct Progress {
+    total: usize,
+    terminal: bool,
+}
+
+impl Progress {
+    fn new(total: usize) -> Self {
+        Self {
+            total,
+            terminal: std::io::stderr().is_terminal(),
+        }
+    }
+
+    fn step(&mut self, r: &StepRecord) {
+        if !self.terminal {
+            return;
+        }
+        let width = 30;
+        let filled = width * r.step / self.total.max(1);
+        let last = r.residuals.last().copied().unwrap_or(0.0);
+        let mut err = std::io::stderr();
+        let _ = write!(
+            err,
+            "\r[{}{}] step {}/{} λ={:.3} iterations {} residual {:.1e}   ",
+            "#".repeat(filled),
+            " ".repeat(width - filled),
+            r.step,
+            self.total,
+            r.load_factor,
+            r.iterations,
+            last
+        );
+        let _ = err.flush();
+    }
+
+    fn finish(&mut self) {
+        if self.terminal {
+            eprintln!();
+        }
+    }
+}

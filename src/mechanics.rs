@@ -1,0 +1,377 @@
+//! Point-level finite-deformation kinematics, internal force and consistent tangent.
+//!
+//! Pure kernels on nalgebra types; the ECS systems in `stages/` call them per material point.
+//!
+//! # Kinematics (updated Lagrangian, grid reset every load step)
+//! At the start of load step n+1 the grid coincides with the points' configuration x^n. With
+//! N_i the basis functions evaluated at x_p^n and ∇_n their gradients with respect to x^n, the
+//! displacement increment Δu_i of the control points gives the increment of deformation
+//!
+//! ```text
+//!   Δf = I + Σ_i Δu_i ⊗ ∇_n N_i,    F = Δf F^n,    J = det F,    b = F Fᵀ.
+//! ```
+//!
+//! # Stress and internal force (paper eq. 9)
+//! The Hencky model gives the Kirchhoff stress τ(b) (`material`); the Cauchy stress is τ/J and
+//! the current volume V = J V0, so σ V = τ V0 and
+//!
+//! ```text
+//!   f_int,i = Σ_p V0_p τ_p g_i,    g_i = ∇_x N_i = Δf⁻ᵀ ∇_n N_i.
+//! ```
+//!
+//! # Consistent tangent
+//! Differentiating f_int,i with respect to Δu_j (using ∂Δf/∂Δu_j,k = e_k ⊗ ∇_n N_j,
+//! ∂b/∂Δu_j,k = e_k ⊗ (b g_j) + (b g_j) ⊗ e_k and ∂Δf⁻¹ = −Δf⁻¹ ∂Δf Δf⁻¹):
+//!
+//! ```text
+//!   K_ij[a][k] = V0 ( Σ_{b,d} g_i[b] c[a][b][k][d] (b g_j)[d]  −  (τ g_j)[a] g_i[k] ),
+//! ```
+//!
+//! with c_abkd = 2 ∂τ_ab/∂b_kd the material's spatial tangent. The first term is the material
+//! stiffness, the second the geometric (initial-stress) stiffness. Because the Hencky model is
+//! hyperelastic and the loads are dead within a step, K is the Hessian of the potential energy
+//! and is symmetric.
+//!
+//! Lower dimensions: in 2D (plane strain) and 1D (uniaxial strain) the out-of-plane stretches
+//! are 1; the material works on the 3x3 `b` padded with ones and only the D x D block enters
+//! the forces, while the full 3x3 stress is kept for output.
+
+use nalgebra::{Matrix3, SMatrix, SVector};
+
+use crate::basis::NodeWeight;
+use crate::material::{Hencky, Tangent};
+
+/// A D x D matrix embedded in 3x3 with the identity in the remaining diagonal.
+pub fn embed<const D: usize>(m: &SMatrix<f64, D, D>) -> Matrix3<f64> {
+    let mut out = Matrix3::identity();
+    for a in 0..D {
+        for b in 0..D {
+            out[(a, b)] = m[(a, b)];
+        }
+    }
+    out
+}
+
+/// The top-left D x D block of a 3x3 matrix.
+pub fn block<const D: usize>(m: &Matrix3<f64>) -> SMatrix<f64, D, D> {
+    SMatrix::from_fn(|a, b| m[(a, b)])
+}
+
+/// Δf = I + Σ_i Δu_i ⊗ ∇_n N_i over a point's support; `increment(node)` gives Δu of a node.
+pub fn increment_gradient<const D: usize>(
+    support: &[NodeWeight<D>],
+    increment: impl Fn(usize) -> SVector<f64, D>,
+) -> SMatrix<f64, D, D> {
+    let mut df = SMatrix::<f64, D, D>::identity();
+    for w in support {
+        df += increment(w.node) * w.gradient.transpose();
+    }
+    df
+}
+
+/// Σ_i Δu_i N_i: the displacement increment at a point (paper eq. 10).
+pub fn interpolate<const D: usize>(
+    support: &[NodeWeight<D>],
+    increment: impl Fn(usize) -> SVector<f64, D>,
+) -> SVector<f64, D> {
+    support
+        .iter()
+        .fold(SVector::zeros(), |acc, w| acc + increment(w.node) * w.value)
+}
+
+/// Why a point's trial state could not be evaluated.
+#[derive(Clone, Debug, PartialEq)]
+pub enum KinematicsError {
+    /// det F <= 0 (the point is inverted) or not finite.
+    NonPositiveJacobian(f64),
+    /// The increment of deformation is not invertible or not finite.
+    SingularIncrement,
+    /// The material could not evaluate the stress.
+    Material(String),
+}
+
+impl std::fmt::Display for KinematicsError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            KinematicsError::NonPositiveJacobian(j) => {
+                write!(f, "non-positive or non-finite det F = {j:e}")
+            }
+            KinematicsError::SingularIncrement => {
+                write!(f, "the increment of deformation is singular or not finite")
+            }
+            KinematicsError::Material(why) => write!(f, "material: {why}"),
+        }
+    }
+}
+
+/// The trial state of a point for a given displacement increment.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrialState<const D: usize> {
+    /// Total deformation gradient F = Δf F^n.
+    pub deformation_gradient: SMatrix<f64, D, D>,
+    /// Δf⁻¹, which maps step-start gradients to current ones (g = Δf⁻ᵀ ∇_n N).
+    pub increment_inverse: SMatrix<f64, D, D>,
+    /// J = det F (of the D x D block; out-of-plane stretches are 1).
+    pub jacobian: f64,
+    /// Left Cauchy-Green tensor b = F Fᵀ, D x D block.
+    pub left_cauchy_green: SMatrix<f64, D, D>,
+    /// Kirchhoff stress, full 3x3.
+    pub kirchhoff: Matrix3<f64>,
+    /// c_abkd = 2 ∂τ_ab/∂b_kd.
+    pub tangent: Tangent<D>,
+}
+
+impl<const D: usize> TrialState<D> {
+    /// The unstressed state (F = I).
+    pub fn undeformed(material: &Hencky) -> Self {
+        trial_state(material, &SMatrix::identity(), &SMatrix::identity())
+            .expect("the undeformed state is always valid")
+    }
+
+    /// Cauchy stress σ = τ / J, full 3x3.
+    pub fn cauchy(&self) -> Matrix3<f64> {
+        self.kirchhoff / self.jacobian
+    }
+
+    /// Spatial gradient g = Δf⁻ᵀ ∇_n N of a basis function.
+    #[inline]
+    pub fn spatial_gradient(&self, reference_gradient: &SVector<f64, D>) -> SVector<f64, D> {
+        self.increment_inverse.transpose() * reference_gradient
+    }
+
+    /// V0 τ g_i: the point's contribution to the internal force of a node.
+    #[inline]
+    pub fn internal_force(&self, reference_volume: f64, g_i: &SVector<f64, D>) -> SVector<f64, D> {
+        block::<D>(&self.kirchhoff) * g_i * reference_volume
+    }
+
+    /// K_ij block: the point's contribution to the tangent coupling nodes i and j
+    /// (module docs). `g_i`, `g_j` are spatial gradients.
+    #[inline]
+    pub fn stiffness(
+        &self,
+        reference_volume: f64,
+        g_i: &SVector<f64, D>,
+        g_j: &SVector<f64, D>,
+    ) -> SMatrix<f64, D, D> {
+        self.stiffness_from(reference_volume, g_i, &self.stiffness_factor(g_j))
+    }
+
+    /// The part of K_ij that depends on node j only: m[a][b][k] = Σ_d c_abkd (b g_j)_d and
+    /// τ g_j. Computing it once per node turns the D⁴ work per node pair into D³.
+    #[inline]
+    pub fn stiffness_factor(&self, g_j: &SVector<f64, D>) -> StiffnessFactor<D> {
+        let h_j = self.left_cauchy_green * g_j;
+        let c = &self.tangent;
+        let material = std::array::from_fn(|a| {
+            std::array::from_fn(|b| {
+                std::array::from_fn(|k| (0..D).map(|d| c[a][b][k][d] * h_j[d]).sum())
+            })
+        });
+        StiffnessFactor {
+            material,
+            tau_g: block::<D>(&self.kirchhoff) * g_j,
+        }
+    }
+
+    /// K_ij = V0 (Σ_b g_i[b] m_j[a][b][k] − (τ g_j)[a] g_i[k]).
+    #[inline]
+    pub fn stiffness_from(
+        &self,
+        reference_volume: f64,
+        g_i: &SVector<f64, D>,
+        factor_j: &StiffnessFactor<D>,
+    ) -> SMatrix<f64, D, D> {
+        SMatrix::from_fn(|a, k| {
+            let mut material = 0.0;
+            for (b, gib) in g_i.iter().enumerate() {
+                material += gib * factor_j.material[a][b][k];
+            }
+            reference_volume * (material - factor_j.tau_g[a] * g_i[k])
+        })
+    }
+}
+
+/// The node-j factor of a stiffness block (see [`TrialState::stiffness_factor`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StiffnessFactor<const D: usize> {
+    pub material: [[[f64; D]; D]; D],
+    pub tau_g: SVector<f64, D>,
+}
+
+/// Evaluates F = Δf F^n, b and the Hencky stress and tangent; fails (never panics) when the
+/// deformation is inadmissible.
+pub fn trial_state<const D: usize>(
+    material: &Hencky,
+    previous_deformation_gradient: &SMatrix<f64, D, D>,
+    increment_gradient: &SMatrix<f64, D, D>,
+) -> Result<TrialState<D>, KinematicsError> {
+    if increment_gradient.iter().any(|v| !v.is_finite()) {
+        return Err(KinematicsError::SingularIncrement);
+    }
+    let f = increment_gradient * previous_deformation_gradient;
+    // Determinant and inverse through the 3x3 embedding (identity padding leaves both intact),
+    // which avoids nalgebra's dimension bounds in const-generic code.
+    let jacobian = embed(&f).determinant();
+    if jacobian.is_nan() || jacobian <= 0.0 || !jacobian.is_finite() {
+        return Err(KinematicsError::NonPositiveJacobian(jacobian));
+    }
+    let increment_inverse = embed(increment_gradient)
+        .try_inverse()
+        .map(|inv| block::<D>(&inv))
+        .ok_or(KinematicsError::SingularIncrement)?;
+    let b = f * f.transpose();
+    let (kirchhoff, tangent) = material
+        .try_kirchhoff_and_tangent::<D>(&embed(&b))
+        .map_err(KinematicsError::Material)?;
+    Ok(TrialState {
+        deformation_gradient: f,
+        increment_inverse,
+        jacobian,
+        left_cauchy_green: b,
+        kirchhoff,
+        tangent,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn material() -> Hencky {
+        Hencky::new(1e6, 0.3).unwrap()
+    }
+
+    /// Internal force of one point for nodal increments `u` (one vector per node in `grads`).
+    fn point_force<const D: usize>(
+        f_prev: &SMatrix<f64, D, D>,
+        grads: &[SVector<f64, D>],
+        u: &[SVector<f64, D>],
+    ) -> Vec<SVector<f64, D>> {
+        let support: Vec<NodeWeight<D>> = grads
+            .iter()
+            .enumerate()
+            .map(|(node, g)| NodeWeight {
+                node,
+                value: 0.0,
+                gradient: *g,
+            })
+            .collect();
+        let df = increment_gradient(&support, |n| u[n]);
+        let state = trial_state(&material(), f_prev, &df).unwrap();
+        grads
+            .iter()
+            .map(|g| state.internal_force(0.7, &state.spatial_gradient(g)))
+            .collect()
+    }
+
+    /// The point tangent against central finite differences of the point internal force.
+    fn check_tangent<const D: usize>() {
+        let grads: Vec<SVector<f64, D>> = (0..3)
+            .map(|n| SVector::from_fn(|a, _| 0.3 * (n as f64 + 1.0) - 0.2 * a as f64 + 0.05))
+            .collect();
+        let u: Vec<SVector<f64, D>> = (0..3)
+            .map(|n| SVector::from_fn(|a, _| 0.04 * ((n * 3 + a) as f64).sin()))
+            .collect();
+        let f_prev =
+            SMatrix::<f64, D, D>::from_fn(|a, b| if a == b { 0.9 + 0.05 * a as f64 } else { 0.03 });
+        let support: Vec<NodeWeight<D>> = grads
+            .iter()
+            .enumerate()
+            .map(|(node, g)| NodeWeight {
+                node,
+                value: 0.0,
+                gradient: *g,
+            })
+            .collect();
+        let state = trial_state(
+            &material(),
+            &f_prev,
+            &increment_gradient(&support, |n| u[n]),
+        )
+        .unwrap();
+        let h = 1e-7;
+        let mut worst: f64 = 0.0;
+        let mut scale: f64 = 0.0;
+        for j in 0..grads.len() {
+            for k in 0..D {
+                let mut up = u.clone();
+                let mut um = u.clone();
+                up[j][k] += h;
+                um[j][k] -= h;
+                let fp = point_force(&f_prev, &grads, &up);
+                let fm = point_force(&f_prev, &grads, &um);
+                for i in 0..grads.len() {
+                    let analytic = state.stiffness(
+                        0.7,
+                        &state.spatial_gradient(&grads[i]),
+                        &state.spatial_gradient(&grads[j]),
+                    );
+                    for a in 0..D {
+                        let fd = (fp[i][a] - fm[i][a]) / (2.0 * h);
+                        worst = worst.max((fd - analytic[(a, k)]).abs());
+                        scale = scale.max(fd.abs());
+                    }
+                }
+            }
+        }
+        assert!(
+            worst < 1e-6 * scale,
+            "D = {D}: tangent error {worst:e} vs scale {scale:e}"
+        );
+    }
+
+    #[test]
+    fn point_tangent_matches_finite_differences_1d() {
+        check_tangent::<1>();
+    }
+
+    #[test]
+    fn point_tangent_matches_finite_differences_2d() {
+        check_tangent::<2>();
+    }
+
+    #[test]
+    fn point_tangent_matches_finite_differences_3d() {
+        check_tangent::<3>();
+    }
+
+    #[test]
+    fn point_tangent_is_symmetric() {
+        let grads = [
+            nalgebra::Vector2::new(0.3, -0.1),
+            nalgebra::Vector2::new(-0.2, 0.5),
+        ];
+        let df = SMatrix::<f64, 2, 2>::new(1.05, 0.1, -0.04, 0.93);
+        let s = trial_state(&material(), &SMatrix::identity(), &df).unwrap();
+        let g: Vec<_> = grads.iter().map(|g| s.spatial_gradient(g)).collect();
+        let k01 = s.stiffness(1.0, &g[0], &g[1]);
+        let k10 = s.stiffness(1.0, &g[1], &g[0]);
+        assert!((k01 - k10.transpose()).norm() < 1e-8 * k01.norm());
+    }
+
+    #[test]
+    fn inverted_point_is_an_error() {
+        let df = SMatrix::<f64, 1, 1>::new(-0.1);
+        assert_eq!(
+            trial_state(&material(), &SMatrix::identity(), &df).unwrap_err(),
+            KinematicsError::NonPositiveJacobian(-0.1)
+        );
+        let nan = SMatrix::<f64, 1, 1>::new(f64::NAN);
+        assert!(trial_state(&material(), &SMatrix::identity(), &nan).is_err());
+    }
+
+    #[test]
+    fn one_dimensional_stress_is_e_ln_f_over_f() {
+        let e = 1e6;
+        let m = Hencky::new(e, 0.0).unwrap();
+        let s = trial_state(
+            &m,
+            &SMatrix::<f64, 1, 1>::new(0.8),
+            &SMatrix::<f64, 1, 1>::new(0.9),
+        )
+        .unwrap();
+        let f: f64 = 0.72;
+        assert!((s.cauchy()[(0, 0)] - e * f.ln() / f).abs() < 1e-6);
+    }
+}

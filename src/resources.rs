@@ -1,0 +1,287 @@
+//! World resources: the grid, the load step, the Newton state, diagnostics and errors.
+
+use std::time::{Duration, Instant};
+
+use bevy_ecs::prelude::*;
+use nalgebra::SVector;
+
+use crate::basis::GridBasis;
+use crate::sparse::{LinearSystem, NO_DOF};
+
+/// The background grid and its basis.
+#[derive(Resource, Clone, Debug)]
+pub struct Grid<const D: usize>(pub GridBasis<D>);
+
+/// Dense fields on the grid nodes during a load step, indexed by node (see `components`).
+/// Reset after every load step.
+#[derive(Resource, Clone, Debug)]
+pub struct GridFields<const D: usize> {
+    /// Nodes supported by at least one material point this step.
+    pub active: Vec<bool>,
+    /// DOF number of each component (`NO_DOF` if fixed or inactive).
+    pub dofs: Vec<[u32; D]>,
+    /// Displacement increment Δu of the step (the unknown).
+    pub increment: Vec<SVector<f64, D>>,
+    /// External force at the current load factor.
+    pub external_force: Vec<SVector<f64, D>>,
+    /// Internal force at the current iterate.
+    pub internal_force: Vec<SVector<f64, D>>,
+    /// Number of free DOFs.
+    pub dof_count: usize,
+}
+
+impl<const D: usize> GridFields<D> {
+    pub fn new(nodes: usize) -> Self {
+        Self {
+            active: vec![false; nodes],
+            dofs: vec![[NO_DOF; D]; nodes],
+            increment: vec![SVector::zeros(); nodes],
+            external_force: vec![SVector::zeros(); nodes],
+            internal_force: vec![SVector::zeros(); nodes],
+            dof_count: 0,
+        }
+    }
+
+    /// Grid reset: the grid returns to its undeformed state and holds no fields.
+    pub fn reset(&mut self) {
+        self.active.fill(false);
+        self.dofs.fill([NO_DOF; D]);
+        self.increment.fill(SVector::zeros());
+        self.external_force.fill(SVector::zeros());
+        self.internal_force.fill(SVector::zeros());
+        self.dof_count = 0;
+    }
+}
+
+/// The load step being solved.
+#[derive(Resource, Clone, Copy, Debug, Default, PartialEq)]
+pub struct LoadStep {
+    /// 1-based step number (0 = initial state).
+    pub number: usize,
+    /// Load factor at the end of the step.
+    pub factor: f64,
+    /// Load factor at the start of the step.
+    pub previous_factor: f64,
+}
+
+/// Solver controls.
+#[derive(Resource, Clone, Copy, Debug, PartialEq)]
+pub struct NewtonSettings {
+    pub tolerance: f64,
+    pub max_iterations: usize,
+}
+
+/// Body force per unit mass at load factor 1.
+#[derive(Resource, Clone, Copy, Debug, PartialEq)]
+pub struct BodyForce<const D: usize>(pub SVector<f64, D>);
+
+/// The state of the Newton loop of the current step.
+#[derive(Resource, Default)]
+pub struct Newton {
+    pub system: LinearSystem,
+    /// Out-of-balance force f_ext - f_int at the free DOFs; overwritten by the correction.
+    pub residual: Vec<f64>,
+    /// Normalised residual norm of each iterate (the first is before any solve).
+    pub residuals: Vec<f64>,
+    pub converged: bool,
+    /// Linear solves done in this step.
+    pub iterations: usize,
+}
+
+impl Newton {
+    /// Prepares for a new load step (buffers keep their capacity).
+    pub fn begin_step(&mut self) {
+        self.residuals.clear();
+        self.converged = false;
+        self.iterations = 0;
+    }
+}
+
+/// Why a run stopped.
+#[derive(Clone, Debug, PartialEq)]
+pub enum SolverError {
+    /// A point left the background grid.
+    PointOutsideGrid {
+        point: u32,
+        position: Vec<f64>,
+        step: usize,
+    },
+    /// A point's deformation became inadmissible (det F <= 0, not finite...).
+    BadPointState {
+        point: u32,
+        step: usize,
+        iteration: usize,
+        why: String,
+    },
+    /// A non-finite value appeared in a stage.
+    NotFinite {
+        stage: &'static str,
+        what: String,
+        step: usize,
+    },
+    /// The linear solve failed.
+    LinearSolve {
+        step: usize,
+        iteration: usize,
+        why: String,
+    },
+    /// Newton did not reach the tolerance.
+    NotConverged {
+        step: usize,
+        residuals: Vec<f64>,
+        tolerance: f64,
+    },
+    /// Writing results failed.
+    Output { step: usize, why: String },
+}
+
+impl std::fmt::Display for SolverError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            SolverError::PointOutsideGrid {
+                point,
+                position,
+                step,
+            } => write!(
+                f,
+                "load step {step}: material point {point} left the background grid (at {position:?})"
+            ),
+            SolverError::BadPointState {
+                point,
+                step,
+                iteration,
+                why,
+            } => write!(
+                f,
+                "load step {step}, Newton iteration {iteration}: material point {point}: {why}"
+            ),
+            SolverError::NotFinite { stage, what, step } => {
+                write!(
+                    f,
+                    "load step {step}: non-finite value in stage '{stage}': {what}"
+                )
+            }
+            SolverError::LinearSolve {
+                step,
+                iteration,
+                why,
+            } => {
+                write!(f, "load step {step}, Newton iteration {iteration}: {why}")
+            }
+            SolverError::NotConverged {
+                step,
+                residuals,
+                tolerance,
+            } => {
+                write!(
+                    f,
+                    "load step {step}: Newton did not converge to {tolerance:e} in {} iterations; residuals:",
+                    residuals.len().saturating_sub(1)
+                )?;
+                for (k, r) in residuals.iter().enumerate() {
+                    write!(f, "\n  iteration {k:3}: {r:.3e}")?;
+                }
+                Ok(())
+            }
+            SolverError::Output { step, why } => {
+                write!(f, "load step {step}: writing output failed: {why}")
+            }
+        }
+    }
+}
+
+impl std::error::Error for SolverError {}
+
+/// The first error raised by a stage; later stages of the step do not run once it is set.
+#[derive(Resource, Default, Debug)]
+pub struct RunStatus(pub Option<SolverError>);
+
+impl RunStatus {
+    /// Records `error` unless an earlier one is already recorded.
+    pub fn fail(&mut self, error: SolverError) {
+        if self.0.is_none() {
+            self.0 = Some(error);
+        }
+    }
+}
+
+/// Run condition: no stage has failed.
+pub fn no_failure(status: Res<RunStatus>) -> bool {
+    status.0.is_none()
+}
+
+/// The stages whose time is measured, in schedule order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Stage {
+    Connectivity,
+    Dofs,
+    ExternalForce,
+    StressUpdate,
+    Assembly,
+    LinearSolve,
+    PointUpdate,
+    GridReset,
+    Output,
+}
+
+impl Stage {
+    pub const ALL: [Stage; 9] = [
+        Stage::Connectivity,
+        Stage::Dofs,
+        Stage::ExternalForce,
+        Stage::StressUpdate,
+        Stage::Assembly,
+        Stage::LinearSolve,
+        Stage::PointUpdate,
+        Stage::GridReset,
+        Stage::Output,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Stage::Connectivity => "connectivity",
+            Stage::Dofs => "dofs",
+            Stage::ExternalForce => "external_force",
+            Stage::StressUpdate => "stress_update",
+            Stage::Assembly => "assembly",
+            Stage::LinearSolve => "linear_solve",
+            Stage::PointUpdate => "point_update",
+            Stage::GridReset => "grid_reset",
+            Stage::Output => "output",
+        }
+    }
+}
+
+/// Time spent per stage in the current load step (reset by the driver each step).
+#[derive(Resource, Default, Debug, Clone)]
+pub struct StageClock {
+    pub seconds: [Duration; Stage::ALL.len()],
+}
+
+impl StageClock {
+    /// Starts timing `stage`; the time is added when the guard drops.
+    pub fn time(&mut self, stage: Stage) -> StageTimer<'_> {
+        StageTimer {
+            clock: self,
+            stage,
+            start: Instant::now(),
+        }
+    }
+
+    pub fn get(&self, stage: Stage) -> Duration {
+        self.seconds[stage as usize]
+    }
+}
+
+/// Adds the elapsed time to its stage when dropped.
+pub struct StageTimer<'a> {
+    clock: &'a mut StageClock,
+    stage: Stage,
+    start: Instant,
+}
+
+impl Drop for StageTimer<'_> {
+    fn drop(&mut self) {
+        self.clock.seconds[self.stage as usize] += self.start.elapsed();
+    }
+}

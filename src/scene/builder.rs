@@ -1,0 +1,528 @@
+//! The scene under construction: what the script's API calls declared (each with the position
+//! of its call), and `resolve`, which turns the declarations into a `SceneSpec` once the whole
+//! script has run: it checks what needs the grid (dimensions, component indices), evaluates
+//! region and node predicates, seeds points and selects constrained nodes.
+//!
+//! Resolving after the script lets declarations come in any order (`body` before `grid` is
+//! fine); every error still points at the call that declared the offending item.
+
+use std::collections::BTreeMap;
+
+use rhai::{AST, Dynamic, Engine, FnPtr, Position};
+
+use super::error::ScriptError;
+use super::options::describe;
+use super::seeding::{first_point_outside_grid, seed_points};
+use super::{
+    AnalyticSpec, BodySpec, GridSpec, MaterialSpec, NodeConstraint, OutputSpec, SceneSpec,
+    SolverSpec,
+};
+use crate::basis::control_points_1d;
+
+/// Largest number of grid nodes accepted (node predicates are called once per node).
+pub(crate) const MAX_NODES: usize = 100_000_000;
+/// Largest number of seeding candidates (grid cells times points per cell) accepted per body.
+pub(crate) const MAX_SEED_CANDIDATES: usize = 100_000_000;
+
+/// A declaration and the position of the API call that made it.
+#[derive(Clone, Debug)]
+pub(crate) struct Located<T> {
+    pub value: T,
+    pub at: Position,
+}
+
+impl<T> Located<T> {
+    pub fn new(value: T, at: Position) -> Self {
+        Self { value, at }
+    }
+
+    /// "at line N" for messages (empty if unknown).
+    pub fn line_note(&self) -> String {
+        self.at
+            .line()
+            .map(|line| format!(" at line {line}"))
+            .unwrap_or_default()
+    }
+}
+
+/// A handle on a material, returned to the script by `material(...)`.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct MaterialHandle {
+    pub index: usize,
+    pub name: String,
+}
+
+/// Where a body is: returned to the script by `box(...)`, or a script predicate on positions.
+#[derive(Clone, Debug)]
+pub(crate) enum Region {
+    /// Axis-aligned box, bounds included.
+    Box { lower: Vec<f64>, upper: Vec<f64> },
+    /// A script function `|x| -> bool` of the position array.
+    Predicate(FnPtr),
+}
+
+impl Region {
+    fn describe(&self) -> String {
+        match self {
+            Region::Box { lower, upper } => format!("box({lower:?}, {upper:?})"),
+            Region::Predicate(_) => "region predicate".to_string(),
+        }
+    }
+}
+
+/// Points per cell: the same along every axis, or one count per axis.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) enum PointsPerCell {
+    Uniform(usize),
+    PerAxis(Vec<usize>),
+}
+
+#[derive(Clone, Debug)]
+pub(crate) struct BodyDeclaration {
+    pub name: String,
+    pub material: usize,
+    pub region: Region,
+    pub points_per_cell: PointsPerCell,
+}
+
+/// `fix` (values all zero) or `displace`: components of every node the selector accepts.
+#[derive(Clone, Debug)]
+pub(crate) struct ConstraintDeclaration {
+    /// The API function that declared it, for messages.
+    pub function: &'static str,
+    pub selector: FnPtr,
+    pub components: Vec<usize>,
+    /// One prescribed displacement (at load factor 1) per component.
+    pub values: Vec<f64>,
+}
+
+#[derive(Clone, Debug)]
+pub(crate) struct ColumnDeclaration {
+    pub axis: usize,
+    pub height: f64,
+    pub material: usize,
+    pub body_force: f64,
+}
+
+/// Everything the script declared so far.
+#[derive(Debug, Default)]
+pub(crate) struct SceneBuilder {
+    pub grid: Option<Located<GridSpec>>,
+    pub materials: Vec<Located<MaterialSpec>>,
+    pub bodies: Vec<Located<BodyDeclaration>>,
+    pub body_force: Option<Located<Vec<f64>>>,
+    pub constraints: Vec<Located<ConstraintDeclaration>>,
+    pub load_factors: Option<Located<Vec<f64>>>,
+    pub solver: Option<Located<SolverSpec>>,
+    pub output: Option<Located<OutputSpec>>,
+    pub analytic: Option<Located<ColumnDeclaration>>,
+}
+
+/// Error unless `slot` is still empty ("grid(...) was already called at line 3").
+pub(crate) fn ensure_unset<T>(slot: &Option<Located<T>>, function: &str) -> Result<(), String> {
+    match slot {
+        Some(previous) => Err(format!(
+            "{function}(...) was already called{}; call it once",
+            previous.line_note()
+        )),
+        None => Ok(()),
+    }
+}
+
+impl SceneBuilder {
+    /// The finished scene. `engine` and `ast` are the ones that ran the script (predicates are
+    /// script closures).
+    pub fn resolve(self, name: &str, engine: &Engine, ast: &AST) -> Result<SceneSpec, ScriptError> {
+        let grid = self.grid.ok_or_else(|| {
+            ScriptError::unlocated(
+                "the scene has no grid: call grid(#{ lower: [..], upper: [..], cells: [..], basis: \"bspline\", order: 2 }) once",
+            )
+        })?;
+        let dim = grid.value.dim();
+        let grid_note = format!(
+            "the grid is {dim}-dimensional (declared{})",
+            grid.line_note()
+        );
+
+        if let Some(body_force) = &self.body_force
+            && body_force.value.len() != dim
+        {
+            return Err(ScriptError::at(
+                body_force.at,
+                format!(
+                    "body_force(...) has {} components but {grid_note}",
+                    body_force.value.len()
+                ),
+            ));
+        }
+
+        if self.bodies.is_empty() {
+            return Err(ScriptError::unlocated(
+                "the scene has no body: declare at least one with body(#{ name: .., material: .., region: .., ppc: .. })",
+            ));
+        }
+        let bodies = self
+            .bodies
+            .iter()
+            .map(|body| resolve_body(body, &grid, engine, ast))
+            .collect::<Result<Vec<_>, _>>()?;
+
+        let constraints = resolve_constraints(&self.constraints, &grid, engine, ast)?;
+
+        let load_factors = self.load_factors.ok_or_else(|| {
+            ScriptError::unlocated(
+                "the scene has no load steps: call load_steps(n) or load_factors([..])",
+            )
+        })?;
+
+        let analytic = match &self.analytic {
+            None => None,
+            Some(column) => {
+                if column.value.axis >= dim {
+                    return Err(ScriptError::at(
+                        column.at,
+                        format!(
+                            "analytic_column(...): axis {} does not exist, {grid_note} (axes 0..{})",
+                            column.value.axis,
+                            dim - 1
+                        ),
+                    ));
+                }
+                let material = &self.materials[column.value.material].value;
+                Some(AnalyticSpec::Column {
+                    axis: column.value.axis,
+                    height: column.value.height,
+                    density: material.density,
+                    body_force: column.value.body_force,
+                    modulus: constrained_modulus(material),
+                })
+            }
+        };
+
+        Ok(SceneSpec {
+            name: name.to_string(),
+            grid: grid.value,
+            materials: self
+                .materials
+                .into_iter()
+                .map(|material| material.value)
+                .collect(),
+            bodies,
+            body_force: self.body_force.map(|body_force| body_force.value),
+            constraints,
+            load_factors: load_factors.value,
+            solver: self.solver.map(|solver| solver.value).unwrap_or_default(),
+            output: self.output.map(|output| output.value).unwrap_or_default(),
+            analytic,
+        })
+    }
+}
+
+/// Oedometric (constrained) modulus lambda + 2 mu = E (1 - nu) / ((1 + nu) (1 - 2 nu)).
+pub(crate) fn constrained_modulus(material: &MaterialSpec) -> f64 {
+    let (e, nu) = (material.youngs_modulus, material.poisson_ratio);
+    e * (1.0 - nu) / ((1.0 + nu) * (1.0 - 2.0 * nu))
+}
+
+/// Grid node (control point) positions, global index with axis 0 fastest. The end nodes of
+/// every axis are set exactly to the grid bounds, so predicates like `x[0] == 0.0` or
+/// `x[1] == height` are reliable there.
+pub(crate) fn node_positions(grid: &GridSpec) -> Vec<Vec<f64>> {
+    let order = grid.basis.order();
+    let axes: Vec<Vec<f64>> = (0..grid.dim())
+        .map(|axis| {
+            let (lower, upper) = (grid.lower[axis], grid.upper[axis]);
+            let mut points = control_points_1d(lower, upper, grid.cells[axis], order);
+            if let Some(first) = points.first_mut() {
+                *first = lower;
+            }
+            if let Some(last) = points.last_mut() {
+                *last = upper;
+            }
+            points
+        })
+        .collect();
+    let count: usize = axes.iter().map(Vec::len).product();
+    (0..count)
+        .map(|node| {
+            let mut rest = node;
+            axes.iter()
+                .map(|points| {
+                    let coordinate = points[rest % points.len()];
+                    rest /= points.len();
+                    coordinate
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// Number of nodes of the grid, if it is at most `MAX_NODES`.
+pub(crate) fn checked_node_count(grid: &GridSpec) -> Option<usize> {
+    let order = grid.basis.order();
+    grid.cells
+        .iter()
+        .try_fold(1usize, |count, &cells| {
+            count.checked_mul(cells.checked_add(order)?)
+        })
+        .filter(|&count| count <= MAX_NODES)
+}
+
+/// Calls a script predicate on a position; it must return a boolean.
+fn call_predicate(
+    predicate: &FnPtr,
+    position: &[f64],
+    engine: &Engine,
+    ast: &AST,
+    declared_at: Position,
+    context: &str,
+) -> Result<bool, ScriptError> {
+    let argument: rhai::Array = position.iter().map(|&x| Dynamic::from_float(x)).collect();
+    let result = predicate
+        .call::<Dynamic>(engine, ast, (argument,))
+        .map_err(|error| {
+            let mut error = ScriptError::from_eval(error).with_context(context);
+            if error.position.is_none() {
+                error.position = declared_at;
+            }
+            error
+        })?;
+    result.as_bool().map_err(|_| {
+        ScriptError::at(
+            declared_at,
+            format!(
+                "the {context} must return true or false, got {} for x = {position:?}",
+                describe(&result)
+            ),
+        )
+    })
+}
+
+fn resolve_body(
+    body: &Located<BodyDeclaration>,
+    grid: &Located<GridSpec>,
+    engine: &Engine,
+    ast: &AST,
+) -> Result<BodySpec, ScriptError> {
+    let declaration = &body.value;
+    let dim = grid.value.dim();
+    let fail = |message: String| {
+        Err(ScriptError::at(
+            body.at,
+            format!("body '{}': {message}", declaration.name),
+        ))
+    };
+    let points_per_cell = match &declaration.points_per_cell {
+        PointsPerCell::Uniform(count) => vec![*count; dim],
+        PointsPerCell::PerAxis(counts) if counts.len() == dim => counts.clone(),
+        PointsPerCell::PerAxis(counts) => {
+            return fail(format!(
+                "ppc has {} entries but the grid is {dim}-dimensional",
+                counts.len()
+            ));
+        }
+    };
+    let candidates = grid
+        .value
+        .cells
+        .iter()
+        .zip(&points_per_cell)
+        .try_fold(1usize, |count, (&cells, &ppc)| {
+            count.checked_mul(cells.checked_mul(ppc)?)
+        });
+    if candidates.is_none_or(|count| count > MAX_SEED_CANDIDATES) {
+        return fail(format!(
+            "too many seeding positions (grid cells x ppc^D exceeds {MAX_SEED_CANDIDATES})"
+        ));
+    }
+    let grid_bounds = format!("[{:?} .. {:?}]", grid.value.lower, grid.value.upper);
+    let points = match &declaration.region {
+        Region::Box { lower, upper } => {
+            if lower.len() != dim {
+                return fail(format!(
+                    "{} has {} coordinates but the grid is {dim}-dimensional",
+                    declaration.region.describe(),
+                    lower.len()
+                ));
+            }
+            let outside = (0..dim).any(|axis| {
+                let tolerance = 1e-12 * (grid.value.upper[axis] - grid.value.lower[axis]).abs();
+                lower[axis] < grid.value.lower[axis] - tolerance
+                    || upper[axis] > grid.value.upper[axis] + tolerance
+            });
+            if outside {
+                return fail(format!(
+                    "region {} is not inside the grid {grid_bounds}; material points must lie in the grid",
+                    declaration.region.describe()
+                ));
+            }
+            let inside = |x: &[f64]| {
+                Ok::<_, ScriptError>(
+                    x.iter()
+                        .zip(lower.iter().zip(upper))
+                        .all(|(&c, (&lo, &hi))| lo <= c && c <= hi),
+                )
+            };
+            seed_points(&grid.value, &points_per_cell, inside)?
+        }
+        Region::Predicate(predicate) => {
+            let context = format!(
+                "region predicate of body '{}' declared{}",
+                declaration.name,
+                body.line_note()
+            );
+            let inside = |x: &[f64]| call_predicate(predicate, x, engine, ast, body.at, &context);
+            if let Some(position) = first_point_outside_grid(&grid.value, &points_per_cell, inside)?
+            {
+                return fail(format!(
+                    "the region contains x = {position:?}, outside the grid {grid_bounds}; material points must lie in the grid (bound the region)"
+                ));
+            }
+            seed_points(&grid.value, &points_per_cell, inside)?
+        }
+    };
+    if points.is_empty() {
+        return fail(format!(
+            "no material points: the {} contains none of the seeding positions (ppc = {points_per_cell:?} per cell) of the grid {grid_bounds}",
+            declaration.region.describe()
+        ));
+    }
+    Ok(BodySpec {
+        name: declaration.name.clone(),
+        material: declaration.material,
+        points,
+    })
+}
+
+fn resolve_constraints(
+    declarations: &[Located<ConstraintDeclaration>],
+    grid: &Located<GridSpec>,
+    engine: &Engine,
+    ast: &AST,
+) -> Result<Vec<NodeConstraint>, ScriptError> {
+    if declarations.is_empty() {
+        return Ok(Vec::new());
+    }
+    let dim = grid.value.dim();
+    if checked_node_count(&grid.value).is_none() {
+        return Err(ScriptError::at(
+            grid.at,
+            format!("grid(...): the grid has more than {MAX_NODES} nodes"),
+        ));
+    }
+    let nodes = node_positions(&grid.value);
+    // (node, component) -> (value, line of the declaring call)
+    let mut prescribed: BTreeMap<(usize, usize), (f64, Position)> = BTreeMap::new();
+    for declaration in declarations {
+        let constraint = &declaration.value;
+        let function = constraint.function;
+        if let Some(&component) = constraint.components.iter().find(|&&c| c >= dim) {
+            return Err(ScriptError::at(
+                declaration.at,
+                format!(
+                    "{function}(...): component {component} does not exist, the grid is {dim}-dimensional (components 0..{})",
+                    dim - 1
+                ),
+            ));
+        }
+        let context = format!(
+            "node predicate of {function}(...){}",
+            declaration.line_note()
+        );
+        let mut selected = 0usize;
+        for (node, position) in nodes.iter().enumerate() {
+            if !call_predicate(
+                &constraint.selector,
+                position,
+                engine,
+                ast,
+                declaration.at,
+                &context,
+            )? {
+                continue;
+            }
+            selected += 1;
+            for (&component, &value) in constraint.components.iter().zip(&constraint.values) {
+                if let Some(&(previous, previous_at)) = prescribed.get(&(node, component))
+                    && previous != value
+                {
+                    let previous_line = previous_at
+                        .line()
+                        .map(|line| format!(" at line {line}"))
+                        .unwrap_or_default();
+                    return Err(ScriptError::at(
+                        declaration.at,
+                        format!(
+                            "{function}(...): component {component} of the node at {position:?} is already prescribed to {previous}{previous_line}, not {value}"
+                        ),
+                    ));
+                }
+                prescribed.insert((node, component), (value, declaration.at));
+            }
+        }
+        if selected == 0 {
+            let ranges: Vec<String> = (0..dim)
+                .map(|axis| {
+                    format!(
+                        "x[{axis}] in [{}, {}]",
+                        grid.value.lower[axis], grid.value.upper[axis]
+                    )
+                })
+                .collect();
+            return Err(ScriptError::at(
+                declaration.at,
+                format!(
+                    "{function}(...): the predicate selects no grid node (nodes have {}; compare with a tolerance if needed)",
+                    ranges.join(", ")
+                ),
+            ));
+        }
+    }
+    Ok(prescribed
+        .into_iter()
+        .map(|((node, component), (value, _))| NodeConstraint {
+            node,
+            component,
+            value,
+        })
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::basis::BasisKind;
+
+    #[test]
+    fn node_positions_axis_zero_fastest_with_exact_ends() {
+        let grid = GridSpec {
+            lower: vec![0.0, 0.0],
+            upper: vec![0.1, 1.0],
+            cells: vec![1, 3],
+            basis: BasisKind::BSpline { order: 3 },
+        };
+        let nodes = node_positions(&grid);
+        assert_eq!(nodes.len(), 4 * 6);
+        assert_eq!(nodes[0], [0.0, 0.0]);
+        assert_eq!(nodes[3], [0.1, 0.0]);
+        assert_eq!(nodes[4][1], nodes[5][1]);
+        assert_eq!(nodes[23], [0.1, 1.0]);
+        assert_eq!(checked_node_count(&grid), Some(24));
+    }
+
+    #[test]
+    fn constrained_modulus_reduces_to_e_for_zero_poisson_ratio() {
+        let material = MaterialSpec {
+            name: "m".into(),
+            youngs_modulus: 1e6,
+            poisson_ratio: 0.0,
+            density: 1.0,
+        };
+        assert_eq!(constrained_modulus(&material), 1e6);
+        let material = MaterialSpec {
+            poisson_ratio: 0.25,
+            ..material
+        };
+        assert!((constrained_modulus(&material) - 1.2e6).abs() < 1e-6);
+    }
+}

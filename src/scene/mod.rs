@@ -1,0 +1,159 @@
+//! Scenes: what a simulation is made of, as plain resolved data (`SceneSpec`), and the Rhai
+//! front end that builds one from a script (`rhai_api`).
+//!
+//! A `SceneSpec` holds no script state: predicates on position have already been evaluated
+//! (points seeded, constrained nodes selected) and the load schedule is a list of factors, so
+//! the solver never calls back into Rhai.
+//!
+//! Entry points: [`load_scene`] (script + `--set` overrides -> `SceneSpec`), [`scene_parameters`]
+//! (the overridable top-level `let`s) and [`SceneError`] (`file:line:column: message`).
+//!
+//! A scene script, e.g. `scripts/column_1d.rhai`:
+//!
+//! ```rhai
+//! let cells = 50;                      // parameters: top-level lets, `--set cells=100`
+//! let basis = "bspline";
+//! grid(#{ lower: [0.0], upper: [50.0], cells: [cells], basis: basis, order: 3 });
+//! const soil = material(#{ name: "soil", E: 1e6, nu: 0.0, density: 1.0 });
+//! body(#{ name: "column", material: soil, region: box([0.0], [50.0]), ppc: 4 });
+//! body_force([-800.0]);
+//! fix(|x| x[0] == 0.0, [0]);
+//! load_steps(20);
+//! ```
+//!
+//! Modules: `rhai_api` (the functions a script can call; their reference is in its docs),
+//! `params` (parameters and overrides), `builder` (declarations and their resolution),
+//! `seeding` (material-point seeding), `options` (argument checking), `error`.
+
+mod builder;
+mod error;
+mod options;
+mod params;
+mod rhai_api;
+mod seeding;
+
+pub use error::SceneError;
+pub use params::Parameter;
+pub use rhai_api::{load_scene, scene_parameters};
+pub use seeding::{first_point_outside_grid, seed_points};
+
+use crate::basis::BasisKind;
+
+/// The background grid: an axis-aligned box split into uniform cells.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GridSpec {
+    pub lower: Vec<f64>,
+    pub upper: Vec<f64>,
+    pub cells: Vec<usize>,
+    pub basis: BasisKind,
+}
+
+impl GridSpec {
+    pub fn dim(&self) -> usize {
+        self.cells.len()
+    }
+}
+
+/// A linear-elastic Hencky material (Kirchhoff stress linear in logarithmic strain).
+#[derive(Clone, Debug, PartialEq)]
+pub struct MaterialSpec {
+    pub name: String,
+    pub youngs_modulus: f64,
+    pub poisson_ratio: f64,
+    /// Reference (initial) mass density rho0.
+    pub density: f64,
+}
+
+/// One material point as seeded: reference position and reference volume.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PointSeed {
+    pub position: Vec<f64>,
+    pub volume: f64,
+}
+
+/// A body: material points of one material.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BodySpec {
+    pub name: String,
+    /// Index into `SceneSpec::materials`.
+    pub material: usize,
+    pub points: Vec<PointSeed>,
+}
+
+/// One constrained component of one grid node (control point). The prescribed displacement
+/// `value` is the total at load factor 1; it is ramped with the load factor (0 = fixed).
+#[derive(Clone, Debug, PartialEq)]
+pub struct NodeConstraint {
+    /// Global node index (axis 0 fastest, see `basis::GridBasis::node_index`).
+    pub node: usize,
+    pub component: usize,
+    pub value: f64,
+}
+
+/// Newton solver controls.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SolverSpec {
+    /// Convergence tolerance on the normalised out-of-balance force.
+    pub tolerance: f64,
+    pub max_iterations: usize,
+}
+
+impl Default for SolverSpec {
+    fn default() -> Self {
+        Self {
+            tolerance: 1e-9,
+            max_iterations: 30,
+        }
+    }
+}
+
+/// Which steps are written.
+#[derive(Clone, Debug, PartialEq)]
+pub struct OutputSpec {
+    /// Write every n-th load step (the initial state and the last step are always written).
+    pub every: usize,
+}
+
+impl Default for OutputSpec {
+    fn default() -> Self {
+        Self { every: 1 }
+    }
+}
+
+/// An analytic solution the scene declares, so runs report the paper's error (eq. 15).
+#[derive(Clone, Debug, PartialEq)]
+pub enum AnalyticSpec {
+    /// The self-weight column (paper eqs. 11-14): base at reference coordinate 0 along `axis`,
+    /// free top at `height`; `body_force` is per unit mass along `axis` at load factor 1.
+    Column {
+        axis: usize,
+        height: f64,
+        density: f64,
+        body_force: f64,
+        modulus: f64,
+    },
+}
+
+/// Everything a run needs, fully resolved.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneSpec {
+    /// Scene name (the script's file stem); the default output folder is `out/<name>/`.
+    pub name: String,
+    pub grid: GridSpec,
+    pub materials: Vec<MaterialSpec>,
+    pub bodies: Vec<BodySpec>,
+    /// Body force per unit mass (length = dimension) at load factor 1, if any.
+    pub body_force: Option<Vec<f64>>,
+    pub constraints: Vec<NodeConstraint>,
+    /// Load factor at the end of each load step, in order (`len()` = number of steps).
+    pub load_factors: Vec<f64>,
+    pub solver: SolverSpec,
+    pub output: OutputSpec,
+    pub analytic: Option<AnalyticSpec>,
+}
+
+impl SceneSpec {
+    pub fn dim(&self) -> usize {
+        self.grid.dim()
+    }
+}

@@ -1,0 +1,383 @@
+//! The driver: builds the world from a scene and runs its load steps.
+//!
+//! ```text
+//! build world (nodes, points, resources, schedules)     Simulation::new
+//! write the initial state                              Simulation::write_initial_state
+//! for each load step k = 1..n:                          Simulation::step
+//!     run the LoadStep schedule (connectivity, DOFs, loads, Newton, G2P, output, reset)
+//!     record iterations, residuals, stage times, error  -> summary.json
+//! ```
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use bevy_ecs::prelude::*;
+use nalgebra::{SMatrix, SVector};
+
+use crate::analytic::SelfWeightColumn;
+use crate::basis::{BasisKind, GridBasis};
+use crate::components::*;
+use crate::material::Hencky;
+use crate::mechanics::TrialState;
+use crate::resources::*;
+use crate::scene::{AnalyticSpec, SceneSpec};
+use crate::stages::output::OutputPlan;
+use crate::stages::{
+    Effects, LoadStep as LoadStepSchedule, WriteOutput, load_step_schedule, newton_schedule,
+    output_schedule,
+};
+use crate::summary::{StepRecord, Summary};
+
+/// Why a simulation could not be built from a scene.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BuildError(pub String);
+
+impl std::fmt::Display for BuildError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for BuildError {}
+
+/// A simulation of dimension `D`: the world and its schedules.
+pub struct Simulation<const D: usize> {
+    pub world: World,
+    pub spec: SceneSpec,
+    pub summary: Summary,
+    steps_done: usize,
+}
+
+/// The effects a scene uses, which decide the systems in its schedules.
+pub fn effects_of(spec: &SceneSpec) -> Effects {
+    Effects {
+        body_force: spec
+            .body_force
+            .as_ref()
+            .is_some_and(|b| b.iter().any(|&c| c != 0.0)),
+        prescribed_displacements: spec.constraints.iter().any(|c| c.value != 0.0),
+    }
+}
+
+impl<const D: usize> Simulation<D> {
+    /// Builds the world for `spec`, writing results to `out_dir`.
+    pub fn new(spec: &SceneSpec, out_dir: &Path) -> Result<Self, BuildError> {
+        if spec.dim() != D {
+            return Err(BuildError(format!(
+                "scene is {}D, simulation is {D}D",
+                spec.dim()
+            )));
+        }
+        let basis = GridBasis::<D>::new(
+            &spec.grid.lower,
+            &spec.grid.upper,
+            &spec.grid.cells,
+            spec.grid.basis,
+        )
+        .map_err(BuildError)?;
+        std::fs::create_dir_all(out_dir).map_err(|e| {
+            BuildError(format!(
+                "cannot create the output folder {}: {e}",
+                out_dir.display()
+            ))
+        })?;
+        let mut world = World::new();
+
+        // Grid nodes (control points) and their constraints.
+        let mut fixities = vec![Fixity::<D>::default(); basis.num_nodes()];
+        for c in &spec.constraints {
+            let fixity = fixities.get_mut(c.node).ok_or_else(|| {
+                BuildError(format!("constraint on node {} outside the grid", c.node))
+            })?;
+            if c.component >= D {
+                return Err(BuildError(format!(
+                    "constraint on component {} in {D}D",
+                    c.component
+                )));
+            }
+            fixity.fixed[c.component] = true;
+            fixity.prescribed[c.component] = c.value;
+        }
+        world.spawn_batch(
+            fixities
+                .into_iter()
+                .enumerate()
+                .map(|(index, fixity)| {
+                    (
+                        GridNode {
+                            index,
+                            position: basis.node_position(index),
+                        },
+                        fixity,
+                    )
+                })
+                .collect::<Vec<_>>(),
+        );
+
+        // Material points.
+        let mut id = 0u32;
+        for (body_index, body) in spec.bodies.iter().enumerate() {
+            let material_spec = spec
+                .materials
+                .get(body.material)
+                .ok_or_else(|| BuildError(format!("body '{}' names no material", body.name)))?;
+            let material =
+                Hencky::new(material_spec.youngs_modulus, material_spec.poisson_ratio)
+                    .map_err(|e| BuildError(format!("material '{}': {e}", material_spec.name)))?;
+            let undeformed = TrialState::<D>::undeformed(&material);
+            let mut batch = Vec::with_capacity(body.points.len());
+            for seed in &body.points {
+                if seed.position.len() != D {
+                    return Err(BuildError(format!(
+                        "body '{}': point of dimension {}",
+                        body.name,
+                        seed.position.len()
+                    )));
+                }
+                let x = SVector::<f64, D>::from_fn(|a, _| seed.position[a]);
+                batch.push((
+                    (
+                        PointId(id),
+                        Position(x),
+                        ReferencePosition(x),
+                        Displacement(SVector::<f64, D>::zeros()),
+                    ),
+                    (
+                        DeformationGradient(SMatrix::<f64, D, D>::identity()),
+                        Mass(material_spec.density * seed.volume),
+                    ),
+                    (
+                        ReferenceVolume(seed.volume),
+                        Volume(seed.volume),
+                        Elastic(material),
+                        BodyIndex(body_index as u32),
+                    ),
+                    (Support::<D>::default(), Trial(undeformed.clone())),
+                ));
+                id += 1;
+            }
+            world.spawn_batch(batch);
+        }
+        if id == 0 {
+            return Err(BuildError("the scene has no material points".into()));
+        }
+
+        // Resources.
+        let effects = effects_of(spec);
+        if let Some(b) = &spec.body_force {
+            if b.len() != D {
+                return Err(BuildError(format!(
+                    "body force has {} components in {D}D",
+                    b.len()
+                )));
+            }
+            world.insert_resource(BodyForce(SVector::<f64, D>::from_fn(|a, _| b[a])));
+        }
+        world.insert_resource(GridFields::<D>::new(basis.num_nodes()));
+        world.insert_resource(Grid(basis));
+        world.insert_resource(LoadStep::default());
+        world.insert_resource(NewtonSettings {
+            tolerance: spec.solver.tolerance,
+            max_iterations: spec.solver.max_iterations,
+        });
+        world.insert_resource(Newton::default());
+        world.insert_resource(RunStatus::default());
+        world.insert_resource(StageClock::default());
+        world.insert_resource(OutputPlan::new(
+            out_dir.to_path_buf(),
+            spec.output.every,
+            spec.load_factors.len(),
+        ));
+        world.add_schedule(load_step_schedule::<D>(effects));
+        world.add_schedule(newton_schedule::<D>());
+        world.add_schedule(output_schedule::<D>());
+
+        let summary = Summary::new(
+            spec,
+            id as usize,
+            world.resource::<GridFields<D>>().active.len(),
+            out_dir,
+        );
+        Ok(Self {
+            world,
+            spec: spec.clone(),
+            summary,
+            steps_done: 0,
+        })
+    }
+
+    /// Number of load steps done.
+    pub fn steps_done(&self) -> usize {
+        self.steps_done
+    }
+
+    /// Writes the initial state (step 0) and the summary.
+    pub fn write_initial_state(&mut self) -> Result<(), SolverError> {
+        *self.world.resource_mut::<LoadStep>() = LoadStep::default();
+        self.world.run_schedule(WriteOutput);
+        self.take_failure()?;
+        self.summary
+            .write()
+            .map_err(|e| SolverError::Output { step: 0, why: e })
+    }
+
+    /// Solves the next load step. On failure the error is also recorded in the summary.
+    pub fn step(&mut self) -> Result<&StepRecord, SolverError> {
+        let number = self.steps_done + 1;
+        let factor = self.spec.load_factors[number - 1];
+        let previous_factor = if number == 1 {
+            0.0
+        } else {
+            self.spec.load_factors[number - 2]
+        };
+        *self.world.resource_mut::<LoadStep>() = LoadStep {
+            number,
+            factor,
+            previous_factor,
+        };
+        *self.world.resource_mut::<StageClock>() = StageClock::default();
+        let start = Instant::now();
+        self.world.run_schedule(LoadStepSchedule);
+        let wall = start.elapsed().as_secs_f64();
+        let newton = self.world.resource::<Newton>();
+        let mut record = StepRecord {
+            step: number,
+            load_factor: factor,
+            iterations: newton.iterations,
+            residuals: newton.residuals.clone(),
+            converged: newton.converged,
+            dofs: newton.system.size(),
+            seconds: self.world.resource::<StageClock>().clone(),
+            wall_seconds: wall,
+            error: None,
+        };
+        if let Err(e) = self.take_failure() {
+            self.summary.fail(record, &e);
+            let _ = self.summary.write();
+            return Err(e);
+        }
+        record.error = self.analytic_error(factor);
+        self.steps_done = number;
+        self.summary.push(record);
+        self.summary.write().map_err(|e| SolverError::Output {
+            step: number,
+            why: e,
+        })?;
+        Ok(self.summary.steps.last().expect("just pushed"))
+    }
+
+    /// Runs all remaining load steps, calling `on_step` after each.
+    pub fn run(&mut self, mut on_step: impl FnMut(&StepRecord)) -> Result<(), SolverError> {
+        while self.steps_done < self.spec.load_factors.len() {
+            let record = self.step()?;
+            on_step(record);
+        }
+        self.summary.finish();
+        self.summary.write().map_err(|e| SolverError::Output {
+            step: self.steps_done,
+            why: e,
+        })
+    }
+
+    fn take_failure(&mut self) -> Result<(), SolverError> {
+        match self.world.resource_mut::<RunStatus>().0.take() {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
+    }
+
+    /// The scene's analytic error measure (paper eq. 15) at load factor `factor`, if declared.
+    pub fn analytic_error(&mut self, factor: f64) -> Option<f64> {
+        let AnalyticSpec::Column {
+            axis,
+            height,
+            density,
+            body_force,
+            modulus,
+        } = self.spec.analytic.clone()?;
+        let column = SelfWeightColumn {
+            density,
+            body_force: body_force * factor,
+            height,
+            modulus,
+        };
+        let mut query = self
+            .world
+            .query::<(&ReferencePosition<D>, &ReferenceVolume, &Trial<D>)>();
+        let points: Vec<(f64, f64, f64)> = query
+            .iter(&self.world)
+            .map(|(x, v, t)| (x.0[axis], v.0, t.0.cauchy()[(axis, axis)]))
+            .collect();
+        Some(column.error(points))
+    }
+
+    /// Points' (reference coordinate, Cauchy stress component) along `axis`, sorted by the
+    /// reference coordinate. For tests and studies.
+    pub fn stress_profile(&mut self, axis: usize) -> Vec<(f64, f64)> {
+        let mut query = self.world.query::<(&ReferencePosition<D>, &Trial<D>)>();
+        let mut out: Vec<(f64, f64)> = query
+            .iter(&self.world)
+            .map(|(x, t)| (x.0[axis], t.0.cauchy()[(axis, axis)]))
+            .collect();
+        out.sort_by(|a, b| a.0.total_cmp(&b.0));
+        out
+    }
+}
+
+/// A human name for a basis.
+pub fn basis_name(kind: BasisKind) -> String {
+    match kind {
+        BasisKind::Linear => "linear".into(),
+        BasisKind::BSpline { order } => format!("bspline(q={order})"),
+    }
+}
+
+/// Runs a whole scene in dimension `spec.dim()`, writing to `out_dir`.
+pub fn run_scene(
+    spec: &SceneSpec,
+    out_dir: &Path,
+    on_step: impl FnMut(&StepRecord),
+) -> Result<Summary, RunError> {
+    match spec.dim() {
+        1 => run_in::<1>(spec, out_dir, on_step),
+        2 => run_in::<2>(spec, out_dir, on_step),
+        3 => run_in::<3>(spec, out_dir, on_step),
+        d => Err(RunError::Build(BuildError(format!(
+            "dimension {d} is not supported (1, 2 or 3)"
+        )))),
+    }
+}
+
+fn run_in<const D: usize>(
+    spec: &SceneSpec,
+    out_dir: &Path,
+    on_step: impl FnMut(&StepRecord),
+) -> Result<Summary, RunError> {
+    let mut sim = Simulation::<D>::new(spec, out_dir).map_err(RunError::Build)?;
+    sim.write_initial_state().map_err(RunError::Solve)?;
+    sim.run(on_step).map_err(RunError::Solve)?;
+    Ok(sim.summary)
+}
+
+/// A failed run.
+#[derive(Debug)]
+pub enum RunError {
+    Build(BuildError),
+    Solve(SolverError),
+}
+
+impl std::fmt::Display for RunError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            RunError::Build(e) => write!(f, "cannot set up the simulation: {e}"),
+            RunError::Solve(e) => write!(f, "{e}"),
+        }
+    }
+}
+
+impl std::error::Error for RunError {}
+
+/// The default output folder of a scene: `out/<scene name>/`.
+pub fn default_output_dir(spec: &SceneSpec) -> PathBuf {
+    Path::new("out").join(&spec.name)
+}

@@ -1,0 +1,100 @@
+//! Newton stage 2: internal force and consistent tangent (see `mechanics` for the formulas).
+//!
+//! Every point adds V0 τ g_i to the internal force of its support nodes and the blocks K_ij to
+//! the tangent. K is symmetric, so only j >= i is computed and the transpose is added for the
+//! mirror block. The node-j factor of K_ij is computed once per node, and the positions of
+//! the blocks in the sparse values are cached for consecutive points with the same support
+//! (all points of a cell), so the inner loop is D³ multiply-adds and D² additions per pair.
+
+use bevy_ecs::prelude::*;
+use nalgebra::SVector;
+
+use crate::components::{ReferenceVolume, Support, Trial};
+use crate::mechanics::StiffnessFactor;
+use crate::resources::{GridFields, Newton, Stage, StageClock};
+use crate::sparse::LinearSystem;
+
+/// Scratch memory of the assembly, kept between iterations.
+#[derive(Default)]
+pub struct AssemblyScratch<const D: usize> {
+    gradients: Vec<SVector<f64, D>>,
+    factors: Vec<StiffnessFactor<D>>,
+    /// Support nodes for which `starts` was computed.
+    cached_nodes: Vec<usize>,
+    /// Block positions for the pairs (i, j) and (j, i), j >= i, in loop order.
+    starts: Vec<([usize; D], [usize; D])>,
+}
+
+impl<const D: usize> AssemblyScratch<D> {
+    fn cache_block_positions(
+        &mut self,
+        nodes: impl Iterator<Item = usize>,
+        dofs: &[[u32; D]],
+        system: &LinearSystem,
+    ) {
+        self.cached_nodes.clear();
+        self.cached_nodes.extend(nodes);
+        self.starts.clear();
+        let m = self.cached_nodes.len();
+        for i in 0..m {
+            let dofs_i = &dofs[self.cached_nodes[i]];
+            for j in i..m {
+                let dofs_j = &dofs[self.cached_nodes[j]];
+                self.starts.push((
+                    system.block_starts(dofs_i, dofs_j),
+                    system.block_starts(dofs_j, dofs_i),
+                ));
+            }
+        }
+    }
+}
+
+pub fn assemble<const D: usize>(
+    mut fields: ResMut<GridFields<D>>,
+    mut newton: ResMut<Newton>,
+    mut clock: ResMut<StageClock>,
+    mut scratch: Local<AssemblyScratch<D>>,
+    points: Query<(&Support<D>, &Trial<D>, &ReferenceVolume)>,
+) {
+    let _timer = clock.time(Stage::Assembly);
+    let fields = &mut *fields;
+    let scratch = &mut *scratch;
+    fields.internal_force.fill(SVector::zeros());
+    let system = &mut newton.system;
+    system.clear_values();
+    scratch.cached_nodes.clear();
+    for (support, trial, volume) in points.iter() {
+        let (state, v0, support) = (&trial.0, volume.0, &support.0);
+        if !scratch
+            .cached_nodes
+            .iter()
+            .copied()
+            .eq(support.iter().map(|w| w.node))
+        {
+            scratch.cache_block_positions(support.iter().map(|w| w.node), &fields.dofs, system);
+        }
+        scratch.gradients.clear();
+        scratch
+            .gradients
+            .extend(support.iter().map(|w| state.spatial_gradient(&w.gradient)));
+        scratch.factors.clear();
+        scratch
+            .factors
+            .extend(scratch.gradients.iter().map(|g| state.stiffness_factor(g)));
+        let mut pair = 0;
+        for (i, wi) in support.iter().enumerate() {
+            let g_i = &scratch.gradients[i];
+            fields.internal_force[wi.node] += state.internal_force(v0, g_i);
+            let dofs_i = &fields.dofs[wi.node];
+            for (j, wj) in support.iter().enumerate().skip(i) {
+                let k = state.stiffness_from(v0, g_i, &scratch.factors[j]);
+                let (starts_ij, starts_ji) = &scratch.starts[pair];
+                pair += 1;
+                system.add_block_at(starts_ij, dofs_i, &k);
+                if j != i {
+                    system.add_block_at(starts_ji, &fields.dofs[wj.node], &k.transpose());
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,55 @@
+//! Stage 2: DOF numbering of the active nodes and the sparsity pattern of the step.
+//!
+//! Free components of active nodes are numbered node-major in node order; fixed components and
+//! inactive nodes get no DOF (`NO_DOF`), which eliminates Dirichlet conditions from the system.
+
+use bevy_ecs::prelude::*;
+
+use crate::components::{Fixity, GridNode, Support};
+use crate::resources::{GridFields, Newton, Stage, StageClock};
+use crate::sparse::NO_DOF;
+
+pub fn number_dofs<const D: usize>(
+    mut fields: ResMut<GridFields<D>>,
+    mut newton: ResMut<Newton>,
+    mut clock: ResMut<StageClock>,
+    mut support_nodes: Local<(Vec<usize>, Vec<usize>)>,
+    nodes: Query<(&GridNode<D>, &Fixity<D>)>,
+    points: Query<&Support<D>>,
+) {
+    let _timer = clock.time(Stage::Dofs);
+    let fields = &mut *fields;
+    // Mark free components of active nodes (0 = free, NO_DOF = none)...
+    for (node, fixity) in nodes.iter() {
+        let i = node.index;
+        fields.dofs[i] = if fields.active[i] {
+            std::array::from_fn(|c| if fixity.fixed[c] { NO_DOF } else { 0 })
+        } else {
+            [NO_DOF; D]
+        };
+    }
+    // ...then number them in node order.
+    let mut count = 0u32;
+    for dofs in fields.dofs.iter_mut() {
+        for d in dofs.iter_mut().filter(|d| **d != NO_DOF) {
+            *d = count;
+            count += 1;
+        }
+    }
+    fields.dof_count = count as usize;
+
+    let (offsets, flat) = &mut *support_nodes;
+    offsets.clear();
+    flat.clear();
+    offsets.push(0);
+    for support in points.iter() {
+        flat.extend(support.0.iter().map(|w| w.node));
+        offsets.push(flat.len());
+    }
+    let supports = offsets.windows(2).map(|w| &flat[w[0]..w[1]]);
+    newton
+        .system
+        .rebuild_pattern(fields.dof_count, &fields.dofs, supports);
+    newton.residual.clear();
+    newton.residual.resize(fields.dof_count, 0.0);
+}

@@ -1,0 +1,126 @@
+//! Stage 4: the Newton loop of a load step.
+//!
+//! [`solve_load_step`] is an exclusive system that runs the `NewtonIteration` schedule until the
+//! normalised out-of-balance force
+//!
+//! ```text
+//!   ‖f_ext − f_int‖_free / max(‖f_ext‖, ‖f_int‖)      (norms over all active components)
+//! ```
+//!
+//! falls below the tolerance, or fails after `max_iterations` linear solves. The first residual
+//! of a step is the load increment; the residual history is kept for the summary.
+
+use bevy_ecs::prelude::*;
+
+use super::NewtonIteration;
+use crate::resources::{
+    GridFields, LoadStep, Newton, NewtonSettings, RunStatus, SolverError, Stage, StageClock,
+};
+use crate::sparse::NO_DOF;
+
+/// Runs Newton iterations until converged, failed, or out of iterations.
+pub fn solve_load_step(world: &mut World) {
+    world.resource_mut::<Newton>().begin_step();
+    loop {
+        let before = world.resource::<Newton>().iterations;
+        world.run_schedule(NewtonIteration);
+        if world.resource::<RunStatus>().0.is_some() {
+            return;
+        }
+        let newton = world.resource::<Newton>();
+        if newton.converged {
+            return;
+        }
+        if newton.iterations == before {
+            // No solve happened: out of iterations.
+            let error = SolverError::NotConverged {
+                step: world.resource::<LoadStep>().number,
+                residuals: newton.residuals.clone(),
+                tolerance: world.resource::<NewtonSettings>().tolerance,
+            };
+            world.resource_mut::<RunStatus>().fail(error);
+            return;
+        }
+    }
+}
+
+/// Newton stage 3: out-of-balance force at the free DOFs and the convergence test.
+pub fn check_convergence<const D: usize>(
+    fields: Res<GridFields<D>>,
+    settings: Res<NewtonSettings>,
+    step: Res<LoadStep>,
+    mut newton: ResMut<Newton>,
+    mut status: ResMut<RunStatus>,
+) {
+    let newton = &mut *newton;
+    let (mut free, mut external, mut internal) = (0.0, 0.0, 0.0);
+    for (node, dofs) in fields.dofs.iter().enumerate() {
+        if !fields.active[node] {
+            continue;
+        }
+        let (fe, fi) = (fields.external_force[node], fields.internal_force[node]);
+        external += fe.norm_squared();
+        internal += fi.norm_squared();
+        for (c, &dof) in dofs.iter().enumerate() {
+            if dof != NO_DOF {
+                let r = fe[c] - fi[c];
+                newton.residual[dof as usize] = r;
+                free += r * r;
+            }
+        }
+    }
+    let scale = external.max(internal).sqrt();
+    let norm = if scale > 0.0 {
+        free.sqrt() / scale
+    } else {
+        free.sqrt()
+    };
+    newton.residuals.push(norm);
+    if !norm.is_finite() {
+        status.fail(SolverError::NotFinite {
+            stage: "convergence check",
+            what: format!("out-of-balance force norm {norm}"),
+            step: step.number,
+        });
+        return;
+    }
+    newton.converged = norm <= settings.tolerance;
+}
+
+/// Newton stage 4: solve K δ = f_ext − f_int and add δ to the free components of Δu.
+pub fn solve_linear_system<const D: usize>(
+    mut fields: ResMut<GridFields<D>>,
+    step: Res<LoadStep>,
+    mut newton: ResMut<Newton>,
+    mut status: ResMut<RunStatus>,
+    mut clock: ResMut<StageClock>,
+) {
+    let _timer = clock.time(Stage::LinearSolve);
+    let newton = &mut *newton;
+    newton.iterations += 1;
+    if let Err(why) = newton.system.solve_in_place(&mut newton.residual) {
+        status.fail(SolverError::LinearSolve {
+            step: step.number,
+            iteration: newton.iterations,
+            why: why.to_string(),
+        });
+        return;
+    }
+    let fields = &mut *fields;
+    for (node, dofs) in fields.dofs.iter().enumerate() {
+        for (c, &dof) in dofs.iter().enumerate() {
+            if dof != NO_DOF {
+                let delta = newton.residual[dof as usize];
+                if !delta.is_finite() {
+                    status.fail(SolverError::NotFinite {
+                        stage: "linear solve",
+                        what: format!("displacement correction of node {node}, component {c}"),
+                        step: step.number,
+                    });
+                    return;
+                }
+                fields.increment[node][c] += delta;
+            }
+        }
+    }
+}

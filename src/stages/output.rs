@@ -1,0 +1,297 @@
+//! Output: the state of the points, the grid and its control points as VTK files for ParaView.
+//!
+//! Files written per output step (`NNNN` = load step, 0 = initial state):
+//! * `particles_NNNN.vtu` — one vertex cell per material point with `reference_position`,
+//!   `reference_volume`, `volume`, `mass`, `displacement`, `cauchy_stress` (3x3, row-major),
+//!   `deformation_gradient` (3x3, row-major) and `body`.
+//! * `grid_NNNN.vtu` — the background grid cells, with the displacement increment of the step
+//!   evaluated at the grid vertices and the number of material points per cell.
+//! * `nodes_NNNN.vtu` — the control points (grid nodes) with `active`, `fixed`,
+//!   `displacement_increment`, `external_force` and `internal_force`.
+//!
+//! and the time series `particles.pvd`, `grid.pvd`, `nodes.pvd` with the load factor as time.
+//! Every file is written atomically and a series lists a file only once it is complete, so a
+//! run that stops leaves valid results behind.
+
+use std::path::PathBuf;
+
+use bevy_ecs::prelude::*;
+use nalgebra::{Matrix3, SVector};
+
+use crate::basis::BasisScratch;
+use crate::components::{
+    BodyIndex, DeformationGradient, Displacement, Fixity, GridNode, Mass, PointId, Position,
+    ReferencePosition, ReferenceVolume, Trial, Volume,
+};
+use crate::mechanics::{embed, interpolate};
+use crate::output::{Field, PvdSeries, lattice_cells, vertex_cells, write_vtu};
+use crate::resources::{Grid, GridFields, LoadStep, RunStatus, SolverError, Stage, StageClock};
+
+/// Where and when output is written.
+#[derive(Resource)]
+pub struct OutputPlan {
+    pub dir: PathBuf,
+    /// Write every n-th step (the initial state and the last step are always written).
+    pub every: usize,
+    pub last_step: usize,
+    pub particles: PvdSeries,
+    pub grid: PvdSeries,
+    pub nodes: PvdSeries,
+}
+
+impl OutputPlan {
+    pub fn new(dir: PathBuf, every: usize, last_step: usize) -> Self {
+        Self {
+            particles: PvdSeries::new(dir.join("particles.pvd")),
+            grid: PvdSeries::new(dir.join("grid.pvd")),
+            nodes: PvdSeries::new(dir.join("nodes.pvd")),
+            dir,
+            every: every.max(1),
+            last_step,
+        }
+    }
+
+    /// Whether step `number` is written.
+    pub fn writes(&self, number: usize) -> bool {
+        number == 0 || number == self.last_step || number.is_multiple_of(self.every)
+    }
+}
+
+/// Row-major components of a 3x3 tensor.
+fn row_major(m: &Matrix3<f64>) -> [f64; 9] {
+    std::array::from_fn(|k| m[(k / 3, k % 3)])
+}
+
+/// A D-vector padded to 3 components.
+fn pad<const D: usize>(v: &SVector<f64, D>) -> [f64; 3] {
+    std::array::from_fn(|k| if k < D { v[k] } else { 0.0 })
+}
+
+#[allow(clippy::type_complexity)]
+pub fn write_particles<const D: usize>(
+    step: Res<LoadStep>,
+    mut plan: ResMut<OutputPlan>,
+    mut status: ResMut<RunStatus>,
+    mut clock: ResMut<StageClock>,
+    points: Query<(
+        &PointId,
+        &Position<D>,
+        &ReferencePosition<D>,
+        &ReferenceVolume,
+        &Volume,
+        &Mass,
+        &Displacement<D>,
+        &DeformationGradient<D>,
+        &Trial<D>,
+        &BodyIndex,
+    )>,
+) {
+    if !plan.writes(step.number) {
+        return;
+    }
+    let _timer = clock.time(Stage::Output);
+    let mut rows: Vec<_> = points.iter().collect();
+    rows.sort_by_key(|row| row.0.0);
+    let n = rows.len();
+    let mut positions = Vec::with_capacity(n);
+    let mut reference = Vec::with_capacity(3 * n);
+    let mut reference_volume = Vec::with_capacity(n);
+    let mut volume = Vec::with_capacity(n);
+    let mut mass = Vec::with_capacity(n);
+    let mut displacement = Vec::with_capacity(3 * n);
+    let mut stress = Vec::with_capacity(9 * n);
+    let mut deformation = Vec::with_capacity(9 * n);
+    let mut body = Vec::with_capacity(n);
+    for (_, x, xr, v0, v, m, u, f, trial, b) in rows {
+        positions.push(pad(&x.0));
+        reference.extend(pad(&xr.0));
+        reference_volume.push(v0.0);
+        volume.push(v.0);
+        mass.push(m.0);
+        displacement.extend(pad(&u.0));
+        stress.extend(row_major(&trial.0.cauchy()));
+        deformation.extend(row_major(&embed(&f.0)));
+        body.push(b.0 as f64);
+    }
+    let fields = [
+        Field {
+            name: "reference_position",
+            components: 3,
+            values: &reference,
+        },
+        Field {
+            name: "reference_volume",
+            components: 1,
+            values: &reference_volume,
+        },
+        Field {
+            name: "volume",
+            components: 1,
+            values: &volume,
+        },
+        Field {
+            name: "mass",
+            components: 1,
+            values: &mass,
+        },
+        Field {
+            name: "displacement",
+            components: 3,
+            values: &displacement,
+        },
+        Field {
+            name: "cauchy_stress",
+            components: 9,
+            values: &stress,
+        },
+        Field {
+            name: "deformation_gradient",
+            components: 9,
+            values: &deformation,
+        },
+        Field {
+            name: "body",
+            components: 1,
+            values: &body,
+        },
+    ];
+    let name = format!("particles_{:04}.vtu", step.number);
+    let result = write_vtu(
+        &plan.dir.join(&name),
+        &positions,
+        &vertex_cells(n),
+        &fields,
+        &[],
+    )
+    .and_then(|()| plan.particles.push(step.factor, &name));
+    if let Err(e) = result {
+        status.fail(SolverError::Output {
+            step: step.number,
+            why: format!("{name}: {e}"),
+        });
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+pub fn write_grid<const D: usize>(
+    step: Res<LoadStep>,
+    grid: Res<Grid<D>>,
+    fields: Res<GridFields<D>>,
+    mut plan: ResMut<OutputPlan>,
+    mut status: ResMut<RunStatus>,
+    mut clock: ResMut<StageClock>,
+    mut scratch: Local<BasisScratch>,
+    positions: Query<&Position<D>>,
+    nodes: Query<(&GridNode<D>, &Fixity<D>)>,
+) {
+    if !plan.writes(step.number) {
+        return;
+    }
+    let _timer = clock.time(Stage::Output);
+    let basis = &grid.0;
+
+    // The grid: vertices, cells, the step's displacement increment evaluated at the vertices.
+    let vertices: Vec<[f64; 3]> = (0..basis.vertex_count())
+        .map(|v| pad(&basis.vertex_position(v)))
+        .collect();
+    let mut increment = Vec::with_capacity(3 * vertices.len());
+    let mut weights = Vec::new();
+    for v in 0..basis.vertex_count() {
+        let du = match basis.eval(&basis.vertex_position(v), &mut scratch, &mut weights) {
+            Ok(()) => interpolate(&weights, |node| fields.increment[node]),
+            Err(_) => SVector::zeros(),
+        };
+        increment.extend(pad(&du));
+    }
+    let mut points_per_cell = vec![0.0; basis.num_cells()];
+    let cells_per_axis: Vec<usize> = basis.axes.iter().map(|a| a.cells).collect();
+    for x in positions.iter() {
+        if let Ok(cell) = basis.cell_of(&x.0) {
+            let mut index = 0;
+            for a in (0..D).rev() {
+                index = index * cells_per_axis[a] + cell[a];
+            }
+            points_per_cell[index] += 1.0;
+        }
+    }
+    let grid_name = format!("grid_{:04}.vtu", step.number);
+    let grid_result = write_vtu(
+        &plan.dir.join(&grid_name),
+        &vertices,
+        &lattice_cells(&cells_per_axis),
+        &[Field {
+            name: "displacement_increment",
+            components: 3,
+            values: &increment,
+        }],
+        &[Field {
+            name: "material_points",
+            components: 1,
+            values: &points_per_cell,
+        }],
+    );
+
+    // The control points with their constraints and forces.
+    let mut rows: Vec<_> = nodes.iter().collect();
+    rows.sort_by_key(|(node, _)| node.index);
+    let node_positions: Vec<[f64; 3]> = rows.iter().map(|(node, _)| pad(&node.position)).collect();
+    let mut active = Vec::with_capacity(rows.len());
+    let mut fixed = Vec::with_capacity(3 * rows.len());
+    let mut node_increment = Vec::with_capacity(3 * rows.len());
+    let mut external = Vec::with_capacity(3 * rows.len());
+    let mut internal = Vec::with_capacity(3 * rows.len());
+    for (node, fixity) in &rows {
+        let i = node.index;
+        active.push(if fields.active[i] { 1.0 } else { 0.0 });
+        fixed.extend(std::array::from_fn::<f64, 3, _>(|c| {
+            if c < D && fixity.fixed[c] { 1.0 } else { 0.0 }
+        }));
+        node_increment.extend(pad(&fields.increment[i]));
+        external.extend(pad(&fields.external_force[i]));
+        internal.extend(pad(&fields.internal_force[i]));
+    }
+    let nodes_name = format!("nodes_{:04}.vtu", step.number);
+    let nodes_result = write_vtu(
+        &plan.dir.join(&nodes_name),
+        &node_positions,
+        &vertex_cells(rows.len()),
+        &[
+            Field {
+                name: "active",
+                components: 1,
+                values: &active,
+            },
+            Field {
+                name: "fixed",
+                components: 3,
+                values: &fixed,
+            },
+            Field {
+                name: "displacement_increment",
+                components: 3,
+                values: &node_increment,
+            },
+            Field {
+                name: "external_force",
+                components: 3,
+                values: &external,
+            },
+            Field {
+                name: "internal_force",
+                components: 3,
+                values: &internal,
+            },
+        ],
+        &[],
+    );
+    let result = grid_result
+        .and_then(|()| plan.grid.push(step.factor, &grid_name))
+        .and(nodes_result)
+        .and_then(|()| plan.nodes.push(step.factor, &nodes_name));
+    if let Err(e) = result {
+        status.fail(SolverError::Output {
+            step: step.number,
+            why: e.to_string(),
+        });
+    }
+}

@@ -1,0 +1,324 @@
+//! World-level tests of the solver systems and schedules, on small hand-built scenes.
+#![allow(clippy::needless_range_loop)] // matrix indices read best as indices
+
+use std::path::PathBuf;
+
+use bevy_ecs::schedule::ScheduleLabel;
+use bevy_ecs::system::RunSystemOnce;
+use nalgebra::SVector;
+
+use impm::basis::BasisKind;
+use impm::components::{Position, Support, Trial};
+use impm::resources::{GridFields, LoadStep, Newton};
+use impm::scene::*;
+use impm::simulation::Simulation;
+use impm::sparse::NO_DOF;
+use impm::stages::{
+    LoadStep as LoadStepSchedule, NewtonIteration, WriteOutput, assemble, evaluate_basis,
+    number_dofs, reset_grid, update_points, update_stress,
+};
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("impm-world-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+/// A 2D block of 2x2 points per cell on a `cells`-cell grid, fixed at y = 0, under gravity.
+fn block_2d(cells: [usize; 2], body_cells: [usize; 2], basis: BasisKind) -> SceneSpec {
+    let ppc = 2;
+    let mut points = Vec::new();
+    for cy in 0..body_cells[1] {
+        for cx in 0..body_cells[0] {
+            for j in 0..ppc {
+                for i in 0..ppc {
+                    points.push(PointSeed {
+                        position: vec![
+                            cx as f64 + (i as f64 + 0.5) / ppc as f64,
+                            cy as f64 + (j as f64 + 0.5) / ppc as f64,
+                        ],
+                        volume: 1.0 / (ppc * ppc) as f64,
+                    });
+                }
+            }
+        }
+    }
+    let q = basis.order();
+    let nodes_x = cells[0] + q;
+    let constraints = (0..nodes_x)
+        .flat_map(|i| {
+            (0..2).map(move |c| NodeConstraint {
+                node: i,
+                component: c,
+                value: 0.0,
+            })
+        })
+        .collect();
+    SceneSpec {
+        name: "block".into(),
+        grid: GridSpec {
+            lower: vec![0.0, 0.0],
+            upper: vec![cells[0] as f64, cells[1] as f64],
+            cells: cells.to_vec(),
+            basis,
+        },
+        materials: vec![MaterialSpec {
+            name: "m".into(),
+            youngs_modulus: 1e3,
+            poisson_ratio: 0.3,
+            density: 1.0,
+        }],
+        bodies: vec![BodySpec {
+            name: "block".into(),
+            material: 0,
+            points,
+        }],
+        body_force: Some(vec![0.0, -10.0]),
+        constraints,
+        load_factors: vec![0.5, 1.0],
+        solver: SolverSpec::default(),
+        output: OutputSpec::default(),
+        analytic: None,
+    }
+}
+
+fn start_step(sim: &mut Simulation<2>) {
+    *sim.world.resource_mut::<LoadStep>() = LoadStep {
+        number: 1,
+        factor: 1.0,
+        previous_factor: 0.0,
+    };
+    sim.world.run_system_once(evaluate_basis::<2>).unwrap();
+    sim.world.run_system_once(number_dofs::<2>).unwrap();
+}
+
+/// Internal force at the free DOFs for the current increments.
+fn internal_force(sim: &mut Simulation<2>) -> Vec<f64> {
+    sim.world.run_system_once(update_stress::<2>).unwrap();
+    sim.world.run_system_once(assemble::<2>).unwrap();
+    let fields = sim.world.resource::<GridFields<2>>();
+    let mut f = vec![0.0; fields.dof_count];
+    for (node, dofs) in fields.dofs.iter().enumerate() {
+        for (c, &d) in dofs.iter().enumerate() {
+            if d != NO_DOF {
+                f[d as usize] = fields.internal_force[node][c];
+            }
+        }
+    }
+    f
+}
+
+fn set_increment(sim: &mut Simulation<2>, dof: usize, value: f64) {
+    let mut fields = sim.world.resource_mut::<GridFields<2>>();
+    for node in 0..fields.dofs.len() {
+        for c in 0..2 {
+            if fields.dofs[node][c] == dof as u32 {
+                fields.increment[node][c] = value;
+            }
+        }
+    }
+}
+
+fn increment_of(sim: &Simulation<2>, dof: usize) -> f64 {
+    let fields = sim.world.resource::<GridFields<2>>();
+    for node in 0..fields.dofs.len() {
+        for c in 0..2 {
+            if fields.dofs[node][c] == dof as u32 {
+                return fields.increment[node][c];
+            }
+        }
+    }
+    unreachable!("dof {dof} exists")
+}
+
+/// The assembled tangent equals central finite differences of the assembled internal force,
+/// at a strongly deformed, rotated iterate (B-spline q = 2, 2D, several points per cell).
+#[test]
+fn assembled_tangent_matches_finite_differences() {
+    let spec = block_2d([4, 4], [3, 3], BasisKind::BSpline { order: 2 });
+    let mut sim = Simulation::<2>::new(&spec, &temp_dir("fd")).unwrap();
+    start_step(&mut sim);
+    let n = sim.world.resource::<GridFields<2>>().dof_count;
+    assert!(n > 20, "enough DOFs to be meaningful: {n}");
+    // A smooth, large increment: rotation by 0.3 rad plus stretch, at the nodes.
+    {
+        let mut fields = sim.world.resource_mut::<GridFields<2>>();
+        let positions: Vec<_> = (0..fields.dofs.len()).collect();
+        for node in positions {
+            let dofs = fields.dofs[node];
+            let x = (node % 6) as f64 * 0.7;
+            let y = (node / 6) as f64 * 0.7;
+            let (s, c) = 0.3f64.sin_cos();
+            let du = SVector::<f64, 2>::new(
+                (c - 1.0) * x - s * y + 0.05 * x,
+                s * x + (c - 1.0) * y - 0.08 * y,
+            );
+            for k in 0..2 {
+                if dofs[k] != NO_DOF {
+                    fields.increment[node][k] = du[k];
+                }
+            }
+        }
+    }
+    let f0 = internal_force(&mut sim);
+    let k: Vec<Vec<f64>> = {
+        let newton = sim.world.resource::<Newton>();
+        (0..n)
+            .map(|r| (0..n).map(|c| newton.system.get(r, c)).collect())
+            .collect()
+    };
+    let scale = k.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
+    let h = 1e-6;
+    let mut worst = 0.0f64;
+    for col in 0..n {
+        let base = increment_of(&sim, col);
+        set_increment(&mut sim, col, base + h);
+        let fp = internal_force(&mut sim);
+        set_increment(&mut sim, col, base - h);
+        let fm = internal_force(&mut sim);
+        set_increment(&mut sim, col, base);
+        for row in 0..n {
+            let fd = (fp[row] - fm[row]) / (2.0 * h);
+            worst = worst.max((fd - k[row][col]).abs());
+        }
+    }
+    assert!(f0.iter().all(|v| v.is_finite()));
+    assert!(
+        worst < 1e-6 * scale,
+        "max |K - K_fd| = {worst:e}, scale {scale:e}"
+    );
+    // and K is symmetric
+    for r in 0..n {
+        for c in 0..n {
+            assert!((k[r][c] - k[c][r]).abs() < 1e-9 * scale);
+        }
+    }
+}
+
+#[test]
+fn connectivity_marks_exactly_the_supported_nodes() {
+    // Body fills the lower-left 2x2 cells of a 4x4 linear grid: vertices 0..=2 in x and y.
+    let spec = block_2d([4, 4], [2, 2], BasisKind::Linear);
+    let mut sim = Simulation::<2>::new(&spec, &temp_dir("active")).unwrap();
+    start_step(&mut sim);
+    let fields = sim.world.resource::<GridFields<2>>();
+    for node in 0..25 {
+        let (i, j) = (node % 5, node / 5);
+        assert_eq!(fields.active[node], i <= 2 && j <= 2, "node {node}");
+    }
+    // Row y = 0 is fixed: the 3x3 active nodes minus the 3 fixed ones, 2 DOFs each.
+    assert_eq!(fields.dof_count, 2 * 6);
+    for node in 0..3 {
+        assert_eq!(fields.dofs[node], [NO_DOF, NO_DOF]);
+    }
+}
+
+#[test]
+fn point_update_moves_points_by_the_interpolated_increment_and_reset_clears_the_grid() {
+    let spec = block_2d([4, 4], [2, 2], BasisKind::BSpline { order: 2 });
+    let mut sim = Simulation::<2>::new(&spec, &temp_dir("update")).unwrap();
+    start_step(&mut sim);
+    // A uniform translation is reproduced exactly (partition of unity) with F unchanged.
+    sim.world
+        .resource_mut::<GridFields<2>>()
+        .increment
+        .fill(nalgebra::Vector2::new(0.25, -0.5));
+    let before: Vec<_> = sim
+        .world
+        .query::<&Position<2>>()
+        .iter(&sim.world)
+        .map(|p| p.0)
+        .collect();
+    sim.world.run_system_once(update_stress::<2>).unwrap();
+    sim.world.run_system_once(update_points::<2>).unwrap();
+    let after: Vec<_> = sim
+        .world
+        .query::<&Position<2>>()
+        .iter(&sim.world)
+        .map(|p| p.0)
+        .collect();
+    for (a, b) in before.iter().zip(&after) {
+        assert!((b - a - nalgebra::Vector2::new(0.25, -0.5)).norm() < 1e-12);
+    }
+    for t in sim.world.query::<&Trial<2>>().iter(&sim.world) {
+        assert!((t.0.deformation_gradient - nalgebra::Matrix2::identity()).norm() < 1e-12);
+    }
+    sim.world.run_system_once(reset_grid::<2>).unwrap();
+    let fields = sim.world.resource::<GridFields<2>>();
+    assert!(fields.active.iter().all(|a| !a));
+    assert!(fields.increment.iter().all(|u| u.norm() == 0.0));
+    assert_eq!(fields.dof_count, 0);
+    // supports are kept by the points until the next step re-evaluates them
+    assert!(
+        sim.world
+            .query::<&Support<2>>()
+            .iter(&sim.world)
+            .all(|s| !s.0.is_empty())
+    );
+}
+
+#[test]
+fn schedules_have_no_ambiguities() {
+    fn check<const D: usize>(spec: &SceneSpec) {
+        let mut sim = Simulation::<D>::new(spec, &temp_dir(&format!("amb{D}"))).unwrap();
+        for label in [
+            LoadStepSchedule.intern(),
+            NewtonIteration.intern(),
+            WriteOutput.intern(),
+        ] {
+            sim.world.schedule_scope(label, |world, schedule| {
+                schedule
+                    .initialize(world)
+                    .unwrap_or_else(|e| panic!("{label:?}: {e}"));
+            });
+        }
+    }
+    check::<2>(&block_2d([4, 4], [2, 2], BasisKind::Linear));
+    let mut with_prescribed = block_2d([4, 4], [2, 2], BasisKind::Linear);
+    with_prescribed.constraints[0].value = 0.1;
+    check::<2>(&with_prescribed);
+}
+
+#[test]
+fn a_block_under_gravity_converges_quadratically_and_writes_valid_output() {
+    let spec = block_2d([4, 5], [3, 3], BasisKind::BSpline { order: 2 });
+    let dir = temp_dir("block");
+    let mut sim = Simulation::<2>::new(&spec, &dir).unwrap();
+    sim.write_initial_state().unwrap();
+    sim.run(|_| {}).unwrap();
+    for step in &sim.summary.steps {
+        assert!(step.converged && step.iterations <= 6, "{step:?}");
+    }
+    let particles = impm::output::read_vtu(&dir.join("particles_0002.vtu")).unwrap();
+    assert_eq!(particles.points.len(), 36);
+    let stress = particles
+        .point_data
+        .iter()
+        .find(|(n, _, _)| n == "cauchy_stress")
+        .unwrap();
+    assert_eq!(stress.1, 9);
+    // Total vertical reaction equals the weight: integrate sigma_yy over the current volume and
+    // compare with the weight times the mean depth... simpler invariant: sigma_yy < 0 everywhere.
+    assert!(stress.2.chunks(9).all(|s| s[4] < 0.0));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_run_is_bit_identical_when_repeated() {
+    let spec = block_2d([4, 5], [3, 3], BasisKind::BSpline { order: 3 });
+    let run = |name: &str| {
+        let dir = temp_dir(name);
+        let mut sim = Simulation::<2>::new(&spec, &dir).unwrap();
+        sim.run(|_| {}).unwrap();
+        let mut q = sim
+            .world
+            .query::<(&impm::components::PointId, &Position<2>)>();
+        let mut v: Vec<_> = q
+            .iter(&sim.world)
+            .map(|(id, p)| (id.0, p.0.x.to_bits(), p.0.y.to_bits()))
+            .collect();
+        v.sort();
+        v
+    };
+    assert_eq!(run("det1"), run("det2"));
+}
