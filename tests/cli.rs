@@ -1,0 +1,184 @@
+//! The `impm` command line: runs, clear errors on bad scenes, and failed solves that keep
+//! their results valid and exit non-zero.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn impm(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_impm"))
+        .args(args)
+        .output()
+        .expect("impm runs")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn temp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("impm-cli-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn column() -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("scripts/column_1d.rhai")
+        .display()
+        .to_string()
+}
+
+/// A 1D column scene with a solver section, written to `dir`.
+fn scene_with(dir: &Path, name: &str, extra: &str, body_force: &str) -> String {
+    let text = format!(
+        r#"let cells = 10;
+grid(#{{ lower: [0.0], upper: [10.0], cells: [cells], basis: "bspline", order: 2 }});
+const m = material(#{{ name: "m", E: 1.0e4, nu: 0.0, density: 1.0 }});
+body(#{{ name: "column", material: m, region: box([0.0], [10.0]), ppc: 2 }});
+body_force([{body_force}]);
+fix(|x| x[0] == 0.0, [0]);
+load_steps(4);
+{extra}
+"#
+    );
+    let path = dir.join(name);
+    std::fs::write(&path, text).unwrap();
+    path.display().to_string()
+}
+
+#[test]
+fn run_writes_the_series_and_the_summary() {
+    let dir = temp("run");
+    let out = impm(&[
+        "run",
+        &column(),
+        "--set",
+        "cells=10",
+        "--set",
+        "steps=4",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    for k in 0..=4 {
+        for stem in ["particles", "grid", "nodes"] {
+            let file = dir.join(format!("{stem}_{k:04}.vtu"));
+            assert!(impm::output::read_vtu(&file).is_ok(), "{}", file.display());
+        }
+    }
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["status"], "completed");
+    assert_eq!(summary["steps"].as_array().unwrap().len(), 4);
+    assert!(summary["error"].as_f64().unwrap() < 1e-2);
+    let pvd = std::fs::read_to_string(dir.join("particles.pvd")).unwrap();
+    assert_eq!(pvd.matches("<DataSet").count(), 5);
+}
+
+#[test]
+fn bad_scenes_name_the_file_and_line() {
+    let dir = temp("bad");
+    let cases: [(&str, &str, &str); 4] = [
+        (
+            "syntax.rhai",
+            "let cells = 3;\ngrid(#{ lower: [0.0] upper: [1.0] });\n",
+            ":2:",
+        ),
+        (
+            "negative_e.rhai",
+            "let a = 1;\nconst m = material(#{ name: \"x\", E: -1.0, nu: 0.0, density: 1.0 });\n",
+            ":2:",
+        ),
+        (
+            "outside.rhai",
+            "grid(#{ lower: [0.0], upper: [1.0], cells: [2], basis: \"linear\" });\nconst m = material(#{ name: \"m\", E: 1.0, nu: 0.0, density: 1.0 });\n\nbody(#{ name: \"b\", material: m, region: box([0.0], [2.0]), ppc: 1 });\nload_steps(1);\n",
+            ":4:",
+        ),
+        (
+            "typo.rhai",
+            "grid(#{ lower: [0.0], upper: [1.0], cell: [2], basis: \"linear\" });\n",
+            ":1:",
+        ),
+    ];
+    for (name, text, line) in cases {
+        let path = dir.join(name);
+        std::fs::write(&path, text).unwrap();
+        let out_dir = dir.join("o");
+        for args in [
+            vec!["check", path.to_str().unwrap()],
+            vec![
+                "run",
+                path.to_str().unwrap(),
+                "--out",
+                out_dir.to_str().unwrap(),
+            ],
+        ] {
+            let out = impm(&args);
+            let err = stderr(&out);
+            assert!(!out.status.success(), "{name}: should fail");
+            assert!(err.contains(&format!("{name}{line}")), "{name}: {err}");
+            assert!(!err.contains("panicked"), "{name}: {err}");
+        }
+    }
+    // Impossible parameter values through --set
+    for (set, needle) in [
+        ("order=0", "order"),
+        ("cells=0", "cells"),
+        ("nope=1", "no parameter 'nope'"),
+    ] {
+        let out = impm(&["check", &column(), "--set", set]);
+        assert!(!out.status.success());
+        assert!(stderr(&out).contains(needle), "{set}: {}", stderr(&out));
+    }
+}
+
+#[test]
+fn a_solve_that_does_not_converge_says_where_keeps_results_and_fails() {
+    let dir = temp("diverge");
+    // One Newton iteration is not enough for any load step.
+    let scene = scene_with(
+        &dir,
+        "stiff.rhai",
+        "solver(#{ tolerance: 1.0e-12, max_iterations: 1 });",
+        "-100.0",
+    );
+    let out_dir = dir.join("out");
+    let out = impm(&["run", &scene, "--out", out_dir.to_str().unwrap()]);
+    let err = stderr(&out);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("load step 1") && err.contains("did not converge"),
+        "{err}"
+    );
+    assert!(
+        err.contains("iteration   0") && err.contains("iteration   1"),
+        "residual history: {err}"
+    );
+    // What was written before the failure is valid.
+    assert!(impm::output::read_vtu(&out_dir.join("particles_0000.vtu")).is_ok());
+    let pvd = std::fs::read_to_string(out_dir.join("particles.pvd")).unwrap();
+    assert_eq!(pvd.matches("<DataSet").count(), 1);
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("summary.json")).unwrap())
+            .unwrap();
+    assert_eq!(summary["status"], "failed");
+    assert!(
+        summary["failure"]
+            .as_str()
+            .unwrap()
+            .contains("did not converge")
+    );
+}
+
+#[test]
+fn a_point_leaving_the_grid_is_reported_not_a_panic() {
+    let dir = temp("leave");
+    // Upward body force on a column that fills its grid: the top rises out of the grid.
+    let scene = scene_with(&dir, "rise.rhai", "", "200.0");
+    let out = impm(&["run", &scene, "--out", dir.join("out").to_str().unwrap()]);
+    let err = stderr(&out);
+    assert!(!out.status.success());
+    assert!(err.contains("left the background grid"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+}
