@@ -3,7 +3,8 @@
 //! * A **material point** carries its reference state (`ReferencePosition`, `ReferenceVolume`,
 //!   `Mass`, `Elastic`), its converged state at the start of the load step (`Position`,
 //!   `Displacement`, `DeformationGradient`, `Volume`), the basis of the step (`Support`) and the
-//!   state of the current Newton iterate (`Trial`).
+//!   state of the current Newton iterate (`Trial`); with GIMP or CPDI also its initial domain
+//!   (`ParticleDomain`).
 //! * A **grid node** (a control point of the background basis) carries its index and position
 //!   (`GridNode`) and its constraints (`Fixity`). The fields that live on the grid during a load
 //!   step (displacement increment, forces, DOF numbers) are dense arrays in `GridFields`, indexed
@@ -60,6 +61,14 @@ pub struct BodyIndex(pub u32);
 /// gradients ∇_n N_i(x_p^n), evaluated once at the start of the step.
 #[derive(Component, Clone, Debug, Default, PartialEq)]
 pub struct Support<const D: usize>(pub Vec<NodeWeight<D>>);
+
+/// The initial domain of a material point, for the methods whose weights average the grid
+/// functions over it (GIMP, CPDI; `basis::domain`): the half-lengths `lp0_k = h_k / (2 ppc_k)`
+/// of the box the point owns at seeding. Spawned only for those methods.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct ParticleDomain<const D: usize> {
+    pub initial_half_lengths: SVector<f64, D>,
+}
 
 /// The point's state at the current Newton iterate (stress, tangent, F).
 #[derive(Component, Clone, Debug, PartialEq)]

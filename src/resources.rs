@@ -106,6 +106,12 @@ pub enum SolverError {
         position: Vec<f64>,
         step: usize,
     },
+    /// A point's domain (GIMP, CPDI) cannot be used: a corner left the grid, or it inverted.
+    PointDomain {
+        point: u32,
+        step: usize,
+        why: String,
+    },
     /// A point's deformation became inadmissible (det F <= 0, not finite...).
     BadPointState {
         point: u32,
@@ -145,6 +151,10 @@ impl std::fmt::Display for SolverError {
             } => write!(
                 f,
                 "load step {step}: material point {point} left the background grid (at {position:?})"
+            ),
+            SolverError::PointDomain { point, step, why } => write!(
+                f,
+                "load step {step}: the domain of material point {point} cannot be used: {why}"
             ),
             SolverError::BadPointState {
                 point,

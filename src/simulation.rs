@@ -20,7 +20,7 @@ use crate::components::*;
 use crate::material::Hencky;
 use crate::mechanics::TrialState;
 use crate::resources::*;
-use crate::scene::{AnalyticSpec, SceneSpec};
+use crate::scene::{AnalyticSpec, BodySpec, SceneSpec};
 use crate::stages::output::OutputPlan;
 use crate::stages::{
     Effects, LoadStep as LoadStepSchedule, WriteOutput, load_step_schedule, newton_schedule,
@@ -56,6 +56,7 @@ pub fn effects_of(spec: &SceneSpec) -> Effects {
             .as_ref()
             .is_some_and(|b| b.iter().any(|&c| c != 0.0)),
         prescribed_displacements: spec.constraints.iter().any(|c| c.value != 0.0),
+        point_domains: spec.grid.basis.uses_point_domain(),
     }
 }
 
@@ -156,7 +157,11 @@ impl<const D: usize> Simulation<D> {
                 ));
                 id += 1;
             }
-            world.spawn_batch(batch);
+            let entities: Vec<Entity> = world.spawn_batch(batch).collect();
+            if spec.grid.basis.uses_point_domain() {
+                let domain = particle_domain::<D>(body)?;
+                world.insert_batch(entities.into_iter().map(|entity| (entity, domain)));
+            }
         }
         if id == 0 {
             return Err(BuildError("the scene has no material points".into()));
@@ -324,11 +329,31 @@ impl<const D: usize> Simulation<D> {
     }
 }
 
+/// The initial domain of the points of `body`: half its seeding spacing along each axis.
+fn particle_domain<const D: usize>(body: &BodySpec) -> Result<ParticleDomain<D>, BuildError> {
+    if body.point_spacing.len() != D
+        || body
+            .point_spacing
+            .iter()
+            .any(|&s| !(s > 0.0 && s.is_finite()))
+    {
+        return Err(BuildError(format!(
+            "body '{}': the point spacing {:?} is not {D} positive lengths",
+            body.name, body.point_spacing
+        )));
+    }
+    Ok(ParticleDomain {
+        initial_half_lengths: SVector::from_fn(|k, _| 0.5 * body.point_spacing[k]),
+    })
+}
+
 /// A human name for a basis.
 pub fn basis_name(kind: BasisKind) -> String {
     match kind {
         BasisKind::Linear => "linear".into(),
         BasisKind::BSpline { order } => format!("bspline(q={order})"),
+        BasisKind::Gimp { domain } => format!("gimp({})", domain.name()),
+        BasisKind::Cpdi => "cpdi".into(),
     }
 }
 

@@ -7,15 +7,15 @@ use bevy_ecs::schedule::ScheduleLabel;
 use bevy_ecs::system::RunSystemOnce;
 use nalgebra::SVector;
 
-use impm::basis::BasisKind;
-use impm::components::{Position, Support, Trial};
+use impm::basis::{BasisKind, GimpDomain};
+use impm::components::{DeformationGradient, Position, Support, Trial};
 use impm::resources::{GridFields, LoadStep, Newton};
 use impm::scene::*;
 use impm::simulation::Simulation;
 use impm::sparse::NO_DOF;
 use impm::stages::{
     LoadStep as LoadStepSchedule, NewtonIteration, WriteOutput, assemble, evaluate_basis,
-    number_dofs, reset_grid, update_points, update_stress,
+    evaluate_domain_basis, number_dofs, reset_grid, update_points, update_stress,
 };
 
 fn temp_dir(name: &str) -> PathBuf {
@@ -72,6 +72,7 @@ fn block_2d(cells: [usize; 2], body_cells: [usize; 2], basis: BasisKind) -> Scen
             name: "block".into(),
             material: 0,
             points,
+            point_spacing: vec![1.0 / ppc as f64; 2],
         }],
         body_force: Some(vec![0.0, -10.0]),
         constraints,
@@ -88,7 +89,13 @@ fn start_step(sim: &mut Simulation<2>) {
         factor: 1.0,
         previous_factor: 0.0,
     };
-    sim.world.run_system_once(evaluate_basis::<2>).unwrap();
+    if sim.spec.grid.basis.uses_point_domain() {
+        sim.world
+            .run_system_once(evaluate_domain_basis::<2>)
+            .unwrap();
+    } else {
+        sim.world.run_system_once(evaluate_basis::<2>).unwrap();
+    }
     sim.world.run_system_once(number_dofs::<2>).unwrap();
 }
 
@@ -132,11 +139,35 @@ fn increment_of(sim: &Simulation<2>, dof: usize) -> f64 {
 }
 
 /// The assembled tangent equals central finite differences of the assembled internal force,
-/// at a strongly deformed, rotated iterate (B-spline q = 2, 2D, several points per cell).
+/// at a strongly deformed, rotated iterate (2D, several points per cell): B-spline q = 2 from
+/// the undeformed state, and GIMP and CPDI from a stretched and sheared state at the start of
+/// the step, whose domains (and so weights) differ from the undeformed ones. The weights are
+/// frozen over the step, so the tangent is exact for every method.
 #[test]
 fn assembled_tangent_matches_finite_differences() {
-    let spec = block_2d([4, 4], [3, 3], BasisKind::BSpline { order: 2 });
+    let sheared = nalgebra::Matrix2::new(0.85, 0.1, 0.05, 0.9);
+    check_tangent(BasisKind::BSpline { order: 2 }, None);
+    check_tangent(
+        BasisKind::Gimp {
+            domain: GimpDomain::Stretched,
+        },
+        Some(sheared),
+    );
+    check_tangent(BasisKind::Cpdi, Some(sheared));
+}
+
+fn check_tangent(basis: BasisKind, start_deformation: Option<nalgebra::Matrix2<f64>>) {
+    let spec = block_2d([4, 4], [3, 3], basis);
     let mut sim = Simulation::<2>::new(&spec, &temp_dir("fd")).unwrap();
+    if let Some(f) = start_deformation {
+        for mut point_f in sim
+            .world
+            .query::<&mut DeformationGradient<2>>()
+            .iter_mut(&mut sim.world)
+        {
+            point_f.0 = f;
+        }
+    }
     start_step(&mut sim);
     let n = sim.world.resource::<GridFields<2>>().dof_count;
     assert!(n > 20, "enough DOFs to be meaningful: {n}");
@@ -185,7 +216,7 @@ fn assembled_tangent_matches_finite_differences() {
     assert!(f0.iter().all(|v| v.is_finite()));
     assert!(
         worst < 1e-6 * scale,
-        "max |K - K_fd| = {worst:e}, scale {scale:e}"
+        "{basis:?}: max |K - K_fd| = {worst:e}, scale {scale:e}"
     );
     // and K is symmetric
     for r in 0..n {
@@ -277,6 +308,7 @@ fn schedules_have_no_ambiguities() {
     let mut with_prescribed = block_2d([4, 4], [2, 2], BasisKind::Linear);
     with_prescribed.constraints[0].value = 0.1;
     check::<2>(&with_prescribed);
+    check::<2>(&block_2d([4, 4], [2, 2], BasisKind::Cpdi));
 }
 
 #[test]

@@ -172,6 +172,34 @@ impl<const D: usize> GridBasis<D> {
         scratch: &mut BasisScratch,
         out: &mut Vec<NodeWeight<D>>,
     ) -> Result<(), OutsideGrid> {
+        self.eval_tensor_product(scratch, out, |k, axis, values, derivatives| {
+            axis.eval(x[k], values, derivatives)
+        })
+    }
+
+    /// The grid's family of functions (the same on every axis).
+    #[inline]
+    pub fn kind(&self) -> BasisKind {
+        self.axes[0].kind
+    }
+
+    /// Tensor product of per-axis weights: `axis_weights(k, axis, values, derivatives)` fills
+    /// the values and derivatives of consecutive functions of axis `k` and returns the index of
+    /// the first. Pushes every product function whose value or gradient is nonzero, in
+    /// increasing node order, into `out` (cleared first; left empty on error). Shared by the
+    /// point evaluation ([`GridBasis::eval`]) and the GIMP domain average.
+    #[inline]
+    pub(super) fn eval_tensor_product(
+        &self,
+        scratch: &mut BasisScratch,
+        out: &mut Vec<NodeWeight<D>>,
+        mut axis_weights: impl FnMut(
+            usize,
+            &Axis,
+            &mut Vec<f64>,
+            &mut Vec<f64>,
+        ) -> Result<usize, OutsideGrid>,
+    ) -> Result<(), OutsideGrid> {
         out.clear();
         if scratch.values.len() < D {
             scratch.values.resize_with(D, Vec::new);
@@ -182,8 +210,7 @@ impl<const D: usize> GridBasis<D> {
         let mut first = [0; D];
         let mut len = [0; D];
         for k in 0..D {
-            first[k] = self.axes[k]
-                .eval(x[k], &mut values[k], &mut derivatives[k])
+            first[k] = axis_weights(k, &self.axes[k], &mut values[k], &mut derivatives[k])
                 .map_err(|e| OutsideGrid { axis: k, ..e })?;
             len[k] = values[k].len();
         }

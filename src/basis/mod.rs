@@ -35,6 +35,16 @@
 //! `c + 1` vertices, implemented directly ([`bspline::hat_span`]); they coincide with the
 //! B-splines of order 1 (tested to round-off).
 //!
+//! # Particle-domain methods: GIMP and CPDI
+//!
+//! [`BasisKind::Gimp`] and [`BasisKind::Cpdi`] keep the hat functions as grid functions but
+//! weight a point by their average over the point's domain instead of their value at its
+//! centre: `S_ip = (1/V_p) ∫_Ωp N_i dx`, `∇S_ip = (1/V_p) ∫_Ωp ∇N_i dx` ([`gimp`]: exact
+//! integral over an axis-aligned box; [`cpdi`]: the CPDI1 corner rule on a parallelepiped
+//! carried by F). [`domain`] turns a point's state at the start of a load step into its domain
+//! and dispatches. [`GridBasis::eval`] on such a grid evaluates the plain hat functions (used
+//! for grid output).
+//!
 //! # Control points (nodes)
 //!
 //! Function `i` is attached to a node at the Greville abscissa
@@ -51,10 +61,14 @@
 
 pub mod axis;
 pub mod bspline;
+pub mod cpdi;
+pub mod domain;
+pub mod gimp;
 pub mod grid;
 
 pub use axis::{Axis, OutsideGrid};
 pub use bspline::control_points_1d;
+pub use domain::{DomainError, DomainScratch, eval_point_domain};
 pub use grid::{BasisScratch, GridBasis, NodeWeight};
 
 /// Which family of grid functions maps between points and grid.
@@ -64,15 +78,49 @@ pub enum BasisKind {
     Linear,
     /// B-splines of order `order >= 1` on the open uniform knot vector over the grid.
     BSpline { order: usize },
+    /// GIMP (Bardenhagen & Kober 2004): the hat functions averaged over the point's box-shaped
+    /// domain ([`gimp`]).
+    Gimp { domain: GimpDomain },
+    /// CPDI1 (Sadeghirad, Brannon & Burghardt 2011): the hat functions averaged from the
+    /// corners of the point's parallelepiped domain carried by F ([`cpdi`]).
+    Cpdi,
+}
+
+/// How the GIMP particle domain follows the deformation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GimpDomain {
+    /// uGIMP: the domain keeps its initial half-lengths `lp0`.
+    Fixed,
+    /// Contiguous-particle GIMP (cpGIMP): the half-lengths follow the diagonal of the
+    /// deformation gradient, `lp_k = lp0_k F_kk`, so that domains of a uniformly deformed body
+    /// stay contiguous.
+    Stretched,
+}
+
+impl GimpDomain {
+    /// The scene word (`grid(#{ basis: "gimp", gimp: .. })`).
+    pub fn name(self) -> &'static str {
+        match self {
+            GimpDomain::Fixed => "fixed",
+            GimpDomain::Stretched => "stretched",
+        }
+    }
 }
 
 impl BasisKind {
-    /// Polynomial order q of the functions (1 for linear).
+    /// Polynomial order q of the grid functions (1 for linear, GIMP and CPDI, which average
+    /// the linear hat functions).
     pub fn order(&self) -> usize {
         match self {
-            BasisKind::Linear => 1,
+            BasisKind::Linear | BasisKind::Gimp { .. } | BasisKind::Cpdi => 1,
             BasisKind::BSpline { order } => *order,
         }
+    }
+
+    /// Whether a point's weights depend on its domain (GIMP, CPDI) rather than on its position
+    /// alone: such points carry a `ParticleDomain` and use [`eval_point_domain`].
+    pub fn uses_point_domain(&self) -> bool {
+        matches!(self, BasisKind::Gimp { .. } | BasisKind::Cpdi)
     }
 }
 

@@ -387,10 +387,17 @@ fn resolve_body(
             declaration.region.describe()
         ));
     }
+    let point_spacing = (0..dim)
+        .map(|axis| {
+            (grid.value.upper[axis] - grid.value.lower[axis])
+                / (grid.value.cells[axis] * points_per_cell[axis]) as f64
+        })
+        .collect();
     Ok(BodySpec {
         name: declaration.name.clone(),
         material: declaration.material,
         points,
+        point_spacing,
     })
 }
 

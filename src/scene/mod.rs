@@ -78,6 +78,9 @@ pub struct BodySpec {
     /// Index into `SceneSpec::materials`.
     pub material: usize,
     pub points: Vec<PointSeed>,
+    /// Spacing of the seeding lattice along each axis, `h_k / ppc_k`: every point owns the box
+    /// of these side lengths around it (its initial domain for GIMP and CPDI).
+    pub point_spacing: Vec<f64>,
 }
 
 /// One constrained component of one grid node (control point). The prescribed displacement

@@ -10,7 +10,7 @@
 //!
 //! | call | meaning |
 //! |------|---------|
-//! | `grid(#{ lower: [..], upper: [..], cells: [..], basis: "linear" \| "bspline", order: q })` | background grid; the dimension (1, 2, 3) is the array length; `order` (>= 1) is required for `"bspline"` and ignored for `"linear"` (standard MPM hat functions). Call once. |
+//! | `grid(#{ lower: [..], upper: [..], cells: [..], basis: "linear" \| "bspline" \| "gimp" \| "cpdi", order: q, gimp: "stretched" \| "fixed" })` | background grid; the dimension (1, 2, 3) is the array length. `basis`: `"linear"` standard MPM (hat functions), `"bspline"` B-splines of `order` q >= 1 (required), `"gimp"` GIMP (hats averaged over the point's box domain), `"cpdi"` CPDI1 (hats averaged from the corners of the point's domain carried by F). `gimp` (GIMP only, default `"stretched"`): `"stretched"` domain half-lengths follow the diagonal of F (cpGIMP), `"fixed"` domains keep their initial size (uGIMP). `order` is ignored for linear, GIMP and CPDI. Call once. |
 //! | `material(#{ name: "..", E: .., nu: .., density: .. })` | linear-elastic Hencky material (E > 0, -1 < nu < 0.5, density > 0); returns a handle |
 //! | `box([lo..], [hi..])` | an axis-aligned box region (bounds included) |
 //! | `body(#{ name: "..", material: m, region: box(..) or \|x\| pred, ppc: n or [n0, n1, ..] })` | material points: `ppc` per cell per direction at cell-local `(i + 1/2) / ppc`, kept where the region holds; volume = cell volume / points per cell. The region must lie inside the grid. |
@@ -42,13 +42,13 @@ use super::options::{
 };
 use super::params::{Parameter, apply_overrides, find_parameters};
 use super::{GridSpec, MaterialSpec, OutputSpec, SceneSpec, SolverSpec};
-use crate::basis::BasisKind;
+use crate::basis::{BasisKind, GimpDomain};
 
 /// The scene API functions and how they are called (used in "wrong arguments" messages).
 pub(crate) const API_SIGNATURES: &[(&str, &str)] = &[
     (
         "grid",
-        "grid(#{ lower: [..], upper: [..], cells: [..], basis: \"linear\" | \"bspline\", order: q })",
+        "grid(#{ lower: [..], upper: [..], cells: [..], basis: \"linear\" | \"bspline\" | \"gimp\" | \"cpdi\", order: q, gimp: \"stretched\" | \"fixed\" })",
     ),
     (
         "material",
@@ -234,7 +234,7 @@ fn declare_grid(builder: &mut SceneBuilder, options: Dynamic, at: Position) -> R
     let options = OptionMap::new(
         "grid",
         options,
-        &["lower", "upper", "cells", "basis", "order"],
+        &["lower", "upper", "cells", "basis", "order", "gimp"],
     )?;
     let lower = numbers(&options.required("lower")?, &options.subject("lower"))?;
     let upper = numbers(&options.required("upper")?, &options.subject("upper"))?;
@@ -259,6 +259,19 @@ fn declare_grid(builder: &mut SceneBuilder, options: Dynamic, at: Position) -> R
             "grid(...): the extent along axis {axis} is not finite"
         ));
     }
+    // validated whatever the basis, so that a misspelt variant is caught; used by "gimp" only
+    let gimp_domain = match options.optional("gimp") {
+        None => GimpDomain::Stretched,
+        Some(value) => match string(&value, &options.subject("gimp"))?.as_str() {
+            "stretched" => GimpDomain::Stretched,
+            "fixed" => GimpDomain::Fixed,
+            other => {
+                return Err(format!(
+                    "grid(...): option 'gimp' must be \"stretched\" (domains follow the deformation, cpGIMP) or \"fixed\" (domains keep their initial size, uGIMP), got {other:?}"
+                ));
+            }
+        },
+    };
     let basis_name = string(&options.required("basis")?, &options.subject("basis"))?;
     let basis = match basis_name.as_str() {
         // order is ignored: linear hat functions are order 1 by definition
@@ -272,9 +285,13 @@ fn declare_grid(builder: &mut SceneBuilder, options: Dynamic, at: Position) -> R
                 order: whole_number(&order, &options.subject("order"), 1)?,
             }
         }
+        "gimp" => BasisKind::Gimp {
+            domain: gimp_domain,
+        },
+        "cpdi" => BasisKind::Cpdi,
         other => {
             return Err(format!(
-                "grid(...): option 'basis' must be \"linear\" or \"bspline\", got {other:?}"
+                "grid(...): option 'basis' must be \"linear\", \"bspline\", \"gimp\" or \"cpdi\", got {other:?}"
             ));
         }
     };
@@ -839,7 +856,7 @@ mod tests {
             "{text}"
         );
         assert!(
-            text.contains("cells, basis, order, ppc, body_force, steps"),
+            text.contains("cells, basis, order, gimp, ppc, body_force, steps"),
             "{text}"
         );
     }
@@ -858,7 +875,11 @@ mod tests {
                     ("cells", "50"),
                     ("basis", "\"bspline\""),
                     ("order", "3"),
-                    ("ppc", "if basis == \"linear\" { 1 } else { 4 }"),
+                    ("gimp", "\"stretched\""),
+                    (
+                        "ppc",
+                        "if basis == \"linear\" { 1 } else if basis == \"bspline\" { 4 } else { 2 }"
+                    ),
                     ("body_force", "-800.0"),
                     ("steps", "20"),
                 ],
@@ -897,7 +918,7 @@ mod tests {
         assert!(
             error
                 .message
-                .contains("\"linear\" or \"bspline\", got \"spline\""),
+                .contains("\"linear\", \"bspline\", \"gimp\" or \"cpdi\", got \"spline\""),
             "{error}"
         );
     }
@@ -947,6 +968,85 @@ mod tests {
                 .contains("'cells'[0] must be a whole number >= 1, got integer 0"),
             "{error}"
         );
+    }
+
+    #[test]
+    fn gimp_and_cpdi_scene_words() {
+        let grid_with = |options: &str| {
+            format!("grid(#{{ lower: [0.0], upper: [10.0], cells: [cells], {options} }});")
+        };
+        let cases = [
+            (
+                "basis: \"gimp\"",
+                BasisKind::Gimp {
+                    domain: GimpDomain::Stretched,
+                },
+            ),
+            (
+                "basis: \"gimp\", gimp: \"fixed\"",
+                BasisKind::Gimp {
+                    domain: GimpDomain::Fixed,
+                },
+            ),
+            (
+                "basis: \"gimp\", gimp: \"stretched\", order: 3",
+                BasisKind::Gimp {
+                    domain: GimpDomain::Stretched,
+                },
+            ),
+            ("basis: \"cpdi\"", BasisKind::Cpdi),
+            (
+                "basis: \"bspline\", order: 2, gimp: \"fixed\"",
+                BasisKind::BSpline { order: 2 },
+            ),
+        ];
+        for (k, (options, expected)) in cases.into_iter().enumerate() {
+            let text = scene_1d_with("grid", &grid_with(options));
+            let scene = load_scene(&inline_script(&format!("words{k}"), &text), &[]).unwrap();
+            assert_eq!(scene.grid.basis, expected, "{options}");
+            // 10 cells of 1, ppc 2: the points own boxes of side 0.5
+            assert_eq!(scene.bodies[0].point_spacing, [0.5], "{options}");
+        }
+        let error = failure(
+            "gimp_variant",
+            &scene_1d_with("grid", &grid_with("basis: \"gimp\", gimp: \"ugimp\"")),
+        );
+        assert_eq!(error.line, Some(2), "{error}");
+        assert!(
+            error
+                .message
+                .contains("option 'gimp' must be \"stretched\" (domains follow the deformation, cpGIMP) or \"fixed\""),
+            "{error}"
+        );
+        let error = failure(
+            "gimp_type",
+            &scene_1d_with("grid", &grid_with("basis: \"cpdi\", gimp: 1")),
+        );
+        assert_eq!(error.line, Some(2), "{error}");
+        assert!(error.message.contains("'gimp' must be a string"), "{error}");
+    }
+
+    #[test]
+    fn shipped_columns_run_gimp_and_cpdi_with_two_points_per_cell() {
+        for basis in ["gimp", "cpdi"] {
+            for script in ["column_1d.rhai", "column_2d.rhai", "column_3d.rhai"] {
+                let scene = load_scene(&shipped(script), &set(&[("basis", basis), ("cells", "4")]))
+                    .unwrap();
+                assert!(scene.grid.basis.uses_point_domain());
+                let dim = scene.dim();
+                let cell_size = 50.0 / 4.0;
+                let expected = vec![cell_size / 2.0; dim];
+                let spacing = &scene.bodies[0].point_spacing;
+                assert!(
+                    spacing
+                        .iter()
+                        .zip(&expected)
+                        .all(|(a, b)| (a - b).abs() < 1e-12),
+                    "{script}: {spacing:?}"
+                );
+                assert_eq!(scene.bodies[0].points.len(), 4 * (1 << dim), "{script}");
+            }
+        }
     }
 
     #[test]

@@ -3,7 +3,7 @@
 //! One load step runs the [`LoadStep`] schedule, whose system sets run in this order:
 //!
 //! 1. [`StepSystems::Connectivity`] — evaluate the basis at the points (P2G connectivity) and
-//!    mark the active nodes (`connectivity.rs`).
+//!    mark the active nodes (`connectivity.rs`); over the points' domains for GIMP and CPDI.
 //! 2. [`StepSystems::Dofs`] — number the free components of active nodes and build the sparsity
 //!    pattern of the step (`dofs.rs`).
 //! 3. [`StepSystems::Loads`] — external forces and prescribed displacement increments, only the
@@ -37,7 +37,7 @@ mod stress;
 mod update;
 
 pub use assembly::assemble;
-pub use connectivity::evaluate_basis;
+pub use connectivity::{evaluate_basis, evaluate_domain_basis};
 pub use dofs::number_dofs;
 pub use loads::{apply_body_force, apply_prescribed_displacements};
 pub use newton::{check_convergence, solve_linear_system, solve_load_step};
@@ -88,6 +88,9 @@ pub enum NewtonSystems {
 pub struct Effects {
     pub body_force: bool,
     pub prescribed_displacements: bool,
+    /// The basis averages over particle domains (GIMP, CPDI): connectivity uses
+    /// [`evaluate_domain_basis`] instead of [`evaluate_basis`].
+    pub point_domains: bool,
 }
 
 /// Schedule settings shared by all solver schedules: single-threaded, and any ambiguity in
@@ -118,7 +121,11 @@ pub fn load_step_schedule<const D: usize>(effects: Effects) -> Schedule {
             .chain()
             .run_if(no_failure),
     );
-    schedule.add_systems(evaluate_basis::<D>.in_set(StepSystems::Connectivity));
+    if effects.point_domains {
+        schedule.add_systems(evaluate_domain_basis::<D>.in_set(StepSystems::Connectivity));
+    } else {
+        schedule.add_systems(evaluate_basis::<D>.in_set(StepSystems::Connectivity));
+    }
     schedule.add_systems(number_dofs::<D>.in_set(StepSystems::Dofs));
     if effects.body_force {
         schedule.add_systems(apply_body_force::<D>.in_set(StepSystems::Loads));
