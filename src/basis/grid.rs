@@ -188,7 +188,7 @@ impl<const D: usize> GridBasis<D> {
     /// the first. Pushes every product function whose value or gradient is nonzero, in
     /// increasing node order, into `out` (cleared first; left empty on error). Shared by the
     /// point evaluation ([`GridBasis::eval`]) and the GIMP domain average.
-    #[inline]
+    #[inline(always)]
     pub(super) fn eval_tensor_product(
         &self,
         scratch: &mut BasisScratch,
@@ -208,12 +208,26 @@ impl<const D: usize> GridBasis<D> {
         let values = &mut scratch.values[..D];
         let derivatives = &mut scratch.derivatives[..D];
         let mut first = [0; D];
-        let mut len = [0; D];
         for k in 0..D {
             first[k] = axis_weights(k, &self.axes[k], &mut values[k], &mut derivatives[k])
                 .map_err(|e| OutsideGrid { axis: k, ..e })?;
-            len[k] = values[k].len();
         }
+        self.push_tensor_product(first, values, derivatives, out);
+        Ok(())
+    }
+
+    /// Pushes the products of the per-axis weights (see [`GridBasis::eval_tensor_product`]).
+    /// Kept out of line: so compiled, the point evaluation executes the same number of
+    /// instructions as when it was one function (measured with callgrind, within 1%).
+    #[inline(never)]
+    fn push_tensor_product(
+        &self,
+        first: [usize; D],
+        values: &[Vec<f64>],
+        derivatives: &[Vec<f64>],
+        out: &mut Vec<NodeWeight<D>>,
+    ) {
+        let len: [usize; D] = std::array::from_fn(|k| values[k].len());
         let strides = strides(self.nodes_per_axis());
         let total: usize = len.iter().product();
         let mut local = [0; D];
@@ -246,7 +260,6 @@ impl<const D: usize> GridBasis<D> {
                 local[k] = 0;
             }
         }
-        Ok(())
     }
 
     /// The cell containing `x` as a multi-index; per axis half-open `[x_k, x_{k+1})` except
