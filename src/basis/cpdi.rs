@@ -1,5 +1,5 @@
 //! CPDI1: convected particle domain interpolation (Sadeghirad, Brannon & Burghardt 2011, paper
-//! ref. [8]), weights of the linear hat functions averaged from the corners of a particle
+//! ref. \[8\]), weights of the linear hat functions averaged from the corners of a particle
 //! domain carried by the deformation.
 //!
 //! # Domain
