@@ -143,7 +143,7 @@ impl<const D: usize> GridBasis<D> {
 mod tests {
     use super::*;
     use crate::basis::gimp::tests::dense_1d;
-    use crate::basis::test_points::Lcg;
+    use crate::basis::test_points::{Lcg, assert_linear_reproduction, weight_of};
     use crate::basis::{BasisKind, GimpDomain};
     use nalgebra::{Matrix2, Vector2};
 
@@ -205,22 +205,7 @@ mod tests {
         for _ in 0..300 {
             let (x, vectors) = random_domain(grid, &mut rng);
             let out = eval(grid, &x, &vectors);
-            let sum: f64 = out.iter().map(|w| w.value).sum();
-            assert!((sum - 1.0).abs() < 1e-13, "{sum}");
-            assert!(out.iter().all(|w| w.value >= 0.0));
-            let gsum: SVector<f64, D> = out.iter().map(|w| w.gradient).sum();
-            assert!(gsum.norm() < 1e-11, "{gsum:?}");
-            let centroid: SVector<f64, D> = out
-                .iter()
-                .map(|w| grid.node_position(w.node) * w.value)
-                .sum();
-            assert!((centroid - x).norm() < 1e-12);
-            let jacobian: SMatrix<f64, D, D> = out
-                .iter()
-                .map(|w| grid.node_position(w.node) * w.gradient.transpose())
-                .sum();
-            assert!((jacobian - SMatrix::<f64, D, D>::identity()).norm() < 1e-10);
-            assert!(out.windows(2).all(|p| p[0].node < p[1].node));
+            assert_linear_reproduction(grid, &out, &x, 1e-12);
         }
     }
 
@@ -259,10 +244,7 @@ mod tests {
                     + (n[1][node] - n[3][node]) * Vector2::new(r1.y + r2.y, -r1.x - r2.x))
                     / volume;
                 let value = (n[0][node] + n[1][node] + n[2][node] + n[3][node]) / 4.0;
-                let (v, grad) = out
-                    .iter()
-                    .find(|w| w.node == node)
-                    .map_or((0.0, Vector2::zeros()), |w| (w.value, w.gradient));
+                let (v, grad) = weight_of(&out, node);
                 assert!((v - value).abs() < 1e-15);
                 assert!((grad - expected).norm() < 1e-11, "{grad:?} vs {expected:?}");
             }
@@ -356,10 +338,8 @@ mod tests {
                 })
                 .collect();
             let lookup = |k: usize, i: usize| {
-                one_d[k]
-                    .iter()
-                    .find(|w| w.node == i)
-                    .map_or((0.0, 0.0), |w| (w.value, w.gradient[0]))
+                let (value, gradient) = weight_of(&one_d[k], i);
+                (value, gradient[0])
             };
             for index in 0..grid.num_nodes() {
                 let multi = grid.node_multi_index(index);
@@ -372,10 +352,7 @@ mod tests {
                         })
                         .product()
                 });
-                let (v, g) = out
-                    .iter()
-                    .find(|w| w.node == index)
-                    .map_or((0.0, SVector::zeros()), |w| (w.value, w.gradient));
+                let (v, g) = weight_of(&out, index);
                 assert!((v - value).abs() < 1e-14);
                 assert!((g - gradient).norm() < 1e-11, "{g:?} vs {gradient:?}");
             }

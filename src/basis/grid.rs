@@ -345,8 +345,8 @@ impl<const D: usize> GridBasis<D> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::basis::test_points::Lcg;
-    use nalgebra::{SMatrix, Vector2, Vector3};
+    use crate::basis::test_points::{Lcg, assert_linear_reproduction};
+    use nalgebra::{Vector2, Vector3};
 
     fn random_point<const D: usize>(grid: &GridBasis<D>, rng: &mut Lcg) -> SVector<f64, D> {
         SVector::from_fn(|k, _| rng.uniform(grid.axes[k].lower, grid.axes[k].upper))
@@ -398,32 +398,8 @@ mod tests {
             .collect();
         for x in points {
             grid.eval(&x, &mut scratch, &mut out).unwrap();
-            assert!(!out.is_empty() && out.len() <= grid.support_size());
-            let sum: f64 = out.iter().map(|w| w.value).sum();
-            assert!((sum - 1.0).abs() < 1e-13, "x={x:?}: sum {sum}");
-            assert!(out.iter().all(|w| w.value >= 0.0));
-            let gsum: SVector<f64, D> = out.iter().map(|w| w.gradient).sum();
-            let h_min = grid
-                .axes
-                .iter()
-                .map(|a| a.spacing())
-                .fold(f64::MAX, f64::min);
-            assert!(gsum.norm() < 1e-12 / h_min, "x={x:?}: grad sum {gsum:?}");
-            let interp: SVector<f64, D> = out
-                .iter()
-                .map(|w| grid.node_position(w.node) * w.value)
-                .sum();
-            assert!((interp - x).norm() < 1e-12, "x={x:?}: {interp:?}");
-            let jac: SMatrix<f64, D, D> = out
-                .iter()
-                .map(|w| grid.node_position(w.node) * w.gradient.transpose())
-                .sum();
-            assert!(
-                (jac - SMatrix::<f64, D, D>::identity()).norm() < 1e-11,
-                "x={x:?}: {jac:?}"
-            );
-            // unique, increasing nodes
-            assert!(out.windows(2).all(|p| p[0].node < p[1].node));
+            assert!(out.len() <= grid.support_size());
+            assert_linear_reproduction(grid, &out, &x, 1e-13);
         }
     }
 

@@ -124,9 +124,68 @@ impl BasisKind {
     }
 }
 
-/// Deterministic pseudo-random sample points for the tests (no external crates).
+/// Deterministic pseudo-random sample points for the tests (no external crates), and the
+/// invariants every family of weights here must satisfy.
 #[cfg(test)]
 pub(crate) mod test_points {
+    use nalgebra::{SMatrix, SVector};
+
+    use super::{GridBasis, NodeWeight};
+
+    /// Value and gradient of `node` among `weights` (zero if it is not there).
+    pub fn weight_of<const D: usize>(
+        weights: &[NodeWeight<D>],
+        node: usize,
+    ) -> (f64, SVector<f64, D>) {
+        weights
+            .iter()
+            .find(|w| w.node == node)
+            .map_or((0.0, SVector::zeros()), |w| (w.value, w.gradient))
+    }
+
+    /// Asserts, for the weights of a point (or of a domain centred) at `x`: non-negative values
+    /// forming a partition of unity, gradients summing to zero, reproduction of linear fields
+    /// `Σ_i S_i X_i = x` and `Σ_i X_i ⊗ ∇S_i = I` with the node positions, and unique increasing
+    /// nodes. `tolerance` bounds the partition of unity; the others scale from it.
+    pub fn assert_linear_reproduction<const D: usize>(
+        grid: &GridBasis<D>,
+        weights: &[NodeWeight<D>],
+        x: &SVector<f64, D>,
+        tolerance: f64,
+    ) {
+        assert!(!weights.is_empty(), "x={x:?}: no weights");
+        let sum: f64 = weights.iter().map(|w| w.value).sum();
+        assert!((sum - 1.0).abs() < tolerance, "x={x:?}: sum {sum}");
+        assert!(weights.iter().all(|w| w.value >= 0.0), "x={x:?}");
+        let h_min = grid
+            .axes
+            .iter()
+            .map(|a| a.spacing())
+            .fold(f64::MAX, f64::min);
+        let gradient_sum: SVector<f64, D> = weights.iter().map(|w| w.gradient).sum();
+        assert!(
+            gradient_sum.norm() < 10.0 * tolerance / h_min,
+            "x={x:?}: gradient sum {gradient_sum:?}"
+        );
+        let centre: SVector<f64, D> = weights
+            .iter()
+            .map(|w| grid.node_position(w.node) * w.value)
+            .sum();
+        assert!(
+            (centre - x).norm() < 10.0 * tolerance,
+            "x={x:?}: {centre:?}"
+        );
+        let jacobian: SMatrix<f64, D, D> = weights
+            .iter()
+            .map(|w| grid.node_position(w.node) * w.gradient.transpose())
+            .sum();
+        assert!(
+            (jacobian - SMatrix::<f64, D, D>::identity()).norm() < 100.0 * tolerance,
+            "x={x:?}: {jacobian:?}"
+        );
+        assert!(weights.windows(2).all(|p| p[0].node < p[1].node), "x={x:?}");
+    }
+
     /// 64-bit linear congruential generator (Knuth's MMIX constants), top 53 bits as a double.
     pub struct Lcg(u64);
 
