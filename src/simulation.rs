@@ -26,7 +26,7 @@ use crate::stages::{
     Effects, LoadStep as LoadStepSchedule, WriteOutput, load_step_schedule, newton_schedule,
     output_schedule,
 };
-use crate::summary::{StepRecord, Summary};
+use crate::summary::{StepRecord, SubstepRecord, Summary};
 
 /// Why a simulation could not be built from a scene.
 #[derive(Clone, Debug, PartialEq)]
@@ -221,42 +221,114 @@ impl<const D: usize> Simulation<D> {
             .map_err(|e| SolverError::Output { step: 0, why: e })
     }
 
-    /// Solves the next load step. On failure the error is also recorded in the summary.
+    /// Solves the next load step, cutting it when Newton fails.
+    ///
+    /// Load-step cutting: the step from λ_n to λ_{n+1} is tried whole; when Newton does not
+    /// converge, diverges, meets an inadmissible point (det F <= 0) or a singular tangent, the
+    /// grid is reset (points are only updated after convergence, so nothing else needs undoing)
+    /// and the attempt is repeated with half the increment, down to 2^-max_step_cuts of the
+    /// step. After a successful sub-step the increment grows back by a factor 2. Output is
+    /// written only when the step's target load factor is reached. On failure the error is
+    /// also recorded in the summary.
     pub fn step(&mut self) -> Result<&StepRecord, SolverError> {
         let number = self.steps_done + 1;
-        let factor = self.spec.load_factors[number - 1];
-        let previous_factor = if number == 1 {
+        let target = self.spec.load_factors[number - 1];
+        let start_factor = if number == 1 {
             0.0
         } else {
             self.spec.load_factors[number - 2]
         };
-        *self.world.resource_mut::<LoadStep>() = LoadStep {
-            number,
-            factor,
-            previous_factor,
-        };
+        let full = target - start_factor;
+        let max_cuts = self.spec.solver.max_step_cuts;
         *self.world.resource_mut::<StageClock>() = StageClock::default();
         let start = Instant::now();
-        self.world.run_schedule(LoadStepSchedule);
-        let wall = start.elapsed().as_secs_f64();
-        let newton = self.world.resource::<Newton>();
         let mut record = StepRecord {
             step: number,
-            load_factor: factor,
-            iterations: newton.iterations,
-            residuals: newton.residuals.clone(),
-            converged: newton.converged,
-            dofs: newton.system.size(),
-            seconds: self.world.resource::<StageClock>().clone(),
-            wall_seconds: wall,
+            load_factor: target,
+            iterations: 0,
+            residuals: Vec::new(),
+            converged: false,
+            dofs: 0,
+            seconds: StageClock::default(),
+            wall_seconds: 0.0,
             error: None,
+            cuts: 0,
+            substeps: Vec::new(),
         };
-        if let Err(e) = self.take_failure() {
-            self.summary.fail(record, &e);
-            let _ = self.summary.write();
-            return Err(e);
+        let (mut from, mut level) = (start_factor, 0usize);
+        loop {
+            let increment = full / f64::powi(2.0, level as i32);
+            // The last sub-step lands exactly on the target.
+            let completes_step = (from + increment - target).abs()
+                <= 1e-12 * full.abs().max(1e-300)
+                || (full > 0.0 && from + increment >= target)
+                || (full < 0.0 && from + increment <= target)
+                || full == 0.0;
+            let to = if completes_step {
+                target
+            } else {
+                from + increment
+            };
+            *self.world.resource_mut::<LoadStep>() = LoadStep {
+                number,
+                factor: to,
+                previous_factor: from,
+                completes_step,
+            };
+            self.world.run_schedule(LoadStepSchedule);
+            let newton = self.world.resource::<Newton>();
+            let mut attempt = SubstepRecord {
+                from,
+                to,
+                iterations: newton.iterations,
+                residuals: newton.residuals.clone(),
+                converged: newton.converged,
+                failure: None,
+            };
+            record.iterations += newton.iterations;
+            record.dofs = newton.system.size();
+            match self.take_failure() {
+                Ok(()) => {
+                    record.residuals = attempt.residuals.clone();
+                    record.converged = true;
+                    record.substeps.push(attempt);
+                    if completes_step {
+                        break;
+                    }
+                    from = to;
+                    level = level.saturating_sub(1);
+                }
+                Err(e) => {
+                    attempt.failure = Some(e.to_string());
+                    record.residuals = attempt.residuals.clone();
+                    record.substeps.push(attempt);
+                    let recoverable = e.is_recoverable_by_cutting();
+                    if !recoverable || level >= max_cuts {
+                        let error = if recoverable && record.cuts > 0 {
+                            SolverError::CuttingFailed {
+                                step: number,
+                                cuts: record.cuts,
+                                last: Box::new(e),
+                            }
+                        } else {
+                            e
+                        };
+                        record.seconds = self.world.resource::<StageClock>().clone();
+                        record.wall_seconds = start.elapsed().as_secs_f64();
+                        self.summary.fail(record, &error);
+                        let _ = self.summary.write();
+                        return Err(error);
+                    }
+                    // Undo the failed attempt on the grid and retry with half the increment.
+                    self.world.resource_mut::<GridFields<D>>().reset();
+                    level += 1;
+                    record.cuts += 1;
+                }
+            }
         }
-        record.error = self.analytic_error(factor);
+        record.seconds = self.world.resource::<StageClock>().clone();
+        record.wall_seconds = start.elapsed().as_secs_f64();
+        record.error = self.analytic_error(target);
         self.steps_done = number;
         self.summary.push(record);
         self.summary.write().map_err(|e| SolverError::Output {

@@ -87,6 +87,7 @@ fn start_step(sim: &mut Simulation<2>) {
         number: 1,
         factor: 1.0,
         previous_factor: 0.0,
+        completes_step: true,
     };
     sim.world.run_system_once(evaluate_basis::<2>).unwrap();
     sim.world.run_system_once(number_dofs::<2>).unwrap();

@@ -96,6 +96,8 @@ pub struct SolverSpec {
     /// Convergence tolerance on the normalised out-of-balance force.
     pub tolerance: f64,
     pub max_iterations: usize,
+    /// How many times a load step may be halved when Newton fails (0 = never cut).
+    pub max_step_cuts: usize,
 }
 
 impl Default for SolverSpec {
@@ -103,6 +105,7 @@ impl Default for SolverSpec {
         Self {
             tolerance: 1e-9,
             max_iterations: 30,
+            max_step_cuts: 8,
         }
     }
 }

@@ -18,7 +18,7 @@
 //! | `fix(\|x\| pred, [components])` | fix the listed displacement components (0-based axes) of every grid node whose position satisfies `pred` |
 //! | `displace(\|x\| pred, [components], [values])` | prescribe displacements (values at load factor 1, ramped with the load factor) |
 //! | `load_steps(n)` / `load_factors([..])` | load schedule: factors k/n, k = 1..n, or an explicit list |
-//! | `solver(#{ tolerance: .., max_iterations: .. })` | Newton controls (optional; defaults 1e-9, 30) |
+//! | `solver(#{ tolerance: .., max_iterations: .., max_step_cuts: .. })` | Newton controls (optional; defaults 1e-9, 30, 8) |
 //! | `output(#{ every: n })` | write every n-th step (optional) |
 //! | `analytic_column(#{ axis: a, height: L0, material: m, body_force: b })` | declare the self-weight column solution (paper eqs. 11-14) for error reports |
 //!
@@ -67,7 +67,10 @@ pub(crate) const API_SIGNATURES: &[(&str, &str)] = &[
     ),
     ("load_steps", "load_steps(n)"),
     ("load_factors", "load_factors([f1, f2, ..])"),
-    ("solver", "solver(#{ tolerance: .., max_iterations: .. })"),
+    (
+        "solver",
+        "solver(#{ tolerance: .., max_iterations: .., max_step_cuts: .. })",
+    ),
     ("output", "output(#{ every: n })"),
     (
         "analytic_column",
@@ -525,7 +528,11 @@ fn declare_solver(
     at: Position,
 ) -> Result<(), String> {
     ensure_unset(&builder.solver, "solver")?;
-    let options = OptionMap::new("solver", options, &["tolerance", "max_iterations"])?;
+    let options = OptionMap::new(
+        "solver",
+        options,
+        &["tolerance", "max_iterations", "max_step_cuts"],
+    )?;
     let mut solver = SolverSpec::default();
     if let Some(tolerance) = options.optional("tolerance") {
         solver.tolerance = number(&tolerance, &options.subject("tolerance"))?;
@@ -539,6 +546,9 @@ fn declare_solver(
     }
     if let Some(iterations) = options.optional("max_iterations") {
         solver.max_iterations = whole_number(&iterations, &options.subject("max_iterations"), 1)?;
+    }
+    if let Some(cuts) = options.optional("max_step_cuts") {
+        solver.max_step_cuts = whole_number(&cuts, &options.subject("max_step_cuts"), 0)?;
     }
     builder.solver = Some(Located::new(solver, at));
     Ok(())
@@ -1151,7 +1161,8 @@ mod tests {
             scene.solver,
             SolverSpec {
                 tolerance: 1e-6,
-                max_iterations: 12
+                max_iterations: 12,
+                max_step_cuts: 8,
             }
         );
         assert_eq!(scene.output.every, 2);

@@ -116,7 +116,7 @@ pub fn load_step_schedule<const D: usize>(effects: Effects) -> Schedule {
             StepSystems::ResetGrid,
         )
             .chain()
-            .run_if(no_failure),
+            .distributive_run_if(no_failure),
     );
     schedule.add_systems(evaluate_basis::<D>.in_set(StepSystems::Connectivity));
     schedule.add_systems(number_dofs::<D>.in_set(StepSystems::Dofs));
@@ -143,7 +143,7 @@ pub fn output_schedule<const D: usize>() -> Schedule {
     schedule.add_systems(
         (output::write_particles::<D>, output::write_grid::<D>)
             .chain()
-            .run_if(no_failure),
+            .distributive_run_if(no_failure),
     );
     schedule
 }
@@ -164,7 +164,7 @@ pub fn newton_schedule<const D: usize>() -> Schedule {
             NewtonSystems::LinearSolve,
         )
             .chain()
-            .run_if(no_failure),
+            .distributive_run_if(no_failure),
     );
     schedule.add_systems((
         update_stress::<D>.in_set(NewtonSystems::StressUpdate),
