@@ -12,7 +12,7 @@ use rhai::{AST, Dynamic, Engine, FnPtr, Position};
 
 use super::error::ScriptError;
 use super::options::describe;
-use super::seeding::{first_point_outside_grid, seed_points};
+use super::seeding::{first_point_outside_grid, seed_box, seed_points};
 use super::{
     AnalyticSpec, BodySpec, GridSpec, MaterialSpec, NodeConstraint, OutputSpec, SceneSpec,
     SolverSpec,
@@ -356,14 +356,7 @@ fn resolve_body(
                     declaration.region.describe()
                 ));
             }
-            let inside = |x: &[f64]| {
-                Ok::<_, ScriptError>(
-                    x.iter()
-                        .zip(lower.iter().zip(upper))
-                        .all(|(&c, (&lo, &hi))| lo <= c && c <= hi),
-                )
-            };
-            seed_points(&grid.value, &points_per_cell, inside)?
+            seed_box(&grid.value, &points_per_cell, lower, upper)
         }
         Region::Predicate(predicate) => {
             let context = format!(

@@ -35,7 +35,7 @@ mod seeding;
 pub use error::SceneError;
 pub use params::Parameter;
 pub use rhai_api::{load_scene, scene_parameters};
-pub use seeding::{first_point_outside_grid, seed_points};
+pub use seeding::{first_point_outside_grid, seed_box, seed_points};
 
 use crate::basis::BasisKind;
 
