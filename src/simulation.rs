@@ -56,6 +56,7 @@ pub fn effects_of(spec: &SceneSpec) -> Effects {
             .as_ref()
             .is_some_and(|b| b.iter().any(|&c| c != 0.0)),
         prescribed_displacements: spec.constraints.iter().any(|c| c.value != 0.0),
+        ghost_penalty: spec.solver.ghost_penalty > 0.0,
     }
 }
 
@@ -189,7 +190,18 @@ impl<const D: usize> Simulation<D> {
             spec.load_factors.len(),
         ));
         world.add_schedule(load_step_schedule::<D>(effects));
-        world.add_schedule(newton_schedule::<D>());
+        if effects.ghost_penalty {
+            let modulus = spec
+                .materials
+                .iter()
+                .map(|m| m.youngs_modulus)
+                .fold(0.0, f64::max);
+            world.insert_resource(crate::stages::ghost::GhostPenalty {
+                gamma_modulus: spec.solver.ghost_penalty * modulus,
+                faces: Vec::new(),
+            });
+        }
+        world.add_schedule(newton_schedule::<D>(effects));
         world.add_schedule(output_schedule::<D>());
 
         let summary = Summary::new(

@@ -98,6 +98,8 @@ pub struct SolverSpec {
     pub max_iterations: usize,
     /// How many times a load step may be halved when Newton fails (0 = never cut).
     pub max_step_cuts: usize,
+    /// Dimensionless ghost-penalty factor γ for nearly empty cells (0 = off; see `ghost`).
+    pub ghost_penalty: f64,
 }
 
 impl Default for SolverSpec {
@@ -106,6 +108,7 @@ impl Default for SolverSpec {
             tolerance: 1e-9,
             max_iterations: 30,
             max_step_cuts: 8,
+            ghost_penalty: 0.0,
         }
     }
 }

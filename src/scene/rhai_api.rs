@@ -18,7 +18,7 @@
 //! | `fix(\|x\| pred, [components])` | fix the listed displacement components (0-based axes) of every grid node whose position satisfies `pred` |
 //! | `displace(\|x\| pred, [components], [values])` | prescribe displacements (values at load factor 1, ramped with the load factor) |
 //! | `load_steps(n)` / `load_factors([..])` | load schedule: factors k/n, k = 1..n, or an explicit list |
-//! | `solver(#{ tolerance: .., max_iterations: .., max_step_cuts: .. })` | Newton controls (optional; defaults 1e-9, 30, 8) |
+//! | `solver(#{ tolerance: .., max_iterations: .., max_step_cuts: .., ghost_penalty: .. })` | Newton controls (optional; defaults 1e-9, 30, 8) |
 //! | `output(#{ every: n })` | write every n-th step (optional) |
 //! | `analytic_column(#{ axis: a, height: L0, material: m, body_force: b })` | declare the self-weight column solution (paper eqs. 11-14) for error reports |
 //!
@@ -69,7 +69,7 @@ pub(crate) const API_SIGNATURES: &[(&str, &str)] = &[
     ("load_factors", "load_factors([f1, f2, ..])"),
     (
         "solver",
-        "solver(#{ tolerance: .., max_iterations: .., max_step_cuts: .. })",
+        "solver(#{ tolerance: .., max_iterations: .., max_step_cuts: .., ghost_penalty: .. })",
     ),
     ("output", "output(#{ every: n })"),
     (
@@ -531,7 +531,12 @@ fn declare_solver(
     let options = OptionMap::new(
         "solver",
         options,
-        &["tolerance", "max_iterations", "max_step_cuts"],
+        &[
+            "tolerance",
+            "max_iterations",
+            "max_step_cuts",
+            "ghost_penalty",
+        ],
     )?;
     let mut solver = SolverSpec::default();
     if let Some(tolerance) = options.optional("tolerance") {
@@ -546,6 +551,16 @@ fn declare_solver(
     }
     if let Some(iterations) = options.optional("max_iterations") {
         solver.max_iterations = whole_number(&iterations, &options.subject("max_iterations"), 1)?;
+    }
+    if let Some(gamma) = options.optional("ghost_penalty") {
+        solver.ghost_penalty = number(&gamma, &options.subject("ghost_penalty"))?;
+        if !(solver.ghost_penalty >= 0.0 && solver.ghost_penalty.is_finite()) {
+            return Err(format!(
+                "{} must be zero (off) or positive, got {}",
+                options.subject("ghost_penalty"),
+                solver.ghost_penalty
+            ));
+        }
     }
     if let Some(cuts) = options.optional("max_step_cuts") {
         solver.max_step_cuts = whole_number(&cuts, &options.subject("max_step_cuts"), 0)?;
@@ -1163,6 +1178,7 @@ mod tests {
                 tolerance: 1e-6,
                 max_iterations: 12,
                 max_step_cuts: 8,
+                ghost_penalty: 0.0,
             }
         );
         assert_eq!(scene.output.every, 2);

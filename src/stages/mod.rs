@@ -29,6 +29,7 @@
 mod assembly;
 mod connectivity;
 mod dofs;
+pub mod ghost;
 mod loads;
 mod newton;
 pub mod output;
@@ -88,6 +89,8 @@ pub enum NewtonSystems {
 pub struct Effects {
     pub body_force: bool,
     pub prescribed_displacements: bool,
+    /// Ghost-penalty stabilisation of nearly empty cells (`ghost`).
+    pub ghost_penalty: bool,
 }
 
 /// Schedule settings shared by all solver schedules: single-threaded, and any ambiguity in
@@ -119,6 +122,13 @@ pub fn load_step_schedule<const D: usize>(effects: Effects) -> Schedule {
             .distributive_run_if(no_failure),
     );
     schedule.add_systems(evaluate_basis::<D>.in_set(StepSystems::Connectivity));
+    if effects.ghost_penalty {
+        schedule.add_systems(
+            ghost::find_ghost_faces::<D>
+                .in_set(StepSystems::Connectivity)
+                .after(evaluate_basis::<D>),
+        );
+    }
     schedule.add_systems(number_dofs::<D>.in_set(StepSystems::Dofs));
     if effects.body_force {
         schedule.add_systems(apply_body_force::<D>.in_set(StepSystems::Loads));
@@ -154,7 +164,7 @@ pub fn run_output(world: &mut World) {
 }
 
 /// The Newton-iteration schedule for dimension `D`.
-pub fn newton_schedule<const D: usize>() -> Schedule {
+pub fn newton_schedule<const D: usize>(effects: Effects) -> Schedule {
     let mut schedule = strict(NewtonIteration);
     schedule.configure_sets(
         (
@@ -174,6 +184,13 @@ pub fn newton_schedule<const D: usize>() -> Schedule {
             .in_set(NewtonSystems::LinearSolve)
             .run_if(not_converged),
     ));
+    if effects.ghost_penalty {
+        schedule.add_systems(
+            ghost::assemble_ghost_penalty::<D>
+                .in_set(NewtonSystems::Assembly)
+                .after(assemble::<D>),
+        );
+    }
     schedule
 }
 
