@@ -132,8 +132,11 @@ fn run(cli: Cli) -> Result<(), String> {
                 spec.load_factors.len()
             );
             println!(
-                "effects: body force {}, prescribed displacements {}",
-                effects.body_force, effects.prescribed_displacements
+                "effects: body force {}, point loads {} ({} loaded points), prescribed displacements {}",
+                effects.body_force,
+                effects.point_loads,
+                spec.point_loads.len(),
+                effects.prescribed_displacements
             );
             Ok(())
         }

@@ -55,6 +55,10 @@ pub fn effects_of(spec: &SceneSpec) -> Effects {
             .body_force
             .as_ref()
             .is_some_and(|b| b.iter().any(|&c| c != 0.0)),
+        point_loads: spec
+            .point_loads
+            .iter()
+            .any(|load| load.force.iter().any(|&c| c != 0.0)),
         prescribed_displacements: spec.constraints.iter().any(|c| c.value != 0.0),
         ghost_penalty: spec.solver.ghost_penalty > 0.0,
     }
@@ -162,6 +166,7 @@ impl<const D: usize> Simulation<D> {
         if id == 0 {
             return Err(BuildError("the scene has no material points".into()));
         }
+        insert_point_loads::<D>(&mut world, spec)?;
 
         // Resources.
         let effects = effects_of(spec);
@@ -406,6 +411,37 @@ impl<const D: usize> Simulation<D> {
         out.sort_by(|a, b| a.0.total_cmp(&b.0));
         out
     }
+}
+
+/// Gives the points named by the scene's point loads a [`PointLoad`] component.
+fn insert_point_loads<const D: usize>(
+    world: &mut World,
+    spec: &SceneSpec,
+) -> Result<(), BuildError> {
+    if spec.point_loads.is_empty() {
+        return Ok(());
+    }
+    let mut entities = vec![Entity::PLACEHOLDER; spec.point_count()];
+    for (entity, id) in world.query::<(Entity, &PointId)>().iter(world) {
+        entities[id.0 as usize] = entity;
+    }
+    for load in &spec.point_loads {
+        let entity = *entities.get(load.point).ok_or_else(|| {
+            BuildError(format!(
+                "point load on point {} which does not exist",
+                load.point
+            ))
+        })?;
+        if load.force.len() != D {
+            return Err(BuildError(format!(
+                "point load with {} components in {D}D",
+                load.force.len()
+            )));
+        }
+        let force = SVector::<f64, D>::from_fn(|a, _| load.force[a]);
+        world.entity_mut(entity).insert(PointLoad(force));
+    }
+    Ok(())
 }
 
 /// A human name for a basis.

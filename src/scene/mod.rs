@@ -90,6 +90,16 @@ pub struct NodeConstraint {
     pub value: f64,
 }
 
+/// A force on one material point at load factor 1 (paper eq. 9, a concentrated term of the
+/// external force): it adds λ P N_i(x_p) to the external force of the point's support nodes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PointLoadSpec {
+    /// Global point index: points are numbered body after body, in seeding order (`PointId`).
+    pub point: usize,
+    /// The force P (length = dimension).
+    pub force: Vec<f64>,
+}
+
 /// Newton solver controls.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SolverSpec {
@@ -151,6 +161,8 @@ pub struct SceneSpec {
     /// Body force per unit mass (length = dimension) at load factor 1, if any.
     pub body_force: Option<Vec<f64>>,
     pub constraints: Vec<NodeConstraint>,
+    /// Forces on single material points (summed per point), at load factor 1.
+    pub point_loads: Vec<PointLoadSpec>,
     /// Load factor at the end of each load step, in order (`len()` = number of steps).
     pub load_factors: Vec<f64>,
     pub solver: SolverSpec,
@@ -161,5 +173,10 @@ pub struct SceneSpec {
 impl SceneSpec {
     pub fn dim(&self) -> usize {
         self.grid.dim()
+    }
+
+    /// Number of material points of all bodies.
+    pub fn point_count(&self) -> usize {
+        self.bodies.iter().map(|body| body.points.len()).sum()
     }
 }

@@ -17,6 +17,8 @@
 //! | `body_force([..])` | body force per unit mass at load factor 1 (one entry per axis) |
 //! | `fix(\|x\| pred, [components])` | fix the listed displacement components (0-based axes) of every grid node whose position satisfies `pred` |
 //! | `displace(\|x\| pred, [components], [values])` | prescribe displacements (values at load factor 1, ramped with the load factor) |
+//! | `point_load(\|x\| pred, [force])` | a force (at load factor 1) on every material point whose reference position satisfies `pred` |
+//! | `point_load_total(\|x\| pred, [force])` | a total force shared by the selected points in proportion to their volume |
 //! | `load_steps(n)` / `load_factors([..])` | load schedule: factors k/n, k = 1..n, or an explicit list |
 //! | `solver(#{ tolerance: .., max_iterations: .., max_step_cuts: .., ghost_penalty: .. })` | Newton controls (optional; defaults 1e-9, 30, 8) |
 //! | `output(#{ every: n })` | write every n-th step (optional) |
@@ -34,7 +36,8 @@ use rhai::{Dynamic, Engine, EvalAltResult, NativeCallContext, Position};
 
 use super::builder::{
     BodyDeclaration, ColumnDeclaration, ConstraintDeclaration, Located, MAX_NODES, MaterialHandle,
-    PointsPerCell, Region, SceneBuilder, checked_node_count, ensure_unset,
+    PointLoadDeclaration, PointLoadShare, PointsPerCell, Region, SceneBuilder, checked_node_count,
+    ensure_unset,
 };
 use super::error::{SceneError, ScriptError};
 use super::options::{
@@ -64,6 +67,14 @@ pub(crate) const API_SIGNATURES: &[(&str, &str)] = &[
     (
         "displace",
         "displace(|x| predicate, [components], [values])",
+    ),
+    (
+        "point_load",
+        "point_load(|x| predicate, [force components])",
+    ),
+    (
+        "point_load_total",
+        "point_load_total(|x| predicate, [total force components])",
     ),
     ("load_steps", "load_steps(n)"),
     ("load_factors", "load_factors([f1, f2, ..])"),
@@ -229,6 +240,20 @@ fn scene_engine(state: &SharedBuilder) -> Engine {
             })
         },
     );
+    for (name, share) in [
+        ("point_load", PointLoadShare::Each),
+        ("point_load_total", PointLoadShare::Total),
+    ] {
+        let point_load_state = state.clone();
+        engine.register_fn(
+            name,
+            move |context: NativeCallContext, selector: Dynamic, force: Dynamic| {
+                with_builder(&point_load_state, &context, |builder, at| {
+                    declare_point_load(builder, name, share, &selector, &force, at)
+                })
+            },
+        );
+    }
     engine
 }
 
@@ -477,6 +502,31 @@ fn declare_constraint(
             selector,
             components,
             values,
+        },
+        at,
+    ));
+    Ok(())
+}
+
+fn declare_point_load(
+    builder: &mut SceneBuilder,
+    function_name: &'static str,
+    share: PointLoadShare,
+    selector: &Dynamic,
+    force: &Dynamic,
+    at: Position,
+) -> Result<(), String> {
+    let selector = function(
+        selector,
+        &format!("{function_name}(...): the first argument"),
+    )?;
+    let force = numbers(force, &format!("{function_name}(...): the force"))?;
+    builder.point_loads.push(Located::new(
+        PointLoadDeclaration {
+            function: function_name,
+            selector,
+            force,
+            share,
         },
         at,
     ));

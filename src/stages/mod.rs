@@ -40,7 +40,9 @@ mod update;
 pub use assembly::assemble;
 pub use connectivity::evaluate_basis;
 pub use dofs::number_dofs;
-pub use loads::{apply_body_force, apply_prescribed_displacements};
+pub use loads::{
+    apply_body_force, apply_point_loads, apply_prescribed_displacements, spread_force,
+};
 pub use newton::{check_convergence, solve_linear_system, solve_load_step};
 pub use reset::reset_grid;
 pub use stress::update_stress;
@@ -88,6 +90,8 @@ pub enum NewtonSystems {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Effects {
     pub body_force: bool,
+    /// Forces on material points (`point_load`).
+    pub point_loads: bool,
     pub prescribed_displacements: bool,
     /// Ghost-penalty stabilisation of nearly empty cells (`ghost`).
     pub ghost_penalty: bool,
@@ -133,11 +137,19 @@ pub fn load_step_schedule<const D: usize>(effects: Effects) -> Schedule {
     if effects.body_force {
         schedule.add_systems(apply_body_force::<D>.in_set(StepSystems::Loads));
     }
+    if effects.point_loads {
+        schedule.add_systems(
+            apply_point_loads::<D>
+                .in_set(StepSystems::Loads)
+                .after(apply_body_force::<D>),
+        );
+    }
     if effects.prescribed_displacements {
         schedule.add_systems(
             apply_prescribed_displacements::<D>
                 .in_set(StepSystems::Loads)
-                .after(apply_body_force::<D>),
+                .after(apply_body_force::<D>)
+                .after(apply_point_loads::<D>),
         );
     }
     schedule.add_systems(solve_load_step.in_set(StepSystems::Solve));
