@@ -207,3 +207,79 @@ fn a_scene_run_twice_is_bit_identical() {
     };
     assert_eq!(files("twice-a"), files("twice-b"));
 }
+
+/// Tip deflection of a cantilever under a vertical (non-follower) end load, from the
+/// large-deflection elastica: with θ the slope, EI θ'' = -P cos θ, θ(0) = 0, θ'(L) = 0, so
+/// EI θ'²/2 = P (sin θ_L - sin θ) and, substituting sin θ = sin θ_L - t²,
+/// L = sqrt(EI/2P) ∫_0^{√sin θ_L} 2/cos θ dt and δ = sqrt(EI/2P) ∫ 2 tan θ dt; θ_L by bisection.
+fn elastica_tip_deflection(load: f64, length: f64, bending_stiffness: f64) -> f64 {
+    let scale = (bending_stiffness / (2.0 * load)).sqrt();
+    let integrals = |tip_angle: f64| {
+        let (s, n) = (tip_angle.sin(), 4000);
+        let top = s.sqrt();
+        let (mut arc, mut drop) = (0.0, 0.0);
+        for k in 0..=n {
+            let t = top * k as f64 / n as f64;
+            let theta = (s - t * t).clamp(-1.0, 1.0).asin();
+            let w = if k == 0 || k == n {
+                1.0
+            } else if k % 2 == 1 {
+                4.0
+            } else {
+                2.0
+            };
+            arc += w * 2.0 / theta.cos();
+            drop += w * 2.0 * theta.tan();
+        }
+        let h = top / n as f64 / 3.0;
+        (scale * arc * h, scale * drop * h)
+    };
+    let (mut lo, mut hi) = (1e-9, std::f64::consts::FRAC_PI_2 - 1e-9);
+    for _ in 0..100 {
+        let mid = 0.5 * (lo + hi);
+        if integrals(mid).0 < length {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    integrals(0.5 * (lo + hi)).1
+}
+
+#[test]
+fn elastica_reference_matches_published_values() {
+    // PL²/EI = 10: δ/L = 0.8106 (e.g. Bisshopp & Drucker 1945 tables); small loads: PL³/3EI.
+    assert!((elastica_tip_deflection(10.0, 1.0, 1.0) - 0.8106).abs() < 2e-4);
+    let small = elastica_tip_deflection(1e-3, 1.0, 1.0);
+    assert!((small - 1e-3 / 3.0).abs() < 1e-3 * small);
+}
+
+/// Hard case 4: the cantilever's mid-depth tip deflection after 50 steps of point loads is
+/// within 3% of the elastica (plane strain: bending stiffness E I / (1 - nu²)).
+#[test]
+fn cantilever_under_large_rotation_matches_the_elastica() {
+    let (summary, mut sim) = run::<2>("cantilever.rhai", &[]);
+    assert_eq!(summary.steps.len(), 50);
+    let (e, nu, depth, length, load) = (12.0e6, 0.2, 1.0, 10.0, 100.0e3);
+    let stiffness = e / (1.0 - nu * nu) * depth * depth * depth / 12.0;
+    let expected = elastica_tip_deflection(load, length, stiffness);
+    // The points of the last column, interpolated to mid-depth.
+    let mut q = sim.world.query::<(
+        &impm::components::ReferencePosition<2>,
+        &impm::components::Displacement<2>,
+    )>();
+    let mut tip: Vec<(f64, f64)> = q
+        .iter(&sim.world)
+        .filter(|(x, _)| x.0.x > length - 0.05)
+        .map(|(x, u)| (x.0.y, -u.0.y))
+        .collect();
+    tip.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let k = tip.partition_point(|p| p.0 < 0.5 * depth);
+    let (a, b) = (tip[k - 1], tip[k]);
+    let deflection = a.1 + (b.1 - a.1) * (0.5 * depth - a.0) / (b.0 - a.0);
+    eprintln!("cantilever tip deflection {deflection:.4}, elastica {expected:.4}");
+    assert!(
+        (deflection - expected).abs() < 0.03 * expected,
+        "{deflection} vs {expected}"
+    );
+}
