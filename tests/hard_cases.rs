@@ -1,42 +1,17 @@
 //! Hard cases stay numerically stable: every step converges (after any cutting), nothing is
 //! NaN, the result is accurate where an analytic answer exists, and output is valid.
 
-use std::path::{Path, PathBuf};
+mod common;
 
+use common::{run_shipped, shipped_scene, temp_dir};
 use impm::components::Trial;
 use impm::scene::load_scene;
 use impm::simulation::Simulation;
 use impm::summary::Summary;
 
-fn scene(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("scripts")
-        .join(name)
-}
-
-fn out_dir(tag: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("impm-hard-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
-}
-
 /// Runs a scene to the end; checks convergence and finiteness of every point's stress.
 fn run<const D: usize>(script: &str, set: &[(&str, &str)]) -> (Summary, Simulation<D>) {
-    let overrides: Vec<(String, String)> = set
-        .iter()
-        .map(|(n, v)| (n.to_string(), v.to_string()))
-        .collect();
-    let spec = load_scene(&scene(script), &overrides).unwrap();
-    let tag = format!(
-        "{script}-{}",
-        set.iter()
-            .map(|(n, v)| format!("{n}{v}"))
-            .collect::<String>()
-    );
-    let dir = out_dir(&tag);
-    let mut sim = Simulation::<D>::new(&spec, &dir).unwrap();
-    sim.run(|_| {})
-        .unwrap_or_else(|e| panic!("{script} {set:?}: {e}"));
+    let mut sim = run_shipped::<D>(script, set);
     for step in &sim.summary.steps {
         assert!(
             step.converged,
@@ -55,7 +30,6 @@ fn run<const D: usize>(script: &str, set: &[(&str, &str)]) -> (Summary, Simulati
         );
         assert!(t.0.jacobian > 0.0);
     }
-    let _ = std::fs::remove_dir_all(&dir);
     (sim.summary.clone(), sim)
 }
 
@@ -117,9 +91,9 @@ fn nearly_empty_cells_are_stabilised_by_the_ghost_penalty() {
     assert!(stable.final_error().unwrap() < 1e-3);
     // The sliver node (index 53 for q = 3: its support starts at the knot 50) against its
     // neighbour, from the node file written for the step.
-    let dir = out_dir("sliver-nodes");
+    let dir = temp_dir("hard", "sliver-nodes");
     let spec = load_scene(
-        &scene("sliver_column.rhai"),
+        &shipped_scene("sliver_column.rhai"),
         &[("steps".into(), "1".into())],
     )
     .unwrap();
@@ -192,12 +166,12 @@ fn three_dimensional_cases_converge_and_match_the_column_solution() {
 #[test]
 fn a_scene_run_twice_is_bit_identical() {
     let spec = load_scene(
-        &scene("drifting_block_2d.rhai"),
+        &shipped_scene("drifting_block_2d.rhai"),
         &[("steps".into(), "3".into())],
     )
     .unwrap();
     let files = |tag: &str| {
-        let dir = out_dir(tag);
+        let dir = temp_dir("hard", tag);
         let mut sim = Simulation::<2>::new(&spec, &dir).unwrap();
         sim.write_initial_state().unwrap();
         sim.run(|_| {}).unwrap();
