@@ -63,8 +63,9 @@ pub struct BodyIndex(pub u32);
 pub struct Support<const D: usize>(pub Vec<NodeWeight<D>>);
 
 /// The initial domain of a material point, for the methods whose weights average the grid
-/// functions over it (GIMP, CPDI; `basis::domain`): the half-lengths `lp0_k = h_k / (2 ppc_k)`
-/// of the box the point owns at seeding. Spawned only for those methods.
+/// functions over it (GIMP, CPDI; `basis::domain`): the half-lengths `lp0_k` of the box the
+/// point owns at seeding (`h_k / (2 ppc_k)` on the lattice; its share of the overlap where a
+/// box region cuts a cell). Spawned only for those methods.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct ParticleDomain<const D: usize> {
     pub initial_half_lengths: SVector<f64, D>,
@@ -73,6 +74,11 @@ pub struct ParticleDomain<const D: usize> {
 /// The point's state at the current Newton iterate (stress, tangent, F).
 #[derive(Component, Clone, Debug, PartialEq)]
 pub struct Trial<const D: usize>(pub TrialState<D>);
+
+/// A force on the material point at load factor 1 (`point_load` in scenes); only points that
+/// carry one have this component.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct PointLoad<const D: usize>(pub SVector<f64, D>);
 
 /// A grid node (control point): global index (axis 0 fastest) and position.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]

@@ -12,6 +12,7 @@
 pub mod analytic;
 pub mod basis;
 pub mod components;
+pub mod ghost;
 pub mod material;
 pub mod mechanics;
 pub mod output;

@@ -2,7 +2,8 @@
 //! gives (the kernel of the connectivity stage for GIMP and CPDI).
 //!
 //! A point seeded with `ppc_k` points per cell along axis k owns the box of half-lengths
-//! `lp0_k = h_k / (2 ppc_k)` around it (its share of the cell); this is its initial domain.
+//! `lp0_k = h_k / (2 ppc_k)` around it (its share of the cell; of the cell's overlap with the
+//! region where a box region cuts the cell, `scene::seeding`); this is its initial domain.
 //! At the start of load step n+1 (converged deformation gradient `F = F^n`):
 //!
 //! | method | domain | weights |

@@ -12,10 +12,10 @@ use rhai::{AST, Dynamic, Engine, FnPtr, Position};
 
 use super::error::ScriptError;
 use super::options::describe;
-use super::seeding::{first_point_outside_grid, seed_points};
+use super::seeding::{first_point_outside_grid, seed_box, seed_points};
 use super::{
-    AnalyticSpec, BodySpec, GridSpec, MaterialSpec, NodeConstraint, OutputSpec, SceneSpec,
-    SolverSpec,
+    AnalyticSpec, BodySpec, GridSpec, MaterialSpec, NodeConstraint, OutputSpec, PointLoadSpec,
+    SceneSpec, SolverSpec,
 };
 use crate::basis::control_points_1d;
 
@@ -96,6 +96,25 @@ pub(crate) struct ConstraintDeclaration {
     pub values: Vec<f64>,
 }
 
+/// How a point load's force is given to the points its selector picks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum PointLoadShare {
+    /// Every selected point carries the whole force (`point_load`).
+    Each,
+    /// The force is the total, shared in proportion to reference volume (`point_load_total`).
+    Total,
+}
+
+/// `point_load` / `point_load_total`: a force on the material points whose reference position
+/// the selector accepts.
+#[derive(Clone, Debug)]
+pub(crate) struct PointLoadDeclaration {
+    pub function: &'static str,
+    pub selector: FnPtr,
+    pub force: Vec<f64>,
+    pub share: PointLoadShare,
+}
+
 #[derive(Clone, Debug)]
 pub(crate) struct ColumnDeclaration {
     pub axis: usize,
@@ -112,6 +131,7 @@ pub(crate) struct SceneBuilder {
     pub bodies: Vec<Located<BodyDeclaration>>,
     pub body_force: Option<Located<Vec<f64>>>,
     pub constraints: Vec<Located<ConstraintDeclaration>>,
+    pub point_loads: Vec<Located<PointLoadDeclaration>>,
     pub load_factors: Option<Located<Vec<f64>>>,
     pub solver: Option<Located<SolverSpec>>,
     pub output: Option<Located<OutputSpec>>,
@@ -168,6 +188,7 @@ impl SceneBuilder {
             .collect::<Result<Vec<_>, _>>()?;
 
         let constraints = resolve_constraints(&self.constraints, &grid, engine, ast)?;
+        let point_loads = resolve_point_loads(&self.point_loads, &bodies, dim, engine, ast)?;
 
         let load_factors = self.load_factors.ok_or_else(|| {
             ScriptError::unlocated(
@@ -210,6 +231,7 @@ impl SceneBuilder {
             bodies,
             body_force: self.body_force.map(|body_force| body_force.value),
             constraints,
+            point_loads,
             load_factors: load_factors.value,
             solver: self.solver.map(|solver| solver.value).unwrap_or_default(),
             output: self.output.map(|output| output.value).unwrap_or_default(),
@@ -356,14 +378,7 @@ fn resolve_body(
                     declaration.region.describe()
                 ));
             }
-            let inside = |x: &[f64]| {
-                Ok::<_, ScriptError>(
-                    x.iter()
-                        .zip(lower.iter().zip(upper))
-                        .all(|(&c, (&lo, &hi))| lo <= c && c <= hi),
-                )
-            };
-            seed_points(&grid.value, &points_per_cell, inside)?
+            seed_box(&grid.value, &points_per_cell, lower, upper)
         }
         Region::Predicate(predicate) => {
             let context = format!(
@@ -387,17 +402,10 @@ fn resolve_body(
             declaration.region.describe()
         ));
     }
-    let point_spacing = (0..dim)
-        .map(|axis| {
-            (grid.value.upper[axis] - grid.value.lower[axis])
-                / (grid.value.cells[axis] * points_per_cell[axis]) as f64
-        })
-        .collect();
     Ok(BodySpec {
         name: declaration.name.clone(),
         material: declaration.material,
         points,
-        point_spacing,
     })
 }
 
@@ -492,6 +500,73 @@ fn resolve_constraints(
             component,
             value,
         })
+        .collect())
+}
+
+/// Point loads on the seeded points: each declaration's selector is called with the reference
+/// position of every point (body after body, seeding order, which is the global point index);
+/// several loads on one point add up.
+fn resolve_point_loads(
+    declarations: &[Located<PointLoadDeclaration>],
+    bodies: &[BodySpec],
+    dim: usize,
+    engine: &Engine,
+    ast: &AST,
+) -> Result<Vec<PointLoadSpec>, ScriptError> {
+    let mut forces: BTreeMap<usize, Vec<f64>> = BTreeMap::new();
+    for declaration in declarations {
+        let load = &declaration.value;
+        let function = load.function;
+        if load.force.len() != dim {
+            return Err(ScriptError::at(
+                declaration.at,
+                format!(
+                    "{function}(...): the force has {} components but the grid is {dim}-dimensional",
+                    load.force.len()
+                ),
+            ));
+        }
+        let context = format!(
+            "point selector of {function}(...){}",
+            declaration.line_note()
+        );
+        let mut selected = Vec::new();
+        let points = bodies.iter().flat_map(|body| &body.points).enumerate();
+        for (index, point) in points {
+            if call_predicate(
+                &load.selector,
+                &point.position,
+                engine,
+                ast,
+                declaration.at,
+                &context,
+            )? {
+                selected.push((index, point.volume));
+            }
+        }
+        if selected.is_empty() {
+            return Err(ScriptError::at(
+                declaration.at,
+                format!(
+                    "{function}(...): the predicate selects no material point (it is called with the reference position of every point; points sit inside their cells, not on cell faces)"
+                ),
+            ));
+        }
+        let total_volume: f64 = selected.iter().map(|(_, volume)| volume).sum();
+        for (index, volume) in selected {
+            let scale = match load.share {
+                PointLoadShare::Each => 1.0,
+                PointLoadShare::Total => volume / total_volume,
+            };
+            let force = forces.entry(index).or_insert_with(|| vec![0.0; dim]);
+            for (sum, component) in force.iter_mut().zip(&load.force) {
+                *sum += scale * component;
+            }
+        }
+    }
+    Ok(forces
+        .into_iter()
+        .map(|(point, force)| PointLoadSpec { point, force })
         .collect())
 }
 

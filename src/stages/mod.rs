@@ -29,6 +29,7 @@
 mod assembly;
 mod connectivity;
 mod dofs;
+pub mod ghost;
 mod loads;
 mod newton;
 pub mod output;
@@ -39,7 +40,9 @@ mod update;
 pub use assembly::assemble;
 pub use connectivity::{evaluate_basis, evaluate_domain_basis};
 pub use dofs::number_dofs;
-pub use loads::{apply_body_force, apply_prescribed_displacements};
+pub use loads::{
+    apply_body_force, apply_point_loads, apply_prescribed_displacements, spread_force,
+};
 pub use newton::{check_convergence, solve_linear_system, solve_load_step};
 pub use reset::reset_grid;
 pub use stress::update_stress;
@@ -87,7 +90,11 @@ pub enum NewtonSystems {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Effects {
     pub body_force: bool,
+    /// Forces on material points (`point_load`).
+    pub point_loads: bool,
     pub prescribed_displacements: bool,
+    /// Ghost-penalty stabilisation of nearly empty cells (`ghost`).
+    pub ghost_penalty: bool,
     /// The basis averages over particle domains (GIMP, CPDI): connectivity uses
     /// [`evaluate_domain_basis`] instead of [`evaluate_basis`].
     pub point_domains: bool,
@@ -119,22 +126,38 @@ pub fn load_step_schedule<const D: usize>(effects: Effects) -> Schedule {
             StepSystems::ResetGrid,
         )
             .chain()
-            .run_if(no_failure),
+            .distributive_run_if(no_failure),
     );
     if effects.point_domains {
         schedule.add_systems(evaluate_domain_basis::<D>.in_set(StepSystems::Connectivity));
     } else {
         schedule.add_systems(evaluate_basis::<D>.in_set(StepSystems::Connectivity));
     }
+    if effects.ghost_penalty {
+        let find_ghost_faces = ghost::find_ghost_faces::<D>.in_set(StepSystems::Connectivity);
+        if effects.point_domains {
+            schedule.add_systems(find_ghost_faces.after(evaluate_domain_basis::<D>));
+        } else {
+            schedule.add_systems(find_ghost_faces.after(evaluate_basis::<D>));
+        }
+    }
     schedule.add_systems(number_dofs::<D>.in_set(StepSystems::Dofs));
     if effects.body_force {
         schedule.add_systems(apply_body_force::<D>.in_set(StepSystems::Loads));
+    }
+    if effects.point_loads {
+        schedule.add_systems(
+            apply_point_loads::<D>
+                .in_set(StepSystems::Loads)
+                .after(apply_body_force::<D>),
+        );
     }
     if effects.prescribed_displacements {
         schedule.add_systems(
             apply_prescribed_displacements::<D>
                 .in_set(StepSystems::Loads)
-                .after(apply_body_force::<D>),
+                .after(apply_body_force::<D>)
+                .after(apply_point_loads::<D>),
         );
     }
     schedule.add_systems(solve_load_step.in_set(StepSystems::Solve));
@@ -150,7 +173,7 @@ pub fn output_schedule<const D: usize>() -> Schedule {
     schedule.add_systems(
         (output::write_particles::<D>, output::write_grid::<D>)
             .chain()
-            .run_if(no_failure),
+            .distributive_run_if(no_failure),
     );
     schedule
 }
@@ -161,7 +184,7 @@ pub fn run_output(world: &mut World) {
 }
 
 /// The Newton-iteration schedule for dimension `D`.
-pub fn newton_schedule<const D: usize>() -> Schedule {
+pub fn newton_schedule<const D: usize>(effects: Effects) -> Schedule {
     let mut schedule = strict(NewtonIteration);
     schedule.configure_sets(
         (
@@ -171,7 +194,7 @@ pub fn newton_schedule<const D: usize>() -> Schedule {
             NewtonSystems::LinearSolve,
         )
             .chain()
-            .run_if(no_failure),
+            .distributive_run_if(no_failure),
     );
     schedule.add_systems((
         update_stress::<D>.in_set(NewtonSystems::StressUpdate),
@@ -181,6 +204,13 @@ pub fn newton_schedule<const D: usize>() -> Schedule {
             .in_set(NewtonSystems::LinearSolve)
             .run_if(not_converged),
     ));
+    if effects.ghost_penalty {
+        schedule.add_systems(
+            ghost::assemble_ghost_penalty::<D>
+                .in_set(NewtonSystems::Assembly)
+                .after(assemble::<D>),
+        );
+    }
     schedule
 }
 

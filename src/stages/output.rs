@@ -51,9 +51,12 @@ impl OutputPlan {
         }
     }
 
-    /// Whether step `number` is written.
-    pub fn writes(&self, number: usize) -> bool {
-        number == 0 || number == self.last_step || number.is_multiple_of(self.every)
+    /// Whether the state after `step` is written: the initial state, the last step and every
+    /// n-th step, never an intermediate sub-step of a cut step.
+    pub fn writes(&self, step: &LoadStep) -> bool {
+        let number = step.number;
+        (step.completes_step || number == 0)
+            && (number == 0 || number == self.last_step || number.is_multiple_of(self.every))
     }
 }
 
@@ -86,7 +89,7 @@ pub fn write_particles<const D: usize>(
         &BodyIndex,
     )>,
 ) {
-    if !plan.writes(step.number) {
+    if !plan.writes(&step) {
         return;
     }
     let _timer = clock.time(Stage::Output);
@@ -184,7 +187,7 @@ pub fn write_grid<const D: usize>(
     positions: Query<&Position<D>>,
     nodes: Query<(&GridNode<D>, &Fixity<D>)>,
 ) {
-    if !plan.writes(step.number) {
+    if !plan.writes(&step) {
         return;
     }
     let _timer = clock.time(Stage::Output);
