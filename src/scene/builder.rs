@@ -14,8 +14,8 @@ use super::error::ScriptError;
 use super::options::describe;
 use super::seeding::{first_point_outside_grid, seed_points};
 use super::{
-    AnalyticSpec, BodySpec, GridSpec, MaterialSpec, NodeConstraint, OutputSpec, SceneSpec,
-    SolverSpec,
+    AnalyticSpec, BodySpec, GridSpec, MaterialSpec, NodeConstraint, OutputSpec, RecoverySpec,
+    SceneSpec, SolverSpec,
 };
 use crate::basis::control_points_1d;
 
@@ -116,6 +116,7 @@ pub(crate) struct SceneBuilder {
     pub solver: Option<Located<SolverSpec>>,
     pub output: Option<Located<OutputSpec>>,
     pub analytic: Option<Located<ColumnDeclaration>>,
+    pub recovery: Option<Located<RecoverySpec>>,
 }
 
 /// Error unless `slot` is still empty ("grid(...) was already called at line 3").
@@ -214,6 +215,7 @@ impl SceneBuilder {
             solver: self.solver.map(|solver| solver.value).unwrap_or_default(),
             output: self.output.map(|output| output.value).unwrap_or_default(),
             analytic,
+            recovery: self.recovery.map(|recovery| recovery.value),
         })
     }
 }

@@ -21,6 +21,7 @@
 //! | `solver(#{ tolerance: .., max_iterations: .. })` | Newton controls (optional; defaults 1e-9, 30) |
 //! | `output(#{ every: n })` | write every n-th step (optional) |
 //! | `analytic_column(#{ axis: a, height: L0, material: m, body_force: b })` | declare the self-weight column solution (paper eqs. 11-14) for error reports |
+//! | `stress_recovery(#{ order: m, radius: r })` | moving-least-squares stress recovery after every step (optional; defaults `order: 2`, `radius: 2.5` cell sizes): writes `recovered_stress` beside `cauchy_stress` and reports `error_recovered` |
 //!
 //! Node predicates see the control-point positions (Greville abscissae; grid vertices for
 //! linear), with the first and last node of each axis exactly on the grid bounds. A predicate
@@ -41,7 +42,7 @@ use super::options::{
     OptionMap, describe, function, number, numbers, string, whole_number, whole_numbers,
 };
 use super::params::{Parameter, apply_overrides, find_parameters};
-use super::{GridSpec, MaterialSpec, OutputSpec, SceneSpec, SolverSpec};
+use super::{GridSpec, MaterialSpec, OutputSpec, RecoverySpec, SceneSpec, SolverSpec};
 use crate::basis::BasisKind;
 
 /// The scene API functions and how they are called (used in "wrong arguments" messages).
@@ -72,6 +73,10 @@ pub(crate) const API_SIGNATURES: &[(&str, &str)] = &[
     (
         "analytic_column",
         "analytic_column(#{ axis: a, height: L0, material: m, body_force: b })",
+    ),
+    (
+        "stress_recovery",
+        "stress_recovery(#{ order: m, radius: r })",
     ),
 ];
 
@@ -180,6 +185,7 @@ fn scene_engine(state: &SharedBuilder) -> Engine {
     register_unary(&mut engine, "solver", declare_solver);
     register_unary(&mut engine, "output", declare_output);
     register_unary(&mut engine, "analytic_column", declare_analytic_column);
+    register_unary(&mut engine, "stress_recovery", declare_stress_recovery);
 
     let material_state = state.clone();
     engine.register_fn(
@@ -592,6 +598,38 @@ fn declare_analytic_column(
         },
         at,
     ));
+    Ok(())
+}
+
+fn declare_stress_recovery(
+    builder: &mut SceneBuilder,
+    options: Dynamic,
+    at: Position,
+) -> Result<(), String> {
+    ensure_unset(&builder.recovery, "stress_recovery")?;
+    let options = OptionMap::new("stress_recovery", options, &["order", "radius"])?;
+    let mut recovery = RecoverySpec::default();
+    if let Some(order) = options.optional("order") {
+        recovery.order = whole_number(&order, &options.subject("order"), 0)?;
+        if recovery.order > 4 {
+            return Err(format!(
+                "{} must be at most 4, got {}",
+                options.subject("order"),
+                recovery.order
+            ));
+        }
+    }
+    if let Some(radius) = options.optional("radius") {
+        recovery.radius_in_cells = number(&radius, &options.subject("radius"))?;
+        if recovery.radius_in_cells <= 0.0 {
+            return Err(format!(
+                "{} (in cell sizes) must be positive, got {}",
+                options.subject("radius"),
+                recovery.radius_in_cells
+            ));
+        }
+    }
+    builder.recovery = Some(Located::new(recovery, at));
     Ok(())
 }
 
