@@ -12,7 +12,7 @@ use rhai::{AST, Dynamic, Engine, FnPtr, Position};
 
 use super::error::ScriptError;
 use super::options::describe;
-use super::seeding::{first_point_outside_grid, seed_points};
+use super::seeding::{Placement, first_point_outside_grid, seed_points_placed};
 use super::{
     AnalyticSpec, BodySpec, GridSpec, MaterialSpec, NodeConstraint, OutputSpec, RecoverySpec,
     SceneSpec, SolverSpec,
@@ -83,6 +83,7 @@ pub(crate) struct BodyDeclaration {
     pub material: usize,
     pub region: Region,
     pub points_per_cell: PointsPerCell,
+    pub placement: Placement,
 }
 
 /// `fix` (values all zero) or `displace`: components of every node the selector accepts.
@@ -365,7 +366,7 @@ fn resolve_body(
                         .all(|(&c, (&lo, &hi))| lo <= c && c <= hi),
                 )
             };
-            seed_points(&grid.value, &points_per_cell, inside)?
+            seed_points_placed(&grid.value, &points_per_cell, declaration.placement, inside)?
         }
         Region::Predicate(predicate) => {
             let context = format!(
@@ -380,7 +381,7 @@ fn resolve_body(
                     "the region contains x = {position:?}, outside the grid {grid_bounds}; material points must lie in the grid (bound the region)"
                 ));
             }
-            seed_points(&grid.value, &points_per_cell, inside)?
+            seed_points_placed(&grid.value, &points_per_cell, declaration.placement, inside)?
         }
     };
     if points.is_empty() {

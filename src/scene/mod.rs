@@ -35,7 +35,9 @@ mod seeding;
 pub use error::SceneError;
 pub use params::Parameter;
 pub use rhai_api::{load_scene, scene_parameters};
-pub use seeding::{first_point_outside_grid, seed_points};
+pub use seeding::{
+    Placement, first_point_outside_grid, gauss_legendre_unit, seed_points, seed_points_placed,
+};
 
 use crate::basis::BasisKind;
 

@@ -13,7 +13,7 @@
 //! | `grid(#{ lower: [..], upper: [..], cells: [..], basis: "linear" \| "bspline", order: q })` | background grid; the dimension (1, 2, 3) is the array length; `order` (>= 1) is required for `"bspline"` and ignored for `"linear"` (standard MPM hat functions). Call once. |
 //! | `material(#{ name: "..", E: .., nu: .., density: .. })` | linear-elastic Hencky material (E > 0, -1 < nu < 0.5, density > 0); returns a handle |
 //! | `box([lo..], [hi..])` | an axis-aligned box region (bounds included) |
-//! | `body(#{ name: "..", material: m, region: box(..) or \|x\| pred, ppc: n or [n0, n1, ..] })` | material points: `ppc` per cell per direction at cell-local `(i + 1/2) / ppc`, kept where the region holds; volume = cell volume / points per cell. The region must lie inside the grid. |
+//! | `body(#{ name: "..", material: m, region: box(..) or \|x\| pred, ppc: n or [n0, n1, ..], placement: "uniform" \| "gauss" })` | material points: `ppc` per cell per direction at cell-local `(i + 1/2) / ppc`, kept where the region holds; volume = cell volume / points per cell. With `placement: "gauss"` (optional) the points sit at the Gauss–Legendre points of each cell with volumes from the Gauss weights. The region must lie inside the grid. |
 //! | `body_force([..])` | body force per unit mass at load factor 1 (one entry per axis) |
 //! | `fix(\|x\| pred, [components])` | fix the listed displacement components (0-based axes) of every grid node whose position satisfies `pred` |
 //! | `displace(\|x\| pred, [components], [values])` | prescribe displacements (values at load factor 1, ramped with the load factor) |
@@ -42,6 +42,7 @@ use super::options::{
     OptionMap, describe, function, number, numbers, string, whole_number, whole_numbers,
 };
 use super::params::{Parameter, apply_overrides, find_parameters};
+use super::seeding::Placement;
 use super::{GridSpec, MaterialSpec, OutputSpec, RecoverySpec, SceneSpec, SolverSpec};
 use crate::basis::BasisKind;
 
@@ -381,7 +382,11 @@ fn make_box(lower: &Dynamic, upper: &Dynamic) -> Result<Region, String> {
 }
 
 fn declare_body(builder: &mut SceneBuilder, options: Dynamic, at: Position) -> Result<(), String> {
-    let options = OptionMap::new("body", options, &["name", "material", "region", "ppc"])?;
+    let options = OptionMap::new(
+        "body",
+        options,
+        &["name", "material", "region", "ppc", "placement"],
+    )?;
     let name = string(&options.required("name")?, &options.subject("name"))?;
     if let Some(previous) = builder.bodies.iter().find(|body| body.value.name == name) {
         return Err(format!(
@@ -408,12 +413,26 @@ fn declare_body(builder: &mut SceneBuilder, options: Dynamic, at: Position) -> R
     } else {
         PointsPerCell::Uniform(whole_number(&ppc_value, &options.subject("ppc"), 1)?)
     };
+    let placement = match options.optional("placement") {
+        None => Placement::Uniform,
+        Some(value) => match string(&value, &options.subject("placement"))?.as_str() {
+            "uniform" => Placement::Uniform,
+            "gauss" => Placement::Gauss,
+            other => {
+                return Err(format!(
+                    "{} must be \"uniform\" or \"gauss\", got {other:?}",
+                    options.subject("placement")
+                ));
+            }
+        },
+    };
     builder.bodies.push(Located::new(
         BodyDeclaration {
             name,
             material: material.index,
             region,
             points_per_cell,
+            placement,
         },
         at,
     ));
@@ -877,7 +896,7 @@ mod tests {
             "{text}"
         );
         assert!(
-            text.contains("cells, basis, order, ppc, body_force, steps"),
+            text.contains("cells, basis, order, ppc, body_force, steps, placement, recovery"),
             "{text}"
         );
     }
@@ -899,6 +918,8 @@ mod tests {
                     ("ppc", "if basis == \"linear\" { 1 } else { 4 }"),
                     ("body_force", "-800.0"),
                     ("steps", "20"),
+                    ("placement", "\"uniform\""),
+                    ("recovery", "\"none\""),
                 ],
                 "{script}"
             );
