@@ -42,7 +42,7 @@ mod profile;
 mod table;
 
 pub use memory::MemoryUse;
-pub use plot::{Series, log_log_chart};
+pub use plot::{Series, chart};
 pub use profile::{ProfilePoint, read_profile};
 pub use table::{convergence_rates, csv_header};
 

@@ -105,6 +105,7 @@ fn draw<DB, X, Y>(
     root: DrawingArea<DB, Shift>,
     series: &[Series],
     labels: (&str, &str),
+    legend: &SeriesLabelPosition,
     x_spec: X,
     y_spec: Y,
 ) -> Result<(), String>
@@ -165,7 +166,7 @@ where
         .label_font(("sans-serif", 15))
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK)
-        .position(SeriesLabelPosition::LowerLeft)
+        .position(legend.clone())
         .draw()
         .map_err(err)?;
     root.present().map_err(err)
@@ -177,6 +178,7 @@ fn draw_axes<DB: DrawingBackend>(
     series: &[Series],
     labels: (&str, &str),
     log: (bool, bool),
+    legend: &SeriesLabelPosition,
 ) -> Result<(), String> {
     let all = || series.iter().flat_map(|s| s.points.iter());
     let (x0, x1) = range(all().map(|p| p.0), log.0);
@@ -186,22 +188,24 @@ fn draw_axes<DB: DrawingBackend>(
             root,
             series,
             labels,
+            legend,
             (x0..x1).log_scale(),
             (y0..y1).log_scale(),
         ),
-        (true, false) => draw(root, series, labels, (x0..x1).log_scale(), y0..y1),
-        (false, true) => draw(root, series, labels, x0..x1, (y0..y1).log_scale()),
-        (false, false) => draw(root, series, labels, x0..x1, y0..y1),
+        (true, false) => draw(root, series, labels, legend, (x0..x1).log_scale(), y0..y1),
+        (false, true) => draw(root, series, labels, legend, x0..x1, (y0..y1).log_scale()),
+        (false, false) => draw(root, series, labels, legend, x0..x1, y0..y1),
     }
 }
 
 /// Writes `<stem>.svg` and `<stem>.png`: `series` with logarithmic axes where `log` says so
-/// (`(x, y)`); points that a log axis cannot show (<= 0) are dropped.
-pub fn log_log_chart(
+/// (`(x, y)`), the legend at `legend`; points that a log axis cannot show (<= 0) are dropped.
+pub fn chart(
     series: &[Series],
     x_label: &str,
     y_label: &str,
     log: (bool, bool),
+    legend: SeriesLabelPosition,
     stem: &Path,
 ) -> Result<(), String> {
     register_font()?;
@@ -228,6 +232,7 @@ pub fn log_log_chart(
         &visible,
         labels,
         log,
+        &legend,
     )
     .map_err(|e| format!("{}: {e}", svg.display()))?;
     draw_axes(
@@ -235,6 +240,7 @@ pub fn log_log_chart(
         &visible,
         labels,
         log,
+        &legend,
     )
     .map_err(|e| format!("{}: {e}", png.display()))
 }
@@ -311,11 +317,12 @@ pub fn error_against_parameter(
             .and_then(|v| v.parse::<f64>().ok())
             .unwrap_or(f64::NAN)
     };
-    log_log_chart(
+    chart(
         &error_series(records, against, x),
         against,
         "error (eq. 15)",
         (true, true),
+        SeriesLabelPosition::UpperRight,
         stem,
     )
 }
@@ -345,11 +352,12 @@ pub fn error_against_time(
             })
             .collect(),
     };
-    log_log_chart(
+    chart(
         &series,
         "wall time per run [s]",
         "error (eq. 15)",
         (true, true),
+        SeriesLabelPosition::UpperRight,
         stem,
     )
 }

@@ -10,7 +10,9 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
-use super::plot::{Series, log_log_chart};
+use plotters::chart::SeriesLabelPosition;
+
+use super::plot::{Series, chart};
 use super::{RunOutcome, RunRecord};
 use crate::analytic::SelfWeightColumn;
 use crate::output::read_vtu;
@@ -187,18 +189,20 @@ pub fn charts(records: &[RunRecord], dir: &Path) -> Result<(), String> {
             });
         }
     }
-    log_log_chart(
+    chart(
         &stress_series,
         "reference position X along the column",
         "Cauchy stress along the column",
         (false, false),
+        SeriesLabelPosition::UpperLeft,
         &dir.join("profiles"),
     )?;
-    log_log_chart(
+    chart(
         &error_series,
         "reference position X along the column",
         "|stress - analytic| / W",
         (false, true),
+        SeriesLabelPosition::LowerMiddle,
         &dir.join("profile_errors"),
     )
 }
