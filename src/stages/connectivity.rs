@@ -21,7 +21,11 @@ pub fn evaluate_basis<const D: usize>(
 ) {
     let _timer = clock.time(Stage::Connectivity);
     for (id, position, mut support) in points.iter_mut() {
-        if grid.0.eval(&position.0, &mut scratch, &mut support.0).is_err() {
+        if grid
+            .0
+            .eval(&position.0, &mut scratch, &mut support.0)
+            .is_err()
+        {
             status.fail(SolverError::PointOutsideGrid {
                 point: id.0,
                 position: position.0.iter().copied().collect(),
