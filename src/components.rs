@@ -11,7 +11,7 @@
 //!   by node, because every stage gathers and scatters them by node index.
 
 use bevy_ecs::prelude::*;
-use nalgebra::{SMatrix, SVector};
+use nalgebra::{Matrix3, SMatrix, SVector};
 
 use crate::basis::NodeWeight;
 use crate::material::Hencky;
@@ -79,6 +79,12 @@ pub struct Trial<const D: usize>(pub TrialState<D>);
 /// carry one have this component.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct PointLoad<const D: usize>(pub SVector<f64, D>);
+
+/// Stress recovered by moving least squares from the neighbouring points' Cauchy stresses
+/// (3x3, as `TrialState::cauchy`). Present only when the scene asks for stress recovery; see
+/// [`crate::recovery`] and `stages/recovery.rs`.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct RecoveredStress(pub Matrix3<f64>);
 
 /// A grid node (control point): global index (axis 0 fastest) and position.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]

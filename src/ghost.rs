@@ -40,6 +40,7 @@
 
 use crate::basis::bspline::{bspline_span, open_uniform_knot};
 use crate::basis::{Axis, GridBasis};
+use crate::scene::gauss_legendre_unit;
 
 /// d^k N_i^p / dt^k at `t` (knot units) on the open uniform knot vector, by recursion on the
 /// order: N^(k)_{i,p} = p (N^(k-1)_{i,p-1} / (ξ_{i+p} − ξ_i) − N^(k-1)_{i+1,p-1} / (ξ_{i+p+1} − ξ_{i+1})),
@@ -84,35 +85,6 @@ pub fn normal_derivative_jumps(axis: &Axis, left_cell: usize) -> Vec<f64> {
         .map(|i| {
             let d = |t: f64| bspline_derivative(i, q, q, t, q, cells);
             (d(t_right) - d(t_left)) / h.powi(q as i32)
-        })
-        .collect()
-}
-
-/// Gauss-Legendre points and weights on [0, 1].
-pub fn gauss_legendre_unit(n: usize) -> Vec<(f64, f64)> {
-    (0..n)
-        .map(|i| {
-            // Newton on P_n from the Chebyshev-like guess.
-            let mut x = (std::f64::consts::PI * (i as f64 + 0.75) / (n as f64 + 0.5)).cos();
-            let mut derivative = 1.0;
-            for _ in 0..100 {
-                let (mut p0, mut p1) = (1.0, x);
-                for k in 2..=n {
-                    let p2 = ((2 * k - 1) as f64 * x * p1 - (k - 1) as f64 * p0) / k as f64;
-                    p0 = p1;
-                    p1 = p2;
-                }
-                let pn = if n == 0 { 1.0 } else { p1 };
-                let pn_1 = if n == 1 { 1.0 } else { p0 };
-                derivative = n as f64 * (x * pn - pn_1) / (x * x - 1.0);
-                let dx = pn / derivative;
-                x -= dx;
-                if dx.abs() < 1e-15 {
-                    break;
-                }
-            }
-            let weight = 2.0 / ((1.0 - x * x) * derivative * derivative);
-            ((1.0 + x) / 2.0, weight / 2.0)
         })
         .collect()
 }
@@ -323,20 +295,6 @@ mod tests {
         let a = axis(3, 8);
         let jumps = normal_derivative_jumps(&a, 4);
         assert!((jumps[4] - 1.0 / 0.5f64.powi(3)).abs() < 1e-9, "{jumps:?}");
-    }
-
-    #[test]
-    fn gauss_legendre_integrates_polynomials_exactly() {
-        for n in 1..=6 {
-            let rule = gauss_legendre_unit(n);
-            for k in 0..2 * n {
-                let integral: f64 = rule.iter().map(|(x, w)| w * x.powi(k as i32)).sum();
-                assert!(
-                    (integral - 1.0 / (k + 1) as f64).abs() < 1e-13,
-                    "n={n} k={k}"
-                );
-            }
-        }
     }
 
     #[test]

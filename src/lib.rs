@@ -5,9 +5,11 @@
 //! every step, and B-spline bases of any order (Motlagh & Coombs, MPM 2017).
 //! See `ARCHITECTURE.md` for the one-screen map of stages and entities.
 //!
-//! * Pure kernels: [`basis`], [`material`], [`mechanics`], [`sparse`], [`analytic`].
+//! * Pure kernels: [`basis`], [`material`], [`mechanics`], [`sparse`], [`analytic`],
+//!   [`recovery`] (MLS stress recovery).
 //! * ECS: [`components`], [`resources`], [`stages`] (systems and schedules).
-//! * Driver and I/O: [`simulation`], [`scene`] (Rhai), [`output`] (VTK), [`summary`].
+//! * Driver and I/O: [`simulation`], [`scene`] (Rhai), [`output`] (VTK), [`summary`],
+//!   [`study`] (parameter sweeps, tables and charts).
 
 pub mod analytic;
 pub mod basis;
@@ -16,9 +18,11 @@ pub mod ghost;
 pub mod material;
 pub mod mechanics;
 pub mod output;
+pub mod recovery;
 pub mod resources;
 pub mod scene;
 pub mod simulation;
 pub mod sparse;
 pub mod stages;
+pub mod study;
 pub mod summary;

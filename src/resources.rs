@@ -53,6 +53,15 @@ impl<const D: usize> GridFields<D> {
     }
 }
 
+/// Settings of the MLS stress recovery (inserted only when the scene asks for it).
+#[derive(Resource, Clone, Copy, Debug, PartialEq)]
+pub struct StressRecovery {
+    /// Total degree of the fitted polynomial.
+    pub order: usize,
+    /// Support radius as a multiple of the largest cell size of the grid.
+    pub radius_in_cells: f64,
+}
+
 /// The load step being solved.
 #[derive(Resource, Clone, Copy, Debug, Default, PartialEq)]
 pub struct LoadStep {
@@ -268,11 +277,12 @@ pub enum Stage {
     LinearSolve,
     PointUpdate,
     GridReset,
+    StressRecovery,
     Output,
 }
 
 impl Stage {
-    pub const ALL: [Stage; 9] = [
+    pub const ALL: [Stage; 10] = [
         Stage::Connectivity,
         Stage::Dofs,
         Stage::ExternalForce,
@@ -281,6 +291,7 @@ impl Stage {
         Stage::LinearSolve,
         Stage::PointUpdate,
         Stage::GridReset,
+        Stage::StressRecovery,
         Stage::Output,
     ];
 
@@ -294,6 +305,7 @@ impl Stage {
             Stage::LinearSolve => "linear_solve",
             Stage::PointUpdate => "point_update",
             Stage::GridReset => "grid_reset",
+            Stage::StressRecovery => "stress_recovery",
             Stage::Output => "output",
         }
     }

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use bevy_ecs::prelude::*;
-use nalgebra::{SMatrix, SVector};
+use nalgebra::{Matrix3, SMatrix, SVector};
 
 use crate::analytic::SelfWeightColumn;
 use crate::basis::{BasisKind, GridBasis};
@@ -61,6 +61,7 @@ pub fn effects_of(spec: &SceneSpec) -> Effects {
             .any(|load| load.force.iter().any(|&c| c != 0.0)),
         prescribed_displacements: spec.constraints.iter().any(|c| c.value != 0.0),
         ghost_penalty: spec.solver.ghost_penalty > 0.0,
+        stress_recovery: spec.recovery.is_some(),
         point_domains: spec.grid.basis.uses_point_domain(),
     }
 }
@@ -162,14 +163,21 @@ impl<const D: usize> Simulation<D> {
                 ));
                 id += 1;
             }
-            let entities: Vec<Entity> = world.spawn_batch(batch).collect();
+            let spawned: Vec<Entity> = world.spawn_batch(batch).collect();
             if spec.grid.basis.uses_point_domain() {
                 let domains = body
                     .points
                     .iter()
                     .map(|seed| particle_domain::<D>(&body.name, seed))
                     .collect::<Result<Vec<_>, _>>()?;
-                world.insert_batch(entities.into_iter().zip(domains));
+                world.insert_batch(spawned.iter().copied().zip(domains));
+            }
+            if spec.recovery.is_some() {
+                world.insert_batch(
+                    spawned
+                        .into_iter()
+                        .map(|entity| (entity, RecoveredStress(Matrix3::zeros()))),
+                );
             }
         }
         if id == 0 {
@@ -196,6 +204,12 @@ impl<const D: usize> Simulation<D> {
             max_iterations: spec.solver.max_iterations,
         });
         world.insert_resource(Newton::default());
+        if let Some(recovery) = spec.recovery {
+            world.insert_resource(StressRecovery {
+                order: recovery.order,
+                radius_in_cells: recovery.radius_in_cells,
+            });
+        }
         world.insert_resource(RunStatus::default());
         world.insert_resource(StageClock::default());
         world.insert_resource(OutputPlan::new(
@@ -280,6 +294,7 @@ impl<const D: usize> Simulation<D> {
             error: None,
             cuts: 0,
             substeps: Vec::new(),
+            error_recovered: None,
         };
         let (mut from, mut level) = (start_factor, 0usize);
         loop {
@@ -355,6 +370,7 @@ impl<const D: usize> Simulation<D> {
         record.seconds = self.world.resource::<StageClock>().clone();
         record.wall_seconds = start.elapsed().as_secs_f64();
         record.error = self.analytic_error(target);
+        record.error_recovered = self.analytic_error_recovered(target);
         self.steps_done = number;
         self.summary.push(record);
         self.summary.write().map_err(|e| SolverError::Output {
@@ -384,8 +400,8 @@ impl<const D: usize> Simulation<D> {
         }
     }
 
-    /// The scene's analytic error measure (paper eq. 15) at load factor `factor`, if declared.
-    pub fn analytic_error(&mut self, factor: f64) -> Option<f64> {
+    /// The scene's analytic column at load factor `factor` and its axis, if declared.
+    fn analytic_column(&self, factor: f64) -> Option<(SelfWeightColumn, usize)> {
         let AnalyticSpec::Column {
             axis,
             height,
@@ -399,12 +415,33 @@ impl<const D: usize> Simulation<D> {
             height,
             modulus,
         };
+        Some((column, axis))
+    }
+
+    /// The scene's analytic error measure (paper eq. 15) at load factor `factor`, if declared.
+    pub fn analytic_error(&mut self, factor: f64) -> Option<f64> {
+        let (column, axis) = self.analytic_column(factor)?;
         let mut query = self
             .world
             .query::<(&ReferencePosition<D>, &ReferenceVolume, &Trial<D>)>();
         let points: Vec<(f64, f64, f64)> = query
             .iter(&self.world)
             .map(|(x, v, t)| (x.0[axis], v.0, t.0.cauchy()[(axis, axis)]))
+            .collect();
+        Some(column.error(points))
+    }
+
+    /// Eq. 15 of the MLS-recovered stress at load factor `factor`, if the scene declares an
+    /// analytic solution and asks for stress recovery.
+    pub fn analytic_error_recovered(&mut self, factor: f64) -> Option<f64> {
+        self.spec.recovery?;
+        let (column, axis) = self.analytic_column(factor)?;
+        let mut query = self
+            .world
+            .query::<(&ReferencePosition<D>, &ReferenceVolume, &RecoveredStress)>();
+        let points: Vec<(f64, f64, f64)> = query
+            .iter(&self.world)
+            .map(|(x, v, s)| (x.0[axis], v.0, s.0[(axis, axis)]))
             .collect();
         Some(column.error(points))
     }
@@ -490,13 +527,28 @@ pub fn run_scene(
     out_dir: &Path,
     on_step: impl FnMut(&StepRecord),
 ) -> Result<Summary, RunError> {
+    let (summary, result) = run_scene_keeping_summary(spec, out_dir, on_step);
+    result?;
+    summary.ok_or_else(|| RunError::Build(BuildError("the run produced no summary".into())))
+}
+
+/// Like [`run_scene`], but also returns the summary of a run that failed after it was built
+/// (its completed steps and the failed one), as studies record failed runs.
+pub fn run_scene_keeping_summary(
+    spec: &SceneSpec,
+    out_dir: &Path,
+    on_step: impl FnMut(&StepRecord),
+) -> (Option<Summary>, Result<(), RunError>) {
     match spec.dim() {
         1 => run_in::<1>(spec, out_dir, on_step),
         2 => run_in::<2>(spec, out_dir, on_step),
         3 => run_in::<3>(spec, out_dir, on_step),
-        d => Err(RunError::Build(BuildError(format!(
-            "dimension {d} is not supported (1, 2 or 3)"
-        )))),
+        d => (
+            None,
+            Err(RunError::Build(BuildError(format!(
+                "dimension {d} is not supported (1, 2 or 3)"
+            )))),
+        ),
     }
 }
 
@@ -504,11 +556,16 @@ fn run_in<const D: usize>(
     spec: &SceneSpec,
     out_dir: &Path,
     on_step: impl FnMut(&StepRecord),
-) -> Result<Summary, RunError> {
-    let mut sim = Simulation::<D>::new(spec, out_dir).map_err(RunError::Build)?;
-    sim.write_initial_state().map_err(RunError::Solve)?;
-    sim.run(on_step).map_err(RunError::Solve)?;
-    Ok(sim.summary)
+) -> (Option<Summary>, Result<(), RunError>) {
+    let mut sim = match Simulation::<D>::new(spec, out_dir) {
+        Ok(sim) => sim,
+        Err(e) => return (None, Err(RunError::Build(e))),
+    };
+    let result = sim
+        .write_initial_state()
+        .and_then(|()| sim.run(on_step))
+        .map_err(RunError::Solve);
+    (Some(sim.summary), result)
 }
 
 /// A failed run.

@@ -25,6 +25,8 @@ pub struct StepRecord {
     pub wall_seconds: f64,
     /// Eq. 15 error after the step, if the scene has an analytic solution.
     pub error: Option<f64>,
+    /// Eq. 15 error of the MLS-recovered stress, if the scene asks for stress recovery.
+    pub error_recovered: Option<f64>,
     /// How many times the step was cut (halved) after a failed Newton solve.
     pub cuts: usize,
     /// Every attempt in order, failed ones included (one entry when the step was not cut).
@@ -86,6 +88,9 @@ fn step_json(r: &StepRecord) -> Value {
     });
     if let Some(e) = r.error {
         v["error"] = number(e);
+    }
+    if let Some(e) = r.error_recovered {
+        v["error_recovered"] = number(e);
     }
     v["cuts"] = json!(r.cuts);
     if r.substeps.len() > 1 {
@@ -149,6 +154,11 @@ impl Summary {
         self.steps.last().and_then(|s| s.error)
     }
 
+    /// The eq. 15 error of the recovered stress after the last completed step.
+    pub fn final_error_recovered(&self) -> Option<f64> {
+        self.steps.last().and_then(|s| s.error_recovered)
+    }
+
     /// Total Newton iterations.
     pub fn total_iterations(&self) -> usize {
         self.steps.iter().map(|s| s.iterations).sum()
@@ -186,6 +196,9 @@ impl Summary {
         });
         if let Some(e) = self.final_error() {
             v["error"] = number(e);
+        }
+        if let Some(e) = self.final_error_recovered() {
+            v["error_recovered"] = number(e);
         }
         if let Some(f) = &self.failure {
             v["failure"] = Value::String(f.clone());

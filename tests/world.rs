@@ -81,6 +81,7 @@ fn block_2d(cells: [usize; 2], body_cells: [usize; 2], basis: BasisKind) -> Scen
         solver: SolverSpec::default(),
         output: OutputSpec::default(),
         analytic: None,
+        recovery: None,
     }
 }
 

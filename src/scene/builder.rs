@@ -12,10 +12,10 @@ use rhai::{AST, Dynamic, Engine, FnPtr, Position};
 
 use super::error::ScriptError;
 use super::options::describe;
-use super::seeding::{first_point_outside_grid, seed_box, seed_points};
+use super::seeding::{Placement, first_point_outside_grid, seed_box, seed_points_placed};
 use super::{
     AnalyticSpec, BodySpec, GridSpec, MaterialSpec, NodeConstraint, OutputSpec, PointLoadSpec,
-    SceneSpec, SolverSpec,
+    RecoverySpec, SceneSpec, SolverSpec,
 };
 use crate::basis::control_points_1d;
 
@@ -83,6 +83,7 @@ pub(crate) struct BodyDeclaration {
     pub material: usize,
     pub region: Region,
     pub points_per_cell: PointsPerCell,
+    pub placement: Placement,
 }
 
 /// `fix` (values all zero) or `displace`: components of every node the selector accepts.
@@ -136,6 +137,7 @@ pub(crate) struct SceneBuilder {
     pub solver: Option<Located<SolverSpec>>,
     pub output: Option<Located<OutputSpec>>,
     pub analytic: Option<Located<ColumnDeclaration>>,
+    pub recovery: Option<Located<RecoverySpec>>,
 }
 
 /// Error unless `slot` is still empty ("grid(...) was already called at line 3").
@@ -236,6 +238,7 @@ impl SceneBuilder {
             solver: self.solver.map(|solver| solver.value).unwrap_or_default(),
             output: self.output.map(|output| output.value).unwrap_or_default(),
             analytic,
+            recovery: self.recovery.map(|recovery| recovery.value),
         })
     }
 }
@@ -378,7 +381,13 @@ fn resolve_body(
                     declaration.region.describe()
                 ));
             }
-            seed_box(&grid.value, &points_per_cell, lower, upper)
+            seed_box(
+                &grid.value,
+                &points_per_cell,
+                declaration.placement,
+                lower,
+                upper,
+            )
         }
         Region::Predicate(predicate) => {
             let context = format!(
@@ -393,7 +402,7 @@ fn resolve_body(
                     "the region contains x = {position:?}, outside the grid {grid_bounds}; material points must lie in the grid (bound the region)"
                 ));
             }
-            seed_points(&grid.value, &points_per_cell, inside)?
+            seed_points_placed(&grid.value, &points_per_cell, declaration.placement, inside)?
         }
     };
     if points.is_empty() {

@@ -35,7 +35,10 @@ mod seeding;
 pub use error::SceneError;
 pub use params::Parameter;
 pub use rhai_api::{load_scene, scene_parameters};
-pub use seeding::{first_point_outside_grid, seed_box, seed_points};
+pub use seeding::{
+    Placement, first_point_outside_grid, gauss_legendre_unit, seed_box, seed_points,
+    seed_points_placed,
+};
 
 use crate::basis::BasisKind;
 
@@ -154,6 +157,24 @@ pub enum AnalyticSpec {
     },
 }
 
+/// Moving-least-squares recovery of the point stresses (see `crate::recovery`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RecoverySpec {
+    /// Total degree of the fitted polynomial (0, 1, 2, ...).
+    pub order: usize,
+    /// Support radius as a multiple of the largest cell size.
+    pub radius_in_cells: f64,
+}
+
+impl Default for RecoverySpec {
+    fn default() -> Self {
+        Self {
+            order: 2,
+            radius_in_cells: 2.5,
+        }
+    }
+}
+
 /// Everything a run needs, fully resolved.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SceneSpec {
@@ -172,6 +193,8 @@ pub struct SceneSpec {
     pub solver: SolverSpec,
     pub output: OutputSpec,
     pub analytic: Option<AnalyticSpec>,
+    /// Stress recovery written beside the raw point stress, if asked for.
+    pub recovery: Option<RecoverySpec>,
 }
 
 impl SceneSpec {

@@ -13,7 +13,7 @@
 //! | `grid(#{ lower: [..], upper: [..], cells: [..], basis: "linear" \| "bspline" \| "gimp" \| "cpdi", order: q, gimp: "stretched" \| "fixed" })` | background grid; the dimension (1, 2, 3) is the array length. `basis`: `"linear"` standard MPM (hat functions), `"bspline"` B-splines of `order` q >= 1 (required), `"gimp"` GIMP (hats averaged over the point's box domain), `"cpdi"` CPDI1 (hats averaged from the corners of the point's domain carried by F). `gimp` (GIMP only, default `"stretched"`): `"stretched"` domain half-lengths follow the diagonal of F (cpGIMP), `"fixed"` domains keep their initial size (uGIMP). `order` is ignored for linear, GIMP and CPDI. A point's domain is the box of its seeding share (`h / ppc` per axis); GIMP clips domains to the grid, CPDI stops with an error naming the point when a domain corner leaves it. Call once. |
 //! | `material(#{ name: "..", E: .., nu: .., density: .. })` | linear-elastic Hencky material (E > 0, -1 < nu < 0.5, density > 0); returns a handle |
 //! | `box([lo..], [hi..])` | an axis-aligned box region (bounds included) |
-//! | `body(#{ name: "..", material: m, region: box(..) or \|x\| pred, ppc: n or [n0, n1, ..] })` | material points: `ppc` per cell per direction at cell-local `(i + 1/2) / ppc`, kept where the region holds; volume = cell volume / points per cell. The region must lie inside the grid. |
+//! | `body(#{ name: "..", material: m, region: box(..) or \|x\| pred, ppc: n or [n0, n1, ..], placement: "uniform" \| "gauss" })` | material points: `ppc` per cell per direction at cell-local `(i + 1/2) / ppc`, kept where the region holds; volume = cell volume / points per cell. With `placement: "gauss"` (optional) the points sit at the Gauss–Legendre points of each cell with volumes from the Gauss weights. The region must lie inside the grid. |
 //! | `body_force([..])` | body force per unit mass at load factor 1 (one entry per axis) |
 //! | `fix(\|x\| pred, [components])` | fix the listed displacement components (0-based axes) of every grid node whose position satisfies `pred` |
 //! | `displace(\|x\| pred, [components], [values])` | prescribe displacements (values at load factor 1, ramped with the load factor) |
@@ -23,6 +23,7 @@
 //! | `solver(#{ tolerance: .., max_iterations: .., max_step_cuts: .., ghost_penalty: .. })` | Newton controls (optional; defaults 1e-9, 30, 8) |
 //! | `output(#{ every: n })` | write every n-th step (optional) |
 //! | `analytic_column(#{ axis: a, height: L0, material: m, body_force: b })` | declare the self-weight column solution (paper eqs. 11-14) for error reports |
+//! | `stress_recovery(#{ order: m, radius: r })` | moving-least-squares stress recovery after every step (optional; defaults `order: 2`, `radius: 2.5` cell sizes): writes `recovered_stress` beside `cauchy_stress` and reports `error_recovered` |
 //!
 //! Node predicates see the control-point positions (Greville abscissae; grid vertices for
 //! linear), with the first and last node of each axis exactly on the grid bounds. A predicate
@@ -44,7 +45,8 @@ use super::options::{
     OptionMap, describe, function, number, numbers, string, whole_number, whole_numbers,
 };
 use super::params::{Parameter, apply_overrides, find_parameters};
-use super::{GridSpec, MaterialSpec, OutputSpec, SceneSpec, SolverSpec};
+use super::seeding::Placement;
+use super::{GridSpec, MaterialSpec, OutputSpec, RecoverySpec, SceneSpec, SolverSpec};
 use crate::basis::{BasisKind, GimpDomain};
 
 /// The scene API functions and how they are called (used in "wrong arguments" messages).
@@ -86,6 +88,10 @@ pub(crate) const API_SIGNATURES: &[(&str, &str)] = &[
     (
         "analytic_column",
         "analytic_column(#{ axis: a, height: L0, material: m, body_force: b })",
+    ),
+    (
+        "stress_recovery",
+        "stress_recovery(#{ order: m, radius: r })",
     ),
 ];
 
@@ -194,6 +200,7 @@ fn scene_engine(state: &SharedBuilder) -> Engine {
     register_unary(&mut engine, "solver", declare_solver);
     register_unary(&mut engine, "output", declare_output);
     register_unary(&mut engine, "analytic_column", declare_analytic_column);
+    register_unary(&mut engine, "stress_recovery", declare_stress_recovery);
 
     let material_state = state.clone();
     engine.register_fn(
@@ -420,7 +427,11 @@ fn make_box(lower: &Dynamic, upper: &Dynamic) -> Result<Region, String> {
 }
 
 fn declare_body(builder: &mut SceneBuilder, options: Dynamic, at: Position) -> Result<(), String> {
-    let options = OptionMap::new("body", options, &["name", "material", "region", "ppc"])?;
+    let options = OptionMap::new(
+        "body",
+        options,
+        &["name", "material", "region", "ppc", "placement"],
+    )?;
     let name = string(&options.required("name")?, &options.subject("name"))?;
     if let Some(previous) = builder.bodies.iter().find(|body| body.value.name == name) {
         return Err(format!(
@@ -447,12 +458,26 @@ fn declare_body(builder: &mut SceneBuilder, options: Dynamic, at: Position) -> R
     } else {
         PointsPerCell::Uniform(whole_number(&ppc_value, &options.subject("ppc"), 1)?)
     };
+    let placement = match options.optional("placement") {
+        None => Placement::Uniform,
+        Some(value) => match string(&value, &options.subject("placement"))?.as_str() {
+            "uniform" => Placement::Uniform,
+            "gauss" => Placement::Gauss,
+            other => {
+                return Err(format!(
+                    "{} must be \"uniform\" or \"gauss\", got {other:?}",
+                    options.subject("placement")
+                ));
+            }
+        },
+    };
     builder.bodies.push(Located::new(
         BodyDeclaration {
             name,
             material: material.index,
             region,
             points_per_cell,
+            placement,
         },
         at,
     ));
@@ -684,6 +709,38 @@ fn declare_analytic_column(
         },
         at,
     ));
+    Ok(())
+}
+
+fn declare_stress_recovery(
+    builder: &mut SceneBuilder,
+    options: Dynamic,
+    at: Position,
+) -> Result<(), String> {
+    ensure_unset(&builder.recovery, "stress_recovery")?;
+    let options = OptionMap::new("stress_recovery", options, &["order", "radius"])?;
+    let mut recovery = RecoverySpec::default();
+    if let Some(order) = options.optional("order") {
+        recovery.order = whole_number(&order, &options.subject("order"), 0)?;
+        if recovery.order > 4 {
+            return Err(format!(
+                "{} must be at most 4, got {}",
+                options.subject("order"),
+                recovery.order
+            ));
+        }
+    }
+    if let Some(radius) = options.optional("radius") {
+        recovery.radius_in_cells = number(&radius, &options.subject("radius"))?;
+        if recovery.radius_in_cells <= 0.0 {
+            return Err(format!(
+                "{} (in cell sizes) must be positive, got {}",
+                options.subject("radius"),
+                recovery.radius_in_cells
+            ));
+        }
+    }
+    builder.recovery = Some(Located::new(recovery, at));
     Ok(())
 }
 
@@ -931,7 +988,7 @@ mod tests {
             "{text}"
         );
         assert!(
-            text.contains("cells, basis, order, gimp, ppc, body_force, steps"),
+            text.contains("cells, basis, order, gimp, ppc, body_force, steps, placement, recovery"),
             "{text}"
         );
     }
@@ -957,6 +1014,8 @@ mod tests {
                     ),
                     ("body_force", "-800.0"),
                     ("steps", "20"),
+                    ("placement", "\"uniform\""),
+                    ("recovery", "\"none\""),
                 ],
                 "{script}"
             );

@@ -12,7 +12,8 @@
 //!    [`NewtonIteration`] schedule until converged (`newton.rs`).
 //! 5. [`StepSystems::UpdatePoints`] — G2P: move points, update F, volume (paper eq. 10,
 //!    `update.rs`).
-//! 6. [`StepSystems::Output`] — run the [`WriteOutput`] schedule (VTK files, `output.rs`).
+//! 6. [`StepSystems::Output`] — MLS stress recovery if the scene asks for it (`recovery.rs`),
+//!    then run the [`WriteOutput`] schedule (VTK files, `output.rs`).
 //! 7. [`StepSystems::ResetGrid`] — clear the grid fields (`reset.rs`).
 //!
 //! The [`NewtonIteration`] schedule runs, in order:
@@ -33,6 +34,7 @@ pub mod ghost;
 mod loads;
 mod newton;
 pub mod output;
+mod recovery;
 mod reset;
 mod stress;
 mod update;
@@ -44,6 +46,7 @@ pub use loads::{
     apply_body_force, apply_point_loads, apply_prescribed_displacements, spread_force,
 };
 pub use newton::{check_convergence, solve_linear_system, solve_load_step};
+pub use recovery::recover_stress;
 pub use reset::reset_grid;
 pub use stress::update_stress;
 pub use update::update_points;
@@ -95,6 +98,8 @@ pub struct Effects {
     pub prescribed_displacements: bool,
     /// Ghost-penalty stabilisation of nearly empty cells (`ghost`).
     pub ghost_penalty: bool,
+    /// MLS recovery of the point stresses after every step (`RecoveredStress`).
+    pub stress_recovery: bool,
     /// The basis averages over particle domains (GIMP, CPDI): connectivity uses
     /// [`evaluate_domain_basis`] instead of [`evaluate_basis`].
     pub point_domains: bool,
@@ -162,6 +167,13 @@ pub fn load_step_schedule<const D: usize>(effects: Effects) -> Schedule {
     }
     schedule.add_systems(solve_load_step.in_set(StepSystems::Solve));
     schedule.add_systems(update_points::<D>.in_set(StepSystems::UpdatePoints));
+    if effects.stress_recovery {
+        schedule.add_systems(
+            recover_stress::<D>
+                .in_set(StepSystems::Output)
+                .before(run_output),
+        );
+    }
     schedule.add_systems(run_output.in_set(StepSystems::Output));
     schedule.add_systems(reset_grid::<D>.in_set(StepSystems::ResetGrid));
     schedule

@@ -3,7 +3,8 @@
 //! Files written per output step (`NNNN` = load step, 0 = initial state):
 //! * `particles_NNNN.vtu` — one vertex cell per material point with `reference_position`,
 //!   `reference_volume`, `volume`, `mass`, `displacement`, `cauchy_stress` (3x3, row-major),
-//!   `deformation_gradient` (3x3, row-major) and `body`.
+//!   `deformation_gradient` (3x3, row-major) and `body`; with stress recovery also
+//!   `recovered_stress` (3x3, row-major, see `recovery.rs`).
 //! * `grid_NNNN.vtu` — the background grid cells, with the displacement increment of the step
 //!   evaluated at the grid vertices and the number of material points per cell.
 //! * `nodes_NNNN.vtu` — the control points (grid nodes) with `active`, `fixed`,
@@ -21,7 +22,7 @@ use nalgebra::{Matrix3, SVector};
 use crate::basis::BasisScratch;
 use crate::components::{
     BodyIndex, DeformationGradient, Displacement, Fixity, GridNode, Mass, PointId, Position,
-    ReferencePosition, ReferenceVolume, Trial, Volume,
+    RecoveredStress, ReferencePosition, ReferenceVolume, Trial, Volume,
 };
 use crate::mechanics::{embed, interpolate};
 use crate::output::{Field, PvdSeries, lattice_cells, vertex_cells, write_vtu};
@@ -87,6 +88,7 @@ pub fn write_particles<const D: usize>(
         &DeformationGradient<D>,
         &Trial<D>,
         &BodyIndex,
+        Option<&RecoveredStress>,
     )>,
 ) {
     if !plan.writes(&step) {
@@ -105,7 +107,8 @@ pub fn write_particles<const D: usize>(
     let mut stress = Vec::with_capacity(9 * n);
     let mut deformation = Vec::with_capacity(9 * n);
     let mut body = Vec::with_capacity(n);
-    for (_, x, xr, v0, v, m, u, f, trial, b) in rows {
+    let mut recovered = Vec::new();
+    for (_, x, xr, v0, v, m, u, f, trial, b, r) in rows {
         positions.push(pad(&x.0));
         reference.extend(pad(&xr.0));
         reference_volume.push(v0.0);
@@ -115,8 +118,11 @@ pub fn write_particles<const D: usize>(
         stress.extend(row_major(&trial.0.cauchy()));
         deformation.extend(row_major(&embed(&f.0)));
         body.push(b.0 as f64);
+        if let Some(r) = r {
+            recovered.extend(row_major(&r.0));
+        }
     }
-    let fields = [
+    let mut fields = vec![
         Field {
             name: "reference_position",
             components: 3,
@@ -158,6 +164,14 @@ pub fn write_particles<const D: usize>(
             values: &body,
         },
     ];
+    // Every point has a recovered stress when the scene asks for recovery, none otherwise.
+    if recovered.len() == 9 * n && n > 0 {
+        fields.push(Field {
+            name: "recovered_stress",
+            components: 9,
+            values: &recovered,
+        });
+    }
     let name = format!("particles_{:04}.vtu", step.number);
     let result = write_vtu(
         &plan.dir.join(&name),
