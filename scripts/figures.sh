@@ -12,14 +12,16 @@ SCENE=scripts/column_1d.rhai
 CELLS=5,10,20,50,100,200,400
 
 # The methods of Fig. 3, one per line as basis:order:ppc:placement (order is ignored by methods
-# without one). Adding a method is adding its line, e.g. "gimp:1:2:uniform" once basis = "gimp"
-# exists.
+# without one). Adding a method is adding its line. GIMP is the scene default (stretched
+# domains); GIMP and CPDI use 2 points per cell.
 METHODS=(
   bspline:2:4:uniform
   bspline:3:4:uniform
   bspline:4:4:uniform
   bspline:4:8:uniform
   linear:1:1:uniform
+  gimp:1:2:uniform
+  cpdi:1:2:uniform
   bspline:3:4:gauss
 )
 
