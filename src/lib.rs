@@ -5,13 +5,15 @@
 //! every step, and B-spline bases of any order (Motlagh & Coombs, MPM 2017).
 //! See `ARCHITECTURE.md` for the one-screen map of stages and entities.
 //!
-//! * Pure kernels: [`basis`], [`material`], [`mechanics`], [`sparse`], [`analytic`].
+//! * Pure kernels: [`basis`], [`material`], [`mechanics`], [`sparse`], [`analytic`], [`fem`]
+//!   (linear finite elements on a body-fitted mesh, the paper's FEM comparator).
 //! * ECS: [`components`], [`resources`], [`stages`] (systems and schedules).
 //! * Driver and I/O: [`simulation`], [`scene`] (Rhai), [`output`] (VTK), [`summary`].
 
 pub mod analytic;
 pub mod basis;
 pub mod components;
+pub mod fem;
 pub mod material;
 pub mod mechanics;
 pub mod output;

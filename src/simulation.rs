@@ -56,6 +56,7 @@ pub fn effects_of(spec: &SceneSpec) -> Effects {
             .as_ref()
             .is_some_and(|b| b.iter().any(|&c| c != 0.0)),
         prescribed_displacements: spec.constraints.iter().any(|c| c.value != 0.0),
+        fem_mesh: spec.grid.basis == BasisKind::Fem,
     }
 }
 
@@ -175,6 +176,9 @@ impl<const D: usize> Simulation<D> {
         }
         world.insert_resource(GridFields::<D>::new(basis.num_nodes()));
         world.insert_resource(Grid(basis));
+        if effects.fem_mesh {
+            crate::fem::attach_mesh::<D>(&mut world).map_err(BuildError)?;
+        }
         world.insert_resource(LoadStep::default());
         world.insert_resource(NewtonSettings {
             tolerance: spec.solver.tolerance,
@@ -190,7 +194,7 @@ impl<const D: usize> Simulation<D> {
         ));
         world.add_schedule(load_step_schedule::<D>(effects));
         world.add_schedule(newton_schedule::<D>());
-        world.add_schedule(output_schedule::<D>());
+        world.add_schedule(output_schedule::<D>(effects));
 
         let summary = Summary::new(
             spec,
@@ -329,6 +333,7 @@ pub fn basis_name(kind: BasisKind) -> String {
     match kind {
         BasisKind::Linear => "linear".into(),
         BasisKind::BSpline { order } => format!("bspline(q={order})"),
+        BasisKind::Fem => "fem(linear elements)".into(),
     }
 }
 

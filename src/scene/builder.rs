@@ -11,13 +11,14 @@ use std::collections::BTreeMap;
 use rhai::{AST, Dynamic, Engine, FnPtr, Position};
 
 use super::error::ScriptError;
+use super::fem_seeding::{PartialCell, seed_element_points};
 use super::options::describe;
 use super::seeding::{first_point_outside_grid, seed_points};
 use super::{
-    AnalyticSpec, BodySpec, GridSpec, MaterialSpec, NodeConstraint, OutputSpec, SceneSpec,
-    SolverSpec,
+    AnalyticSpec, BodySpec, GridSpec, MaterialSpec, NodeConstraint, OutputSpec, PointSeed,
+    SceneSpec, SolverSpec,
 };
-use crate::basis::control_points_1d;
+use crate::basis::{BasisKind, control_points_1d};
 
 /// Largest number of grid nodes accepted (node predicates are called once per node).
 pub(crate) const MAX_NODES: usize = 100_000_000;
@@ -363,7 +364,7 @@ fn resolve_body(
                         .all(|(&c, (&lo, &hi))| lo <= c && c <= hi),
                 )
             };
-            seed_points(&grid.value, &points_per_cell, inside)?
+            seed_body(&grid.value, &points_per_cell, inside)?
         }
         Region::Predicate(predicate) => {
             let context = format!(
@@ -378,8 +379,12 @@ fn resolve_body(
                     "the region contains x = {position:?}, outside the grid {grid_bounds}; material points must lie in the grid (bound the region)"
                 ));
             }
-            seed_points(&grid.value, &points_per_cell, inside)?
+            seed_body(&grid.value, &points_per_cell, inside)?
         }
+    };
+    let points = match points {
+        Ok(points) => points,
+        Err(partial) => return fail(partial.message()),
     };
     if points.is_empty() {
         return fail(format!(
@@ -392,6 +397,20 @@ fn resolve_body(
         material: declaration.material,
         points,
     })
+}
+
+/// The body's points: the seeding lattice for MPM, the integration points of the covered cells
+/// for FEM (`Err` for a cell the region covers only partly).
+fn seed_body(
+    grid: &GridSpec,
+    points_per_cell: &[usize],
+    inside: impl FnMut(&[f64]) -> Result<bool, ScriptError>,
+) -> Result<Result<Vec<PointSeed>, PartialCell>, ScriptError> {
+    if grid.basis == BasisKind::Fem {
+        seed_element_points(grid, points_per_cell, inside)
+    } else {
+        seed_points(grid, points_per_cell, inside).map(Ok)
+    }
 }
 
 fn resolve_constraints(
@@ -491,7 +510,6 @@ fn resolve_constraints(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::basis::BasisKind;
 
     #[test]
     fn node_positions_axis_zero_fastest_with_exact_ends() {

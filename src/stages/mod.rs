@@ -3,7 +3,8 @@
 //! One load step runs the [`LoadStep`] schedule, whose system sets run in this order:
 //!
 //! 1. [`StepSystems::Connectivity`] — evaluate the basis at the points (P2G connectivity) and
-//!    mark the active nodes (`connectivity.rs`).
+//!    mark the active nodes (`connectivity.rs`; for linear FEM the element shape functions on
+//!    the current mesh, `element_basis.rs`).
 //! 2. [`StepSystems::Dofs`] — number the free components of active nodes and build the sparsity
 //!    pattern of the step (`dofs.rs`).
 //! 3. [`StepSystems::Loads`] — external forces and prescribed displacement increments, only the
@@ -11,9 +12,10 @@
 //! 4. [`StepSystems::Solve`] — the Newton loop: an exclusive system that runs the
 //!    [`NewtonIteration`] schedule until converged (`newton.rs`).
 //! 5. [`StepSystems::UpdatePoints`] — G2P: move points, update F, volume (paper eq. 10,
-//!    `update.rs`).
+//!    `update.rs`); for linear FEM then move the mesh nodes by Δu (`mesh_advance.rs`).
 //! 6. [`StepSystems::Output`] — run the [`WriteOutput`] schedule (VTK files, `output.rs`).
-//! 7. [`StepSystems::ResetGrid`] — clear the grid fields (`reset.rs`).
+//! 7. [`StepSystems::ResetGrid`] — clear the grid fields (`reset.rs`). The MPM grid is back to
+//!    its undeformed state; the FEM mesh keeps its advanced node positions.
 //!
 //! The [`NewtonIteration`] schedule runs, in order:
 //!
@@ -29,7 +31,10 @@
 mod assembly;
 mod connectivity;
 mod dofs;
+mod element_basis;
 mod loads;
+mod mesh_advance;
+mod mesh_output;
 mod newton;
 pub mod output;
 mod reset;
@@ -39,7 +44,10 @@ mod update;
 pub use assembly::assemble;
 pub use connectivity::evaluate_basis;
 pub use dofs::number_dofs;
+pub use element_basis::evaluate_element_basis;
 pub use loads::{apply_body_force, apply_prescribed_displacements};
+pub use mesh_advance::advance_mesh;
+pub use mesh_output::write_mesh;
 pub use newton::{check_convergence, solve_linear_system, solve_load_step};
 pub use reset::reset_grid;
 pub use stress::update_stress;
@@ -88,6 +96,9 @@ pub enum NewtonSystems {
 pub struct Effects {
     pub body_force: bool,
     pub prescribed_displacements: bool,
+    /// Linear FEM on a body-fitted mesh (`basis = "fem"`) instead of MPM: element
+    /// connectivity, a mesh that advances with the body, and the mesh as grid output.
+    pub fem_mesh: bool,
 }
 
 /// Schedule settings shared by all solver schedules: single-threaded, and any ambiguity in
@@ -118,7 +129,17 @@ pub fn load_step_schedule<const D: usize>(effects: Effects) -> Schedule {
             .chain()
             .run_if(no_failure),
     );
-    schedule.add_systems(evaluate_basis::<D>.in_set(StepSystems::Connectivity));
+    if effects.fem_mesh {
+        schedule.add_systems(evaluate_element_basis::<D>.in_set(StepSystems::Connectivity));
+        schedule.add_systems(
+            advance_mesh::<D>
+                .in_set(StepSystems::UpdatePoints)
+                .after(update_points::<D>)
+                .run_if(no_failure),
+        );
+    } else {
+        schedule.add_systems(evaluate_basis::<D>.in_set(StepSystems::Connectivity));
+    }
     schedule.add_systems(number_dofs::<D>.in_set(StepSystems::Dofs));
     if effects.body_force {
         schedule.add_systems(apply_body_force::<D>.in_set(StepSystems::Loads));
@@ -137,14 +158,30 @@ pub fn load_step_schedule<const D: usize>(effects: Effects) -> Schedule {
     schedule
 }
 
-/// The output schedule for dimension `D`.
-pub fn output_schedule<const D: usize>() -> Schedule {
+/// The output schedule for dimension `D`: points, grid (the deformed mesh for FEM), nodes.
+pub fn output_schedule<const D: usize>(effects: Effects) -> Schedule {
     let mut schedule = strict(WriteOutput);
-    schedule.add_systems(
-        (output::write_particles::<D>, output::write_grid::<D>)
-            .chain()
-            .run_if(no_failure),
-    );
+    if effects.fem_mesh {
+        schedule.add_systems(
+            (
+                output::write_particles::<D>,
+                write_mesh::<D>,
+                output::write_nodes::<D>,
+            )
+                .chain()
+                .run_if(no_failure),
+        );
+    } else {
+        schedule.add_systems(
+            (
+                output::write_particles::<D>,
+                output::write_grid::<D>,
+                output::write_nodes::<D>,
+            )
+                .chain()
+                .run_if(no_failure),
+        );
+    }
     schedule
 }
 
