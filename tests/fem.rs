@@ -2,11 +2,11 @@
 //! to round-off, second-order convergence of the tip, 2D/3D against 1D, patch tests on
 //! distorted meshes, the tangent against finite differences and the assembled force against
 //! an independent total-Lagrangian FEM computation, output and scene errors.
-#![allow(clippy::needless_range_loop)] // matrix indices read best as indices
+
+mod common;
 
 use std::path::{Path, PathBuf};
 
-use bevy_ecs::schedule::ScheduleLabel;
 use bevy_ecs::system::RunSystemOnce;
 use nalgebra::{Matrix3, SMatrix, SVector};
 
@@ -15,14 +15,11 @@ use impm::components::{DeformationGradient, ElementPoint, GridNode, ReferencePos
 use impm::fem::{move_reference_nodes, shape_function, tensor_gauss_rule};
 use impm::material::Hencky;
 use impm::mechanics::{embed, trial_state};
-use impm::resources::{FemMesh, GridFields, LoadStep, Newton};
+use impm::resources::{FemMesh, GridFields, LoadStep};
 use impm::scene::{NodeConstraint, SceneSpec, load_scene};
 use impm::simulation::Simulation;
 use impm::sparse::NO_DOF;
-use impm::stages::{
-    LoadStep as LoadStepSchedule, NewtonIteration, WriteOutput, assemble, evaluate_element_basis,
-    number_dofs, update_stress,
-};
+use impm::stages::{evaluate_element_basis, number_dofs};
 
 fn script(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -420,22 +417,6 @@ fn deformed_world(tag: &str) -> Simulation<2> {
     sim
 }
 
-/// Internal force of every node (dense) and at the free DOFs, for the current increments.
-fn assembled_force(sim: &mut Simulation<2>) -> (Vec<SVector<f64, 2>>, Vec<f64>) {
-    sim.world.run_system_once(update_stress::<2>).unwrap();
-    sim.world.run_system_once(assemble::<2>).unwrap();
-    let fields = sim.world.resource::<GridFields<2>>();
-    let mut free = vec![0.0; fields.dof_count];
-    for (node, dofs) in fields.dofs.iter().enumerate() {
-        for (k, &d) in dofs.iter().enumerate() {
-            if d != NO_DOF {
-                free[d as usize] = fields.internal_force[node][k];
-            }
-        }
-    }
-    (fields.internal_force.clone(), free)
-}
-
 /// The assembled FEM force is the total-Lagrangian FEM integral computed from scratch:
 /// f_a = Σ_elements Σ_gauss w det J_0 P ∇_X N_a with F = (Σ x_a ⊗ ∇_ξ N_a)(Σ X_a ⊗ ∇_ξ N_a)⁻¹
 /// from the reference and current (= moved + Δu) node positions, P = τ(F) F⁻ᵀ — which checks
@@ -443,7 +424,8 @@ fn assembled_force(sim: &mut Simulation<2>) -> (Vec<SVector<f64, 2>>, Vec<f64>) 
 #[test]
 fn assembled_force_is_the_total_lagrangian_fem_force() {
     let mut sim = deformed_world("tl");
-    let (assembled, _) = assembled_force(&mut sim);
+    common::internal_force(&mut sim);
+    let assembled = sim.world.resource::<GridFields<2>>().internal_force.clone();
     let mesh = sim.world.resource::<FemMesh<2>>().0.clone();
     let fields = sim.world.resource::<GridFields<2>>().clone();
     let mut current = mesh.reference_positions.clone();
@@ -486,47 +468,10 @@ fn assembled_force_is_the_total_lagrangian_fem_force() {
 #[test]
 fn fem_tangent_matches_finite_differences() {
     let mut sim = deformed_world("fd");
-    let (_, f0) = assembled_force(&mut sim);
-    let n = f0.len();
-    assert!(n >= 20, "{n} DOFs");
-    let k: Vec<Vec<f64>> = {
-        let newton = sim.world.resource::<Newton>();
-        (0..n)
-            .map(|r| (0..n).map(|c| newton.system.get(r, c)).collect())
-            .collect()
-    };
-    let scale = k.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
-    let dof_slot = |sim: &Simulation<2>, dof: usize| {
-        let fields = sim.world.resource::<GridFields<2>>();
-        (0..fields.dofs.len())
-            .flat_map(|node| (0..2).map(move |c| (node, c)))
-            .find(|&(node, c)| fields.dofs[node][c] == dof as u32)
-            .unwrap()
-    };
-    let h = 1e-6;
-    let mut worst = 0.0f64;
-    for col in 0..n {
-        let (node, c) = dof_slot(&sim, col);
-        let base = sim.world.resource::<GridFields<2>>().increment[node][c];
-        sim.world.resource_mut::<GridFields<2>>().increment[node][c] = base + h;
-        let (_, fp) = assembled_force(&mut sim);
-        sim.world.resource_mut::<GridFields<2>>().increment[node][c] = base - h;
-        let (_, fm) = assembled_force(&mut sim);
-        sim.world.resource_mut::<GridFields<2>>().increment[node][c] = base;
-        for row in 0..n {
-            worst = worst.max(((fp[row] - fm[row]) / (2.0 * h) - k[row][col]).abs());
-        }
-    }
+    let dofs = sim.world.resource::<GridFields<2>>().dof_count;
+    assert!(dofs >= 20, "{dofs} DOFs");
+    let (worst, scale) = common::assert_tangent_matches_finite_differences(&mut sim);
     eprintln!("max |K - K_fd| = {worst:.2e}, scale {scale:.2e}");
-    assert!(
-        worst < 1e-6 * scale,
-        "max |K - K_fd| = {worst:e}, scale {scale:e}"
-    );
-    for r in 0..n {
-        for c in 0..n {
-            assert!((k[r][c] - k[c][r]).abs() < 1e-9 * scale);
-        }
-    }
 }
 
 #[test]
@@ -536,17 +481,7 @@ fn fem_schedules_have_no_ambiguities_and_newton_converges_quadratically() {
         &[("ppc", "2"), ("cells", "10"), ("body_force", "-8000")],
     );
     let mut sim = Simulation::<2>::new(&spec, &temp_dir("ambiguity")).unwrap();
-    for label in [
-        LoadStepSchedule.intern(),
-        NewtonIteration.intern(),
-        WriteOutput.intern(),
-    ] {
-        sim.world.schedule_scope(label, |world, schedule| {
-            schedule
-                .initialize(world)
-                .unwrap_or_else(|e| panic!("{label:?}: {e}"));
-        });
-    }
+    common::assert_schedules_unambiguous(&mut sim);
     sim.run(|_| {}).unwrap();
     let mut checked = 0;
     for step in &sim.summary.steps {
