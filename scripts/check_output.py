@@ -243,9 +243,31 @@ def render_png(simple, particles, grid, time, png_path):
     bar.Title = "cauchy_stress yy"
     bar.ComponentTitle = ""
     bar.TitleColor = bar.LabelColor = [0.0, 0.0, 0.0]
+    bar.TitleFontSize = 14
+    bar.LabelFontSize = 12
+    bar.ScalarBarLength = 0.6
+    bar.WindowLocation = "Any Location"
+    bar.Position = [0.88, 0.2]
+    view.ViewSize = [1200, 800]
     view.ResetCamera()
+    # Leave room on the right for the colour bar.
+    camera = view.GetActiveCamera()
+    camera.Zoom(0.85)
+    fx, fy, fz = view.CameraFocalPoint
+    px, py, pz = view.CameraPosition
+    shift = 0.08 * camera.GetParallelScale() * 2 if camera.GetParallelProjection() else 0.0
+    if shift == 0.0:
+        # Perspective: shift by a fraction of the view's width at the focal distance.
+        dist = math.dist((fx, fy, fz), (px, py, pz))
+        shift = 0.1 * dist * math.tan(math.radians(view.CameraViewAngle) / 2) * 2
+    view.CameraFocalPoint = [fx + shift, fy, fz]
+    view.CameraPosition = [px + shift, py, pz]
     simple.Render(view)
     simple.SaveScreenshot(png_path, view, ImageResolution=[1200, 800])
+    # Release the OpenGL context while the X display is still there: without this, exiting
+    # under xvfb-run can end in "GLXBadContext" and a non-zero status.
+    simple.Delete(view)
+    del view
 
 
 def parse_field(spec):

@@ -68,6 +68,11 @@ pub struct Support<const D: usize>(pub Vec<NodeWeight<D>>);
 #[derive(Component, Clone, Debug, PartialEq)]
 pub struct Trial<const D: usize>(pub TrialState<D>);
 
+/// A force on the material point at load factor 1 (`point_load` in scenes); only points that
+/// carry one have this component.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct PointLoad<const D: usize>(pub SVector<f64, D>);
+
 /// A grid node (control point): global index (axis 0 fastest) and position.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct GridNode<const D: usize> {

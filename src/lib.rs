@@ -14,6 +14,7 @@ pub mod analytic;
 pub mod basis;
 pub mod components;
 pub mod fem;
+pub mod ghost;
 pub mod material;
 pub mod mechanics;
 pub mod output;

@@ -91,6 +91,10 @@ fn run(cli: Cli) -> Result<(), String> {
                         summary.total_iterations(),
                         wall
                     );
+                    let cuts: usize = summary.steps.iter().map(|s| s.cuts).sum();
+                    if cuts > 0 {
+                        line += &format!(", {cuts} step cuts");
+                    }
                     if let Some(e) = summary.final_error() {
                         line += &format!(", error (eq. 15) {e:.3e}");
                     }
@@ -128,8 +132,11 @@ fn run(cli: Cli) -> Result<(), String> {
                 spec.load_factors.len()
             );
             println!(
-                "effects: body force {}, prescribed displacements {}",
-                effects.body_force, effects.prescribed_displacements
+                "effects: body force {}, point loads {} ({} loaded points), prescribed displacements {}",
+                effects.body_force,
+                effects.point_loads,
+                spec.point_loads.len(),
+                effects.prescribed_displacements
             );
             Ok(())
         }
@@ -160,14 +167,19 @@ impl Progress {
         let mut err = std::io::stderr();
         let _ = write!(
             err,
-            "\r[{}{}] step {}/{} λ={:.3} iterations {} residual {:.1e}   ",
+            "\r[{}{}] step {}/{} λ={:.3} iterations {} residual {:.1e}{}   ",
             "#".repeat(filled),
             " ".repeat(width - filled),
             r.step,
             self.total,
             r.load_factor,
             r.iterations,
-            last
+            last,
+            if r.cuts > 0 {
+                format!(" (cut {}x)", r.cuts)
+            } else {
+                String::new()
+            }
         );
         let _ = err.flush();
     }

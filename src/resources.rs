@@ -66,8 +66,10 @@ pub struct LoadStep {
     pub number: usize,
     /// Load factor at the end of the step.
     pub factor: f64,
-    /// Load factor at the start of the step.
+    /// Load factor at the start of the step (of the sub-step, when the step is cut).
     pub previous_factor: f64,
+    /// Whether this (sub-)step reaches the step's target load factor: output is written then.
+    pub completes_step: bool,
 }
 
 /// Solver controls.
@@ -137,6 +139,14 @@ pub enum SolverError {
         residuals: Vec<f64>,
         tolerance: f64,
     },
+    /// The out-of-balance force grew by orders of magnitude: Newton is diverging.
+    Diverged { step: usize, residuals: Vec<f64> },
+    /// The step could not be solved even after cutting it `cuts` times.
+    CuttingFailed {
+        step: usize,
+        cuts: usize,
+        last: Box<SolverError>,
+    },
     /// Writing results failed.
     Output { step: usize, why: String },
 }
@@ -189,6 +199,17 @@ impl std::fmt::Display for SolverError {
                 }
                 Ok(())
             }
+            SolverError::Diverged { step, residuals } => {
+                write!(f, "load step {step}: Newton diverged; residuals:")?;
+                for (k, r) in residuals.iter().enumerate() {
+                    write!(f, "\n  iteration {k:3}: {r:.3e}")?;
+                }
+                Ok(())
+            }
+            SolverError::CuttingFailed { step, cuts, last } => write!(
+                f,
+                "load step {step}: failed after cutting the step {cuts} times; last attempt: {last}"
+            ),
             SolverError::Output { step, why } => {
                 write!(f, "load step {step}: writing output failed: {why}")
             }
@@ -197,6 +218,22 @@ impl std::fmt::Display for SolverError {
 }
 
 impl std::error::Error for SolverError {}
+
+impl SolverError {
+    /// Whether a smaller load step may succeed where this failure happened: Newton failures
+    /// and inadmissible or non-finite iterates are; points leaving the grid and output
+    /// failures are not.
+    pub fn is_recoverable_by_cutting(&self) -> bool {
+        matches!(
+            self,
+            SolverError::NotConverged { .. }
+                | SolverError::Diverged { .. }
+                | SolverError::BadPointState { .. }
+                | SolverError::LinearSolve { .. }
+                | SolverError::NotFinite { .. }
+        )
+    }
+}
 
 /// The first error raised by a stage; later stages of the step do not run once it is set.
 #[derive(Resource, Default, Debug)]

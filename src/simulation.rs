@@ -26,7 +26,7 @@ use crate::stages::{
     Effects, LoadStep as LoadStepSchedule, WriteOutput, load_step_schedule, newton_schedule,
     output_schedule,
 };
-use crate::summary::{StepRecord, Summary};
+use crate::summary::{StepRecord, SubstepRecord, Summary};
 
 /// Why a simulation could not be built from a scene.
 #[derive(Clone, Debug, PartialEq)]
@@ -55,7 +55,12 @@ pub fn effects_of(spec: &SceneSpec) -> Effects {
             .body_force
             .as_ref()
             .is_some_and(|b| b.iter().any(|&c| c != 0.0)),
+        point_loads: spec
+            .point_loads
+            .iter()
+            .any(|load| load.force.iter().any(|&c| c != 0.0)),
         prescribed_displacements: spec.constraints.iter().any(|c| c.value != 0.0),
+        ghost_penalty: spec.solver.ghost_penalty > 0.0,
         fem_mesh: spec.grid.basis == BasisKind::Fem,
     }
 }
@@ -162,9 +167,15 @@ impl<const D: usize> Simulation<D> {
         if id == 0 {
             return Err(BuildError("the scene has no material points".into()));
         }
+        insert_point_loads::<D>(&mut world, spec)?;
 
         // Resources.
         let effects = effects_of(spec);
+        if effects.fem_mesh && effects.ghost_penalty {
+            return Err(BuildError(
+                "the ghost penalty stabilises nearly empty MPM cells; a finite-element mesh (basis fem) has none".into(),
+            ));
+        }
         if let Some(b) = &spec.body_force {
             if b.len() != D {
                 return Err(BuildError(format!(
@@ -193,7 +204,18 @@ impl<const D: usize> Simulation<D> {
             spec.load_factors.len(),
         ));
         world.add_schedule(load_step_schedule::<D>(effects));
-        world.add_schedule(newton_schedule::<D>());
+        if effects.ghost_penalty {
+            let modulus = spec
+                .materials
+                .iter()
+                .map(|m| m.youngs_modulus)
+                .fold(0.0, f64::max);
+            world.insert_resource(crate::stages::ghost::GhostPenalty {
+                gamma_modulus: spec.solver.ghost_penalty * modulus,
+                faces: Vec::new(),
+            });
+        }
+        world.add_schedule(newton_schedule::<D>(effects));
         world.add_schedule(output_schedule::<D>(effects));
 
         let summary = Summary::new(
@@ -225,42 +247,114 @@ impl<const D: usize> Simulation<D> {
             .map_err(|e| SolverError::Output { step: 0, why: e })
     }
 
-    /// Solves the next load step. On failure the error is also recorded in the summary.
+    /// Solves the next load step, cutting it when Newton fails.
+    ///
+    /// Load-step cutting: the step from λ_n to λ_{n+1} is tried whole; when Newton does not
+    /// converge, diverges, meets an inadmissible point (det F <= 0) or a singular tangent, the
+    /// grid is reset (points are only updated after convergence, so nothing else needs undoing)
+    /// and the attempt is repeated with half the increment, down to 2^-max_step_cuts of the
+    /// step. After a successful sub-step the increment grows back by a factor 2. Output is
+    /// written only when the step's target load factor is reached. On failure the error is
+    /// also recorded in the summary.
     pub fn step(&mut self) -> Result<&StepRecord, SolverError> {
         let number = self.steps_done + 1;
-        let factor = self.spec.load_factors[number - 1];
-        let previous_factor = if number == 1 {
+        let target = self.spec.load_factors[number - 1];
+        let start_factor = if number == 1 {
             0.0
         } else {
             self.spec.load_factors[number - 2]
         };
-        *self.world.resource_mut::<LoadStep>() = LoadStep {
-            number,
-            factor,
-            previous_factor,
-        };
+        let full = target - start_factor;
+        let max_cuts = self.spec.solver.max_step_cuts;
         *self.world.resource_mut::<StageClock>() = StageClock::default();
         let start = Instant::now();
-        self.world.run_schedule(LoadStepSchedule);
-        let wall = start.elapsed().as_secs_f64();
-        let newton = self.world.resource::<Newton>();
         let mut record = StepRecord {
             step: number,
-            load_factor: factor,
-            iterations: newton.iterations,
-            residuals: newton.residuals.clone(),
-            converged: newton.converged,
-            dofs: newton.system.size(),
-            seconds: self.world.resource::<StageClock>().clone(),
-            wall_seconds: wall,
+            load_factor: target,
+            iterations: 0,
+            residuals: Vec::new(),
+            converged: false,
+            dofs: 0,
+            seconds: StageClock::default(),
+            wall_seconds: 0.0,
             error: None,
+            cuts: 0,
+            substeps: Vec::new(),
         };
-        if let Err(e) = self.take_failure() {
-            self.summary.fail(record, &e);
-            let _ = self.summary.write();
-            return Err(e);
+        let (mut from, mut level) = (start_factor, 0usize);
+        loop {
+            let increment = full / f64::powi(2.0, level as i32);
+            // The last sub-step lands exactly on the target.
+            let completes_step = (from + increment - target).abs()
+                <= 1e-12 * full.abs().max(1e-300)
+                || (full > 0.0 && from + increment >= target)
+                || (full < 0.0 && from + increment <= target)
+                || full == 0.0;
+            let to = if completes_step {
+                target
+            } else {
+                from + increment
+            };
+            *self.world.resource_mut::<LoadStep>() = LoadStep {
+                number,
+                factor: to,
+                previous_factor: from,
+                completes_step,
+            };
+            self.world.run_schedule(LoadStepSchedule);
+            let newton = self.world.resource::<Newton>();
+            let mut attempt = SubstepRecord {
+                from,
+                to,
+                iterations: newton.iterations,
+                residuals: newton.residuals.clone(),
+                converged: newton.converged,
+                failure: None,
+            };
+            record.iterations += newton.iterations;
+            record.dofs = newton.system.size();
+            match self.take_failure() {
+                Ok(()) => {
+                    record.residuals = attempt.residuals.clone();
+                    record.converged = true;
+                    record.substeps.push(attempt);
+                    if completes_step {
+                        break;
+                    }
+                    from = to;
+                    level = level.saturating_sub(1);
+                }
+                Err(e) => {
+                    attempt.failure = Some(e.to_string());
+                    record.residuals = attempt.residuals.clone();
+                    record.substeps.push(attempt);
+                    let recoverable = e.is_recoverable_by_cutting();
+                    if !recoverable || level >= max_cuts {
+                        let error = if recoverable && record.cuts > 0 {
+                            SolverError::CuttingFailed {
+                                step: number,
+                                cuts: record.cuts,
+                                last: Box::new(e),
+                            }
+                        } else {
+                            e
+                        };
+                        record.seconds = self.world.resource::<StageClock>().clone();
+                        record.wall_seconds = start.elapsed().as_secs_f64();
+                        self.summary.fail(record, &error);
+                        let _ = self.summary.write();
+                        return Err(error);
+                    }
+                    // Undo the failed attempt on the grid and retry with half the increment.
+                    self.world.resource_mut::<GridFields<D>>().reset();
+                    level += 1;
+                    record.cuts += 1;
+                }
+            }
         }
-        record.error = self.analytic_error(factor);
+        record.seconds = self.world.resource::<StageClock>().clone();
+        record.wall_seconds = start.elapsed().as_secs_f64();
+        record.error = self.analytic_error(target);
         self.steps_done = number;
         self.summary.push(record);
         self.summary.write().map_err(|e| SolverError::Output {
@@ -326,6 +420,37 @@ impl<const D: usize> Simulation<D> {
         out.sort_by(|a, b| a.0.total_cmp(&b.0));
         out
     }
+}
+
+/// Gives the points named by the scene's point loads a [`PointLoad`] component.
+fn insert_point_loads<const D: usize>(
+    world: &mut World,
+    spec: &SceneSpec,
+) -> Result<(), BuildError> {
+    if spec.point_loads.is_empty() {
+        return Ok(());
+    }
+    let mut entities = vec![Entity::PLACEHOLDER; spec.point_count()];
+    for (entity, id) in world.query::<(Entity, &PointId)>().iter(world) {
+        entities[id.0 as usize] = entity;
+    }
+    for load in &spec.point_loads {
+        let entity = *entities.get(load.point).ok_or_else(|| {
+            BuildError(format!(
+                "point load on point {} which does not exist",
+                load.point
+            ))
+        })?;
+        if load.force.len() != D {
+            return Err(BuildError(format!(
+                "point load with {} components in {D}D",
+                load.force.len()
+            )));
+        }
+        let force = SVector::<f64, D>::from_fn(|a, _| load.force[a]);
+        world.entity_mut(entity).insert(PointLoad(force));
+    }
+    Ok(())
 }
 
 /// A human name for a basis.

@@ -25,6 +25,22 @@ pub struct StepRecord {
     pub wall_seconds: f64,
     /// Eq. 15 error after the step, if the scene has an analytic solution.
     pub error: Option<f64>,
+    /// How many times the step was cut (halved) after a failed Newton solve.
+    pub cuts: usize,
+    /// Every attempt in order, failed ones included (one entry when the step was not cut).
+    pub substeps: Vec<SubstepRecord>,
+}
+
+/// One Newton solve from load factor `from` to `to` within a load step.
+#[derive(Clone, Debug)]
+pub struct SubstepRecord {
+    pub from: f64,
+    pub to: f64,
+    pub iterations: usize,
+    pub residuals: Vec<f64>,
+    pub converged: bool,
+    /// Why the attempt failed, if it did.
+    pub failure: Option<String>,
 }
 
 /// The run's summary.
@@ -70,6 +86,27 @@ fn step_json(r: &StepRecord) -> Value {
     });
     if let Some(e) = r.error {
         v["error"] = number(e);
+    }
+    v["cuts"] = json!(r.cuts);
+    if r.substeps.len() > 1 {
+        v["substeps"] = Value::Array(
+            r.substeps
+                .iter()
+                .map(|a| {
+                    let mut sub = json!({
+                        "from": number(a.from),
+                        "to": number(a.to),
+                        "iterations": a.iterations,
+                        "residuals": a.residuals.iter().map(|&x| number(x)).collect::<Vec<_>>(),
+                        "converged": a.converged,
+                    });
+                    if let Some(f) = &a.failure {
+                        sub["failure"] = Value::String(f.clone());
+                    }
+                    sub
+                })
+                .collect(),
+        );
     }
     v
 }
@@ -142,6 +179,7 @@ impl Summary {
             "totals": {
                 "steps": self.steps.len(),
                 "iterations": self.total_iterations(),
+                "cuts": self.steps.iter().map(|s| s.cuts).sum::<usize>(),
                 "seconds": stage_seconds(&stages),
                 "wall_seconds": number(wall),
             },

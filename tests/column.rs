@@ -1,47 +1,16 @@
 //! The paper's self-weight column (section 3) through the shipped scenes: accuracy against the
 //! semi-analytic solution (eq. 15), quadratic Newton convergence, and 2D/3D against 1D.
 
-use std::path::{Path, PathBuf};
+mod common;
 
-use impm::scene::load_scene;
-use impm::simulation::Simulation;
+use common::run_shipped;
 use impm::summary::Summary;
-
-fn scene(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("scripts")
-        .join(name)
-}
-
-fn out_dir(tag: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("impm-column-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
-}
-
-fn overrides(pairs: &[(&str, &str)]) -> Vec<(String, String)> {
-    pairs
-        .iter()
-        .map(|(n, v)| (n.to_string(), v.to_string()))
-        .collect()
-}
 
 /// Runs a column scene; returns the summary and the final (reference height, vertical stress)
 /// of every point.
 fn run<const D: usize>(script: &str, set: &[(&str, &str)]) -> (Summary, Vec<(f64, f64)>) {
-    let spec = load_scene(&scene(script), &overrides(set)).unwrap();
-    let tag = format!(
-        "{script}-{}",
-        set.iter()
-            .map(|(n, v)| format!("{n}{v}"))
-            .collect::<String>()
-    );
-    let dir = out_dir(&tag);
-    let mut sim = Simulation::<D>::new(&spec, &dir).unwrap();
-    sim.run(|_| {})
-        .unwrap_or_else(|e| panic!("{script} {set:?}: {e}"));
+    let mut sim = run_shipped::<D>(script, set);
     let profile = sim.stress_profile(D - 1);
-    let _ = std::fs::remove_dir_all(&dir);
     (sim.summary, profile)
 }
 

@@ -5,7 +5,7 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use bevy_ecs::system::RunSystemOnce;
 use nalgebra::{Matrix3, SMatrix, SVector};
@@ -21,23 +21,15 @@ use impm::simulation::Simulation;
 use impm::sparse::NO_DOF;
 use impm::stages::{evaluate_element_basis, number_dofs};
 
-fn script(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("scripts")
-        .join(name)
-}
-
 fn temp_dir(tag: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("impm-fem-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
+    common::temp_dir("fem", tag)
 }
 
 /// A shipped column scene with `basis = fem` and the given overrides.
 fn column_scene(file: &str, set: &[(&str, &str)]) -> SceneSpec {
-    let mut overrides = vec![("basis".to_string(), "fem".to_string())];
-    overrides.extend(set.iter().map(|(n, v)| (n.to_string(), v.to_string())));
-    load_scene(&script(file), &overrides).unwrap()
+    let mut set = set.to_vec();
+    set.push(("basis", "fem"));
+    load_scene(&common::shipped_scene(file), &common::overrides(&set)).unwrap()
 }
 
 /// The column's analytic solution at load factor 1.
@@ -389,6 +381,7 @@ fn deformed_world(tag: &str) -> Simulation<2> {
         number: 2,
         factor: 2.0,
         previous_factor: 1.0,
+        completes_step: true,
     };
     sim.world
         .run_system_once(evaluate_element_basis::<2>)
@@ -526,5 +519,14 @@ fn scenes_must_be_body_fitted_for_fem() {
     assert_eq!(spec.bodies[0].points.len(), 5 * 4 * 4);
     let volume: f64 = spec.bodies[0].points.iter().map(|p| p.volume).sum();
     assert!((volume - 5.0).abs() < 1e-12);
+    // the ghost penalty of nearly empty MPM cells has no meaning on a body-fitted mesh
+    std::fs::write(
+        &path,
+        format!("{text}solver(#{{ ghost_penalty: 0.01 }});\n"),
+    )
+    .unwrap();
+    let error = load_scene(&path, &[("cells".into(), "8".into())]).unwrap_err();
+    assert_eq!(error.line, Some(6), "{error}");
+    assert!(error.message.contains("ghost_penalty"), "{error}");
     let _ = std::fs::remove_file(&path);
 }

@@ -73,6 +73,7 @@ fn block_2d(cells: [usize; 2], body_cells: [usize; 2], basis: BasisKind) -> Scen
         }],
         body_force: Some(vec![0.0, -10.0]),
         constraints,
+        point_loads: vec![],
         load_factors: vec![0.5, 1.0],
         solver: SolverSpec::default(),
         output: OutputSpec::default(),
@@ -85,6 +86,7 @@ fn start_step(sim: &mut Simulation<2>) {
         number: 1,
         factor: 1.0,
         previous_factor: 0.0,
+        completes_step: true,
     };
     sim.world.run_system_once(evaluate_basis::<2>).unwrap();
     sim.world.run_system_once(number_dofs::<2>).unwrap();
@@ -238,4 +240,25 @@ fn a_run_is_bit_identical_when_repeated() {
         v
     };
     assert_eq!(run("det1"), run("det2"));
+}
+
+#[test]
+fn a_non_finite_increment_is_caught_at_the_stress_update_naming_the_point() {
+    let spec = block_2d([4, 4], [2, 2], BasisKind::BSpline { order: 2 });
+    let mut sim = Simulation::<2>::new(&spec, &temp_dir("nan")).unwrap();
+    start_step(&mut sim);
+    let node = {
+        let fields = sim.world.resource::<GridFields<2>>();
+        (0..fields.dofs.len())
+            .find(|&n| fields.dofs[n][0] != NO_DOF)
+            .unwrap()
+    };
+    sim.world.resource_mut::<GridFields<2>>().increment[node][0] = f64::NAN;
+    sim.world.run_system_once(update_stress::<2>).unwrap();
+    let status = sim.world.resource::<impm::resources::RunStatus>();
+    let message = status.0.as_ref().expect("the NaN is reported").to_string();
+    assert!(
+        message.contains("material point") && message.contains("load step 1"),
+        "{message}"
+    );
 }

@@ -13,10 +13,10 @@ use rhai::{AST, Dynamic, Engine, FnPtr, Position};
 use super::error::ScriptError;
 use super::fem_seeding::{PartialCell, seed_element_points};
 use super::options::describe;
-use super::seeding::{first_point_outside_grid, seed_points};
+use super::seeding::{first_point_outside_grid, seed_box, seed_points};
 use super::{
-    AnalyticSpec, BodySpec, GridSpec, MaterialSpec, NodeConstraint, OutputSpec, PointSeed,
-    SceneSpec, SolverSpec,
+    AnalyticSpec, BodySpec, GridSpec, MaterialSpec, NodeConstraint, OutputSpec, PointLoadSpec,
+    PointSeed, SceneSpec, SolverSpec,
 };
 use crate::basis::{BasisKind, control_points_1d};
 
@@ -97,6 +97,25 @@ pub(crate) struct ConstraintDeclaration {
     pub values: Vec<f64>,
 }
 
+/// How a point load's force is given to the points its selector picks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum PointLoadShare {
+    /// Every selected point carries the whole force (`point_load`).
+    Each,
+    /// The force is the total, shared in proportion to reference volume (`point_load_total`).
+    Total,
+}
+
+/// `point_load` / `point_load_total`: a force on the material points whose reference position
+/// the selector accepts.
+#[derive(Clone, Debug)]
+pub(crate) struct PointLoadDeclaration {
+    pub function: &'static str,
+    pub selector: FnPtr,
+    pub force: Vec<f64>,
+    pub share: PointLoadShare,
+}
+
 #[derive(Clone, Debug)]
 pub(crate) struct ColumnDeclaration {
     pub axis: usize,
@@ -113,6 +132,7 @@ pub(crate) struct SceneBuilder {
     pub bodies: Vec<Located<BodyDeclaration>>,
     pub body_force: Option<Located<Vec<f64>>>,
     pub constraints: Vec<Located<ConstraintDeclaration>>,
+    pub point_loads: Vec<Located<PointLoadDeclaration>>,
     pub load_factors: Option<Located<Vec<f64>>>,
     pub solver: Option<Located<SolverSpec>>,
     pub output: Option<Located<OutputSpec>>,
@@ -169,6 +189,16 @@ impl SceneBuilder {
             .collect::<Result<Vec<_>, _>>()?;
 
         let constraints = resolve_constraints(&self.constraints, &grid, engine, ast)?;
+        let point_loads = resolve_point_loads(&self.point_loads, &bodies, dim, engine, ast)?;
+        if let Some(solver) = &self.solver
+            && solver.value.ghost_penalty > 0.0
+            && grid.value.basis == BasisKind::Fem
+        {
+            return Err(ScriptError::at(
+                solver.at,
+                "solver(...): ghost_penalty stabilises nearly empty MPM cells; basis \"fem\" has a body-fitted mesh without such cells (remove ghost_penalty)",
+            ));
+        }
 
         let load_factors = self.load_factors.ok_or_else(|| {
             ScriptError::unlocated(
@@ -211,6 +241,7 @@ impl SceneBuilder {
             bodies,
             body_force: self.body_force.map(|body_force| body_force.value),
             constraints,
+            point_loads,
             load_factors: load_factors.value,
             solver: self.solver.map(|solver| solver.value).unwrap_or_default(),
             output: self.output.map(|output| output.value).unwrap_or_default(),
@@ -357,14 +388,18 @@ fn resolve_body(
                     declaration.region.describe()
                 ));
             }
-            let inside = |x: &[f64]| {
-                Ok::<_, ScriptError>(
-                    x.iter()
-                        .zip(lower.iter().zip(upper))
-                        .all(|(&c, (&lo, &hi))| lo <= c && c <= hi),
-                )
-            };
-            seed_body(&grid.value, &points_per_cell, inside)?
+            if grid.value.basis == BasisKind::Fem {
+                let inside = |x: &[f64]| {
+                    Ok::<_, ScriptError>(
+                        x.iter()
+                            .zip(lower.iter().zip(upper))
+                            .all(|(&c, (&lo, &hi))| lo <= c && c <= hi),
+                    )
+                };
+                seed_element_points(&grid.value, &points_per_cell, inside)?
+            } else {
+                Ok(seed_box(&grid.value, &points_per_cell, lower, upper))
+            }
         }
         Region::Predicate(predicate) => {
             let context = format!(
@@ -504,6 +539,73 @@ fn resolve_constraints(
             component,
             value,
         })
+        .collect())
+}
+
+/// Point loads on the seeded points: each declaration's selector is called with the reference
+/// position of every point (body after body, seeding order, which is the global point index);
+/// several loads on one point add up.
+fn resolve_point_loads(
+    declarations: &[Located<PointLoadDeclaration>],
+    bodies: &[BodySpec],
+    dim: usize,
+    engine: &Engine,
+    ast: &AST,
+) -> Result<Vec<PointLoadSpec>, ScriptError> {
+    let mut forces: BTreeMap<usize, Vec<f64>> = BTreeMap::new();
+    for declaration in declarations {
+        let load = &declaration.value;
+        let function = load.function;
+        if load.force.len() != dim {
+            return Err(ScriptError::at(
+                declaration.at,
+                format!(
+                    "{function}(...): the force has {} components but the grid is {dim}-dimensional",
+                    load.force.len()
+                ),
+            ));
+        }
+        let context = format!(
+            "point selector of {function}(...){}",
+            declaration.line_note()
+        );
+        let mut selected = Vec::new();
+        let points = bodies.iter().flat_map(|body| &body.points).enumerate();
+        for (index, point) in points {
+            if call_predicate(
+                &load.selector,
+                &point.position,
+                engine,
+                ast,
+                declaration.at,
+                &context,
+            )? {
+                selected.push((index, point.volume));
+            }
+        }
+        if selected.is_empty() {
+            return Err(ScriptError::at(
+                declaration.at,
+                format!(
+                    "{function}(...): the predicate selects no material point (it is called with the reference position of every point; points sit inside their cells, not on cell faces)"
+                ),
+            ));
+        }
+        let total_volume: f64 = selected.iter().map(|(_, volume)| volume).sum();
+        for (index, volume) in selected {
+            let scale = match load.share {
+                PointLoadShare::Each => 1.0,
+                PointLoadShare::Total => volume / total_volume,
+            };
+            let force = forces.entry(index).or_insert_with(|| vec![0.0; dim]);
+            for (sum, component) in force.iter_mut().zip(&load.force) {
+                *sum += scale * component;
+            }
+        }
+    }
+    Ok(forces
+        .into_iter()
+        .map(|(point, force)| PointLoadSpec { point, force })
         .collect())
 }
 

@@ -37,7 +37,7 @@ mod seeding;
 pub use error::SceneError;
 pub use params::Parameter;
 pub use rhai_api::{load_scene, scene_parameters};
-pub use seeding::{first_point_outside_grid, seed_points};
+pub use seeding::{first_point_outside_grid, seed_box, seed_points};
 
 use crate::basis::BasisKind;
 
@@ -92,12 +92,26 @@ pub struct NodeConstraint {
     pub value: f64,
 }
 
+/// A force on one material point at load factor 1 (paper eq. 9, a concentrated term of the
+/// external force): it adds λ P N_i(x_p) to the external force of the point's support nodes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PointLoadSpec {
+    /// Global point index: points are numbered body after body, in seeding order (`PointId`).
+    pub point: usize,
+    /// The force P (length = dimension).
+    pub force: Vec<f64>,
+}
+
 /// Newton solver controls.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SolverSpec {
     /// Convergence tolerance on the normalised out-of-balance force.
     pub tolerance: f64,
     pub max_iterations: usize,
+    /// How many times a load step may be halved when Newton fails (0 = never cut).
+    pub max_step_cuts: usize,
+    /// Dimensionless ghost-penalty factor γ for nearly empty cells (0 = off; see `ghost`).
+    pub ghost_penalty: f64,
 }
 
 impl Default for SolverSpec {
@@ -105,6 +119,8 @@ impl Default for SolverSpec {
         Self {
             tolerance: 1e-9,
             max_iterations: 30,
+            max_step_cuts: 8,
+            ghost_penalty: 0.0,
         }
     }
 }
@@ -147,6 +163,8 @@ pub struct SceneSpec {
     /// Body force per unit mass (length = dimension) at load factor 1, if any.
     pub body_force: Option<Vec<f64>>,
     pub constraints: Vec<NodeConstraint>,
+    /// Forces on single material points (summed per point), at load factor 1.
+    pub point_loads: Vec<PointLoadSpec>,
     /// Load factor at the end of each load step, in order (`len()` = number of steps).
     pub load_factors: Vec<f64>,
     pub solver: SolverSpec,
@@ -157,5 +175,10 @@ pub struct SceneSpec {
 impl SceneSpec {
     pub fn dim(&self) -> usize {
         self.grid.dim()
+    }
+
+    /// Number of material points of all bodies.
+    pub fn point_count(&self) -> usize {
+        self.bodies.iter().map(|body| body.points.len()).sum()
     }
 }

@@ -17,8 +17,10 @@
 //! | `body_force([..])` | body force per unit mass at load factor 1 (one entry per axis) |
 //! | `fix(\|x\| pred, [components])` | fix the listed displacement components (0-based axes) of every grid node whose position satisfies `pred` |
 //! | `displace(\|x\| pred, [components], [values])` | prescribe displacements (values at load factor 1, ramped with the load factor) |
+//! | `point_load(\|x\| pred, [force])` | a force (at load factor 1) on every material point whose reference position satisfies `pred` |
+//! | `point_load_total(\|x\| pred, [force])` | a total force shared by the selected points in proportion to their volume |
 //! | `load_steps(n)` / `load_factors([..])` | load schedule: factors k/n, k = 1..n, or an explicit list |
-//! | `solver(#{ tolerance: .., max_iterations: .. })` | Newton controls (optional; defaults 1e-9, 30) |
+//! | `solver(#{ tolerance: .., max_iterations: .., max_step_cuts: .., ghost_penalty: .. })` | Newton controls (optional; defaults 1e-9, 30, 8) |
 //! | `output(#{ every: n })` | write every n-th step (optional) |
 //! | `analytic_column(#{ axis: a, height: L0, material: m, body_force: b })` | declare the self-weight column solution (paper eqs. 11-14) for error reports |
 //!
@@ -34,7 +36,8 @@ use rhai::{Dynamic, Engine, EvalAltResult, NativeCallContext, Position};
 
 use super::builder::{
     BodyDeclaration, ColumnDeclaration, ConstraintDeclaration, Located, MAX_NODES, MaterialHandle,
-    PointsPerCell, Region, SceneBuilder, checked_node_count, ensure_unset,
+    PointLoadDeclaration, PointLoadShare, PointsPerCell, Region, SceneBuilder, checked_node_count,
+    ensure_unset,
 };
 use super::error::{SceneError, ScriptError};
 use super::options::{
@@ -65,9 +68,20 @@ pub(crate) const API_SIGNATURES: &[(&str, &str)] = &[
         "displace",
         "displace(|x| predicate, [components], [values])",
     ),
+    (
+        "point_load",
+        "point_load(|x| predicate, [force components])",
+    ),
+    (
+        "point_load_total",
+        "point_load_total(|x| predicate, [total force components])",
+    ),
     ("load_steps", "load_steps(n)"),
     ("load_factors", "load_factors([f1, f2, ..])"),
-    ("solver", "solver(#{ tolerance: .., max_iterations: .. })"),
+    (
+        "solver",
+        "solver(#{ tolerance: .., max_iterations: .., max_step_cuts: .., ghost_penalty: .. })",
+    ),
     ("output", "output(#{ every: n })"),
     (
         "analytic_column",
@@ -226,6 +240,20 @@ fn scene_engine(state: &SharedBuilder) -> Engine {
             })
         },
     );
+    for (name, share) in [
+        ("point_load", PointLoadShare::Each),
+        ("point_load_total", PointLoadShare::Total),
+    ] {
+        let point_load_state = state.clone();
+        engine.register_fn(
+            name,
+            move |context: NativeCallContext, selector: Dynamic, force: Dynamic| {
+                with_builder(&point_load_state, &context, |builder, at| {
+                    declare_point_load(builder, name, share, &selector, &force, at)
+                })
+            },
+        );
+    }
     engine
 }
 
@@ -482,6 +510,31 @@ fn declare_constraint(
     Ok(())
 }
 
+fn declare_point_load(
+    builder: &mut SceneBuilder,
+    function_name: &'static str,
+    share: PointLoadShare,
+    selector: &Dynamic,
+    force: &Dynamic,
+    at: Position,
+) -> Result<(), String> {
+    let selector = function(
+        selector,
+        &format!("{function_name}(...): the first argument"),
+    )?;
+    let force = numbers(force, &format!("{function_name}(...): the force"))?;
+    builder.point_loads.push(Located::new(
+        PointLoadDeclaration {
+            function: function_name,
+            selector,
+            force,
+            share,
+        },
+        at,
+    ));
+    Ok(())
+}
+
 fn ensure_no_load_schedule(builder: &SceneBuilder) -> Result<(), String> {
     match &builder.load_factors {
         Some(previous) => Err(format!(
@@ -527,7 +580,16 @@ fn declare_solver(
     at: Position,
 ) -> Result<(), String> {
     ensure_unset(&builder.solver, "solver")?;
-    let options = OptionMap::new("solver", options, &["tolerance", "max_iterations"])?;
+    let options = OptionMap::new(
+        "solver",
+        options,
+        &[
+            "tolerance",
+            "max_iterations",
+            "max_step_cuts",
+            "ghost_penalty",
+        ],
+    )?;
     let mut solver = SolverSpec::default();
     if let Some(tolerance) = options.optional("tolerance") {
         solver.tolerance = number(&tolerance, &options.subject("tolerance"))?;
@@ -541,6 +603,19 @@ fn declare_solver(
     }
     if let Some(iterations) = options.optional("max_iterations") {
         solver.max_iterations = whole_number(&iterations, &options.subject("max_iterations"), 1)?;
+    }
+    if let Some(gamma) = options.optional("ghost_penalty") {
+        solver.ghost_penalty = number(&gamma, &options.subject("ghost_penalty"))?;
+        if !(solver.ghost_penalty >= 0.0 && solver.ghost_penalty.is_finite()) {
+            return Err(format!(
+                "{} must be zero (off) or positive, got {}",
+                options.subject("ghost_penalty"),
+                solver.ghost_penalty
+            ));
+        }
+    }
+    if let Some(cuts) = options.optional("max_step_cuts") {
+        solver.max_step_cuts = whole_number(&cuts, &options.subject("max_step_cuts"), 0)?;
     }
     builder.solver = Some(Located::new(solver, at));
     Ok(())
@@ -1153,7 +1228,9 @@ mod tests {
             scene.solver,
             SolverSpec {
                 tolerance: 1e-6,
-                max_iterations: 12
+                max_iterations: 12,
+                max_step_cuts: 8,
+                ghost_penalty: 0.0,
             }
         );
         assert_eq!(scene.output.every, 2);

@@ -21,8 +21,11 @@ pub fn evaluate_basis<const D: usize>(
 ) {
     let _timer = clock.time(Stage::Connectivity);
     for (id, position, mut support) in points.iter_mut() {
-        if let Err(outside) = grid.0.eval(&position.0, &mut scratch, &mut support.0) {
-            let _ = outside;
+        if grid
+            .0
+            .eval(&position.0, &mut scratch, &mut support.0)
+            .is_err()
+        {
             status.fail(SolverError::PointOutsideGrid {
                 point: id.0,
                 position: position.0.iter().copied().collect(),

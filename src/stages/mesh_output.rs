@@ -25,7 +25,7 @@ pub fn write_mesh<const D: usize>(
     nodes: Query<&GridNode<D>>,
     points: Query<&ElementPoint<D>>,
 ) {
-    if !plan.writes(step.number) {
+    if !plan.writes(&step) {
         return;
     }
     let _timer = clock.time(Stage::Output);

@@ -32,6 +32,7 @@ mod assembly;
 mod connectivity;
 mod dofs;
 mod element_basis;
+pub mod ghost;
 mod loads;
 mod mesh_advance;
 mod mesh_output;
@@ -45,7 +46,9 @@ pub use assembly::assemble;
 pub use connectivity::evaluate_basis;
 pub use dofs::number_dofs;
 pub use element_basis::evaluate_element_basis;
-pub use loads::{apply_body_force, apply_prescribed_displacements};
+pub use loads::{
+    apply_body_force, apply_point_loads, apply_prescribed_displacements, spread_force,
+};
 pub use mesh_advance::advance_mesh;
 pub use mesh_output::write_mesh;
 pub use newton::{check_convergence, solve_linear_system, solve_load_step};
@@ -95,10 +98,14 @@ pub enum NewtonSystems {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Effects {
     pub body_force: bool,
+    /// Forces on material points (`point_load`).
+    pub point_loads: bool,
     pub prescribed_displacements: bool,
     /// Linear FEM on a body-fitted mesh (`basis = "fem"`) instead of MPM: element
     /// connectivity, a mesh that advances with the body, and the mesh as grid output.
     pub fem_mesh: bool,
+    /// Ghost-penalty stabilisation of nearly empty cells (`ghost`).
+    pub ghost_penalty: bool,
 }
 
 /// Schedule settings shared by all solver schedules: single-threaded, and any ambiguity in
@@ -127,7 +134,7 @@ pub fn load_step_schedule<const D: usize>(effects: Effects) -> Schedule {
             StepSystems::ResetGrid,
         )
             .chain()
-            .run_if(no_failure),
+            .distributive_run_if(no_failure),
     );
     if effects.fem_mesh {
         schedule.add_systems(evaluate_element_basis::<D>.in_set(StepSystems::Connectivity));
@@ -140,15 +147,30 @@ pub fn load_step_schedule<const D: usize>(effects: Effects) -> Schedule {
     } else {
         schedule.add_systems(evaluate_basis::<D>.in_set(StepSystems::Connectivity));
     }
+    if effects.ghost_penalty {
+        schedule.add_systems(
+            ghost::find_ghost_faces::<D>
+                .in_set(StepSystems::Connectivity)
+                .after(evaluate_basis::<D>),
+        );
+    }
     schedule.add_systems(number_dofs::<D>.in_set(StepSystems::Dofs));
     if effects.body_force {
         schedule.add_systems(apply_body_force::<D>.in_set(StepSystems::Loads));
+    }
+    if effects.point_loads {
+        schedule.add_systems(
+            apply_point_loads::<D>
+                .in_set(StepSystems::Loads)
+                .after(apply_body_force::<D>),
+        );
     }
     if effects.prescribed_displacements {
         schedule.add_systems(
             apply_prescribed_displacements::<D>
                 .in_set(StepSystems::Loads)
-                .after(apply_body_force::<D>),
+                .after(apply_body_force::<D>)
+                .after(apply_point_loads::<D>),
         );
     }
     schedule.add_systems(solve_load_step.in_set(StepSystems::Solve));
@@ -169,7 +191,7 @@ pub fn output_schedule<const D: usize>(effects: Effects) -> Schedule {
                 output::write_nodes::<D>,
             )
                 .chain()
-                .run_if(no_failure),
+                .distributive_run_if(no_failure),
         );
     } else {
         schedule.add_systems(
@@ -179,7 +201,7 @@ pub fn output_schedule<const D: usize>(effects: Effects) -> Schedule {
                 output::write_nodes::<D>,
             )
                 .chain()
-                .run_if(no_failure),
+                .distributive_run_if(no_failure),
         );
     }
     schedule
@@ -191,7 +213,7 @@ pub fn run_output(world: &mut World) {
 }
 
 /// The Newton-iteration schedule for dimension `D`.
-pub fn newton_schedule<const D: usize>() -> Schedule {
+pub fn newton_schedule<const D: usize>(effects: Effects) -> Schedule {
     let mut schedule = strict(NewtonIteration);
     schedule.configure_sets(
         (
@@ -201,7 +223,7 @@ pub fn newton_schedule<const D: usize>() -> Schedule {
             NewtonSystems::LinearSolve,
         )
             .chain()
-            .run_if(no_failure),
+            .distributive_run_if(no_failure),
     );
     schedule.add_systems((
         update_stress::<D>.in_set(NewtonSystems::StressUpdate),
@@ -211,6 +233,13 @@ pub fn newton_schedule<const D: usize>() -> Schedule {
             .in_set(NewtonSystems::LinearSolve)
             .run_if(not_converged),
     ));
+    if effects.ghost_penalty {
+        schedule.add_systems(
+            ghost::assemble_ghost_penalty::<D>
+                .in_set(NewtonSystems::Assembly)
+                .after(assemble::<D>),
+        );
+    }
     schedule
 }
 

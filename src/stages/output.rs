@@ -53,9 +53,12 @@ impl OutputPlan {
         }
     }
 
-    /// Whether step `number` is written.
-    pub fn writes(&self, number: usize) -> bool {
-        number == 0 || number == self.last_step || number.is_multiple_of(self.every)
+    /// Whether the state after `step` is written: the initial state, the last step and every
+    /// n-th step, never an intermediate sub-step of a cut step.
+    pub fn writes(&self, step: &LoadStep) -> bool {
+        let number = step.number;
+        (step.completes_step || number == 0)
+            && (number == 0 || number == self.last_step || number.is_multiple_of(self.every))
     }
 }
 
@@ -88,7 +91,7 @@ pub fn write_particles<const D: usize>(
         &BodyIndex,
     )>,
 ) {
-    if !plan.writes(step.number) {
+    if !plan.writes(&step) {
         return;
     }
     let _timer = clock.time(Stage::Output);
@@ -185,7 +188,7 @@ pub fn write_grid<const D: usize>(
     mut scratch: Local<BasisScratch>,
     positions: Query<&Position<D>>,
 ) {
-    if !plan.writes(step.number) {
+    if !plan.writes(&step) {
         return;
     }
     let _timer = clock.time(Stage::Output);
@@ -249,7 +252,7 @@ pub fn write_nodes<const D: usize>(
     mut clock: ResMut<StageClock>,
     nodes: Query<(&GridNode<D>, &Fixity<D>)>,
 ) {
-    if !plan.writes(step.number) {
+    if !plan.writes(&step) {
         return;
     }
     let _timer = clock.time(Stage::Output);
