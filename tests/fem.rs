@@ -312,7 +312,7 @@ fn patch_test<const D: usize>() {
     let mut points = sim
         .world
         .query::<(&ReferencePosition<D>, &DeformationGradient<D>, &Trial<D>)>();
-    let mut count = 0;
+    let (mut count, mut worst) = (0, 0.0f64);
     for (x, gradient, trial) in points.iter(&sim.world) {
         assert!(
             (gradient.0 - f).norm() < 1e-12,
@@ -321,6 +321,7 @@ fn patch_test<const D: usize>() {
             gradient.0
         );
         let sigma = trial.0.cauchy();
+        worst = worst.max((sigma - expected).norm() / expected.norm());
         assert!(
             (sigma - expected).norm() < 1e-10 * expected.norm(),
             "D = {D}: σ at {:?} = {sigma} vs {expected}",
@@ -333,6 +334,7 @@ fn patch_test<const D: usize>() {
         (1 << D) * (1 << D),
         "2^D elements x 2^D Gauss points"
     );
+    eprintln!("patch test {D}D: max |σ - σ_Hencky| / |σ_Hencky| = {worst:.2e}");
     let interior = sim
         .world
         .query::<&GridNode<D>>()
@@ -474,9 +476,12 @@ fn assembled_force_is_the_total_lagrangian_fem_force() {
     }
     let scale = expected.iter().fold(0.0f64, |m, f| m.max(f.norm()));
     assert!(scale > 1.0, "a meaningful force: {scale}");
+    let mut worst = 0.0f64;
     for (node, (a, b)) in assembled.iter().zip(&expected).enumerate() {
+        worst = worst.max((a - b).norm() / scale);
         assert!((a - b).norm() < 1e-11 * scale, "node {node}: {a} vs {b}");
     }
+    eprintln!("assembled vs total-Lagrangian FEM force: max difference {worst:.2e} of the largest");
 }
 
 /// The assembled FEM tangent equals central finite differences of the assembled internal
