@@ -64,13 +64,17 @@ pub enum BasisKind {
     Linear,
     /// B-splines of order `order >= 1` on the open uniform knot vector over the grid.
     BSpline { order: usize },
+    /// Linear finite elements on the body-fitted mesh of grid cells (see `crate::fem`): the
+    /// nodes are the grid vertices and move with the body. On the undeformed grid its functions
+    /// are the hat functions, which is what [`GridBasis::eval`] evaluates for this kind.
+    Fem,
 }
 
 impl BasisKind {
     /// Polynomial order q of the functions (1 for linear).
     pub fn order(&self) -> usize {
         match self {
-            BasisKind::Linear => 1,
+            BasisKind::Linear | BasisKind::Fem => 1,
             BasisKind::BSpline { order } => *order,
         }
     }

@@ -10,10 +10,10 @@
 //!
 //! | call | meaning |
 //! |------|---------|
-//! | `grid(#{ lower: [..], upper: [..], cells: [..], basis: "linear" \| "bspline", order: q })` | background grid; the dimension (1, 2, 3) is the array length; `order` (>= 1) is required for `"bspline"` and ignored for `"linear"` (standard MPM hat functions). Call once. |
+//! | `grid(#{ lower: [..], upper: [..], cells: [..], basis: "linear" \| "bspline" \| "fem", order: q })` | background grid; the dimension (1, 2, 3) is the array length; `order` (>= 1) is required for `"bspline"` and ignored for `"linear"` (standard MPM hat functions) and `"fem"` (linear finite elements on the body-fitted mesh of grid cells, see `fem`). Call once. |
 //! | `material(#{ name: "..", E: .., nu: .., density: .. })` | linear-elastic Hencky material (E > 0, -1 < nu < 0.5, density > 0); returns a handle |
 //! | `box([lo..], [hi..])` | an axis-aligned box region (bounds included) |
-//! | `body(#{ name: "..", material: m, region: box(..) or \|x\| pred, ppc: n or [n0, n1, ..], placement: "uniform" \| "gauss" })` | material points: `ppc` per cell per direction at cell-local `(i + 1/2) / ppc`, kept where the region holds; volume = cell volume / points per cell. With `placement: "gauss"` (optional) the points sit at the Gauss–Legendre points of each cell with volumes from the Gauss weights. The region must lie inside the grid. |
+//! | `body(#{ name: "..", material: m, region: box(..) or \|x\| pred, ppc: n or [n0, n1, ..], placement: "uniform" \| "gauss" })` | material points: `ppc` per cell per direction at cell-local `(i + 1/2) / ppc`, kept where the region holds; volume = cell volume / points per cell. With `placement: "gauss"` (optional) the points sit at the Gauss–Legendre points of each cell with volumes from the Gauss weights. The region must lie inside the grid. With `basis: "fem"` the region must be made of whole grid cells (the elements) and `ppc` is the number of Gauss points per direction. |
 //! | `body_force([..])` | body force per unit mass at load factor 1 (one entry per axis) |
 //! | `fix(\|x\| pred, [components])` | fix the listed displacement components (0-based axes) of every grid node whose position satisfies `pred` |
 //! | `displace(\|x\| pred, [components], [values])` | prescribe displacements (values at load factor 1, ramped with the load factor) |
@@ -53,7 +53,7 @@ use crate::basis::BasisKind;
 pub(crate) const API_SIGNATURES: &[(&str, &str)] = &[
     (
         "grid",
-        "grid(#{ lower: [..], upper: [..], cells: [..], basis: \"linear\" | \"bspline\", order: q })",
+        "grid(#{ lower: [..], upper: [..], cells: [..], basis: \"linear\" | \"bspline\" | \"fem\", order: q })",
     ),
     (
         "material",
@@ -298,6 +298,8 @@ fn declare_grid(builder: &mut SceneBuilder, options: Dynamic, at: Position) -> R
     let basis = match basis_name.as_str() {
         // order is ignored: linear hat functions are order 1 by definition
         "linear" => BasisKind::Linear,
+        // linear finite elements on the body-fitted mesh; order ignored like "linear"
+        "fem" => BasisKind::Fem,
         "bspline" => {
             let order = options.optional("order").ok_or_else(|| {
                 "grid(...): basis \"bspline\" needs option 'order' (1 linear, 2 quadratic, 3 cubic, ...)"
@@ -309,7 +311,7 @@ fn declare_grid(builder: &mut SceneBuilder, options: Dynamic, at: Position) -> R
         }
         other => {
             return Err(format!(
-                "grid(...): option 'basis' must be \"linear\" or \"bspline\", got {other:?}"
+                "grid(...): option 'basis' must be \"linear\", \"bspline\" or \"fem\", got {other:?}"
             ));
         }
     };
@@ -1031,7 +1033,7 @@ mod tests {
         assert!(
             error
                 .message
-                .contains("\"linear\" or \"bspline\", got \"spline\""),
+                .contains("\"linear\", \"bspline\" or \"fem\", got \"spline\""),
             "{error}"
         );
     }
