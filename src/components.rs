@@ -9,6 +9,9 @@
 //!   (`GridNode`) and its constraints (`Fixity`). The fields that live on the grid during a load
 //!   step (displacement increment, forces, DOF numbers) are dense arrays in `GridFields`, indexed
 //!   by node, because every stage gathers and scatters them by node index.
+//! * With linear FEM (`basis = "fem"`) the points are integration points and also carry their
+//!   element and parent coordinates (`ElementPoint`); the nodes are the mesh nodes, and
+//!   `GridNode::position` is their current position (they move with the body).
 
 use bevy_ecs::prelude::*;
 use nalgebra::{Matrix3, SMatrix, SVector};
@@ -108,4 +111,12 @@ impl<const D: usize> Default for Fixity<D> {
             prescribed: SVector::zeros(),
         }
     }
+}
+
+/// Linear FEM only: the element an integration point belongs to and its parent coordinates
+/// ξ in `[-1, 1]^D`, both fixed for the whole run (see `fem`).
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct ElementPoint<const D: usize> {
+    pub element: usize,
+    pub xi: SVector<f64, D>,
 }

@@ -6,7 +6,8 @@
 //! See `ARCHITECTURE.md` for the one-screen map of stages and entities.
 //!
 //! * Pure kernels: [`basis`], [`material`], [`mechanics`], [`sparse`], [`analytic`],
-//!   [`recovery`] (MLS stress recovery).
+//!   [`recovery`] (MLS stress recovery), [`fem`] (linear finite elements on a body-fitted
+//!   mesh, the paper's FEM comparator).
 //! * ECS: [`components`], [`resources`], [`stages`] (systems and schedules).
 //! * Driver and I/O: [`simulation`], [`scene`] (Rhai), [`output`] (VTK), [`summary`],
 //!   [`study`] (parameter sweeps, tables and charts).
@@ -14,6 +15,7 @@
 pub mod analytic;
 pub mod basis;
 pub mod components;
+pub mod fem;
 pub mod ghost;
 pub mod material;
 pub mod mechanics;

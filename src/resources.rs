@@ -6,11 +6,17 @@ use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 
 use crate::basis::GridBasis;
+use crate::fem::Mesh;
 use crate::sparse::{LinearSystem, NO_DOF};
 
 /// The background grid and its basis.
 #[derive(Resource, Clone, Debug)]
 pub struct Grid<const D: usize>(pub GridBasis<D>);
+
+/// Linear FEM only: the body-fitted mesh (element topology, reference node positions). The
+/// current node positions are the `GridNode` positions.
+#[derive(Resource, Clone, Debug)]
+pub struct FemMesh<const D: usize>(pub Mesh<D>);
 
 /// Dense fields on the grid nodes during a load step, indexed by node (see `components`).
 /// Reset after every load step.

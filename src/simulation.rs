@@ -62,6 +62,7 @@ pub fn effects_of(spec: &SceneSpec) -> Effects {
         prescribed_displacements: spec.constraints.iter().any(|c| c.value != 0.0),
         ghost_penalty: spec.solver.ghost_penalty > 0.0,
         stress_recovery: spec.recovery.is_some(),
+        fem_mesh: spec.grid.basis == BasisKind::Fem,
         point_domains: spec.grid.basis.uses_point_domain(),
     }
 }
@@ -187,6 +188,11 @@ impl<const D: usize> Simulation<D> {
 
         // Resources.
         let effects = effects_of(spec);
+        if effects.fem_mesh && effects.ghost_penalty {
+            return Err(BuildError(
+                "the ghost penalty stabilises nearly empty MPM cells; a finite-element mesh (basis fem) has none".into(),
+            ));
+        }
         if let Some(b) = &spec.body_force {
             if b.len() != D {
                 return Err(BuildError(format!(
@@ -198,6 +204,9 @@ impl<const D: usize> Simulation<D> {
         }
         world.insert_resource(GridFields::<D>::new(basis.num_nodes()));
         world.insert_resource(Grid(basis));
+        if effects.fem_mesh {
+            crate::fem::attach_mesh::<D>(&mut world).map_err(BuildError)?;
+        }
         world.insert_resource(LoadStep::default());
         world.insert_resource(NewtonSettings {
             tolerance: spec.solver.tolerance,
@@ -230,7 +239,7 @@ impl<const D: usize> Simulation<D> {
             });
         }
         world.add_schedule(newton_schedule::<D>(effects));
-        world.add_schedule(output_schedule::<D>());
+        world.add_schedule(output_schedule::<D>(effects));
 
         let summary = Summary::new(
             spec,
@@ -518,6 +527,7 @@ pub fn basis_name(kind: BasisKind) -> String {
         BasisKind::BSpline { order } => format!("bspline(q={order})"),
         BasisKind::Gimp { domain } => format!("gimp({})", domain.name()),
         BasisKind::Cpdi => "cpdi".into(),
+        BasisKind::Fem => "fem(linear elements)".into(),
     }
 }
 

@@ -1,21 +1,21 @@
 //! World-level tests of the solver systems and schedules, on small hand-built scenes.
 #![allow(clippy::needless_range_loop)] // matrix indices read best as indices
 
+mod common;
+
 use std::path::PathBuf;
 
-use bevy_ecs::schedule::ScheduleLabel;
 use bevy_ecs::system::RunSystemOnce;
 use nalgebra::SVector;
 
 use impm::basis::{BasisKind, GimpDomain};
 use impm::components::{DeformationGradient, Position, Support, Trial};
-use impm::resources::{GridFields, LoadStep, Newton};
+use impm::resources::{GridFields, LoadStep};
 use impm::scene::*;
 use impm::simulation::Simulation;
 use impm::sparse::NO_DOF;
 use impm::stages::{
-    LoadStep as LoadStepSchedule, NewtonIteration, WriteOutput, assemble, evaluate_basis,
-    evaluate_domain_basis, number_dofs, reset_grid, update_points, update_stress,
+    evaluate_basis, evaluate_domain_basis, number_dofs, reset_grid, update_points, update_stress,
 };
 
 fn temp_dir(name: &str) -> PathBuf {
@@ -102,45 +102,6 @@ fn start_step(sim: &mut Simulation<2>) {
     sim.world.run_system_once(number_dofs::<2>).unwrap();
 }
 
-/// Internal force at the free DOFs for the current increments.
-fn internal_force(sim: &mut Simulation<2>) -> Vec<f64> {
-    sim.world.run_system_once(update_stress::<2>).unwrap();
-    sim.world.run_system_once(assemble::<2>).unwrap();
-    let fields = sim.world.resource::<GridFields<2>>();
-    let mut f = vec![0.0; fields.dof_count];
-    for (node, dofs) in fields.dofs.iter().enumerate() {
-        for (c, &d) in dofs.iter().enumerate() {
-            if d != NO_DOF {
-                f[d as usize] = fields.internal_force[node][c];
-            }
-        }
-    }
-    f
-}
-
-fn set_increment(sim: &mut Simulation<2>, dof: usize, value: f64) {
-    let mut fields = sim.world.resource_mut::<GridFields<2>>();
-    for node in 0..fields.dofs.len() {
-        for c in 0..2 {
-            if fields.dofs[node][c] == dof as u32 {
-                fields.increment[node][c] = value;
-            }
-        }
-    }
-}
-
-fn increment_of(sim: &Simulation<2>, dof: usize) -> f64 {
-    let fields = sim.world.resource::<GridFields<2>>();
-    for node in 0..fields.dofs.len() {
-        for c in 0..2 {
-            if fields.dofs[node][c] == dof as u32 {
-                return fields.increment[node][c];
-            }
-        }
-    }
-    unreachable!("dof {dof} exists")
-}
-
 /// The assembled tangent equals central finite differences of the assembled internal force,
 /// at a strongly deformed, rotated iterate (2D, several points per cell): B-spline q = 2 from
 /// the undeformed state, and GIMP and CPDI from a stretched and sheared state at the start of
@@ -194,39 +155,7 @@ fn check_tangent(basis: BasisKind, start_deformation: Option<nalgebra::Matrix2<f
             }
         }
     }
-    let f0 = internal_force(&mut sim);
-    let k: Vec<Vec<f64>> = {
-        let newton = sim.world.resource::<Newton>();
-        (0..n)
-            .map(|r| (0..n).map(|c| newton.system.get(r, c)).collect())
-            .collect()
-    };
-    let scale = k.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
-    let h = 1e-6;
-    let mut worst = 0.0f64;
-    for col in 0..n {
-        let base = increment_of(&sim, col);
-        set_increment(&mut sim, col, base + h);
-        let fp = internal_force(&mut sim);
-        set_increment(&mut sim, col, base - h);
-        let fm = internal_force(&mut sim);
-        set_increment(&mut sim, col, base);
-        for row in 0..n {
-            let fd = (fp[row] - fm[row]) / (2.0 * h);
-            worst = worst.max((fd - k[row][col]).abs());
-        }
-    }
-    assert!(f0.iter().all(|v| v.is_finite()));
-    assert!(
-        worst < 1e-6 * scale,
-        "{basis:?}: max |K - K_fd| = {worst:e}, scale {scale:e}"
-    );
-    // and K is symmetric
-    for r in 0..n {
-        for c in 0..n {
-            assert!((k[r][c] - k[c][r]).abs() < 1e-9 * scale);
-        }
-    }
+    common::assert_tangent_matches_finite_differences(&mut sim);
 }
 
 #[test]
@@ -295,17 +224,7 @@ fn point_update_moves_points_by_the_interpolated_increment_and_reset_clears_the_
 fn schedules_have_no_ambiguities() {
     fn check<const D: usize>(spec: &SceneSpec) {
         let mut sim = Simulation::<D>::new(spec, &temp_dir(&format!("amb{D}"))).unwrap();
-        for label in [
-            LoadStepSchedule.intern(),
-            NewtonIteration.intern(),
-            WriteOutput.intern(),
-        ] {
-            sim.world.schedule_scope(label, |world, schedule| {
-                schedule
-                    .initialize(world)
-                    .unwrap_or_else(|e| panic!("{label:?}: {e}"));
-            });
-        }
+        common::assert_schedules_unambiguous(&mut sim);
     }
     check::<2>(&block_2d([4, 4], [2, 2], BasisKind::Linear));
     let mut with_prescribed = block_2d([4, 4], [2, 2], BasisKind::Linear);

@@ -96,7 +96,8 @@ pub fn cpdi_vectors<const D: usize>(
 
 /// The weights of a point at `position` with deformation gradient `deformation_gradient` and
 /// initial domain half-lengths `initial_half_lengths`, for the grid's method (the domain is
-/// ignored for linear and B-spline grids). Fills `out` like [`GridBasis::eval`].
+/// ignored for linear and B-spline grids, and for FEM, whose points use the element basis of
+/// `stages::element_basis` instead). Fills `out` like [`GridBasis::eval`].
 pub fn eval_point_domain<const D: usize>(
     grid: &GridBasis<D>,
     position: &SVector<f64, D>,
@@ -106,7 +107,7 @@ pub fn eval_point_domain<const D: usize>(
     out: &mut Vec<NodeWeight<D>>,
 ) -> Result<(), DomainError> {
     match grid.kind() {
-        BasisKind::Linear | BasisKind::BSpline { .. } => grid
+        BasisKind::Linear | BasisKind::BSpline { .. } | BasisKind::Fem => grid
             .eval(position, &mut scratch.basis, out)
             .map_err(DomainError::Outside),
         BasisKind::Gimp {

@@ -84,6 +84,10 @@ pub enum BasisKind {
     /// CPDI1 (Sadeghirad, Brannon & Burghardt 2011): the hat functions averaged from the
     /// corners of the point's parallelepiped domain carried by F ([`cpdi`]).
     Cpdi,
+    /// Linear finite elements on the body-fitted mesh of grid cells (see `crate::fem`): the
+    /// nodes are the grid vertices and move with the body. On the undeformed grid its functions
+    /// are the hat functions, which is what [`GridBasis::eval`] evaluates for this kind.
+    Fem,
 }
 
 /// How the GIMP particle domain follows the deformation.
@@ -108,11 +112,11 @@ impl GimpDomain {
 }
 
 impl BasisKind {
-    /// Polynomial order q of the grid functions (1 for linear, GIMP and CPDI, which average
-    /// the linear hat functions).
+    /// Polynomial order q of the grid functions (1 for linear, FEM, and GIMP and CPDI, which
+    /// average the linear hat functions).
     pub fn order(&self) -> usize {
         match self {
-            BasisKind::Linear | BasisKind::Gimp { .. } | BasisKind::Cpdi => 1,
+            BasisKind::Linear | BasisKind::Fem | BasisKind::Gimp { .. } | BasisKind::Cpdi => 1,
             BasisKind::BSpline { order } => *order,
         }
     }

@@ -11,13 +11,14 @@ use std::collections::BTreeMap;
 use rhai::{AST, Dynamic, Engine, FnPtr, Position};
 
 use super::error::ScriptError;
+use super::fem_seeding::{PartialCell, seed_element_points};
 use super::options::describe;
 use super::seeding::{Placement, first_point_outside_grid, seed_box, seed_points_placed};
 use super::{
     AnalyticSpec, BodySpec, GridSpec, MaterialSpec, NodeConstraint, OutputSpec, PointLoadSpec,
-    RecoverySpec, SceneSpec, SolverSpec,
+    PointSeed, RecoverySpec, SceneSpec, SolverSpec,
 };
-use crate::basis::control_points_1d;
+use crate::basis::{BasisKind, control_points_1d};
 
 /// Largest number of grid nodes accepted (node predicates are called once per node).
 pub(crate) const MAX_NODES: usize = 100_000_000;
@@ -191,6 +192,15 @@ impl SceneBuilder {
 
         let constraints = resolve_constraints(&self.constraints, &grid, engine, ast)?;
         let point_loads = resolve_point_loads(&self.point_loads, &bodies, dim, engine, ast)?;
+        if let Some(solver) = &self.solver
+            && solver.value.ghost_penalty > 0.0
+            && grid.value.basis == BasisKind::Fem
+        {
+            return Err(ScriptError::at(
+                solver.at,
+                "solver(...): ghost_penalty stabilises nearly empty MPM cells; basis \"fem\" has a body-fitted mesh without such cells (remove ghost_penalty)",
+            ));
+        }
 
         let load_factors = self.load_factors.ok_or_else(|| {
             ScriptError::unlocated(
@@ -381,13 +391,24 @@ fn resolve_body(
                     declaration.region.describe()
                 ));
             }
-            seed_box(
-                &grid.value,
-                &points_per_cell,
-                declaration.placement,
-                lower,
-                upper,
-            )
+            if grid.value.basis == BasisKind::Fem {
+                let inside = |x: &[f64]| {
+                    Ok::<_, ScriptError>(
+                        x.iter()
+                            .zip(lower.iter().zip(upper))
+                            .all(|(&c, (&lo, &hi))| lo <= c && c <= hi),
+                    )
+                };
+                seed_element_points(&grid.value, &points_per_cell, inside)?
+            } else {
+                Ok(seed_box(
+                    &grid.value,
+                    &points_per_cell,
+                    declaration.placement,
+                    lower,
+                    upper,
+                ))
+            }
         }
         Region::Predicate(predicate) => {
             let context = format!(
@@ -402,8 +423,12 @@ fn resolve_body(
                     "the region contains x = {position:?}, outside the grid {grid_bounds}; material points must lie in the grid (bound the region)"
                 ));
             }
-            seed_points_placed(&grid.value, &points_per_cell, declaration.placement, inside)?
+            seed_body(&grid.value, &points_per_cell, declaration.placement, inside)?
         }
+    };
+    let points = match points {
+        Ok(points) => points,
+        Err(partial) => return fail(partial.message()),
     };
     if points.is_empty() {
         return fail(format!(
@@ -416,6 +441,21 @@ fn resolve_body(
         material: declaration.material,
         points,
     })
+}
+
+/// The body's points: the seeding lattice for MPM, the integration points of the covered cells
+/// for FEM (`Err` for a cell the region covers only partly).
+fn seed_body(
+    grid: &GridSpec,
+    points_per_cell: &[usize],
+    placement: Placement,
+    inside: impl FnMut(&[f64]) -> Result<bool, ScriptError>,
+) -> Result<Result<Vec<PointSeed>, PartialCell>, ScriptError> {
+    if grid.basis == BasisKind::Fem {
+        seed_element_points(grid, points_per_cell, inside)
+    } else {
+        seed_points_placed(grid, points_per_cell, placement, inside).map(Ok)
+    }
 }
 
 fn resolve_constraints(
@@ -582,7 +622,6 @@ fn resolve_point_loads(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::basis::BasisKind;
 
     #[test]
     fn node_positions_axis_zero_fastest_with_exact_ends() {

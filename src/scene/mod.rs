@@ -23,10 +23,12 @@
 //!
 //! Modules: `rhai_api` (the functions a script can call; their reference is in its docs),
 //! `params` (parameters and overrides), `builder` (declarations and their resolution),
-//! `seeding` (material-point seeding), `options` (argument checking), `error`.
+//! `seeding` (material-point seeding), `fem_seeding` (integration points of the body-fitted
+//! mesh for `basis: "fem"`), `options` (argument checking), `error`.
 
 mod builder;
 mod error;
+mod fem_seeding;
 mod options;
 mod params;
 mod rhai_api;

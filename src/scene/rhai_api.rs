@@ -10,10 +10,10 @@
 //!
 //! | call | meaning |
 //! |------|---------|
-//! | `grid(#{ lower: [..], upper: [..], cells: [..], basis: "linear" \| "bspline" \| "gimp" \| "cpdi", order: q, gimp: "stretched" \| "fixed" })` | background grid; the dimension (1, 2, 3) is the array length. `basis`: `"linear"` standard MPM (hat functions), `"bspline"` B-splines of `order` q >= 1 (required), `"gimp"` GIMP (hats averaged over the point's box domain), `"cpdi"` CPDI1 (hats averaged from the corners of the point's domain carried by F). `gimp` (GIMP only, default `"stretched"`): `"stretched"` domain half-lengths follow the diagonal of F (cpGIMP), `"fixed"` domains keep their initial size (uGIMP). `order` is ignored for linear, GIMP and CPDI. A point's domain is the box of its seeding share (`h / ppc` per axis); GIMP clips domains to the grid, CPDI stops with an error naming the point when a domain corner leaves it. Call once. |
+//! | `grid(#{ lower: [..], upper: [..], cells: [..], basis: "linear" \| "bspline" \| "gimp" \| "cpdi" \| "fem", order: q, gimp: "stretched" \| "fixed" })` | background grid; the dimension (1, 2, 3) is the array length. `basis`: `"linear"` standard MPM (hat functions), `"bspline"` B-splines of `order` q >= 1 (required), `"gimp"` GIMP (hats averaged over the point's box domain), `"cpdi"` CPDI1 (hats averaged from the corners of the point's domain carried by F), `"fem"` linear finite elements on the body-fitted mesh of grid cells (see `fem`). `gimp` (GIMP only, default `"stretched"`): `"stretched"` domain half-lengths follow the diagonal of F (cpGIMP), `"fixed"` domains keep their initial size (uGIMP). `order` is ignored except for B-splines. A point's domain is the box of its seeding share (`h / ppc` per axis); GIMP clips domains to the grid, CPDI stops with an error naming the point when a domain corner leaves it. Call once. |
 //! | `material(#{ name: "..", E: .., nu: .., density: .. })` | linear-elastic Hencky material (E > 0, -1 < nu < 0.5, density > 0); returns a handle |
 //! | `box([lo..], [hi..])` | an axis-aligned box region (bounds included) |
-//! | `body(#{ name: "..", material: m, region: box(..) or \|x\| pred, ppc: n or [n0, n1, ..], placement: "uniform" \| "gauss" })` | material points: `ppc` per cell per direction at cell-local `(i + 1/2) / ppc`, kept where the region holds; volume = cell volume / points per cell. With `placement: "gauss"` (optional) the points sit at the Gauss–Legendre points of each cell with volumes from the Gauss weights. The region must lie inside the grid. |
+//! | `body(#{ name: "..", material: m, region: box(..) or \|x\| pred, ppc: n or [n0, n1, ..], placement: "uniform" \| "gauss" })` | material points: `ppc` per cell per direction at cell-local `(i + 1/2) / ppc`, kept where the region holds; volume = cell volume / points per cell. With `placement: "gauss"` (optional) the points sit at the Gauss–Legendre points of each cell with volumes from the Gauss weights. The region must lie inside the grid. With `basis: "fem"` the region must be made of whole grid cells (the elements) and `ppc` is the number of Gauss points per direction. |
 //! | `body_force([..])` | body force per unit mass at load factor 1 (one entry per axis) |
 //! | `fix(\|x\| pred, [components])` | fix the listed displacement components (0-based axes) of every grid node whose position satisfies `pred` |
 //! | `displace(\|x\| pred, [components], [values])` | prescribe displacements (values at load factor 1, ramped with the load factor) |
@@ -53,7 +53,7 @@ use crate::basis::{BasisKind, GimpDomain};
 pub(crate) const API_SIGNATURES: &[(&str, &str)] = &[
     (
         "grid",
-        "grid(#{ lower: [..], upper: [..], cells: [..], basis: \"linear\" | \"bspline\" | \"gimp\" | \"cpdi\", order: q, gimp: \"stretched\" | \"fixed\" })",
+        "grid(#{ lower: [..], upper: [..], cells: [..], basis: \"linear\" | \"bspline\" | \"gimp\" | \"cpdi\" | \"fem\", order: q, gimp: \"stretched\" | \"fixed\" })",
     ),
     (
         "material",
@@ -311,6 +311,8 @@ fn declare_grid(builder: &mut SceneBuilder, options: Dynamic, at: Position) -> R
     let basis = match basis_name.as_str() {
         // order is ignored: linear hat functions are order 1 by definition
         "linear" => BasisKind::Linear,
+        // linear finite elements on the body-fitted mesh; order ignored like "linear"
+        "fem" => BasisKind::Fem,
         "bspline" => {
             let order = options.optional("order").ok_or_else(|| {
                 "grid(...): basis \"bspline\" needs option 'order' (1 linear, 2 quadratic, 3 cubic, ...)"
@@ -326,7 +328,7 @@ fn declare_grid(builder: &mut SceneBuilder, options: Dynamic, at: Position) -> R
         "cpdi" => BasisKind::Cpdi,
         other => {
             return Err(format!(
-                "grid(...): option 'basis' must be \"linear\", \"bspline\", \"gimp\" or \"cpdi\", got {other:?}"
+                "grid(...): option 'basis' must be \"linear\", \"bspline\", \"gimp\", \"cpdi\" or \"fem\", got {other:?}"
             ));
         }
     };
@@ -1010,7 +1012,7 @@ mod tests {
                     ("gimp", "\"stretched\""),
                     (
                         "ppc",
-                        "if basis == \"linear\" { 1 } else if basis == \"bspline\" { 4 } else { 2 }"
+                        "if basis == \"linear\" { 1 } else if basis == \"gimp\" || basis == \"cpdi\" { 2 } else { 4 }"
                     ),
                     ("body_force", "-800.0"),
                     ("steps", "20"),
@@ -1052,7 +1054,7 @@ mod tests {
         assert!(
             error
                 .message
-                .contains("\"linear\", \"bspline\", \"gimp\" or \"cpdi\", got \"spline\""),
+                .contains("\"linear\", \"bspline\", \"gimp\", \"cpdi\" or \"fem\", got \"spline\""),
             "{error}"
         );
     }

@@ -298,7 +298,7 @@ impl<'a> SeedLattice<'a> {
 
 /// Calls `visit` for every multi-index in the box `ranges[a].0 <= i[a] < ranges[a].1`, axis 0
 /// fastest, stopping at the first error.
-fn for_each_index<E>(
+pub(super) fn for_each_index<E>(
     ranges: &[(i64, i64)],
     mut visit: impl FnMut(&[i64]) -> Result<(), E>,
 ) -> Result<(), E> {

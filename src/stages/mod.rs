@@ -3,7 +3,8 @@
 //! One load step runs the [`LoadStep`] schedule, whose system sets run in this order:
 //!
 //! 1. [`StepSystems::Connectivity`] — evaluate the basis at the points (P2G connectivity) and
-//!    mark the active nodes (`connectivity.rs`); over the points' domains for GIMP and CPDI.
+//!    mark the active nodes (`connectivity.rs`; over the points' domains for GIMP and CPDI;
+//!    for linear FEM the element shape functions on the current mesh, `element_basis.rs`).
 //! 2. [`StepSystems::Dofs`] — number the free components of active nodes and build the sparsity
 //!    pattern of the step (`dofs.rs`).
 //! 3. [`StepSystems::Loads`] — external forces and prescribed displacement increments, only the
@@ -11,10 +12,11 @@
 //! 4. [`StepSystems::Solve`] — the Newton loop: an exclusive system that runs the
 //!    [`NewtonIteration`] schedule until converged (`newton.rs`).
 //! 5. [`StepSystems::UpdatePoints`] — G2P: move points, update F, volume (paper eq. 10,
-//!    `update.rs`).
+//!    `update.rs`); for linear FEM then move the mesh nodes by Δu (`mesh_advance.rs`).
 //! 6. [`StepSystems::Output`] — MLS stress recovery if the scene asks for it (`recovery.rs`),
 //!    then run the [`WriteOutput`] schedule (VTK files, `output.rs`).
-//! 7. [`StepSystems::ResetGrid`] — clear the grid fields (`reset.rs`).
+//! 7. [`StepSystems::ResetGrid`] — clear the grid fields (`reset.rs`). The MPM grid is back to
+//!    its undeformed state; the FEM mesh keeps its advanced node positions.
 //!
 //! The [`NewtonIteration`] schedule runs, in order:
 //!
@@ -30,8 +32,11 @@
 mod assembly;
 mod connectivity;
 mod dofs;
+mod element_basis;
 pub mod ghost;
 mod loads;
+mod mesh_advance;
+mod mesh_output;
 mod newton;
 pub mod output;
 mod recovery;
@@ -42,9 +47,12 @@ mod update;
 pub use assembly::assemble;
 pub use connectivity::{evaluate_basis, evaluate_domain_basis};
 pub use dofs::number_dofs;
+pub use element_basis::evaluate_element_basis;
 pub use loads::{
     apply_body_force, apply_point_loads, apply_prescribed_displacements, spread_force,
 };
+pub use mesh_advance::advance_mesh;
+pub use mesh_output::write_mesh;
 pub use newton::{check_convergence, solve_linear_system, solve_load_step};
 pub use recovery::recover_stress;
 pub use reset::reset_grid;
@@ -89,6 +97,12 @@ pub enum NewtonSystems {
     LinearSolve,
 }
 
+/// The connectivity system that evaluates the basis at the points (one per kind of basis:
+/// [`evaluate_basis`], [`evaluate_domain_basis`] or `evaluate_element_basis`); the systems that
+/// need the step's supports run after it.
+#[derive(SystemSet, Clone, Debug, PartialEq, Eq, Hash)]
+struct BasisEvaluation;
+
 /// Which optional effects a scene uses; the schedules contain only their systems.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Effects {
@@ -96,6 +110,9 @@ pub struct Effects {
     /// Forces on material points (`point_load`).
     pub point_loads: bool,
     pub prescribed_displacements: bool,
+    /// Linear FEM on a body-fitted mesh (`basis = "fem"`) instead of MPM: element
+    /// connectivity, a mesh that advances with the body, and the mesh as grid output.
+    pub fem_mesh: bool,
     /// Ghost-penalty stabilisation of nearly empty cells (`ghost`).
     pub ghost_penalty: bool,
     /// MLS recovery of the point stresses after every step (`RecoveredStress`).
@@ -133,18 +150,38 @@ pub fn load_step_schedule<const D: usize>(effects: Effects) -> Schedule {
             .chain()
             .distributive_run_if(no_failure),
     );
-    if effects.point_domains {
-        schedule.add_systems(evaluate_domain_basis::<D>.in_set(StepSystems::Connectivity));
+    // One basis evaluation per kind of basis, in the BasisEvaluation set.
+    if effects.fem_mesh {
+        schedule.add_systems(
+            evaluate_element_basis::<D>
+                .in_set(StepSystems::Connectivity)
+                .in_set(BasisEvaluation),
+        );
+        schedule.add_systems(
+            advance_mesh::<D>
+                .in_set(StepSystems::UpdatePoints)
+                .after(update_points::<D>)
+                .run_if(no_failure),
+        );
+    } else if effects.point_domains {
+        schedule.add_systems(
+            evaluate_domain_basis::<D>
+                .in_set(StepSystems::Connectivity)
+                .in_set(BasisEvaluation),
+        );
     } else {
-        schedule.add_systems(evaluate_basis::<D>.in_set(StepSystems::Connectivity));
+        schedule.add_systems(
+            evaluate_basis::<D>
+                .in_set(StepSystems::Connectivity)
+                .in_set(BasisEvaluation),
+        );
     }
     if effects.ghost_penalty {
-        let find_ghost_faces = ghost::find_ghost_faces::<D>.in_set(StepSystems::Connectivity);
-        if effects.point_domains {
-            schedule.add_systems(find_ghost_faces.after(evaluate_domain_basis::<D>));
-        } else {
-            schedule.add_systems(find_ghost_faces.after(evaluate_basis::<D>));
-        }
+        schedule.add_systems(
+            ghost::find_ghost_faces::<D>
+                .in_set(StepSystems::Connectivity)
+                .after(BasisEvaluation),
+        );
     }
     schedule.add_systems(number_dofs::<D>.in_set(StepSystems::Dofs));
     if effects.body_force {
@@ -179,14 +216,30 @@ pub fn load_step_schedule<const D: usize>(effects: Effects) -> Schedule {
     schedule
 }
 
-/// The output schedule for dimension `D`.
-pub fn output_schedule<const D: usize>() -> Schedule {
+/// The output schedule for dimension `D`: points, grid (the deformed mesh for FEM), nodes.
+pub fn output_schedule<const D: usize>(effects: Effects) -> Schedule {
     let mut schedule = strict(WriteOutput);
-    schedule.add_systems(
-        (output::write_particles::<D>, output::write_grid::<D>)
-            .chain()
-            .distributive_run_if(no_failure),
-    );
+    if effects.fem_mesh {
+        schedule.add_systems(
+            (
+                output::write_particles::<D>,
+                write_mesh::<D>,
+                output::write_nodes::<D>,
+            )
+                .chain()
+                .distributive_run_if(no_failure),
+        );
+    } else {
+        schedule.add_systems(
+            (
+                output::write_particles::<D>,
+                output::write_grid::<D>,
+                output::write_nodes::<D>,
+            )
+                .chain()
+                .distributive_run_if(no_failure),
+        );
+    }
     schedule
 }
 

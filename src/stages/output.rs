@@ -6,9 +6,11 @@
 //!   `deformation_gradient` (3x3, row-major) and `body`; with stress recovery also
 //!   `recovered_stress` (3x3, row-major, see `recovery.rs`).
 //! * `grid_NNNN.vtu` — the background grid cells, with the displacement increment of the step
-//!   evaluated at the grid vertices and the number of material points per cell.
-//! * `nodes_NNNN.vtu` — the control points (grid nodes) with `active`, `fixed`,
-//!   `displacement_increment`, `external_force` and `internal_force`.
+//!   evaluated at the grid vertices and the number of material points per cell; for linear
+//!   FEM the deformed mesh instead (`mesh_output.rs`).
+//! * `nodes_NNNN.vtu` — the control points (grid nodes; for FEM the mesh nodes at their current
+//!   positions) with `active`, `fixed`, `displacement_increment`, `external_force` and
+//!   `internal_force`.
 //!
 //! and the time series `particles.pvd`, `grid.pvd`, `nodes.pvd` with the load factor as time.
 //! Every file is written atomically and a series lists a file only once it is complete, so a
@@ -67,7 +69,7 @@ fn row_major(m: &Matrix3<f64>) -> [f64; 9] {
 }
 
 /// A D-vector padded to 3 components.
-fn pad<const D: usize>(v: &SVector<f64, D>) -> [f64; 3] {
+pub(super) fn pad<const D: usize>(v: &SVector<f64, D>) -> [f64; 3] {
     std::array::from_fn(|k| if k < D { v[k] } else { 0.0 })
 }
 
@@ -199,7 +201,6 @@ pub fn write_grid<const D: usize>(
     mut clock: ResMut<StageClock>,
     mut scratch: Local<BasisScratch>,
     positions: Query<&Position<D>>,
-    nodes: Query<(&GridNode<D>, &Fixity<D>)>,
 ) {
     if !plan.writes(&step) {
         return;
@@ -247,8 +248,28 @@ pub fn write_grid<const D: usize>(
             values: &points_per_cell,
         }],
     );
+    let result = grid_result.and_then(|()| plan.grid.push(step.factor, &grid_name));
+    if let Err(e) = result {
+        status.fail(SolverError::Output {
+            step: step.number,
+            why: e.to_string(),
+        });
+    }
+}
 
-    // The control points with their constraints and forces.
+/// The control points (grid nodes) with their constraints and forces: `nodes_NNNN.vtu`.
+pub fn write_nodes<const D: usize>(
+    step: Res<LoadStep>,
+    fields: Res<GridFields<D>>,
+    mut plan: ResMut<OutputPlan>,
+    mut status: ResMut<RunStatus>,
+    mut clock: ResMut<StageClock>,
+    nodes: Query<(&GridNode<D>, &Fixity<D>)>,
+) {
+    if !plan.writes(&step) {
+        return;
+    }
+    let _timer = clock.time(Stage::Output);
     let mut rows: Vec<_> = nodes.iter().collect();
     rows.sort_by_key(|(node, _)| node.index);
     let node_positions: Vec<[f64; 3]> = rows.iter().map(|(node, _)| pad(&node.position)).collect();
@@ -301,10 +322,7 @@ pub fn write_grid<const D: usize>(
         ],
         &[],
     );
-    let result = grid_result
-        .and_then(|()| plan.grid.push(step.factor, &grid_name))
-        .and(nodes_result)
-        .and_then(|()| plan.nodes.push(step.factor, &nodes_name));
+    let result = nodes_result.and_then(|()| plan.nodes.push(step.factor, &nodes_name));
     if let Err(e) = result {
         status.fail(SolverError::Output {
             step: step.number,
