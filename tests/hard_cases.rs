@@ -33,8 +33,8 @@ fn run<const D: usize>(script: &str, set: &[(&str, &str)]) -> (Summary, Simulati
     (sim.summary.clone(), sim)
 }
 
-/// Hard cases 1-2: the heavy columns (W = 4e5 and 2e6) with linear MPM and B-splines q = 2, 3,
-/// 4, in 20, 5 and 1 load steps.
+/// Hard cases 1-2: the heavy columns (W = 4e5 and 2e6) with linear MPM, GIMP and B-splines
+/// q = 2, 3, 4, in 20, 5 and 1 load steps.
 #[test]
 fn heavy_columns_converge_in_big_and_small_steps() {
     for body_force in ["-8000", "-40000"] {
