@@ -22,6 +22,7 @@ METHODS=(
   linear:1:1:uniform
   gimp:1:2:uniform
   cpdi:1:2:uniform
+  fem:1:2:uniform
   bspline:3:4:gauss
 )
 
