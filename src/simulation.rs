@@ -59,6 +59,10 @@ pub fn effects_of(spec: &SceneSpec) -> Effects {
             .point_loads
             .iter()
             .any(|load| load.force.iter().any(|&c| c != 0.0)),
+        tractions: spec
+            .tractions
+            .iter()
+            .any(|point| point.traction.iter().any(|&c| c != 0.0)),
         prescribed_displacements: spec.constraints.iter().any(|c| c.value != 0.0),
     }
 }
@@ -165,7 +169,9 @@ impl<const D: usize> Simulation<D> {
         if id == 0 {
             return Err(BuildError("the scene has no material points".into()));
         }
-        insert_point_loads::<D>(&mut world, spec)?;
+        let point_entities = point_entities(&mut world, spec.point_count());
+        insert_point_loads::<D>(&mut world, spec, &point_entities)?;
+        spawn_traction_points::<D>(&mut world, spec, &point_entities)?;
 
         // Resources.
         let effects = effects_of(spec);
@@ -195,7 +201,7 @@ impl<const D: usize> Simulation<D> {
         ));
         world.add_schedule(load_step_schedule::<D>(effects));
         world.add_schedule(newton_schedule::<D>());
-        world.add_schedule(output_schedule::<D>());
+        world.add_schedule(output_schedule::<D>(effects));
 
         let summary = Summary::new(
             spec,
@@ -329,18 +335,21 @@ impl<const D: usize> Simulation<D> {
     }
 }
 
+/// The entity of every material point, indexed by `PointId`.
+fn point_entities(world: &mut World, count: usize) -> Vec<Entity> {
+    let mut entities = vec![Entity::PLACEHOLDER; count];
+    for (entity, id) in world.query::<(Entity, &PointId)>().iter(world) {
+        entities[id.0 as usize] = entity;
+    }
+    entities
+}
+
 /// Gives the points named by the scene's point loads a [`PointLoad`] component.
 fn insert_point_loads<const D: usize>(
     world: &mut World,
     spec: &SceneSpec,
+    entities: &[Entity],
 ) -> Result<(), BuildError> {
-    if spec.point_loads.is_empty() {
-        return Ok(());
-    }
-    let mut entities = vec![Entity::PLACEHOLDER; spec.point_count()];
-    for (entity, id) in world.query::<(Entity, &PointId)>().iter(world) {
-        entities[id.0 as usize] = entity;
-    }
     for load in &spec.point_loads {
         let entity = *entities.get(load.point).ok_or_else(|| {
             BuildError(format!(
@@ -357,6 +366,46 @@ fn insert_point_loads<const D: usize>(
         let force = SVector::<f64, D>::from_fn(|a, _| load.force[a]);
         world.entity_mut(entity).insert(PointLoad(force));
     }
+    Ok(())
+}
+
+/// Spawns the scene's traction points (entities with a [`TractionPoint`] only).
+fn spawn_traction_points<const D: usize>(
+    world: &mut World,
+    spec: &SceneSpec,
+    entities: &[Entity],
+) -> Result<(), BuildError> {
+    let vector = |values: &[f64], what: &str| {
+        if values.len() != D {
+            return Err(BuildError(format!(
+                "traction point {what} with {} components in {D}D",
+                values.len()
+            )));
+        }
+        Ok(SVector::<f64, D>::from_fn(|a, _| values[a]))
+    };
+    let mut batch = Vec::with_capacity(spec.tractions.len());
+    for (id, point) in spec.tractions.iter().enumerate() {
+        let position = vector(&point.position, "position")?;
+        let host = *entities.get(point.host).ok_or_else(|| {
+            BuildError(format!("traction point host {} does not exist", point.host))
+        })?;
+        let host_position = world
+            .get::<ReferencePosition<D>>(host)
+            .ok_or_else(|| BuildError("traction point host is not a material point".into()))?
+            .0;
+        batch.push(TractionPoint {
+            id: id as u32,
+            position,
+            reference_position: position,
+            host,
+            offset: position - host_position,
+            area: point.area,
+            traction: vector(&point.traction, "traction")?,
+            support: Vec::new(),
+        });
+    }
+    world.spawn_batch(batch);
     Ok(())
 }
 

@@ -12,10 +12,10 @@ use rhai::{AST, Dynamic, Engine, FnPtr, Position};
 
 use super::error::ScriptError;
 use super::options::describe;
-use super::seeding::{first_point_outside_grid, seed_points};
+use super::seeding::{first_point_outside_grid, nearest_points, seed_boundary, seed_points};
 use super::{
     AnalyticSpec, BodySpec, GridSpec, MaterialSpec, NodeConstraint, OutputSpec, PointLoadSpec,
-    SceneSpec, SolverSpec,
+    SceneSpec, SolverSpec, TractionPointSpec,
 };
 use crate::basis::control_points_1d;
 
@@ -115,6 +115,14 @@ pub(crate) struct PointLoadDeclaration {
     pub share: PointLoadShare,
 }
 
+/// `traction(...)`: a traction on a flat piece of boundary given by its corners.
+#[derive(Clone, Debug)]
+pub(crate) struct TractionDeclaration {
+    pub corners: Vec<Vec<f64>>,
+    pub traction: Vec<f64>,
+    pub per_cell: usize,
+}
+
 #[derive(Clone, Debug)]
 pub(crate) struct ColumnDeclaration {
     pub axis: usize,
@@ -132,6 +140,7 @@ pub(crate) struct SceneBuilder {
     pub body_force: Option<Located<Vec<f64>>>,
     pub constraints: Vec<Located<ConstraintDeclaration>>,
     pub point_loads: Vec<Located<PointLoadDeclaration>>,
+    pub tractions: Vec<Located<TractionDeclaration>>,
     pub load_factors: Option<Located<Vec<f64>>>,
     pub solver: Option<Located<SolverSpec>>,
     pub output: Option<Located<OutputSpec>>,
@@ -189,6 +198,7 @@ impl SceneBuilder {
 
         let constraints = resolve_constraints(&self.constraints, &grid, engine, ast)?;
         let point_loads = resolve_point_loads(&self.point_loads, &bodies, dim, engine, ast)?;
+        let tractions = resolve_tractions(&self.tractions, &grid, &bodies)?;
 
         let load_factors = self.load_factors.ok_or_else(|| {
             ScriptError::unlocated(
@@ -232,6 +242,7 @@ impl SceneBuilder {
             body_force: self.body_force.map(|body_force| body_force.value),
             constraints,
             point_loads,
+            tractions,
             load_factors: load_factors.value,
             solver: self.solver.map(|solver| solver.value).unwrap_or_default(),
             output: self.output.map(|output| output.value).unwrap_or_default(),
@@ -575,6 +586,107 @@ fn resolve_point_loads(
         .into_iter()
         .map(|(point, force)| PointLoadSpec { point, force })
         .collect())
+}
+
+/// Traction points of every `traction(...)`: the corners must match the grid's dimension and
+/// lie in the grid (so every point does).
+fn resolve_tractions(
+    declarations: &[Located<TractionDeclaration>],
+    grid: &Located<GridSpec>,
+    bodies: &[BodySpec],
+) -> Result<Vec<TractionPointSpec>, ScriptError> {
+    let dim = grid.value.dim();
+    let material_points: Vec<&[f64]> = bodies
+        .iter()
+        .flat_map(|body| &body.points)
+        .map(|point| point.position.as_slice())
+        .collect();
+    let mut points = Vec::new();
+    for declaration in declarations {
+        let traction = &declaration.value;
+        let fail = |message: String| {
+            Err(ScriptError::at(
+                declaration.at,
+                format!("traction(...): {message}"),
+            ))
+        };
+        let shape = [
+            "the end point of the bar",
+            "the two ends of a segment",
+            "three corners of a parallelogram (corner, corner + edge 1, corner + edge 2)",
+        ];
+        if traction.corners.len() != dim {
+            return fail(format!(
+                "option 'on' has {} points but the grid is {dim}-dimensional: give {dim}, {}",
+                traction.corners.len(),
+                shape[dim - 1]
+            ));
+        }
+        if let Some(corner) = traction.corners.iter().find(|corner| corner.len() != dim) {
+            return fail(format!(
+                "the point {corner:?} of option 'on' has {} coordinates, the grid is {dim}-dimensional",
+                corner.len()
+            ));
+        }
+        if traction.traction.len() != dim {
+            return fail(format!(
+                "option 'traction' has {} components but the grid is {dim}-dimensional",
+                traction.traction.len()
+            ));
+        }
+        let (lower, upper) = (&grid.value.lower, &grid.value.upper);
+        if let Some(corner) = traction.corners.iter().find(|corner| {
+            (0..dim).any(|axis| corner[axis] < lower[axis] || corner[axis] > upper[axis])
+        }) {
+            return fail(format!(
+                "the point {corner:?} is outside the grid [{lower:?} .. {upper:?}]"
+            ));
+        }
+        if dim == 3 {
+            // the fourth corner (corner 1 + corner 2 − corner 0) must be in the grid too
+            let c = &traction.corners;
+            let fourth: Vec<f64> = (0..3).map(|a| c[1][a] + c[2][a] - c[0][a]).collect();
+            if (0..dim).any(|axis| fourth[axis] < lower[axis] || fourth[axis] > upper[axis]) {
+                return fail(format!(
+                    "the parallelogram's fourth corner {fourth:?} is outside the grid [{lower:?} .. {upper:?}]"
+                ));
+            }
+        }
+        let seeded = match seed_boundary(
+            &grid.value,
+            &traction.corners,
+            traction.per_cell,
+            MAX_SEED_CANDIDATES,
+        ) {
+            Ok(seeded) => seeded,
+            Err(count) => {
+                return fail(format!(
+                    "{count} traction points exceed the limit of {MAX_SEED_CANDIDATES}; lower per_cell"
+                ));
+            }
+        };
+        if seeded.iter().all(|(_, area)| *area == 0.0) {
+            return fail(
+                "the boundary piece has zero length or area (repeated or collinear points)"
+                    .to_string(),
+            );
+        }
+        let positions: Vec<Vec<f64>> = seeded
+            .iter()
+            .map(|(position, _)| position.clone())
+            .collect();
+        let hosts = nearest_points(&grid.value, &material_points, &positions);
+        for ((position, area), host) in seeded.into_iter().zip(hosts) {
+            points.push(TractionPointSpec {
+                position,
+                area,
+                traction: traction.traction.clone(),
+                // bodies are resolved first and have points
+                host: host.unwrap_or_default(),
+            });
+        }
+    }
+    Ok(points)
 }
 
 #[cfg(test)]

@@ -35,7 +35,7 @@ mod seeding;
 pub use error::SceneError;
 pub use params::Parameter;
 pub use rhai_api::{load_scene, scene_parameters};
-pub use seeding::{first_point_outside_grid, seed_points};
+pub use seeding::{first_point_outside_grid, nearest_points, seed_boundary, seed_points};
 
 use crate::basis::BasisKind;
 
@@ -100,6 +100,19 @@ pub struct PointLoadSpec {
     pub force: Vec<f64>,
 }
 
+/// A quadrature point of a surface traction (paper eqs. 1 and 9: the Neumann term
+/// ∫_ΓN h N_i dΓ): a piece of boundary of reference area (length in 2D, 1 in 1D) `area` at
+/// `position`, carrying the traction `traction` (force per unit reference area at load factor
+/// 1). It adds λ h A N_i(x_s) to the external force and moves with the material: with the
+/// deformation of its host, the nearest material point (`host`, a global point index).
+#[derive(Clone, Debug, PartialEq)]
+pub struct TractionPointSpec {
+    pub position: Vec<f64>,
+    pub area: f64,
+    pub traction: Vec<f64>,
+    pub host: usize,
+}
+
 /// Newton solver controls.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SolverSpec {
@@ -157,6 +170,8 @@ pub struct SceneSpec {
     pub constraints: Vec<NodeConstraint>,
     /// Forces on single material points (summed per point), at load factor 1.
     pub point_loads: Vec<PointLoadSpec>,
+    /// Traction points of all `traction(...)` declarations.
+    pub tractions: Vec<TractionPointSpec>,
     /// Load factor at the end of each load step, in order (`len()` = number of steps).
     pub load_factors: Vec<f64>,
     pub solver: SolverSpec,

@@ -19,6 +19,7 @@
 //! | `displace(\|x\| pred, [components], [values])` | prescribe displacements (values at load factor 1, ramped with the load factor) |
 //! | `point_load(\|x\| pred, [force])` | a force (at load factor 1) on every material point whose reference position satisfies `pred` |
 //! | `point_load_total(\|x\| pred, [force])` | a total force shared by the selected points in proportion to their volume |
+//! | `traction(#{ on: [corners..], traction: [h..], per_cell: n })` | surface traction h (force per unit reference area at load factor 1) on a flat piece of boundary: 1D `on: [[x]]`, 2D a segment `on: [[x0, y0], [x1, y1]]`, 3D a parallelogram `on: [c0, c1, c2]` (edges c1 − c0, c2 − c0); `per_cell` (default 2) traction points per cell crossed |
 //! | `load_steps(n)` / `load_factors([..])` | load schedule: factors k/n, k = 1..n, or an explicit list |
 //! | `solver(#{ tolerance: .., max_iterations: .. })` | Newton controls (optional; defaults 1e-9, 30) |
 //! | `output(#{ every: n })` | write every n-th step (optional) |
@@ -36,12 +37,12 @@ use rhai::{Dynamic, Engine, EvalAltResult, NativeCallContext, Position};
 
 use super::builder::{
     BodyDeclaration, ColumnDeclaration, ConstraintDeclaration, Located, MAX_NODES, MaterialHandle,
-    PointLoadDeclaration, PointLoadShare, PointsPerCell, Region, SceneBuilder, checked_node_count,
-    ensure_unset,
+    PointLoadDeclaration, PointLoadShare, PointsPerCell, Region, SceneBuilder, TractionDeclaration,
+    checked_node_count, ensure_unset,
 };
 use super::error::{SceneError, ScriptError};
 use super::options::{
-    OptionMap, describe, function, number, numbers, string, whole_number, whole_numbers,
+    OptionMap, array_of, describe, function, number, numbers, string, whole_number, whole_numbers,
 };
 use super::params::{Parameter, apply_overrides, find_parameters};
 use super::{GridSpec, MaterialSpec, OutputSpec, SceneSpec, SolverSpec};
@@ -75,6 +76,10 @@ pub(crate) const API_SIGNATURES: &[(&str, &str)] = &[
     (
         "point_load_total",
         "point_load_total(|x| predicate, [total force components])",
+    ),
+    (
+        "traction",
+        "traction(#{ on: [[x0, y0], [x1, y1]], traction: [hx, hy], per_cell: n })",
     ),
     ("load_steps", "load_steps(n)"),
     ("load_factors", "load_factors([f1, f2, ..])"),
@@ -191,6 +196,7 @@ fn scene_engine(state: &SharedBuilder) -> Engine {
     register_unary(&mut engine, "solver", declare_solver);
     register_unary(&mut engine, "output", declare_output);
     register_unary(&mut engine, "analytic_column", declare_analytic_column);
+    register_unary(&mut engine, "traction", declare_traction);
 
     let material_state = state.clone();
     engine.register_fn(
@@ -524,6 +530,40 @@ fn declare_point_load(
             selector,
             force,
             share,
+        },
+        at,
+    ));
+    Ok(())
+}
+
+fn declare_traction(
+    builder: &mut SceneBuilder,
+    options: Dynamic,
+    at: Position,
+) -> Result<(), String> {
+    let options = OptionMap::new("traction", options, &["on", "traction", "per_cell"])?;
+    let corners = array_of(
+        &options.required("on")?,
+        &options.subject("on"),
+        "points like [[0.0, 1.0], [2.0, 1.0]]",
+        numbers,
+    )?;
+    let traction = numbers(&options.required("traction")?, &options.subject("traction"))?;
+    let per_cell = match options.optional("per_cell") {
+        Some(value) => whole_number(&value, &options.subject("per_cell"), 1)?,
+        None => 2,
+    };
+    if per_cell > 1000 {
+        return Err(format!(
+            "{} must be at most 1000, got {per_cell}",
+            options.subject("per_cell")
+        ));
+    }
+    builder.tractions.push(Located::new(
+        TractionDeclaration {
+            corners,
+            traction,
+            per_cell,
         },
         at,
     ));

@@ -34,6 +34,7 @@ mod newton;
 pub mod output;
 mod reset;
 mod stress;
+mod tractions;
 mod update;
 
 pub use assembly::assemble;
@@ -45,6 +46,7 @@ pub use loads::{
 pub use newton::{check_convergence, solve_linear_system, solve_load_step};
 pub use reset::reset_grid;
 pub use stress::update_stress;
+pub use tractions::{apply_tractions, spread_over_active, update_traction_points};
 pub use update::update_points;
 
 use bevy_ecs::prelude::*;
@@ -91,6 +93,8 @@ pub struct Effects {
     pub body_force: bool,
     /// Forces on material points (`point_load`).
     pub point_loads: bool,
+    /// Surface tractions carried by traction points (`traction`).
+    pub tractions: bool,
     pub prescribed_displacements: bool,
 }
 
@@ -134,12 +138,24 @@ pub fn load_step_schedule<const D: usize>(effects: Effects) -> Schedule {
                 .after(apply_body_force::<D>),
         );
     }
+    if effects.tractions {
+        schedule.add_systems((
+            apply_tractions::<D>
+                .in_set(StepSystems::Loads)
+                .after(apply_body_force::<D>)
+                .after(apply_point_loads::<D>),
+            update_traction_points::<D>
+                .in_set(StepSystems::UpdatePoints)
+                .after(update_points::<D>),
+        ));
+    }
     if effects.prescribed_displacements {
         schedule.add_systems(
             apply_prescribed_displacements::<D>
                 .in_set(StepSystems::Loads)
                 .after(apply_body_force::<D>)
-                .after(apply_point_loads::<D>),
+                .after(apply_point_loads::<D>)
+                .after(apply_tractions::<D>),
         );
     }
     schedule.add_systems(solve_load_step.in_set(StepSystems::Solve));
@@ -149,14 +165,21 @@ pub fn load_step_schedule<const D: usize>(effects: Effects) -> Schedule {
     schedule
 }
 
-/// The output schedule for dimension `D`.
-pub fn output_schedule<const D: usize>() -> Schedule {
+/// The output schedule for dimension `D`, with the files of the effects in use.
+pub fn output_schedule<const D: usize>(effects: Effects) -> Schedule {
     let mut schedule = strict(WriteOutput);
     schedule.add_systems(
         (output::write_particles::<D>, output::write_grid::<D>)
             .chain()
             .run_if(no_failure),
     );
+    if effects.tractions {
+        schedule.add_systems(
+            output::write_tractions::<D>
+                .after(output::write_grid::<D>)
+                .run_if(no_failure),
+        );
+    }
     schedule
 }
 

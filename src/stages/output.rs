@@ -3,13 +3,18 @@
 //! Files written per output step (`NNNN` = load step, 0 = initial state):
 //! * `particles_NNNN.vtu` — one vertex cell per material point with `reference_position`,
 //!   `reference_volume`, `volume`, `mass`, `displacement`, `cauchy_stress` (3x3, row-major),
-//!   `deformation_gradient` (3x3, row-major) and `body`.
+//!   `deformation_gradient` (3x3, row-major) and `body`; in scenes with point loads also
+//!   `point_load` (λ P, zero on unloaded points).
 //! * `grid_NNNN.vtu` — the background grid cells, with the displacement increment of the step
 //!   evaluated at the grid vertices and the number of material points per cell.
 //! * `nodes_NNNN.vtu` — the control points (grid nodes) with `active`, `fixed`,
 //!   `displacement_increment`, `external_force` and `internal_force`.
 //!
-//! and the time series `particles.pvd`, `grid.pvd`, `nodes.pvd` with the load factor as time.
+//! * `tractions_NNNN.vtu` — only in scenes with tractions: one vertex per traction point with
+//!   `reference_position`, `area` (reference), `traction` (λ h) and `force` (λ h A).
+//!
+//! and the time series `particles.pvd`, `grid.pvd`, `nodes.pvd` (and `tractions.pvd`) with the
+//! load factor as time.
 //! Every file is written atomically and a series lists a file only once it is complete, so a
 //! run that stops leaves valid results behind.
 
@@ -20,8 +25,8 @@ use nalgebra::{Matrix3, SVector};
 
 use crate::basis::BasisScratch;
 use crate::components::{
-    BodyIndex, DeformationGradient, Displacement, Fixity, GridNode, Mass, PointId, Position,
-    ReferencePosition, ReferenceVolume, Trial, Volume,
+    BodyIndex, DeformationGradient, Displacement, Fixity, GridNode, Mass, PointId, PointLoad,
+    Position, ReferencePosition, ReferenceVolume, TractionPoint, Trial, Volume,
 };
 use crate::mechanics::{embed, interpolate};
 use crate::output::{Field, PvdSeries, lattice_cells, vertex_cells, write_vtu};
@@ -37,6 +42,7 @@ pub struct OutputPlan {
     pub particles: PvdSeries,
     pub grid: PvdSeries,
     pub nodes: PvdSeries,
+    pub tractions: PvdSeries,
 }
 
 impl OutputPlan {
@@ -45,6 +51,7 @@ impl OutputPlan {
             particles: PvdSeries::new(dir.join("particles.pvd")),
             grid: PvdSeries::new(dir.join("grid.pvd")),
             nodes: PvdSeries::new(dir.join("nodes.pvd")),
+            tractions: PvdSeries::new(dir.join("tractions.pvd")),
             dir,
             every: every.max(1),
             last_step,
@@ -84,6 +91,7 @@ pub fn write_particles<const D: usize>(
         &DeformationGradient<D>,
         &Trial<D>,
         &BodyIndex,
+        Option<&PointLoad<D>>,
     )>,
 ) {
     if !plan.writes(step.number) {
@@ -102,7 +110,9 @@ pub fn write_particles<const D: usize>(
     let mut stress = Vec::with_capacity(9 * n);
     let mut deformation = Vec::with_capacity(9 * n);
     let mut body = Vec::with_capacity(n);
-    for (_, x, xr, v0, v, m, u, f, trial, b) in rows {
+    let has_point_loads = rows.iter().any(|row| row.10.is_some());
+    let mut point_load = Vec::with_capacity(if has_point_loads { 3 * n } else { 0 });
+    for (_, x, xr, v0, v, m, u, f, trial, b, load) in rows {
         positions.push(pad(&x.0));
         reference.extend(pad(&xr.0));
         reference_volume.push(v0.0);
@@ -112,8 +122,11 @@ pub fn write_particles<const D: usize>(
         stress.extend(row_major(&trial.0.cauchy()));
         deformation.extend(row_major(&embed(&f.0)));
         body.push(b.0 as f64);
+        if has_point_loads {
+            point_load.extend(pad(&(load.map_or(SVector::zeros(), |l| l.0) * step.factor)));
+        }
     }
-    let fields = [
+    let mut fields = vec![
         Field {
             name: "reference_position",
             components: 3,
@@ -155,6 +168,13 @@ pub fn write_particles<const D: usize>(
             values: &body,
         },
     ];
+    if has_point_loads {
+        fields.push(Field {
+            name: "point_load",
+            components: 3,
+            values: &point_load,
+        });
+    }
     let name = format!("particles_{:04}.vtu", step.number);
     let result = write_vtu(
         &plan.dir.join(&name),
@@ -292,6 +312,54 @@ pub fn write_grid<const D: usize>(
         status.fail(SolverError::Output {
             step: step.number,
             why: e.to_string(),
+        });
+    }
+}
+
+/// The traction points (only scheduled in scenes with tractions).
+pub fn write_tractions<const D: usize>(
+    step: Res<LoadStep>,
+    mut plan: ResMut<OutputPlan>,
+    mut status: ResMut<RunStatus>,
+    mut clock: ResMut<StageClock>,
+    points: Query<&TractionPoint<D>>,
+) {
+    if !plan.writes(step.number) {
+        return;
+    }
+    let _timer = clock.time(Stage::Output);
+    let mut rows: Vec<&TractionPoint<D>> = points.iter().collect();
+    rows.sort_by_key(|point| point.id);
+    let n = rows.len();
+    let positions: Vec<[f64; 3]> = rows.iter().map(|point| pad(&point.position)).collect();
+    let mut reference = Vec::with_capacity(3 * n);
+    let mut area = Vec::with_capacity(n);
+    let mut traction = Vec::with_capacity(3 * n);
+    let mut force = Vec::with_capacity(3 * n);
+    for point in &rows {
+        reference.extend(pad(&point.reference_position));
+        area.push(point.area);
+        traction.extend(pad(&(point.traction * step.factor)));
+        force.extend(pad(&(point.traction * (point.area * step.factor))));
+    }
+    let name = format!("tractions_{:04}.vtu", step.number);
+    let result = write_vtu(
+        &plan.dir.join(&name),
+        &positions,
+        &vertex_cells(n),
+        &[
+            Field::new("reference_position", 3, &reference),
+            Field::scalar("area", &area),
+            Field::new("traction", 3, &traction),
+            Field::new("force", 3, &force),
+        ],
+        &[],
+    )
+    .and_then(|()| plan.tractions.push(step.factor, &name));
+    if let Err(e) = result {
+        status.fail(SolverError::Output {
+            step: step.number,
+            why: format!("{name}: {e}"),
         });
     }
 }
