@@ -194,9 +194,9 @@ impl<const D: usize> Simulation<D> {
         world.insert_resource(Newton::default());
         world.insert_resource(RunStatus::default());
         world.insert_resource(StageClock::default());
-        world.insert_resource(OutputPlan::new(
+        world.insert_resource(OutputPlan::from_spec(
             out_dir.to_path_buf(),
-            spec.output.every,
+            &spec.output,
             spec.load_factors.len(),
         ));
         world.add_schedule(load_step_schedule::<D>(effects));

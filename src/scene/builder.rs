@@ -11,7 +11,8 @@ use std::collections::BTreeMap;
 use rhai::{AST, Dynamic, Engine, FnPtr, Position};
 
 use super::error::ScriptError;
-use super::options::describe;
+use super::geometry::point_in_polygon;
+use super::options::{describe, number};
 use super::seeding::{first_point_outside_grid, nearest_points, seed_boundary, seed_points};
 use super::{
     AnalyticSpec, BodySpec, GridSpec, MaterialSpec, NodeConstraint, OutputSpec, PointLoadSpec,
@@ -52,11 +53,14 @@ pub(crate) struct MaterialHandle {
     pub name: String,
 }
 
-/// Where a body is: returned to the script by `box(...)`, or a script predicate on positions.
+/// Where a body is: returned to the script by `box(...)` or `polygon(...)`, or a script
+/// predicate on positions.
 #[derive(Clone, Debug)]
 pub(crate) enum Region {
     /// Axis-aligned box, bounds included.
     Box { lower: Vec<f64>, upper: Vec<f64> },
+    /// A 2D polygon (even-odd rule, see `geometry::point_in_polygon`).
+    Polygon(Vec<[f64; 2]>),
     /// A script function `|x| -> bool` of the position array.
     Predicate(FnPtr),
 }
@@ -65,7 +69,39 @@ impl Region {
     fn describe(&self) -> String {
         match self {
             Region::Box { lower, upper } => format!("box({lower:?}, {upper:?})"),
+            Region::Polygon(vertices) => format!("polygon({vertices:?})"),
             Region::Predicate(_) => "region predicate".to_string(),
+        }
+    }
+
+    /// The bounding box of a shape (`None` for a predicate).
+    fn bounds(&self) -> Option<(Vec<f64>, Vec<f64>)> {
+        match self {
+            Region::Box { lower, upper } => Some((lower.clone(), upper.clone())),
+            Region::Polygon(vertices) => Some(
+                (0..2)
+                    .map(|axis| {
+                        vertices
+                            .iter()
+                            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+                                (lo.min(v[axis]), hi.max(v[axis]))
+                            })
+                    })
+                    .unzip(),
+            ),
+            Region::Predicate(_) => None,
+        }
+    }
+
+    /// Whether a shape contains `x` (false for a predicate, which is called instead).
+    fn contains(&self, x: &[f64]) -> bool {
+        match self {
+            Region::Box { lower, upper } => x
+                .iter()
+                .zip(lower.iter().zip(upper))
+                .all(|(&c, (&lo, &hi))| lo <= c && c <= hi),
+            Region::Polygon(vertices) => point_in_polygon([x[0], x[1]], vertices),
+            Region::Predicate(_) => false,
         }
     }
 }
@@ -91,6 +127,7 @@ pub(crate) struct ConstraintDeclaration {
     /// The API function that declared it, for messages.
     pub function: &'static str,
     pub selector: FnPtr,
+    /// The constrained components; empty = all of them (full fixity, `fix(|x| ..)`).
     pub components: Vec<usize>,
     /// One prescribed displacement (at load factor 1) per component.
     pub values: Vec<f64>,
@@ -113,6 +150,14 @@ pub(crate) struct PointLoadDeclaration {
     pub selector: FnPtr,
     pub force: Vec<f64>,
     pub share: PointLoadShare,
+}
+
+/// The load factors of the steps: given (`load_steps`, `load_factors([..])`, `load_phases`) or
+/// computed by a script function of the step number (`load_factors(n, |k| ..)`).
+#[derive(Clone, Debug)]
+pub(crate) enum LoadSchedule {
+    Factors(Vec<f64>),
+    Function { steps: usize, function: FnPtr },
 }
 
 /// `traction(...)`: a traction on a flat piece of boundary given by its corners.
@@ -141,7 +186,7 @@ pub(crate) struct SceneBuilder {
     pub constraints: Vec<Located<ConstraintDeclaration>>,
     pub point_loads: Vec<Located<PointLoadDeclaration>>,
     pub tractions: Vec<Located<TractionDeclaration>>,
-    pub load_factors: Option<Located<Vec<f64>>>,
+    pub load_schedule: Option<Located<LoadSchedule>>,
     pub solver: Option<Located<SolverSpec>>,
     pub output: Option<Located<OutputSpec>>,
     pub analytic: Option<Located<ColumnDeclaration>>,
@@ -200,11 +245,12 @@ impl SceneBuilder {
         let point_loads = resolve_point_loads(&self.point_loads, &bodies, dim, engine, ast)?;
         let tractions = resolve_tractions(&self.tractions, &grid, &bodies)?;
 
-        let load_factors = self.load_factors.ok_or_else(|| {
+        let load_schedule = self.load_schedule.ok_or_else(|| {
             ScriptError::unlocated(
-                "the scene has no load steps: call load_steps(n) or load_factors([..])",
+                "the scene has no load steps: call load_steps(n), load_factors([..]), load_factors(n, |k| ..) or load_phases([..])",
             )
         })?;
+        let load_factors = resolve_load_schedule(&load_schedule, engine, ast)?;
 
         let analytic = match &self.analytic {
             None => None,
@@ -243,7 +289,7 @@ impl SceneBuilder {
             constraints,
             point_loads,
             tractions,
-            load_factors: load_factors.value,
+            load_factors,
             solver: self.solver.map(|solver| solver.value).unwrap_or_default(),
             output: self.output.map(|output| output.value).unwrap_or_default(),
             analytic,
@@ -299,6 +345,40 @@ pub(crate) fn checked_node_count(grid: &GridSpec) -> Option<usize> {
             count.checked_mul(cells.checked_add(order)?)
         })
         .filter(|&count| count <= MAX_NODES)
+}
+
+/// The load factors of a schedule; a function is called for k = 1..=steps and must return a
+/// finite number each time.
+fn resolve_load_schedule(
+    schedule: &Located<LoadSchedule>,
+    engine: &Engine,
+    ast: &AST,
+) -> Result<Vec<f64>, ScriptError> {
+    match &schedule.value {
+        LoadSchedule::Factors(factors) => Ok(factors.clone()),
+        LoadSchedule::Function { steps, function } => {
+            let context = format!(
+                "load factor function of load_factors(...){}",
+                schedule.line_note()
+            );
+            (1..=*steps)
+                .map(|step| {
+                    let value = function
+                        .call::<Dynamic>(engine, ast, (step as rhai::INT,))
+                        .map_err(|error| {
+                            let mut error = ScriptError::from_eval(error).with_context(&context);
+                            if error.position.is_none() {
+                                error.position = schedule.at;
+                            }
+                            error
+                        })?;
+                    number(&value, &format!("the {context}")).map_err(|message| {
+                        ScriptError::at(schedule.at, format!("{message} for step k = {step}"))
+                    })
+                })
+                .collect()
+        }
+    }
 }
 
 /// Calls a script predicate on a position; it must return a boolean.
@@ -370,11 +450,12 @@ fn resolve_body(
     }
     let grid_bounds = format!("[{:?} .. {:?}]", grid.value.lower, grid.value.upper);
     let points = match &declaration.region {
-        Region::Box { lower, upper } => {
+        shape @ (Region::Box { .. } | Region::Polygon(_)) => {
+            let (lower, upper) = shape.bounds().unwrap_or_default();
             if lower.len() != dim {
                 return fail(format!(
                     "{} has {} coordinates but the grid is {dim}-dimensional",
-                    declaration.region.describe(),
+                    shape.describe(),
                     lower.len()
                 ));
             }
@@ -386,17 +467,12 @@ fn resolve_body(
             if outside {
                 return fail(format!(
                     "region {} is not inside the grid {grid_bounds}; material points must lie in the grid",
-                    declaration.region.describe()
+                    shape.describe()
                 ));
             }
-            let inside = |x: &[f64]| {
-                Ok::<_, ScriptError>(
-                    x.iter()
-                        .zip(lower.iter().zip(upper))
-                        .all(|(&c, (&lo, &hi))| lo <= c && c <= hi),
-                )
-            };
-            seed_points(&grid.value, &points_per_cell, inside)?
+            seed_points(&grid.value, &points_per_cell, |x: &[f64]| {
+                Ok::<_, ScriptError>(shape.contains(x))
+            })?
         }
         Region::Predicate(predicate) => {
             let context = format!(
@@ -447,7 +523,11 @@ fn resolve_constraints(
     // (node, component) -> (value, line of the declaring call)
     let mut prescribed: BTreeMap<(usize, usize), (f64, Position)> = BTreeMap::new();
     for declaration in declarations {
-        let constraint = &declaration.value;
+        let mut constraint = declaration.value.clone();
+        if constraint.components.is_empty() {
+            constraint.components = (0..dim).collect();
+            constraint.values = vec![0.0; dim];
+        }
         let function = constraint.function;
         if let Some(&component) = constraint.components.iter().find(|&&c| c >= dim) {
             return Err(ScriptError::at(

@@ -27,12 +27,14 @@
 
 mod builder;
 mod error;
+mod geometry;
 mod options;
 mod params;
 mod rhai_api;
 mod seeding;
 
 pub use error::SceneError;
+pub use geometry::{point_in_polygon, polygon_double_area};
 pub use params::Parameter;
 pub use rhai_api::{load_scene, scene_parameters};
 pub use seeding::{first_point_outside_grid, nearest_points, seed_boundary, seed_points};
@@ -130,16 +132,27 @@ impl Default for SolverSpec {
     }
 }
 
-/// Which steps are written.
+/// Which steps and fields are written.
 #[derive(Clone, Debug, PartialEq)]
 pub struct OutputSpec {
     /// Write every n-th load step (the initial state and the last step are always written).
     pub every: usize,
+    /// If set, write exactly these load steps (and the initial state) instead.
+    pub steps: Option<Vec<usize>>,
+    /// If set, the particle fields written (names from `stages::output::PARTICLE_FIELDS`).
+    pub fields: Option<Vec<String>>,
+    /// Write the grid and node files (`grid_*.vtu`, `nodes_*.vtu`).
+    pub grid: bool,
 }
 
 impl Default for OutputSpec {
     fn default() -> Self {
-        Self { every: 1 }
+        Self {
+            every: 1,
+            steps: None,
+            fields: None,
+            grid: true,
+        }
     }
 }
 

@@ -32,6 +32,19 @@ use crate::mechanics::{embed, interpolate};
 use crate::output::{Field, PvdSeries, lattice_cells, vertex_cells, write_vtu};
 use crate::resources::{Grid, GridFields, LoadStep, RunStatus, SolverError, Stage, StageClock};
 
+/// The particle fields, in file order (`output(#{ fields: [..] })` picks some).
+pub const PARTICLE_FIELDS: &[&str] = &[
+    "reference_position",
+    "reference_volume",
+    "volume",
+    "mass",
+    "displacement",
+    "cauchy_stress",
+    "deformation_gradient",
+    "body",
+    "point_load",
+];
+
 /// Where and when output is written.
 #[derive(Resource)]
 pub struct OutputPlan {
@@ -39,6 +52,12 @@ pub struct OutputPlan {
     /// Write every n-th step (the initial state and the last step are always written).
     pub every: usize,
     pub last_step: usize,
+    /// If set, exactly these steps (and the initial state) are written instead.
+    pub steps: Option<Vec<usize>>,
+    /// If set, only these particle fields are written.
+    pub fields: Option<Vec<String>>,
+    /// Whether the grid and node files are written.
+    pub grid_files: bool,
     pub particles: PvdSeries,
     pub grid: PvdSeries,
     pub nodes: PvdSeries,
@@ -55,12 +74,35 @@ impl OutputPlan {
             dir,
             every: every.max(1),
             last_step,
+            steps: None,
+            fields: None,
+            grid_files: true,
+        }
+    }
+
+    /// The plan of a scene's `output(...)` declaration.
+    pub fn from_spec(dir: PathBuf, spec: &crate::scene::OutputSpec, last_step: usize) -> Self {
+        Self {
+            steps: spec.steps.clone(),
+            fields: spec.fields.clone(),
+            grid_files: spec.grid,
+            ..Self::new(dir, spec.every, last_step)
         }
     }
 
     /// Whether step `number` is written.
     pub fn writes(&self, number: usize) -> bool {
-        number == 0 || number == self.last_step || number.is_multiple_of(self.every)
+        match &self.steps {
+            Some(steps) => number == 0 || steps.contains(&number),
+            None => number == 0 || number == self.last_step || number.is_multiple_of(self.every),
+        }
+    }
+
+    /// Whether the particle field `name` is written.
+    pub fn writes_field(&self, name: &str) -> bool {
+        self.fields
+            .as_ref()
+            .is_none_or(|fields| fields.iter().any(|field| field == name))
     }
 }
 
@@ -175,6 +217,7 @@ pub fn write_particles<const D: usize>(
             values: &point_load,
         });
     }
+    fields.retain(|field| plan.writes_field(field.name));
     let name = format!("particles_{:04}.vtu", step.number);
     let result = write_vtu(
         &plan.dir.join(&name),
@@ -204,7 +247,7 @@ pub fn write_grid<const D: usize>(
     positions: Query<&Position<D>>,
     nodes: Query<(&GridNode<D>, &Fixity<D>)>,
 ) {
-    if !plan.writes(step.number) {
+    if !plan.writes(step.number) || !plan.grid_files {
         return;
     }
     let _timer = clock.time(Stage::Output);
