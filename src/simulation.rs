@@ -22,10 +22,7 @@ use crate::mechanics::TrialState;
 use crate::resources::*;
 use crate::scene::{AnalyticSpec, SceneSpec};
 use crate::stages::output::OutputPlan;
-use crate::stages::{
-    Effects, LoadStep as LoadStepSchedule, WriteOutput, load_step_schedule, newton_schedule,
-    output_schedule,
-};
+use crate::stages::{Effects, LoadStep as LoadStepSchedule, WriteOutput, add_schedules};
 use crate::summary::{StepRecord, Summary};
 
 /// Why a simulation could not be built from a scene.
@@ -199,9 +196,7 @@ impl<const D: usize> Simulation<D> {
             &spec.output,
             spec.load_factors.len(),
         ));
-        world.add_schedule(load_step_schedule::<D>(effects));
-        world.add_schedule(newton_schedule::<D>());
-        world.add_schedule(output_schedule::<D>(effects));
+        add_schedules::<D>(&mut world, effects);
 
         let summary = Summary::new(
             spec,

@@ -348,7 +348,8 @@ pub(crate) fn checked_node_count(grid: &GridSpec) -> Option<usize> {
 }
 
 /// The load factors of a schedule; a function is called for k = 1..=steps and must return a
-/// finite number each time.
+/// finite number each time. k is passed as a float (1.0, 2.0, ...) so that `k / n` divides as
+/// the user means even when n is an integer (Rhai divides integers by integers exactly).
 fn resolve_load_schedule(
     schedule: &Located<LoadSchedule>,
     engine: &Engine,
@@ -364,7 +365,7 @@ fn resolve_load_schedule(
             (1..=*steps)
                 .map(|step| {
                     let value = function
-                        .call::<Dynamic>(engine, ast, (step as rhai::INT,))
+                        .call::<Dynamic>(engine, ast, (step as rhai::FLOAT,))
                         .map_err(|error| {
                             let mut error = ScriptError::from_eval(error).with_context(&context);
                             if error.position.is_none() {

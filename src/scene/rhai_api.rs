@@ -23,7 +23,7 @@
 //! | `point_load_total(\|x\| pred, [force])` | a total force shared by the selected points in proportion to their volume |
 //! | `traction(#{ on: [corners..], traction: [h..], per_cell: n })` | surface traction h (force per unit reference area at load factor 1) on a flat piece of boundary: 1D `on: [[x]]`, 2D a segment `on: [[x0, y0], [x1, y1]]`, 3D a parallelogram `on: [c0, c1, c2]` (edges c1 − c0, c2 − c0); `per_cell` (default 2) traction points per cell crossed |
 //! | `load_steps(n)` / `load_factors([..])` | load schedule: factors k/n, k = 1..n, or an explicit list |
-//! | `load_factors(n, \|k\| ..)` | n steps whose factors a function of the step number k = 1..n (an integer) gives |
+//! | `load_factors(n, \|k\| ..)` | n steps whose factors a function of the step number k = 1..n gives (k is a float, so `k / n` is not an integer division) |
 //! | `load_phases([#{ to: λ, steps: n }, ..])` | phases from λ = 0: each goes linearly to `to` in `steps` equal steps (loading, holding: same `to`, unloading) |
 //! | `solver(#{ tolerance: .., max_iterations: .. })` | Newton controls (optional; defaults 1e-9, 30) |
 //! | `output(#{ every: n, steps: [..], fields: [..], grid: bool })` | optional: write every n-th step or the listed steps (plus the initial state; `every` also the last step), only the named particle fields, with or without the grid and node files |
@@ -1499,9 +1499,15 @@ mod tests {
 
     #[test]
     fn load_schedules_from_functions_and_phases() {
-        let function = scene_1d_with("load_steps", "load_factors(4, |k| (k * k) / 16.0);");
+        let function = scene_1d_with("load_steps", "load_factors(4, |k| (k / 4) ** 2);");
         let scene = load_scene(&inline_script("function", &function), &[]).unwrap();
         assert_eq!(scene.load_factors, [1.0 / 16.0, 0.25, 9.0 / 16.0, 1.0]);
+        let function = scene_1d_with(
+            "load_steps",
+            "let n = 4;\nload_factors(n, |k| if k <= 2 { k / n } else { 0.5 });",
+        );
+        let scene = load_scene(&inline_script("function_if", &function), &[]).unwrap();
+        assert_eq!(scene.load_factors, [0.25, 0.5, 0.5, 0.5]);
 
         let phases = scene_1d_with(
             "load_steps",
@@ -1531,7 +1537,7 @@ mod tests {
             "function_runtime",
             &scene_1d_with(
                 "load_steps",
-                "load_factors(3, |k| {\n  let a = [1.0];\n  a[k]\n});",
+                "load_factors(3, |k| {\n  let a = [1.0];\n  a[k.to_int()]\n});",
             ),
         );
         assert_eq!(error.line, Some(8), "{error}");

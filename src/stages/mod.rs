@@ -29,6 +29,7 @@
 mod assembly;
 mod connectivity;
 mod dofs;
+mod explain;
 mod loads;
 mod newton;
 pub mod output;
@@ -40,6 +41,7 @@ mod update;
 pub use assembly::assemble;
 pub use connectivity::evaluate_basis;
 pub use dofs::number_dofs;
+pub use explain::{Explanation, ScheduledSystem, explain_scene, scheduled_systems};
 pub use loads::{
     apply_body_force, apply_point_loads, apply_prescribed_displacements, spread_force,
 };
@@ -88,6 +90,10 @@ pub enum NewtonSystems {
 }
 
 /// Which optional effects a scene uses; the schedules contain only their systems.
+///
+/// A new effect (plasticity, dynamics, contact...) adds a flag here, sets it in
+/// `simulation::effects_of` from what the scene declares, and adds its systems in
+/// [`load_step_schedule`] / [`newton_schedule`] / [`output_schedule`] only when the flag is set.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Effects {
     pub body_force: bool,
@@ -96,6 +102,34 @@ pub struct Effects {
     /// Surface tractions carried by traction points (`traction`).
     pub tractions: bool,
     pub prescribed_displacements: bool,
+}
+
+impl Effects {
+    /// Every effect on: the schedules with every optional system (for `--explain` and
+    /// benchmarks).
+    pub const ALL: Effects = Effects {
+        body_force: true,
+        point_loads: true,
+        tractions: true,
+        prescribed_displacements: true,
+    };
+
+    /// `(name, used)` for every effect.
+    pub fn list(&self) -> [(&'static str, bool); 4] {
+        [
+            ("body force", self.body_force),
+            ("point loads", self.point_loads),
+            ("tractions", self.tractions),
+            ("prescribed displacements", self.prescribed_displacements),
+        ]
+    }
+}
+
+/// Adds the solver's schedules for dimension `D` with only the effects in use to `world`.
+pub fn add_schedules<const D: usize>(world: &mut World, effects: Effects) {
+    world.add_schedule(load_step_schedule::<D>(effects));
+    world.add_schedule(newton_schedule::<D>());
+    world.add_schedule(output_schedule::<D>(effects));
 }
 
 /// Schedule settings shared by all solver schedules: single-threaded, and any ambiguity in
