@@ -8,6 +8,7 @@
 //! * Pure kernels: [`basis`], [`material`], [`mechanics`], [`sparse`], [`analytic`].
 //! * ECS: [`components`], [`resources`], [`stages`] (systems and schedules).
 //! * Driver and I/O: [`simulation`], [`scene`] (Rhai), [`output`] (VTK), [`summary`].
+//! * Extension: [`plugin`] (your own systems at named hooks of the schedules).
 
 pub mod analytic;
 pub mod basis;
@@ -15,6 +16,7 @@ pub mod components;
 pub mod material;
 pub mod mechanics;
 pub mod output;
+pub mod plugin;
 pub mod resources;
 pub mod scene;
 pub mod simulation;

@@ -412,31 +412,14 @@ pub fn basis_name(kind: BasisKind) -> String {
     }
 }
 
-/// Runs a whole scene in dimension `spec.dim()`, writing to `out_dir`.
+/// Runs a whole scene in dimension `spec.dim()`, writing to `out_dir` (with plugins:
+/// [`crate::plugin::run_scene_with`]).
 pub fn run_scene(
     spec: &SceneSpec,
     out_dir: &Path,
     on_step: impl FnMut(&StepRecord),
 ) -> Result<Summary, RunError> {
-    match spec.dim() {
-        1 => run_in::<1>(spec, out_dir, on_step),
-        2 => run_in::<2>(spec, out_dir, on_step),
-        3 => run_in::<3>(spec, out_dir, on_step),
-        d => Err(RunError::Build(BuildError(format!(
-            "dimension {d} is not supported (1, 2 or 3)"
-        )))),
-    }
-}
-
-fn run_in<const D: usize>(
-    spec: &SceneSpec,
-    out_dir: &Path,
-    on_step: impl FnMut(&StepRecord),
-) -> Result<Summary, RunError> {
-    let mut sim = Simulation::<D>::new(spec, out_dir).map_err(RunError::Build)?;
-    sim.write_initial_state().map_err(RunError::Solve)?;
-    sim.run(on_step).map_err(RunError::Solve)?;
-    Ok(sim.summary)
+    crate::plugin::run_scene_with(spec, out_dir, &(), on_step)
 }
 
 /// A failed run.

@@ -13,6 +13,7 @@ use bevy_ecs::schedule::{InternedScheduleLabel, InternedSystemSet, ScheduleLabel
 use super::{
     Effects, LoadStep, NewtonIteration, NewtonSystems, StepSystems, WriteOutput, add_schedules,
 };
+use crate::plugin::Hook;
 use crate::scene::SceneSpec;
 
 /// One system of a schedule.
@@ -20,7 +21,8 @@ use crate::scene::SceneSpec;
 pub struct ScheduledSystem {
     /// The schedule: `LoadStep`, `NewtonIteration` or `WriteOutput`.
     pub schedule: String,
-    /// The stage (system set) it runs in, e.g. `Loads`, if it is in one of the solver's sets.
+    /// The stage (system set) it runs in, e.g. `Loads`, or the plugin hook, e.g.
+    /// `Hook::Output`, if it is in one of the solver's sets.
     pub stage: Option<String>,
     /// The system's path without the crate's `impm::stages::` prefix and without generic
     /// arguments, e.g. `loads::apply_body_force`.
@@ -43,6 +45,8 @@ fn schedules_and_stages() -> Vec<(
                 ("UpdatePoints", StepSystems::UpdatePoints.intern()),
                 ("Output", StepSystems::Output.intern()),
                 ("ResetGrid", StepSystems::ResetGrid.intern()),
+                ("Hook::Loads", Hook::Loads.intern()),
+                ("Hook::AfterStep", Hook::AfterStep.intern()),
             ],
         ),
         (
@@ -52,9 +56,14 @@ fn schedules_and_stages() -> Vec<(
                 ("Assembly", NewtonSystems::Assembly.intern()),
                 ("Convergence", NewtonSystems::Convergence.intern()),
                 ("LinearSolve", NewtonSystems::LinearSolve.intern()),
+                ("Hook::BeforeAssembly", Hook::BeforeAssembly.intern()),
+                ("Hook::AfterAssembly", Hook::AfterAssembly.intern()),
             ],
         ),
-        (WriteOutput.intern(), vec![]),
+        (
+            WriteOutput.intern(),
+            vec![("Hook::Output", Hook::Output.intern())],
+        ),
     ]
 }
 
@@ -72,9 +81,10 @@ pub fn scheduled_systems(world: &mut World) -> Result<Vec<ScheduledSystem>, Stri
     let mut out = Vec::new();
     for (label, stages) in schedules_and_stages() {
         let listed = world.try_schedule_scope(label, |world, schedule| {
-            schedule
-                .initialize(world)
-                .map_err(|error| format!("the {label:?} schedule does not build: {error}"))?;
+            if let Err(error) = schedule.initialize(world) {
+                let why = error.to_string(schedule.graph(), world);
+                return Err(format!("the {label:?} schedule does not build: {why}"));
+            }
             let graph = schedule.graph();
             let members: Vec<_> = stages
                 .iter()
@@ -163,7 +173,7 @@ impl std::fmt::Display for Explanation {
             }
             writeln!(
                 f,
-                "  {:<14} {}",
+                "  {:<20} {}",
                 system.stage.as_deref().unwrap_or("-"),
                 system.name
             )?;
@@ -175,7 +185,7 @@ impl std::fmt::Display for Explanation {
             for system in &self.left_out {
                 writeln!(
                     f,
-                    "  {:<14} {} ({})",
+                    "  {:<20} {} ({})",
                     system.stage.as_deref().unwrap_or("-"),
                     system.name,
                     system.schedule
