@@ -297,3 +297,34 @@ fn schedules_hold_only_the_effects_a_scene_uses() {
     );
     assert_eq!(explanation.left_out.len(), OPTIONAL.len() + 1);
 }
+
+/// The complete scene of docs/scene-api.md, written from the documentation alone, runs.
+#[test]
+fn the_documented_scene_runs() {
+    let doc =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/scene-api.md"))
+            .unwrap();
+    let after = doc
+        .split("<!-- tutorial scene")
+        .nth(1)
+        .expect("the tutorial marker");
+    let block = after
+        .split("```rhai\n")
+        .nth(1)
+        .and_then(|rest| rest.split("```").next())
+        .expect("a rhai block after the marker");
+    let dir = temp_dir("tutorial");
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("notched.rhai");
+    std::fs::write(&path, block).unwrap();
+    let spec = load_scene(&path, &[("pull".to_string(), "0.03".to_string())])
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert!(spec.point_count() > 0);
+    assert_eq!(spec.load_factors, [0.25, 0.5, 0.75, 1.0, 0.5, 0.0]);
+    let mut sim = Simulation::<2>::new(&spec, &dir.join("out")).unwrap();
+    sim.run(|_| {}).unwrap();
+    // and with its default pull
+    let spec = load_scene(&path, &[]).unwrap();
+    let mut sim = Simulation::<2>::new(&spec, &dir.join("out_default")).unwrap();
+    sim.run(|_| {}).unwrap();
+}

@@ -1,7 +1,7 @@
 //! The Rhai front end: runs a scene script with the scene API registered and returns the
 //! resolved `SceneSpec`.
 //!
-//! # Scene API (brief reference)
+//! # Scene API (brief reference; the full one is `docs/scene-api.md`)
 //!
 //! Numbers may be written as integers or floats everywhere (`E: 1000000` and `E: 1e6` are the
 //! same); counts must be whole numbers. Option maps accept only the keys listed (a misspelt key
