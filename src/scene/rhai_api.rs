@@ -1590,4 +1590,33 @@ mod tests {
             "{error}"
         );
     }
+
+    #[test]
+    fn runtime_errors_in_point_selectors_point_inside_the_closure() {
+        let text = scene_1d_with(
+            "fix",
+            "fix(|x| x[0] == 0.0);\npoint_load(|x| {\n  x[1] > 2.0\n}, [1.0]);",
+        );
+        let error = failure("selector_error", &text);
+        assert_eq!(error.line, Some(7), "{error}");
+        assert!(
+            error.message.contains("out of bounds")
+                && error
+                    .message
+                    .contains("point selector of point_load(...) at line 6"),
+            "{error}"
+        );
+        let text = scene_1d_with(
+            "fix",
+            "fix(|x| x[0] == 0.0);\npoint_load_total(|x| 1.0, [1.0]);",
+        );
+        let error = failure("selector_not_bool", &text);
+        assert_eq!(error.line, Some(6), "{error}");
+        assert!(
+            error
+                .message
+                .contains("must return true or false, got float 1.0"),
+            "{error}"
+        );
+    }
 }
