@@ -48,7 +48,7 @@ fn write_profile<const D: usize>(
     mut status: ResMut<RunStatus>,
     points: Query<(&PointId, &ReferencePosition<D>, &Position<D>, &Trial<D>)>,
 ) {
-    if !plan.writes(step.number) {
+    if !plan.writes(&step) {
         return;
     }
     let vertical = D - 1;

@@ -221,10 +221,7 @@ def render_png(simple, out_dir, time, png_path):
     import show_stress
 
     view = show_stress.show(simple, out_dir, time=time)
-    simple.Render(view)
-    simple.SaveScreenshot(
-        png_path, view, ImageResolution=[1200, 800], FontScaling="Do not scale fonts"
-    )
+    show_stress.save_picture(simple, view, png_path)
 
 
 def parse_field(spec):

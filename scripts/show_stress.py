@@ -121,6 +121,18 @@ def show(simple, out_dir, view=None, time=None):
     return view
 
 
+def save_picture(simple, view, png_path):
+    """Renders `view` to a 1200 x 800 PNG, then releases the view: deleting it while the X
+    display still exists avoids a "GLXBadContext" error (and a non-zero exit status) when
+    pvpython exits under xvfb-run."""
+    view.ViewSize = [1200, 800]
+    simple.Render(view)
+    simple.SaveScreenshot(
+        png_path, view, ImageResolution=[1200, 800], FontScaling="Do not scale fonts"
+    )
+    simple.Delete(view)
+
+
 def main(argv):
     import argparse
 
@@ -139,15 +151,15 @@ def main(argv):
     except FileNotFoundError as e:
         print(f"FAIL: {e}", file=sys.stderr)
         return 1
-    simple.Render(view)
     if args.png:
-        simple.SaveScreenshot(
-            args.png, view, ImageResolution=[1200, 800], FontScaling="Do not scale fonts"
-        )
+        time = view.ViewTime
+        save_picture(simple, view, args.png)
         if not os.path.isfile(args.png) or os.path.getsize(args.png) == 0:
             print(f"FAIL: no picture was written to {args.png}", file=sys.stderr)
             return 1
-        print(f"picture: {args.png} (t = {view.ViewTime:g})")
+        print(f"picture: {args.png} (t = {time:g})")
+    else:
+        simple.Render(view)
     return 0
 
 

@@ -3,14 +3,18 @@
 //! * A **material point** carries its reference state (`ReferencePosition`, `ReferenceVolume`,
 //!   `Mass`, `Elastic`), its converged state at the start of the load step (`Position`,
 //!   `Displacement`, `DeformationGradient`, `Volume`), the basis of the step (`Support`) and the
-//!   state of the current Newton iterate (`Trial`).
+//!   state of the current Newton iterate (`Trial`); with GIMP or CPDI also its initial domain
+//!   (`ParticleDomain`).
 //! * A **grid node** (a control point of the background basis) carries its index and position
 //!   (`GridNode`) and its constraints (`Fixity`). The fields that live on the grid during a load
 //!   step (displacement increment, forces, DOF numbers) are dense arrays in `GridFields`, indexed
 //!   by node, because every stage gathers and scatters them by node index.
+//! * With linear FEM (`basis = "fem"`) the points are integration points and also carry their
+//!   element and parent coordinates (`ElementPoint`); the nodes are the mesh nodes, and
+//!   `GridNode::position` is their current position (they move with the body).
 
 use bevy_ecs::prelude::*;
-use nalgebra::{SMatrix, SVector};
+use nalgebra::{Matrix3, SMatrix, SVector};
 
 use crate::basis::NodeWeight;
 use crate::material::Hencky;
@@ -61,6 +65,15 @@ pub struct BodyIndex(pub u32);
 #[derive(Component, Clone, Debug, Default, PartialEq)]
 pub struct Support<const D: usize>(pub Vec<NodeWeight<D>>);
 
+/// The initial domain of a material point, for the methods whose weights average the grid
+/// functions over it (GIMP, CPDI; `basis::domain`): the half-lengths `lp0_k` of the box the
+/// point owns at seeding (`h_k / (2 ppc_k)` on the lattice; its share of the overlap where a
+/// box region cuts a cell). Spawned only for those methods.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct ParticleDomain<const D: usize> {
+    pub initial_half_lengths: SVector<f64, D>,
+}
+
 /// The point's state at the current Newton iterate (stress, tangent, F).
 #[derive(Component, Clone, Debug, PartialEq)]
 pub struct Trial<const D: usize>(pub TrialState<D>);
@@ -92,6 +105,12 @@ pub struct TractionPoint<const D: usize> {
     pub support: Vec<NodeWeight<D>>,
 }
 
+/// Stress recovered by moving least squares from the neighbouring points' Cauchy stresses
+/// (3x3, as `TrialState::cauchy`). Present only when the scene asks for stress recovery; see
+/// [`crate::recovery`] and `stages/recovery.rs`.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct RecoveredStress(pub Matrix3<f64>);
+
 /// A grid node (control point): global index (axis 0 fastest) and position.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct GridNode<const D: usize> {
@@ -114,4 +133,12 @@ impl<const D: usize> Default for Fixity<D> {
             prescribed: SVector::zeros(),
         }
     }
+}
+
+/// Linear FEM only: the element an integration point belongs to and its parent coordinates
+/// ξ in `[-1, 1]^D`, both fixed for the whole run (see `fem`).
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct ElementPoint<const D: usize> {
+    pub element: usize,
+    pub xi: SVector<f64, D>,
 }

@@ -1,4 +1,4 @@
-//! The `impm` command line: run or check a Rhai scene.
+//! The `impm` command line: run, study or check a Rhai scene.
 
 use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
@@ -9,6 +9,7 @@ use clap::{Parser, Subcommand};
 use impm::scene::{load_scene, scene_parameters};
 use impm::simulation::{default_output_dir, effects_of, run_scene};
 use impm::stages::explain_scene;
+use impm::study::{RunOutcome, StudyEvent, StudyPlan, Sweep, default_study_dir, run_study};
 use impm::summary::StepRecord;
 
 #[derive(Parser)]
@@ -34,6 +35,27 @@ enum Command {
         /// Override a scene parameter (a top-level `let`), e.g. --set cells=100.
         #[arg(long = "set", value_name = "NAME=VALUE")]
         set: Vec<String>,
+    },
+    /// Run a scene over the cross product of parameter values; write study.csv, study.md and
+    /// charts of error against cells and against wall time.
+    Study {
+        scene: PathBuf,
+        /// Values of a parameter, e.g. --sweep cells=5,10,20; several parameters moved together:
+        /// --sweep basis:order=bspline:3,linear:1.
+        #[arg(long = "sweep", value_name = "NAME=V1,V2,..", required = true)]
+        sweep: Vec<String>,
+        /// A fixed override for every run, e.g. --set body_force=-200.
+        #[arg(long = "set", value_name = "NAME=VALUE")]
+        set: Vec<String>,
+        /// Output folder (default: out/study-<scene name>/).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// The swept parameter on the x axis of the error chart.
+        #[arg(long, default_value = "cells")]
+        against: String,
+        /// Also write and plot the final stress of every point along the column.
+        #[arg(long)]
+        profiles: bool,
     },
     /// Validate a scene without solving; list its parameters.
     Check {
@@ -96,6 +118,10 @@ fn run(cli: Cli) -> Result<(), String> {
                         summary.total_iterations(),
                         wall
                     );
+                    let cuts: usize = summary.steps.iter().map(|s| s.cuts).sum();
+                    if cuts > 0 {
+                        line += &format!(", {cuts} step cuts");
+                    }
                     if let Some(e) = summary.final_error() {
                         line += &format!(", error (eq. 15) {e:.3e}");
                     }
@@ -111,6 +137,49 @@ fn run(cli: Cli) -> Result<(), String> {
                     out_dir.display()
                 )),
             }
+        }
+        Command::Study {
+            scene,
+            sweep,
+            set,
+            out,
+            against,
+            profiles,
+        } => {
+            let plan = StudyPlan {
+                out_dir: out.unwrap_or_else(|| default_study_dir(&scene)),
+                scene,
+                sweeps: sweep
+                    .iter()
+                    .map(|s| Sweep::parse(s))
+                    .collect::<Result<_, _>>()?,
+                fixed: parse_overrides(&set)?,
+                against,
+                profiles,
+            };
+            let mut bar = Progress::new(0);
+            let records = run_study(&plan, |event| match event {
+                StudyEvent::Started {
+                    index,
+                    total,
+                    label,
+                } => {
+                    bar.total = total;
+                    bar.show(index, &format!("run {}/{total}: {label}", index + 1));
+                }
+                StudyEvent::Finished { .. } => {}
+            })?;
+            bar.finish();
+            let failed = records
+                .iter()
+                .filter(|r| r.outcome != RunOutcome::Completed)
+                .count();
+            eprintln!(
+                "{} runs ({failed} failed) -> {}/study.csv, study.md and charts",
+                records.len(),
+                plan.out_dir.display()
+            );
+            Ok(())
         }
         Command::Check {
             scene,
@@ -197,23 +266,38 @@ impl Progress {
     }
 
     fn step(&mut self, r: &StepRecord) {
+        let last = r.residuals.last().copied().unwrap_or(0.0);
+        self.show(
+            r.step,
+            &format!(
+                "step {}/{} λ={:.3} iterations {} residual {:.1e}{}",
+                r.step,
+                self.total,
+                r.load_factor,
+                r.iterations,
+                last,
+                if r.cuts > 0 {
+                    format!(" (cut {}x)", r.cuts)
+                } else {
+                    String::new()
+                }
+            ),
+        );
+    }
+
+    /// Draws the bar at `done` of `total` with a status text.
+    fn show(&mut self, done: usize, text: &str) {
         if !self.terminal {
             return;
         }
         let width = 30;
-        let filled = width * r.step / self.total.max(1);
-        let last = r.residuals.last().copied().unwrap_or(0.0);
+        let filled = (width * done / self.total.max(1)).min(width);
         let mut err = std::io::stderr();
         let _ = write!(
             err,
-            "\r[{}{}] step {}/{} λ={:.3} iterations {} residual {:.1e}   ",
+            "\r[{}{}] {text:<70.70}",
             "#".repeat(filled),
             " ".repeat(width - filled),
-            r.step,
-            self.total,
-            r.load_factor,
-            r.iterations,
-            last
         );
         let _ = err.flush();
     }

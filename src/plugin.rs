@@ -50,9 +50,10 @@ use bevy_ecs::system::ScheduleSystem;
 
 use crate::resources::no_failure;
 use crate::scene::SceneSpec;
-use crate::simulation::{BuildError, RunError, Simulation};
+use crate::simulation::{BuildError, RunError, Simulation, run_scene_keeping_summary_with};
 use crate::stages::{
-    LoadStep, NewtonIteration, NewtonSystems, StepSystems, WriteOutput, output, scheduled_systems,
+    BuiltInOutput, LoadStep, NewtonIteration, NewtonSystems, StepSystems, WriteOutput,
+    scheduled_systems,
 };
 use crate::summary::{StepRecord, Summary};
 
@@ -137,12 +138,9 @@ impl<'w, const D: usize> Extension<'w, D> {
                     .before(NewtonSystems::Convergence)
                     .run_if(no_failure),
             ),
-            Hook::Output => schedules.entry(WriteOutput).configure_sets(
-                hook.after(output::write_particles::<D>)
-                    .after(output::write_grid::<D>)
-                    .after(output::write_tractions::<D>)
-                    .run_if(no_failure),
-            ),
+            Hook::Output => schedules
+                .entry(WriteOutput)
+                .configure_sets(hook.after(BuiltInOutput).run_if(no_failure)),
         };
         schedules.entry(hook.schedule()).add_systems(systems);
         self
@@ -178,24 +176,7 @@ pub fn run_scene_with(
     plugin: &impl Plugin,
     on_step: impl FnMut(&StepRecord),
 ) -> Result<Summary, RunError> {
-    fn run_in<const D: usize>(
-        spec: &SceneSpec,
-        out_dir: &Path,
-        plugin: &impl Plugin,
-        on_step: impl FnMut(&StepRecord),
-    ) -> Result<Summary, RunError> {
-        let mut sim = Simulation::<D>::new(spec, out_dir).map_err(RunError::Build)?;
-        sim.add_plugin(plugin).map_err(RunError::Build)?;
-        sim.write_initial_state().map_err(RunError::Solve)?;
-        sim.run(on_step).map_err(RunError::Solve)?;
-        Ok(sim.summary)
-    }
-    match spec.dim() {
-        1 => run_in::<1>(spec, out_dir, plugin, on_step),
-        2 => run_in::<2>(spec, out_dir, plugin, on_step),
-        3 => run_in::<3>(spec, out_dir, plugin, on_step),
-        d => Err(RunError::Build(BuildError(format!(
-            "dimension {d} is not supported (1, 2 or 3)"
-        )))),
-    }
+    let (summary, result) = run_scene_keeping_summary_with(spec, out_dir, plugin, on_step);
+    result?;
+    summary.ok_or_else(|| RunError::Build(BuildError("the run produced no summary".into())))
 }

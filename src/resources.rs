@@ -6,11 +6,17 @@ use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 
 use crate::basis::GridBasis;
+use crate::fem::Mesh;
 use crate::sparse::{LinearSystem, NO_DOF};
 
 /// The background grid and its basis.
 #[derive(Resource, Clone, Debug)]
 pub struct Grid<const D: usize>(pub GridBasis<D>);
+
+/// Linear FEM only: the body-fitted mesh (element topology, reference node positions). The
+/// current node positions are the `GridNode` positions.
+#[derive(Resource, Clone, Debug)]
+pub struct FemMesh<const D: usize>(pub Mesh<D>);
 
 /// Dense fields on the grid nodes during a load step, indexed by node (see `components`).
 /// Reset after every load step.
@@ -53,6 +59,15 @@ impl<const D: usize> GridFields<D> {
     }
 }
 
+/// Settings of the MLS stress recovery (inserted only when the scene asks for it).
+#[derive(Resource, Clone, Copy, Debug, PartialEq)]
+pub struct StressRecovery {
+    /// Total degree of the fitted polynomial.
+    pub order: usize,
+    /// Support radius as a multiple of the largest cell size of the grid.
+    pub radius_in_cells: f64,
+}
+
 /// The load step being solved.
 #[derive(Resource, Clone, Copy, Debug, Default, PartialEq)]
 pub struct LoadStep {
@@ -60,8 +75,10 @@ pub struct LoadStep {
     pub number: usize,
     /// Load factor at the end of the step.
     pub factor: f64,
-    /// Load factor at the start of the step.
+    /// Load factor at the start of the step (of the sub-step, when the step is cut).
     pub previous_factor: f64,
+    /// Whether this (sub-)step reaches the step's target load factor: output is written then.
+    pub completes_step: bool,
 }
 
 /// Solver controls.
@@ -106,6 +123,12 @@ pub enum SolverError {
         position: Vec<f64>,
         step: usize,
     },
+    /// A point's domain (GIMP, CPDI) cannot be used: a corner left the grid, or it inverted.
+    PointDomain {
+        point: u32,
+        step: usize,
+        why: String,
+    },
     /// A point's deformation became inadmissible (det F <= 0, not finite...).
     BadPointState {
         point: u32,
@@ -131,6 +154,14 @@ pub enum SolverError {
         residuals: Vec<f64>,
         tolerance: f64,
     },
+    /// The out-of-balance force grew by orders of magnitude: Newton is diverging.
+    Diverged { step: usize, residuals: Vec<f64> },
+    /// The step could not be solved even after cutting it `cuts` times.
+    CuttingFailed {
+        step: usize,
+        cuts: usize,
+        last: Box<SolverError>,
+    },
     /// Writing results failed.
     Output { step: usize, why: String },
     /// A traction point left the grid, or has no grid node with material points in its
@@ -153,6 +184,10 @@ impl std::fmt::Display for SolverError {
             } => write!(
                 f,
                 "load step {step}: material point {point} left the background grid (at {position:?})"
+            ),
+            SolverError::PointDomain { point, step, why } => write!(
+                f,
+                "load step {step}: the domain of material point {point} cannot be used: {why}"
             ),
             SolverError::BadPointState {
                 point,
@@ -191,6 +226,17 @@ impl std::fmt::Display for SolverError {
                 }
                 Ok(())
             }
+            SolverError::Diverged { step, residuals } => {
+                write!(f, "load step {step}: Newton diverged; residuals:")?;
+                for (k, r) in residuals.iter().enumerate() {
+                    write!(f, "\n  iteration {k:3}: {r:.3e}")?;
+                }
+                Ok(())
+            }
+            SolverError::CuttingFailed { step, cuts, last } => write!(
+                f,
+                "load step {step}: failed after cutting the step {cuts} times; last attempt: {last}"
+            ),
             SolverError::Output { step, why } => {
                 write!(f, "load step {step}: writing output failed: {why}")
             }
@@ -208,6 +254,22 @@ impl std::fmt::Display for SolverError {
 }
 
 impl std::error::Error for SolverError {}
+
+impl SolverError {
+    /// Whether a smaller load step may succeed where this failure happened: Newton failures
+    /// and inadmissible or non-finite iterates are; points leaving the grid and output
+    /// failures are not.
+    pub fn is_recoverable_by_cutting(&self) -> bool {
+        matches!(
+            self,
+            SolverError::NotConverged { .. }
+                | SolverError::Diverged { .. }
+                | SolverError::BadPointState { .. }
+                | SolverError::LinearSolve { .. }
+                | SolverError::NotFinite { .. }
+        )
+    }
+}
 
 /// The first error raised by a stage; later stages of the step do not run once it is set.
 #[derive(Resource, Default, Debug)]
@@ -238,11 +300,12 @@ pub enum Stage {
     LinearSolve,
     PointUpdate,
     GridReset,
+    StressRecovery,
     Output,
 }
 
 impl Stage {
-    pub const ALL: [Stage; 9] = [
+    pub const ALL: [Stage; 10] = [
         Stage::Connectivity,
         Stage::Dofs,
         Stage::ExternalForce,
@@ -251,6 +314,7 @@ impl Stage {
         Stage::LinearSolve,
         Stage::PointUpdate,
         Stage::GridReset,
+        Stage::StressRecovery,
         Stage::Output,
     ];
 
@@ -264,6 +328,7 @@ impl Stage {
             Stage::LinearSolve => "linear_solve",
             Stage::PointUpdate => "point_update",
             Stage::GridReset => "grid_reset",
+            Stage::StressRecovery => "stress_recovery",
             Stage::Output => "output",
         }
     }

@@ -12,18 +12,19 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use bevy_ecs::prelude::*;
-use nalgebra::{SMatrix, SVector};
+use nalgebra::{Matrix3, SMatrix, SVector};
 
 use crate::analytic::SelfWeightColumn;
 use crate::basis::{BasisKind, GridBasis};
 use crate::components::*;
 use crate::material::Hencky;
 use crate::mechanics::TrialState;
+use crate::plugin::Plugin;
 use crate::resources::*;
-use crate::scene::{AnalyticSpec, SceneSpec};
+use crate::scene::{AnalyticSpec, PointSeed, SceneSpec};
 use crate::stages::output::OutputPlan;
 use crate::stages::{Effects, LoadStep as LoadStepSchedule, WriteOutput, add_schedules};
-use crate::summary::{StepRecord, Summary};
+use crate::summary::{StepRecord, SubstepRecord, Summary};
 
 /// Why a simulation could not be built from a scene.
 #[derive(Clone, Debug, PartialEq)]
@@ -61,6 +62,10 @@ pub fn effects_of(spec: &SceneSpec) -> Effects {
             .iter()
             .any(|point| point.traction.iter().any(|&c| c != 0.0)),
         prescribed_displacements: spec.constraints.iter().any(|c| c.value != 0.0),
+        ghost_penalty: spec.solver.ghost_penalty > 0.0,
+        stress_recovery: spec.recovery.is_some(),
+        fem_mesh: spec.grid.basis == BasisKind::Fem,
+        point_domains: spec.grid.basis.uses_point_domain(),
     }
 }
 
@@ -161,7 +166,22 @@ impl<const D: usize> Simulation<D> {
                 ));
                 id += 1;
             }
-            world.spawn_batch(batch);
+            let spawned: Vec<Entity> = world.spawn_batch(batch).collect();
+            if spec.grid.basis.uses_point_domain() {
+                let domains = body
+                    .points
+                    .iter()
+                    .map(|seed| particle_domain::<D>(&body.name, seed))
+                    .collect::<Result<Vec<_>, _>>()?;
+                world.insert_batch(spawned.iter().copied().zip(domains));
+            }
+            if spec.recovery.is_some() {
+                world.insert_batch(
+                    spawned
+                        .into_iter()
+                        .map(|entity| (entity, RecoveredStress(Matrix3::zeros()))),
+                );
+            }
         }
         if id == 0 {
             return Err(BuildError("the scene has no material points".into()));
@@ -172,6 +192,16 @@ impl<const D: usize> Simulation<D> {
 
         // Resources.
         let effects = effects_of(spec);
+        if effects.fem_mesh && effects.tractions {
+            return Err(BuildError(
+                "tractions act through the background grid's basis; a finite-element mesh (basis fem) has none".into(),
+            ));
+        }
+        if effects.fem_mesh && effects.ghost_penalty {
+            return Err(BuildError(
+                "the ghost penalty stabilises nearly empty MPM cells; a finite-element mesh (basis fem) has none".into(),
+            ));
+        }
         if let Some(b) = &spec.body_force {
             if b.len() != D {
                 return Err(BuildError(format!(
@@ -183,12 +213,21 @@ impl<const D: usize> Simulation<D> {
         }
         world.insert_resource(GridFields::<D>::new(basis.num_nodes()));
         world.insert_resource(Grid(basis));
+        if effects.fem_mesh {
+            crate::fem::attach_mesh::<D>(&mut world).map_err(BuildError)?;
+        }
         world.insert_resource(LoadStep::default());
         world.insert_resource(NewtonSettings {
             tolerance: spec.solver.tolerance,
             max_iterations: spec.solver.max_iterations,
         });
         world.insert_resource(Newton::default());
+        if let Some(recovery) = spec.recovery {
+            world.insert_resource(StressRecovery {
+                order: recovery.order,
+                radius_in_cells: recovery.radius_in_cells,
+            });
+        }
         world.insert_resource(RunStatus::default());
         world.insert_resource(StageClock::default());
         world.insert_resource(OutputPlan::from_spec(
@@ -196,6 +235,17 @@ impl<const D: usize> Simulation<D> {
             &spec.output,
             spec.load_factors.len(),
         ));
+        if effects.ghost_penalty {
+            let modulus = spec
+                .materials
+                .iter()
+                .map(|m| m.youngs_modulus)
+                .fold(0.0, f64::max);
+            world.insert_resource(crate::stages::ghost::GhostPenalty {
+                gamma_modulus: spec.solver.ghost_penalty * modulus,
+                faces: Vec::new(),
+            });
+        }
         add_schedules::<D>(&mut world, effects);
 
         let summary = Summary::new(
@@ -227,42 +277,116 @@ impl<const D: usize> Simulation<D> {
             .map_err(|e| SolverError::Output { step: 0, why: e })
     }
 
-    /// Solves the next load step. On failure the error is also recorded in the summary.
+    /// Solves the next load step, cutting it when Newton fails.
+    ///
+    /// Load-step cutting: the step from λ_n to λ_{n+1} is tried whole; when Newton does not
+    /// converge, diverges, meets an inadmissible point (det F <= 0) or a singular tangent, the
+    /// grid is reset (points are only updated after convergence, so nothing else needs undoing)
+    /// and the attempt is repeated with half the increment, down to 2^-max_step_cuts of the
+    /// step. After a successful sub-step the increment grows back by a factor 2. Output is
+    /// written only when the step's target load factor is reached. On failure the error is
+    /// also recorded in the summary.
     pub fn step(&mut self) -> Result<&StepRecord, SolverError> {
         let number = self.steps_done + 1;
-        let factor = self.spec.load_factors[number - 1];
-        let previous_factor = if number == 1 {
+        let target = self.spec.load_factors[number - 1];
+        let start_factor = if number == 1 {
             0.0
         } else {
             self.spec.load_factors[number - 2]
         };
-        *self.world.resource_mut::<LoadStep>() = LoadStep {
-            number,
-            factor,
-            previous_factor,
-        };
+        let full = target - start_factor;
+        let max_cuts = self.spec.solver.max_step_cuts;
         *self.world.resource_mut::<StageClock>() = StageClock::default();
         let start = Instant::now();
-        self.world.run_schedule(LoadStepSchedule);
-        let wall = start.elapsed().as_secs_f64();
-        let newton = self.world.resource::<Newton>();
         let mut record = StepRecord {
             step: number,
-            load_factor: factor,
-            iterations: newton.iterations,
-            residuals: newton.residuals.clone(),
-            converged: newton.converged,
-            dofs: newton.system.size(),
-            seconds: self.world.resource::<StageClock>().clone(),
-            wall_seconds: wall,
+            load_factor: target,
+            iterations: 0,
+            residuals: Vec::new(),
+            converged: false,
+            dofs: 0,
+            seconds: StageClock::default(),
+            wall_seconds: 0.0,
             error: None,
+            cuts: 0,
+            substeps: Vec::new(),
+            error_recovered: None,
         };
-        if let Err(e) = self.take_failure() {
-            self.summary.fail(record, &e);
-            let _ = self.summary.write();
-            return Err(e);
+        let (mut from, mut level) = (start_factor, 0usize);
+        loop {
+            let increment = full / f64::powi(2.0, level as i32);
+            // The last sub-step lands exactly on the target.
+            let completes_step = (from + increment - target).abs()
+                <= 1e-12 * full.abs().max(1e-300)
+                || (full > 0.0 && from + increment >= target)
+                || (full < 0.0 && from + increment <= target)
+                || full == 0.0;
+            let to = if completes_step {
+                target
+            } else {
+                from + increment
+            };
+            *self.world.resource_mut::<LoadStep>() = LoadStep {
+                number,
+                factor: to,
+                previous_factor: from,
+                completes_step,
+            };
+            self.world.run_schedule(LoadStepSchedule);
+            let newton = self.world.resource::<Newton>();
+            let mut attempt = SubstepRecord {
+                from,
+                to,
+                iterations: newton.iterations,
+                residuals: newton.residuals.clone(),
+                converged: newton.converged,
+                failure: None,
+            };
+            record.iterations += newton.iterations;
+            record.dofs = newton.system.size();
+            match self.take_failure() {
+                Ok(()) => {
+                    record.residuals = attempt.residuals.clone();
+                    record.converged = true;
+                    record.substeps.push(attempt);
+                    if completes_step {
+                        break;
+                    }
+                    from = to;
+                    level = level.saturating_sub(1);
+                }
+                Err(e) => {
+                    attempt.failure = Some(e.to_string());
+                    record.residuals = attempt.residuals.clone();
+                    record.substeps.push(attempt);
+                    let recoverable = e.is_recoverable_by_cutting();
+                    if !recoverable || level >= max_cuts {
+                        let error = if recoverable && record.cuts > 0 {
+                            SolverError::CuttingFailed {
+                                step: number,
+                                cuts: record.cuts,
+                                last: Box::new(e),
+                            }
+                        } else {
+                            e
+                        };
+                        record.seconds = self.world.resource::<StageClock>().clone();
+                        record.wall_seconds = start.elapsed().as_secs_f64();
+                        self.summary.fail(record, &error);
+                        let _ = self.summary.write();
+                        return Err(error);
+                    }
+                    // Undo the failed attempt on the grid and retry with half the increment.
+                    self.world.resource_mut::<GridFields<D>>().reset();
+                    level += 1;
+                    record.cuts += 1;
+                }
+            }
         }
-        record.error = self.analytic_error(factor);
+        record.seconds = self.world.resource::<StageClock>().clone();
+        record.wall_seconds = start.elapsed().as_secs_f64();
+        record.error = self.analytic_error(target);
+        record.error_recovered = self.analytic_error_recovered(target);
         self.steps_done = number;
         self.summary.push(record);
         self.summary.write().map_err(|e| SolverError::Output {
@@ -292,8 +416,8 @@ impl<const D: usize> Simulation<D> {
         }
     }
 
-    /// The scene's analytic error measure (paper eq. 15) at load factor `factor`, if declared.
-    pub fn analytic_error(&mut self, factor: f64) -> Option<f64> {
+    /// The scene's analytic column at load factor `factor` and its axis, if declared.
+    fn analytic_column(&self, factor: f64) -> Option<(SelfWeightColumn, usize)> {
         let AnalyticSpec::Column {
             axis,
             height,
@@ -307,12 +431,33 @@ impl<const D: usize> Simulation<D> {
             height,
             modulus,
         };
+        Some((column, axis))
+    }
+
+    /// The scene's analytic error measure (paper eq. 15) at load factor `factor`, if declared.
+    pub fn analytic_error(&mut self, factor: f64) -> Option<f64> {
+        let (column, axis) = self.analytic_column(factor)?;
         let mut query = self
             .world
             .query::<(&ReferencePosition<D>, &ReferenceVolume, &Trial<D>)>();
         let points: Vec<(f64, f64, f64)> = query
             .iter(&self.world)
             .map(|(x, v, t)| (x.0[axis], v.0, t.0.cauchy()[(axis, axis)]))
+            .collect();
+        Some(column.error(points))
+    }
+
+    /// Eq. 15 of the MLS-recovered stress at load factor `factor`, if the scene declares an
+    /// analytic solution and asks for stress recovery.
+    pub fn analytic_error_recovered(&mut self, factor: f64) -> Option<f64> {
+        self.spec.recovery?;
+        let (column, axis) = self.analytic_column(factor)?;
+        let mut query = self
+            .world
+            .query::<(&ReferencePosition<D>, &ReferenceVolume, &RecoveredStress)>();
+        let points: Vec<(f64, f64, f64)> = query
+            .iter(&self.world)
+            .map(|(x, v, s)| (x.0[axis], v.0, s.0[(axis, axis)]))
             .collect();
         Some(column.error(points))
     }
@@ -404,15 +549,39 @@ fn spawn_traction_points<const D: usize>(
     Ok(())
 }
 
+/// The initial domain of a seeded point: the box it owns.
+fn particle_domain<const D: usize>(
+    body: &str,
+    seed: &PointSeed,
+) -> Result<ParticleDomain<D>, BuildError> {
+    if seed.half_lengths.len() != D
+        || seed
+            .half_lengths
+            .iter()
+            .any(|&l| !(l > 0.0 && l.is_finite()))
+    {
+        return Err(BuildError(format!(
+            "body '{body}': the point at {:?} has domain half-lengths {:?}, not {D} positive lengths",
+            seed.position, seed.half_lengths
+        )));
+    }
+    Ok(ParticleDomain {
+        initial_half_lengths: SVector::from_fn(|k, _| seed.half_lengths[k]),
+    })
+}
+
 /// A human name for a basis.
 pub fn basis_name(kind: BasisKind) -> String {
     match kind {
         BasisKind::Linear => "linear".into(),
         BasisKind::BSpline { order } => format!("bspline(q={order})"),
+        BasisKind::Gimp { domain } => format!("gimp({})", domain.name()),
+        BasisKind::Cpdi => "cpdi".into(),
+        BasisKind::Fem => "fem(linear elements)".into(),
     }
 }
 
-/// Runs a whole scene in dimension `spec.dim()`, writing to `out_dir` (with plugins:
+/// Runs a whole scene in dimension `spec.dim()`, writing to `out_dir` (with a plugin:
 /// [`crate::plugin::run_scene_with`]).
 pub fn run_scene(
     spec: &SceneSpec,
@@ -420,6 +589,56 @@ pub fn run_scene(
     on_step: impl FnMut(&StepRecord),
 ) -> Result<Summary, RunError> {
     crate::plugin::run_scene_with(spec, out_dir, &(), on_step)
+}
+
+/// Like [`run_scene`], but also returns the summary of a run that failed after it was built
+/// (its completed steps and the failed one), as studies record failed runs.
+pub fn run_scene_keeping_summary(
+    spec: &SceneSpec,
+    out_dir: &Path,
+    on_step: impl FnMut(&StepRecord),
+) -> (Option<Summary>, Result<(), RunError>) {
+    run_scene_keeping_summary_with(spec, out_dir, &(), on_step)
+}
+
+/// [`run_scene_keeping_summary`] with a plugin (see [`crate::plugin`]).
+pub fn run_scene_keeping_summary_with(
+    spec: &SceneSpec,
+    out_dir: &Path,
+    plugin: &impl Plugin,
+    on_step: impl FnMut(&StepRecord),
+) -> (Option<Summary>, Result<(), RunError>) {
+    match spec.dim() {
+        1 => run_in::<1>(spec, out_dir, plugin, on_step),
+        2 => run_in::<2>(spec, out_dir, plugin, on_step),
+        3 => run_in::<3>(spec, out_dir, plugin, on_step),
+        d => (
+            None,
+            Err(RunError::Build(BuildError(format!(
+                "dimension {d} is not supported (1, 2 or 3)"
+            )))),
+        ),
+    }
+}
+
+fn run_in<const D: usize>(
+    spec: &SceneSpec,
+    out_dir: &Path,
+    plugin: &impl Plugin,
+    on_step: impl FnMut(&StepRecord),
+) -> (Option<Summary>, Result<(), RunError>) {
+    let mut sim = match Simulation::<D>::new(spec, out_dir) {
+        Ok(sim) => sim,
+        Err(e) => return (None, Err(RunError::Build(e))),
+    };
+    if let Err(e) = sim.add_plugin(plugin) {
+        return (None, Err(RunError::Build(e)));
+    }
+    let result = sim
+        .write_initial_state()
+        .and_then(|()| sim.run(on_step))
+        .map_err(RunError::Solve);
+    (Some(sim.summary), result)
 }
 
 /// A failed run.

@@ -25,6 +25,24 @@ pub struct StepRecord {
     pub wall_seconds: f64,
     /// Eq. 15 error after the step, if the scene has an analytic solution.
     pub error: Option<f64>,
+    /// Eq. 15 error of the MLS-recovered stress, if the scene asks for stress recovery.
+    pub error_recovered: Option<f64>,
+    /// How many times the step was cut (halved) after a failed Newton solve.
+    pub cuts: usize,
+    /// Every attempt in order, failed ones included (one entry when the step was not cut).
+    pub substeps: Vec<SubstepRecord>,
+}
+
+/// One Newton solve from load factor `from` to `to` within a load step.
+#[derive(Clone, Debug)]
+pub struct SubstepRecord {
+    pub from: f64,
+    pub to: f64,
+    pub iterations: usize,
+    pub residuals: Vec<f64>,
+    pub converged: bool,
+    /// Why the attempt failed, if it did.
+    pub failure: Option<String>,
 }
 
 /// The run's summary.
@@ -71,6 +89,30 @@ fn step_json(r: &StepRecord) -> Value {
     if let Some(e) = r.error {
         v["error"] = number(e);
     }
+    if let Some(e) = r.error_recovered {
+        v["error_recovered"] = number(e);
+    }
+    v["cuts"] = json!(r.cuts);
+    if r.substeps.len() > 1 {
+        v["substeps"] = Value::Array(
+            r.substeps
+                .iter()
+                .map(|a| {
+                    let mut sub = json!({
+                        "from": number(a.from),
+                        "to": number(a.to),
+                        "iterations": a.iterations,
+                        "residuals": a.residuals.iter().map(|&x| number(x)).collect::<Vec<_>>(),
+                        "converged": a.converged,
+                    });
+                    if let Some(f) = &a.failure {
+                        sub["failure"] = Value::String(f.clone());
+                    }
+                    sub
+                })
+                .collect(),
+        );
+    }
     v
 }
 
@@ -112,6 +154,11 @@ impl Summary {
         self.steps.last().and_then(|s| s.error)
     }
 
+    /// The eq. 15 error of the recovered stress after the last completed step.
+    pub fn final_error_recovered(&self) -> Option<f64> {
+        self.steps.last().and_then(|s| s.error_recovered)
+    }
+
     /// Total Newton iterations.
     pub fn total_iterations(&self) -> usize {
         self.steps.iter().map(|s| s.iterations).sum()
@@ -142,12 +189,16 @@ impl Summary {
             "totals": {
                 "steps": self.steps.len(),
                 "iterations": self.total_iterations(),
+                "cuts": self.steps.iter().map(|s| s.cuts).sum::<usize>(),
                 "seconds": stage_seconds(&stages),
                 "wall_seconds": number(wall),
             },
         });
         if let Some(e) = self.final_error() {
             v["error"] = number(e);
+        }
+        if let Some(e) = self.final_error_recovered() {
+            v["error_recovered"] = number(e);
         }
         if let Some(f) = &self.failure {
             v["failure"] = Value::String(f.clone());

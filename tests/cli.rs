@@ -202,3 +202,24 @@ fn check_explain_lists_the_systems_of_the_scene() {
     assert!(left_out.contains("loads::apply_body_force"), "{text}");
     assert!(left_out.contains("tractions::apply_tractions"), "{text}");
 }
+
+#[test]
+fn a_cpdi_domain_leaving_the_grid_names_the_point_and_corner() {
+    let dir = temp("cpdi-leave");
+    // A gently rising column with CPDI: the top point's domain reaches the top of the grid at
+    // the start; after the first step its upper corner is outside the grid, the point is not.
+    let scene = scene_with(&dir, "rise.rhai", "", "20.0");
+    let text = std::fs::read_to_string(&scene)
+        .unwrap()
+        .replace(r#"basis: "bspline", order: 2"#, r#"basis: "cpdi""#);
+    std::fs::write(&scene, text).unwrap();
+    let out = impm(&["run", &scene, "--out", dir.join("out").to_str().unwrap()]);
+    let err = stderr(&out);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("load step 2: the domain of material point 19 cannot be used: the corner")
+            && err.contains("of its CPDI domain is outside the background grid along axis 0"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+}

@@ -295,7 +295,19 @@ fn schedules_hold_only_the_effects_a_scene_uses() {
             .iter()
             .all(|s| s.stage.as_deref() != Some("Loads"))
     );
-    assert_eq!(explanation.left_out.len(), OPTIONAL.len() + 1);
+    let left_out = names(&explanation.left_out);
+    for system in OPTIONAL.iter().chain(&[
+        "output::write_tractions",
+        "ghost::find_ghost_faces",
+        "ghost::assemble_ghost_penalty",
+        "recovery::recover_stress",
+    ]) {
+        assert!(
+            left_out.iter().any(|s| s == system),
+            "{system}: {left_out:?}"
+        );
+    }
+    assert_eq!(left_out.len(), OPTIONAL.len() + 4, "{left_out:?}");
 }
 
 /// The complete scene of docs/scene-api.md, written from the documentation alone, runs.
@@ -327,4 +339,63 @@ fn the_documented_scene_runs() {
     let spec = load_scene(&path, &[]).unwrap();
     let mut sim = Simulation::<2>::new(&spec, &dir.join("out_default")).unwrap();
     sim.run(|_| {}).unwrap();
+}
+
+/// The method decides the connectivity system: exactly one of the three basis evaluations is
+/// scheduled, and the FEM mesh systems only for FEM; recovery and the ghost penalty only when a
+/// scene asks for them.
+#[test]
+fn the_method_and_solver_options_pick_their_systems() {
+    // (overrides, the basis evaluation scheduled, the FEM mesh systems scheduled)
+    type Case<'a> = (&'a [(&'a str, &'a str)], &'a str, &'a [&'a str]);
+    let cases: [Case; 4] = [
+        (&[], "connectivity::evaluate_basis", &[]),
+        (
+            &[("basis", "gimp")],
+            "connectivity::evaluate_domain_basis",
+            &[],
+        ),
+        (
+            &[("basis", "cpdi")],
+            "connectivity::evaluate_domain_basis",
+            &[],
+        ),
+        (
+            &[("basis", "fem"), ("ppc", "1")],
+            "element_basis::evaluate_element_basis",
+            &["mesh_advance::advance_mesh", "mesh_output::write_mesh"],
+        ),
+    ];
+    let evaluations = [
+        "connectivity::evaluate_basis",
+        "connectivity::evaluate_domain_basis",
+        "element_basis::evaluate_element_basis",
+    ];
+    for (overrides, evaluation, extra) in cases {
+        let spec = load("column_1d.rhai", overrides);
+        let scheduled = names(&explain_scene(&spec).unwrap().systems);
+        for candidate in evaluations {
+            assert_eq!(
+                scheduled.iter().any(|s| s == candidate),
+                candidate == evaluation,
+                "{overrides:?}: {candidate}"
+            );
+        }
+        for system in ["mesh_advance::advance_mesh", "mesh_output::write_mesh"] {
+            assert_eq!(
+                scheduled.iter().any(|s| s == system),
+                extra.contains(&system),
+                "{overrides:?}: {system}"
+            );
+        }
+        assert!(!scheduled.iter().any(|s| s.starts_with("ghost::")));
+        assert!(!scheduled.iter().any(|s| s == "recovery::recover_stress"));
+    }
+    let spec = load("sliver_column.rhai", &[]);
+    let scheduled = names(&explain_scene(&spec).unwrap().systems);
+    assert!(
+        scheduled
+            .iter()
+            .any(|s| s == "ghost::assemble_ghost_penalty")
+    );
 }

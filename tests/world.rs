@@ -1,21 +1,21 @@
 //! World-level tests of the solver systems and schedules, on small hand-built scenes.
 #![allow(clippy::needless_range_loop)] // matrix indices read best as indices
 
+mod common;
+
 use std::path::PathBuf;
 
-use bevy_ecs::schedule::ScheduleLabel;
 use bevy_ecs::system::RunSystemOnce;
 use nalgebra::SVector;
 
-use impm::basis::BasisKind;
-use impm::components::{Position, Support, Trial};
-use impm::resources::{GridFields, LoadStep, Newton};
+use impm::basis::{BasisKind, GimpDomain};
+use impm::components::{DeformationGradient, Position, Support, Trial};
+use impm::resources::{GridFields, LoadStep};
 use impm::scene::*;
 use impm::simulation::Simulation;
 use impm::sparse::NO_DOF;
 use impm::stages::{
-    LoadStep as LoadStepSchedule, NewtonIteration, WriteOutput, assemble, evaluate_basis,
-    number_dofs, reset_grid, update_points, update_stress,
+    evaluate_basis, evaluate_domain_basis, number_dofs, reset_grid, update_points, update_stress,
 };
 
 fn temp_dir(name: &str) -> PathBuf {
@@ -38,6 +38,7 @@ fn block_2d(cells: [usize; 2], body_cells: [usize; 2], basis: BasisKind) -> Scen
                             cy as f64 + (j as f64 + 0.5) / ppc as f64,
                         ],
                         volume: 1.0 / (ppc * ppc) as f64,
+                        half_lengths: vec![0.5 / ppc as f64; 2],
                     });
                 }
             }
@@ -81,6 +82,7 @@ fn block_2d(cells: [usize; 2], body_cells: [usize; 2], basis: BasisKind) -> Scen
         solver: SolverSpec::default(),
         output: OutputSpec::default(),
         analytic: None,
+        recovery: None,
     }
 }
 
@@ -89,56 +91,48 @@ fn start_step(sim: &mut Simulation<2>) {
         number: 1,
         factor: 1.0,
         previous_factor: 0.0,
+        completes_step: true,
     };
-    sim.world.run_system_once(evaluate_basis::<2>).unwrap();
+    if sim.spec.grid.basis.uses_point_domain() {
+        sim.world
+            .run_system_once(evaluate_domain_basis::<2>)
+            .unwrap();
+    } else {
+        sim.world.run_system_once(evaluate_basis::<2>).unwrap();
+    }
     sim.world.run_system_once(number_dofs::<2>).unwrap();
 }
 
-/// Internal force at the free DOFs for the current increments.
-fn internal_force(sim: &mut Simulation<2>) -> Vec<f64> {
-    sim.world.run_system_once(update_stress::<2>).unwrap();
-    sim.world.run_system_once(assemble::<2>).unwrap();
-    let fields = sim.world.resource::<GridFields<2>>();
-    let mut f = vec![0.0; fields.dof_count];
-    for (node, dofs) in fields.dofs.iter().enumerate() {
-        for (c, &d) in dofs.iter().enumerate() {
-            if d != NO_DOF {
-                f[d as usize] = fields.internal_force[node][c];
-            }
-        }
-    }
-    f
-}
-
-fn set_increment(sim: &mut Simulation<2>, dof: usize, value: f64) {
-    let mut fields = sim.world.resource_mut::<GridFields<2>>();
-    for node in 0..fields.dofs.len() {
-        for c in 0..2 {
-            if fields.dofs[node][c] == dof as u32 {
-                fields.increment[node][c] = value;
-            }
-        }
-    }
-}
-
-fn increment_of(sim: &Simulation<2>, dof: usize) -> f64 {
-    let fields = sim.world.resource::<GridFields<2>>();
-    for node in 0..fields.dofs.len() {
-        for c in 0..2 {
-            if fields.dofs[node][c] == dof as u32 {
-                return fields.increment[node][c];
-            }
-        }
-    }
-    unreachable!("dof {dof} exists")
-}
-
 /// The assembled tangent equals central finite differences of the assembled internal force,
-/// at a strongly deformed, rotated iterate (B-spline q = 2, 2D, several points per cell).
+/// at a strongly deformed, rotated iterate (2D, several points per cell): B-spline q = 2 from
+/// the undeformed state, and GIMP and CPDI from a stretched and sheared state at the start of
+/// the step, whose domains (and so weights) differ from the undeformed ones. The weights are
+/// frozen over the step, so the tangent is exact for every method.
 #[test]
 fn assembled_tangent_matches_finite_differences() {
-    let spec = block_2d([4, 4], [3, 3], BasisKind::BSpline { order: 2 });
+    let sheared = nalgebra::Matrix2::new(0.85, 0.1, 0.05, 0.9);
+    check_tangent(BasisKind::BSpline { order: 2 }, None);
+    check_tangent(
+        BasisKind::Gimp {
+            domain: GimpDomain::Stretched,
+        },
+        Some(sheared),
+    );
+    check_tangent(BasisKind::Cpdi, Some(sheared));
+}
+
+fn check_tangent(basis: BasisKind, start_deformation: Option<nalgebra::Matrix2<f64>>) {
+    let spec = block_2d([4, 4], [3, 3], basis);
     let mut sim = Simulation::<2>::new(&spec, &temp_dir("fd")).unwrap();
+    if let Some(f) = start_deformation {
+        for mut point_f in sim
+            .world
+            .query::<&mut DeformationGradient<2>>()
+            .iter_mut(&mut sim.world)
+        {
+            point_f.0 = f;
+        }
+    }
     start_step(&mut sim);
     let n = sim.world.resource::<GridFields<2>>().dof_count;
     assert!(n > 20, "enough DOFs to be meaningful: {n}");
@@ -162,39 +156,7 @@ fn assembled_tangent_matches_finite_differences() {
             }
         }
     }
-    let f0 = internal_force(&mut sim);
-    let k: Vec<Vec<f64>> = {
-        let newton = sim.world.resource::<Newton>();
-        (0..n)
-            .map(|r| (0..n).map(|c| newton.system.get(r, c)).collect())
-            .collect()
-    };
-    let scale = k.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
-    let h = 1e-6;
-    let mut worst = 0.0f64;
-    for col in 0..n {
-        let base = increment_of(&sim, col);
-        set_increment(&mut sim, col, base + h);
-        let fp = internal_force(&mut sim);
-        set_increment(&mut sim, col, base - h);
-        let fm = internal_force(&mut sim);
-        set_increment(&mut sim, col, base);
-        for row in 0..n {
-            let fd = (fp[row] - fm[row]) / (2.0 * h);
-            worst = worst.max((fd - k[row][col]).abs());
-        }
-    }
-    assert!(f0.iter().all(|v| v.is_finite()));
-    assert!(
-        worst < 1e-6 * scale,
-        "max |K - K_fd| = {worst:e}, scale {scale:e}"
-    );
-    // and K is symmetric
-    for r in 0..n {
-        for c in 0..n {
-            assert!((k[r][c] - k[c][r]).abs() < 1e-9 * scale);
-        }
-    }
+    common::assert_tangent_matches_finite_differences(&mut sim);
 }
 
 #[test]
@@ -263,22 +225,19 @@ fn point_update_moves_points_by_the_interpolated_increment_and_reset_clears_the_
 fn schedules_have_no_ambiguities() {
     fn check<const D: usize>(spec: &SceneSpec) {
         let mut sim = Simulation::<D>::new(spec, &temp_dir(&format!("amb{D}"))).unwrap();
-        for label in [
-            LoadStepSchedule.intern(),
-            NewtonIteration.intern(),
-            WriteOutput.intern(),
-        ] {
-            sim.world.schedule_scope(label, |world, schedule| {
-                schedule
-                    .initialize(world)
-                    .unwrap_or_else(|e| panic!("{label:?}: {e}"));
-            });
-        }
+        common::assert_schedules_unambiguous(&mut sim);
     }
     check::<2>(&block_2d([4, 4], [2, 2], BasisKind::Linear));
     let mut with_prescribed = block_2d([4, 4], [2, 2], BasisKind::Linear);
     with_prescribed.constraints[0].value = 0.1;
     check::<2>(&with_prescribed);
+    // the connectivity of particle-domain methods, alone and with the ghost penalty after it
+    for basis in [BasisKind::Linear, BasisKind::Cpdi] {
+        let mut spec = block_2d([4, 4], [2, 2], basis);
+        check::<2>(&spec);
+        spec.solver.ghost_penalty = 0.1;
+        check::<2>(&spec);
+    }
 }
 
 #[test]
@@ -323,4 +282,25 @@ fn a_run_is_bit_identical_when_repeated() {
         v
     };
     assert_eq!(run("det1"), run("det2"));
+}
+
+#[test]
+fn a_non_finite_increment_is_caught_at_the_stress_update_naming_the_point() {
+    let spec = block_2d([4, 4], [2, 2], BasisKind::BSpline { order: 2 });
+    let mut sim = Simulation::<2>::new(&spec, &temp_dir("nan")).unwrap();
+    start_step(&mut sim);
+    let node = {
+        let fields = sim.world.resource::<GridFields<2>>();
+        (0..fields.dofs.len())
+            .find(|&n| fields.dofs[n][0] != NO_DOF)
+            .unwrap()
+    };
+    sim.world.resource_mut::<GridFields<2>>().increment[node][0] = f64::NAN;
+    sim.world.run_system_once(update_stress::<2>).unwrap();
+    let status = sim.world.resource::<impm::resources::RunStatus>();
+    let message = status.0.as_ref().expect("the NaN is reported").to_string();
+    assert!(
+        message.contains("material point") && message.contains("load step 1"),
+        "{message}"
+    );
 }

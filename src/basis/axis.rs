@@ -159,7 +159,9 @@ impl Axis {
     ///
     /// The buffers are cleared and resized to `q + 1`: no allocation once they have that
     /// capacity. On error they are left empty. [`BasisKind::Linear`] uses the hat functions,
-    /// [`BasisKind::BSpline`] the Cox-de Boor kernel.
+    /// [`BasisKind::BSpline`] the Cox-de Boor kernel; [`BasisKind::Fem`] the hat functions of the
+    /// undeformed mesh; the particle-domain kinds (GIMP, CPDI) their underlying hat functions
+    /// at the point.
     pub fn eval(
         &self,
         x: f64,
@@ -173,7 +175,9 @@ impl Axis {
         values.resize(n, 0.0);
         derivatives.resize(n, 0.0);
         match self.kind {
-            BasisKind::Linear => hat_span(cell, t, values, derivatives),
+            BasisKind::Linear | BasisKind::Fem | BasisKind::Gimp { .. } | BasisKind::Cpdi => {
+                hat_span(cell, t, values, derivatives)
+            }
             BasisKind::BSpline { order } => {
                 bspline_span(order, self.cells, cell, t, values, derivatives)
             }

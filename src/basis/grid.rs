@@ -172,6 +172,34 @@ impl<const D: usize> GridBasis<D> {
         scratch: &mut BasisScratch,
         out: &mut Vec<NodeWeight<D>>,
     ) -> Result<(), OutsideGrid> {
+        self.eval_tensor_product(scratch, out, |k, axis, values, derivatives| {
+            axis.eval(x[k], values, derivatives)
+        })
+    }
+
+    /// The grid's family of functions (the same on every axis).
+    #[inline]
+    pub fn kind(&self) -> BasisKind {
+        self.axes[0].kind
+    }
+
+    /// Tensor product of per-axis weights: `axis_weights(k, axis, values, derivatives)` fills
+    /// the values and derivatives of consecutive functions of axis `k` and returns the index of
+    /// the first. Pushes every product function whose value or gradient is nonzero, in
+    /// increasing node order, into `out` (cleared first; left empty on error). Shared by the
+    /// point evaluation ([`GridBasis::eval`]) and the GIMP domain average.
+    #[inline(always)]
+    pub(super) fn eval_tensor_product(
+        &self,
+        scratch: &mut BasisScratch,
+        out: &mut Vec<NodeWeight<D>>,
+        mut axis_weights: impl FnMut(
+            usize,
+            &Axis,
+            &mut Vec<f64>,
+            &mut Vec<f64>,
+        ) -> Result<usize, OutsideGrid>,
+    ) -> Result<(), OutsideGrid> {
         out.clear();
         if scratch.values.len() < D {
             scratch.values.resize_with(D, Vec::new);
@@ -180,13 +208,26 @@ impl<const D: usize> GridBasis<D> {
         let values = &mut scratch.values[..D];
         let derivatives = &mut scratch.derivatives[..D];
         let mut first = [0; D];
-        let mut len = [0; D];
         for k in 0..D {
-            first[k] = self.axes[k]
-                .eval(x[k], &mut values[k], &mut derivatives[k])
+            first[k] = axis_weights(k, &self.axes[k], &mut values[k], &mut derivatives[k])
                 .map_err(|e| OutsideGrid { axis: k, ..e })?;
-            len[k] = values[k].len();
         }
+        self.push_tensor_product(first, values, derivatives, out);
+        Ok(())
+    }
+
+    /// Pushes the products of the per-axis weights (see [`GridBasis::eval_tensor_product`]).
+    /// Kept out of line: so compiled, the point evaluation executes the same number of
+    /// instructions as when it was one function (measured with callgrind, within 1%).
+    #[inline(never)]
+    fn push_tensor_product(
+        &self,
+        first: [usize; D],
+        values: &[Vec<f64>],
+        derivatives: &[Vec<f64>],
+        out: &mut Vec<NodeWeight<D>>,
+    ) {
+        let len: [usize; D] = std::array::from_fn(|k| values[k].len());
         let strides = strides(self.nodes_per_axis());
         let total: usize = len.iter().product();
         let mut local = [0; D];
@@ -219,7 +260,6 @@ impl<const D: usize> GridBasis<D> {
                 local[k] = 0;
             }
         }
-        Ok(())
     }
 
     /// The cell containing `x` as a multi-index; per axis half-open `[x_k, x_{k+1})` except
@@ -305,8 +345,8 @@ impl<const D: usize> GridBasis<D> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::basis::test_points::Lcg;
-    use nalgebra::{SMatrix, Vector2, Vector3};
+    use crate::basis::test_points::{Lcg, assert_linear_reproduction};
+    use nalgebra::{Vector2, Vector3};
 
     fn random_point<const D: usize>(grid: &GridBasis<D>, rng: &mut Lcg) -> SVector<f64, D> {
         SVector::from_fn(|k, _| rng.uniform(grid.axes[k].lower, grid.axes[k].upper))
@@ -358,32 +398,8 @@ mod tests {
             .collect();
         for x in points {
             grid.eval(&x, &mut scratch, &mut out).unwrap();
-            assert!(!out.is_empty() && out.len() <= grid.support_size());
-            let sum: f64 = out.iter().map(|w| w.value).sum();
-            assert!((sum - 1.0).abs() < 1e-13, "x={x:?}: sum {sum}");
-            assert!(out.iter().all(|w| w.value >= 0.0));
-            let gsum: SVector<f64, D> = out.iter().map(|w| w.gradient).sum();
-            let h_min = grid
-                .axes
-                .iter()
-                .map(|a| a.spacing())
-                .fold(f64::MAX, f64::min);
-            assert!(gsum.norm() < 1e-12 / h_min, "x={x:?}: grad sum {gsum:?}");
-            let interp: SVector<f64, D> = out
-                .iter()
-                .map(|w| grid.node_position(w.node) * w.value)
-                .sum();
-            assert!((interp - x).norm() < 1e-12, "x={x:?}: {interp:?}");
-            let jac: SMatrix<f64, D, D> = out
-                .iter()
-                .map(|w| grid.node_position(w.node) * w.gradient.transpose())
-                .sum();
-            assert!(
-                (jac - SMatrix::<f64, D, D>::identity()).norm() < 1e-11,
-                "x={x:?}: {jac:?}"
-            );
-            // unique, increasing nodes
-            assert!(out.windows(2).all(|p| p[0].node < p[1].node));
+            assert!(out.len() <= grid.support_size());
+            assert_linear_reproduction(grid, &out, &x, 1e-13);
         }
     }
 

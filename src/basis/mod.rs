@@ -35,6 +35,16 @@
 //! `c + 1` vertices, implemented directly ([`bspline::hat_span`]); they coincide with the
 //! B-splines of order 1 (tested to round-off).
 //!
+//! # Particle-domain methods: GIMP and CPDI
+//!
+//! [`BasisKind::Gimp`] and [`BasisKind::Cpdi`] keep the hat functions as grid functions but
+//! weight a point by their average over the point's domain instead of their value at its
+//! centre: `S_ip = (1/V_p) ∫_Ωp N_i dx`, `∇S_ip = (1/V_p) ∫_Ωp ∇N_i dx` ([`gimp`]: exact
+//! integral over an axis-aligned box; [`cpdi`]: the CPDI1 corner rule on a parallelepiped
+//! carried by F). [`domain`] turns a point's state at the start of a load step into its domain
+//! and dispatches. [`GridBasis::eval`] on such a grid evaluates the plain hat functions (used
+//! for grid output).
+//!
 //! # Control points (nodes)
 //!
 //! Function `i` is attached to a node at the Greville abscissa
@@ -51,10 +61,14 @@
 
 pub mod axis;
 pub mod bspline;
+pub mod cpdi;
+pub mod domain;
+pub mod gimp;
 pub mod grid;
 
 pub use axis::{Axis, OutsideGrid};
 pub use bspline::control_points_1d;
+pub use domain::{DomainError, DomainScratch, eval_point_domain};
 pub use grid::{BasisScratch, GridBasis, NodeWeight};
 
 /// Which family of grid functions maps between points and grid.
@@ -64,21 +78,118 @@ pub enum BasisKind {
     Linear,
     /// B-splines of order `order >= 1` on the open uniform knot vector over the grid.
     BSpline { order: usize },
+    /// GIMP (Bardenhagen & Kober 2004): the hat functions averaged over the point's box-shaped
+    /// domain ([`gimp`]).
+    Gimp { domain: GimpDomain },
+    /// CPDI1 (Sadeghirad, Brannon & Burghardt 2011): the hat functions averaged from the
+    /// corners of the point's parallelepiped domain carried by F ([`cpdi`]).
+    Cpdi,
+    /// Linear finite elements on the body-fitted mesh of grid cells (see `crate::fem`): the
+    /// nodes are the grid vertices and move with the body. On the undeformed grid its functions
+    /// are the hat functions, which is what [`GridBasis::eval`] evaluates for this kind.
+    Fem,
 }
 
-impl BasisKind {
-    /// Polynomial order q of the functions (1 for linear).
-    pub fn order(&self) -> usize {
+/// How the GIMP particle domain follows the deformation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GimpDomain {
+    /// uGIMP: the domain keeps its initial half-lengths `lp0`.
+    Fixed,
+    /// Contiguous-particle GIMP (cpGIMP): the half-lengths follow the diagonal of the
+    /// deformation gradient, `lp_k = lp0_k F_kk`, so that domains of a uniformly deformed body
+    /// stay contiguous.
+    Stretched,
+}
+
+impl GimpDomain {
+    /// The scene word (`grid(#{ basis: "gimp", gimp: .. })`).
+    pub fn name(self) -> &'static str {
         match self {
-            BasisKind::Linear => 1,
-            BasisKind::BSpline { order } => *order,
+            GimpDomain::Fixed => "fixed",
+            GimpDomain::Stretched => "stretched",
         }
     }
 }
 
-/// Deterministic pseudo-random sample points for the tests (no external crates).
+impl BasisKind {
+    /// Polynomial order q of the grid functions (1 for linear, FEM, and GIMP and CPDI, which
+    /// average the linear hat functions).
+    pub fn order(&self) -> usize {
+        match self {
+            BasisKind::Linear | BasisKind::Fem | BasisKind::Gimp { .. } | BasisKind::Cpdi => 1,
+            BasisKind::BSpline { order } => *order,
+        }
+    }
+
+    /// Whether a point's weights depend on its domain (GIMP, CPDI) rather than on its position
+    /// alone: such points carry a `ParticleDomain` and use [`eval_point_domain`].
+    pub fn uses_point_domain(&self) -> bool {
+        matches!(self, BasisKind::Gimp { .. } | BasisKind::Cpdi)
+    }
+}
+
+/// Deterministic pseudo-random sample points for the tests (no external crates), and the
+/// invariants every family of weights here must satisfy.
 #[cfg(test)]
 pub(crate) mod test_points {
+    use nalgebra::{SMatrix, SVector};
+
+    use super::{GridBasis, NodeWeight};
+
+    /// Value and gradient of `node` among `weights` (zero if it is not there).
+    pub fn weight_of<const D: usize>(
+        weights: &[NodeWeight<D>],
+        node: usize,
+    ) -> (f64, SVector<f64, D>) {
+        weights
+            .iter()
+            .find(|w| w.node == node)
+            .map_or((0.0, SVector::zeros()), |w| (w.value, w.gradient))
+    }
+
+    /// Asserts, for the weights of a point (or of a domain centred) at `x`: non-negative values
+    /// forming a partition of unity, gradients summing to zero, reproduction of linear fields
+    /// `Σ_i S_i X_i = x` and `Σ_i X_i ⊗ ∇S_i = I` with the node positions, and unique increasing
+    /// nodes. `tolerance` bounds the partition of unity; the others scale from it.
+    pub fn assert_linear_reproduction<const D: usize>(
+        grid: &GridBasis<D>,
+        weights: &[NodeWeight<D>],
+        x: &SVector<f64, D>,
+        tolerance: f64,
+    ) {
+        assert!(!weights.is_empty(), "x={x:?}: no weights");
+        let sum: f64 = weights.iter().map(|w| w.value).sum();
+        assert!((sum - 1.0).abs() < tolerance, "x={x:?}: sum {sum}");
+        assert!(weights.iter().all(|w| w.value >= 0.0), "x={x:?}");
+        let h_min = grid
+            .axes
+            .iter()
+            .map(|a| a.spacing())
+            .fold(f64::MAX, f64::min);
+        let gradient_sum: SVector<f64, D> = weights.iter().map(|w| w.gradient).sum();
+        assert!(
+            gradient_sum.norm() < 10.0 * tolerance / h_min,
+            "x={x:?}: gradient sum {gradient_sum:?}"
+        );
+        let centre: SVector<f64, D> = weights
+            .iter()
+            .map(|w| grid.node_position(w.node) * w.value)
+            .sum();
+        assert!(
+            (centre - x).norm() < 10.0 * tolerance,
+            "x={x:?}: {centre:?}"
+        );
+        let jacobian: SMatrix<f64, D, D> = weights
+            .iter()
+            .map(|w| grid.node_position(w.node) * w.gradient.transpose())
+            .sum();
+        assert!(
+            (jacobian - SMatrix::<f64, D, D>::identity()).norm() < 100.0 * tolerance,
+            "x={x:?}: {jacobian:?}"
+        );
+        assert!(weights.windows(2).all(|p| p[0].node < p[1].node), "x={x:?}");
+    }
+
     /// 64-bit linear congruential generator (Knuth's MMIX constants), top 53 bits as a double.
     pub struct Lcg(u64);
 

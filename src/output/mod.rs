@@ -65,16 +65,27 @@ mod tests {
 
     /// Writes a small run in the documented layout: 3 steps of 10 material points
     /// (`cauchy_stress` and `deformation_gradient` 9 components, `displacement` 3, `volume` 1)
-    /// and of a 4x3-cell 2D background grid (`mass` 1, `displacement` 3; cell `cell_id` 1).
-    fn write_sample_run(out: &Path) -> std::io::Result<()> {
+    /// and of a background grid of `dims` cells of size 0.25 (`mass` 1, `displacement` 3;
+    /// cell data `cell_id` 1).
+    fn write_sample_run(
+        out: &Path,
+        dims: &[usize],
+        compression: Compression,
+    ) -> std::io::Result<()> {
         let mut particles = PvdSeries::new(out.join("particles.pvd"));
         let mut grid = PvdSeries::new(out.join("grid.pvd"));
-        let dims = [4usize, 3];
-        let grid_cells = lattice_cells(&dims);
-        let nodes: Vec<f64> = (0..=dims[1])
-            .flat_map(|j| (0..=dims[0]).flat_map(move |i| [i as f64 * 0.25, j as f64 * 0.25]))
+        let grid_cells = try_lattice_cells(dims)?;
+        let mut n = [1usize; 3];
+        for (a, &c) in dims.iter().enumerate() {
+            n[a] = c + 1;
+        }
+        let grid_points: Vec<[f64; 3]> = (0..n[2])
+            .flat_map(|k| {
+                (0..n[1]).flat_map(move |j| {
+                    (0..n[0]).map(move |i| [i as f64 * 0.25, j as f64 * 0.25, k as f64 * 0.25])
+                })
+            })
             .collect();
-        let grid_points = pad_points(&nodes, 2)?;
         for step in 0..3 {
             let time = step as f64 * 0.5;
             let stretch = 1.0 + 0.1 * time;
@@ -103,7 +114,7 @@ mod tests {
                 .collect();
             let volume = vec![0.01; 10];
             let name = step_file_name("particles", step);
-            write_vtu(
+            write_vtu_with(
                 &out.join(&name),
                 &points,
                 &vertex_cells(points.len()),
@@ -114,6 +125,7 @@ mod tests {
                     Field::scalar("volume", &volume),
                 ],
                 &[],
+                compression,
             )?;
             particles.push(time, &name)?;
 
@@ -124,7 +136,7 @@ mod tests {
                 .collect();
             let cell_id: Vec<f64> = (0..grid_cells.count()).map(|c| c as f64).collect();
             let name = step_file_name("grid", step);
-            write_vtu(
+            write_vtu_with(
                 &out.join(&name),
                 &grid_points,
                 &grid_cells,
@@ -133,32 +145,43 @@ mod tests {
                     Field::new("displacement", 3, &grid_disp),
                 ],
                 &[Field::scalar("cell_id", &cell_id)],
+                compression,
             )?;
             grid.push(time, &name)?;
         }
         Ok(())
     }
 
-    /// The sample run reads back; with `IMPM_OUTPUT_SAMPLE_DIR` set it is left in that folder
-    /// for `scripts/check_output.py`.
+    /// The sample runs read back. With `IMPM_OUTPUT_SAMPLE_DIR` set they are left in that
+    /// folder for `scripts/check_output.py`: an uncompressed run with a 4x3 quad grid in it, a
+    /// zlib-compressed run with a 2x2x2 hexahedron grid in its subfolder `zlib-hex`.
     #[test]
     fn sample_run_layout() {
         let temp = atomic::test_dir::TestDir::new("sample");
         let out = match std::env::var_os("IMPM_OUTPUT_SAMPLE_DIR") {
-            Some(dir) => {
-                let dir = std::path::PathBuf::from(dir);
-                std::fs::create_dir_all(&dir).unwrap();
-                dir
-            }
+            Some(dir) => std::path::PathBuf::from(dir),
             None => temp.path().to_path_buf(),
         };
-        write_sample_run(&out).unwrap();
-        for step in 0..3 {
-            let p = read_vtu(&out.join(step_file_name("particles", step))).unwrap();
-            assert_eq!(p.points.len(), 10);
-            assert_eq!(p.point_field("cauchy_stress").unwrap().0, 9);
-            let g = read_vtu(&out.join(step_file_name("grid", step))).unwrap();
-            assert_eq!((g.points.len(), g.cell_count), (20, 12));
+        let runs: [(&Path, &[usize], Compression, usize, usize); 2] = [
+            (&out, &[4, 3], Compression::None, 20, 12),
+            (
+                &out.join("zlib-hex"),
+                &[2, 2, 2],
+                Compression::Zlib { level: 1 },
+                27,
+                8,
+            ),
+        ];
+        for (folder, dims, compression, grid_points, grid_cells) in runs {
+            std::fs::create_dir_all(folder).unwrap();
+            write_sample_run(folder, dims, compression).unwrap();
+            for step in 0..3 {
+                let p = read_vtu(&folder.join(step_file_name("particles", step))).unwrap();
+                assert_eq!(p.points.len(), 10);
+                assert_eq!(p.point_field("cauchy_stress").unwrap().0, 9);
+                let g = read_vtu(&folder.join(step_file_name("grid", step))).unwrap();
+                assert_eq!((g.points.len(), g.cell_count), (grid_points, grid_cells));
+            }
         }
     }
 

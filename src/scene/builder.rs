@@ -11,14 +11,18 @@ use std::collections::BTreeMap;
 use rhai::{AST, Dynamic, Engine, FnPtr, Position};
 
 use super::error::ScriptError;
+use super::fem_seeding::{PartialCell, seed_element_points};
 use super::geometry::point_in_polygon;
 use super::options::{describe, number};
-use super::seeding::{first_point_outside_grid, nearest_points, seed_boundary, seed_points};
+use super::seeding::{
+    Placement, first_point_outside_grid, nearest_points, seed_boundary, seed_box,
+    seed_points_placed,
+};
 use super::{
     AnalyticSpec, BodySpec, GridSpec, MaterialSpec, NodeConstraint, OutputSpec, PointLoadSpec,
-    SceneSpec, SolverSpec, TractionPointSpec,
+    PointSeed, RecoverySpec, SceneSpec, SolverSpec, TractionPointSpec,
 };
-use crate::basis::control_points_1d;
+use crate::basis::{BasisKind, control_points_1d};
 
 /// Largest number of grid nodes accepted (node predicates are called once per node).
 pub(crate) const MAX_NODES: usize = 100_000_000;
@@ -119,6 +123,7 @@ pub(crate) struct BodyDeclaration {
     pub material: usize,
     pub region: Region,
     pub points_per_cell: PointsPerCell,
+    pub placement: Placement,
 }
 
 /// `fix` (values all zero) or `displace`: components of every node the selector accepts.
@@ -190,6 +195,7 @@ pub(crate) struct SceneBuilder {
     pub solver: Option<Located<SolverSpec>>,
     pub output: Option<Located<OutputSpec>>,
     pub analytic: Option<Located<ColumnDeclaration>>,
+    pub recovery: Option<Located<RecoverySpec>>,
 }
 
 /// Error unless `slot` is still empty ("grid(...) was already called at line 3").
@@ -243,6 +249,23 @@ impl SceneBuilder {
 
         let constraints = resolve_constraints(&self.constraints, &grid, engine, ast)?;
         let point_loads = resolve_point_loads(&self.point_loads, &bodies, dim, engine, ast)?;
+        if let Some(solver) = &self.solver
+            && solver.value.ghost_penalty > 0.0
+            && grid.value.basis == BasisKind::Fem
+        {
+            return Err(ScriptError::at(
+                solver.at,
+                "solver(...): ghost_penalty stabilises nearly empty MPM cells; basis \"fem\" has a body-fitted mesh without such cells (remove ghost_penalty)",
+            ));
+        }
+        if let Some(traction) = self.tractions.first()
+            && grid.value.basis == BasisKind::Fem
+        {
+            return Err(ScriptError::at(
+                traction.at,
+                "traction(...): tractions are applied through the background grid's basis; basis \"fem\" has a body-fitted mesh instead (use point_load_total on the boundary points)",
+            ));
+        }
         let tractions = resolve_tractions(&self.tractions, &grid, &bodies)?;
 
         let load_schedule = self.load_schedule.ok_or_else(|| {
@@ -293,6 +316,7 @@ impl SceneBuilder {
             solver: self.solver.map(|solver| solver.value).unwrap_or_default(),
             output: self.output.map(|output| output.value).unwrap_or_default(),
             analytic,
+            recovery: self.recovery.map(|recovery| recovery.value),
         })
     }
 }
@@ -471,9 +495,23 @@ fn resolve_body(
                     shape.describe()
                 ));
             }
-            seed_points(&grid.value, &points_per_cell, |x: &[f64]| {
-                Ok::<_, ScriptError>(shape.contains(x))
-            })?
+            match shape {
+                Region::Polygon(_) => {
+                    let inside = |x: &[f64]| Ok::<_, ScriptError>(shape.contains(x));
+                    seed_body(&grid.value, &points_per_cell, declaration.placement, inside)?
+                }
+                _ if grid.value.basis == BasisKind::Fem => {
+                    let inside = |x: &[f64]| Ok::<_, ScriptError>(shape.contains(x));
+                    seed_element_points(&grid.value, &points_per_cell, inside)?
+                }
+                _ => Ok(seed_box(
+                    &grid.value,
+                    &points_per_cell,
+                    declaration.placement,
+                    &lower,
+                    &upper,
+                )),
+            }
         }
         Region::Predicate(predicate) => {
             let context = format!(
@@ -488,8 +526,12 @@ fn resolve_body(
                     "the region contains x = {position:?}, outside the grid {grid_bounds}; material points must lie in the grid (bound the region)"
                 ));
             }
-            seed_points(&grid.value, &points_per_cell, inside)?
+            seed_body(&grid.value, &points_per_cell, declaration.placement, inside)?
         }
+    };
+    let points = match points {
+        Ok(points) => points,
+        Err(partial) => return fail(partial.message()),
     };
     if points.is_empty() {
         return fail(format!(
@@ -502,6 +544,21 @@ fn resolve_body(
         material: declaration.material,
         points,
     })
+}
+
+/// The body's points: the seeding lattice for MPM, the integration points of the covered cells
+/// for FEM (`Err` for a cell the region covers only partly).
+fn seed_body(
+    grid: &GridSpec,
+    points_per_cell: &[usize],
+    placement: Placement,
+    inside: impl FnMut(&[f64]) -> Result<bool, ScriptError>,
+) -> Result<Result<Vec<PointSeed>, PartialCell>, ScriptError> {
+    if grid.basis == BasisKind::Fem {
+        seed_element_points(grid, points_per_cell, inside)
+    } else {
+        seed_points_placed(grid, points_per_cell, placement, inside).map(Ok)
+    }
 }
 
 fn resolve_constraints(
@@ -773,7 +830,6 @@ fn resolve_tractions(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::basis::BasisKind;
 
     #[test]
     fn node_positions_axis_zero_fastest_with_exact_ends() {

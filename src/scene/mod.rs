@@ -23,10 +23,12 @@
 //!
 //! Modules: `rhai_api` (the functions a script can call; their reference is in its docs),
 //! `params` (parameters and overrides), `builder` (declarations and their resolution),
-//! `seeding` (material-point seeding), `options` (argument checking), `error`.
+//! `seeding` (material-point seeding), `fem_seeding` (integration points of the body-fitted
+//! mesh for `basis: "fem"`), `options` (argument checking), `error`.
 
 mod builder;
 mod error;
+mod fem_seeding;
 mod geometry;
 mod options;
 mod params;
@@ -37,7 +39,10 @@ pub use error::SceneError;
 pub use geometry::{point_in_polygon, polygon_double_area};
 pub use params::Parameter;
 pub use rhai_api::{load_scene, scene_parameters};
-pub use seeding::{first_point_outside_grid, nearest_points, seed_boundary, seed_points};
+pub use seeding::{
+    Placement, first_point_outside_grid, gauss_legendre_unit, nearest_points, seed_boundary,
+    seed_box, seed_points, seed_points_placed,
+};
 
 use crate::basis::BasisKind;
 
@@ -66,11 +71,15 @@ pub struct MaterialSpec {
     pub density: f64,
 }
 
-/// One material point as seeded: reference position and reference volume.
+/// One material point as seeded: reference position and reference volume, and the box it
+/// owns (its share of the seeded cell, or of the cell's overlap with a box region).
 #[derive(Clone, Debug, PartialEq)]
 pub struct PointSeed {
     pub position: Vec<f64>,
     pub volume: f64,
+    /// Half the side lengths of the point's box, one per axis: `h_k / (2 ppc_k)` on the
+    /// seeding lattice. The initial particle domain for GIMP and CPDI (`basis::domain`).
+    pub half_lengths: Vec<f64>,
 }
 
 /// A body: material points of one material.
@@ -121,6 +130,10 @@ pub struct SolverSpec {
     /// Convergence tolerance on the normalised out-of-balance force.
     pub tolerance: f64,
     pub max_iterations: usize,
+    /// How many times a load step may be halved when Newton fails (0 = never cut).
+    pub max_step_cuts: usize,
+    /// Dimensionless ghost-penalty factor γ for nearly empty cells (0 = off; see `ghost`).
+    pub ghost_penalty: f64,
 }
 
 impl Default for SolverSpec {
@@ -128,6 +141,8 @@ impl Default for SolverSpec {
         Self {
             tolerance: 1e-9,
             max_iterations: 30,
+            max_step_cuts: 8,
+            ghost_penalty: 0.0,
         }
     }
 }
@@ -170,6 +185,24 @@ pub enum AnalyticSpec {
     },
 }
 
+/// Moving-least-squares recovery of the point stresses (see `crate::recovery`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RecoverySpec {
+    /// Total degree of the fitted polynomial (0, 1, 2, ...).
+    pub order: usize,
+    /// Support radius as a multiple of the largest cell size.
+    pub radius_in_cells: f64,
+}
+
+impl Default for RecoverySpec {
+    fn default() -> Self {
+        Self {
+            order: 2,
+            radius_in_cells: 2.5,
+        }
+    }
+}
+
 /// Everything a run needs, fully resolved.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SceneSpec {
@@ -190,6 +223,8 @@ pub struct SceneSpec {
     pub solver: SolverSpec,
     pub output: OutputSpec,
     pub analytic: Option<AnalyticSpec>,
+    /// Stress recovery written beside the raw point stress, if asked for.
+    pub recovery: Option<RecoverySpec>,
 }
 
 impl SceneSpec {

@@ -10,11 +10,11 @@
 //!
 //! | call | meaning |
 //! |------|---------|
-//! | `grid(#{ lower: [..], upper: [..], cells: [..], basis: "linear" \| "bspline", order: q })` | background grid; the dimension (1, 2, 3) is the array length; `order` (>= 1) is required for `"bspline"` and ignored for `"linear"` (standard MPM hat functions). Call once. |
+//! | `grid(#{ lower: [..], upper: [..], cells: [..], basis: "linear" \| "bspline" \| "gimp" \| "cpdi" \| "fem", order: q, gimp: "stretched" \| "fixed" })` | background grid; the dimension (1, 2, 3) is the array length. `basis`: `"linear"` standard MPM (hat functions), `"bspline"` B-splines of `order` q >= 1 (required), `"gimp"` GIMP (hats averaged over the point's box domain), `"cpdi"` CPDI1 (hats averaged from the corners of the point's domain carried by F), `"fem"` linear finite elements on the body-fitted mesh of grid cells (see `fem`). `gimp` (GIMP only, default `"stretched"`): `"stretched"` domain half-lengths follow the diagonal of F (cpGIMP), `"fixed"` domains keep their initial size (uGIMP). `order` is ignored except for B-splines. A point's domain is the box of its seeding share (`h / ppc` per axis); GIMP clips domains to the grid, CPDI stops with an error naming the point when a domain corner leaves it. Call once. |
 //! | `material(#{ name: "..", E: .., nu: .., density: .. })` | linear-elastic Hencky material (E > 0, -1 < nu < 0.5, density > 0); returns a handle |
 //! | `box([lo..], [hi..])` | an axis-aligned box region (bounds included) |
 //! | `polygon([[x, y], ..])` | a 2D polygon region (at least 3 vertices, any orientation, even-odd rule) |
-//! | `body(#{ name: "..", material: m, region: box(..) or \|x\| pred, ppc: n or [n0, n1, ..] })` | material points: `ppc` per cell per direction at cell-local `(i + 1/2) / ppc`, kept where the region holds; volume = cell volume / points per cell. The region must lie inside the grid. |
+//! | `body(#{ name: "..", material: m, region: box(..), polygon(..) or \|x\| pred, ppc: n or [n0, n1, ..], placement: "uniform" \| "gauss" })` | material points: `ppc` per cell per direction at cell-local `(i + 1/2) / ppc`, kept where the region holds; volume = cell volume / points per cell. With `placement: "gauss"` (optional) the points sit at the Gauss–Legendre points of each cell with volumes from the Gauss weights. The region must lie inside the grid. With `basis: "fem"` the region must be made of whole grid cells (the elements) and `ppc` is the number of Gauss points per direction. |
 //! | `body_force([..])` | body force per unit mass at load factor 1 (one entry per axis) |
 //! | `fix(\|x\| pred, [components])` | fix the listed displacement components (0-based axes) of every grid node whose position satisfies `pred` (a roller: one component) |
 //! | `fix(\|x\| pred)` | full fixity: every component |
@@ -25,9 +25,10 @@
 //! | `load_steps(n)` / `load_factors([..])` | load schedule: factors k/n, k = 1..n, or an explicit list |
 //! | `load_factors(n, \|k\| ..)` | n steps whose factors a function of the step number k = 1..n gives (k is a float, so `k / n` is not an integer division) |
 //! | `load_phases([#{ to: λ, steps: n }, ..])` | phases from λ = 0: each goes linearly to `to` in `steps` equal steps (loading, holding: same `to`, unloading) |
-//! | `solver(#{ tolerance: .., max_iterations: .. })` | Newton controls (optional; defaults 1e-9, 30) |
+//! | `solver(#{ tolerance: .., max_iterations: .., max_step_cuts: .., ghost_penalty: .. })` | Newton controls (optional; defaults 1e-9, 30, 8) |
 //! | `output(#{ every: n, steps: [..], fields: [..], grid: bool })` | optional: write every n-th step or the listed steps (plus the initial state; `every` also the last step), only the named particle fields, with or without the grid and node files |
 //! | `analytic_column(#{ axis: a, height: L0, material: m, body_force: b })` | declare the self-weight column solution (paper eqs. 11-14) for error reports |
+//! | `stress_recovery(#{ order: m, radius: r })` | moving-least-squares stress recovery after every step (optional; defaults `order: 2`, `radius: 2.5` cell sizes): writes `recovered_stress` beside `cauchy_stress` and reports `error_recovered` |
 //!
 //! Node predicates see the control-point positions (Greville abscissae; grid vertices for
 //! linear), with the first and last node of each axis exactly on the grid bounds. A predicate
@@ -50,15 +51,16 @@ use super::options::{
     OptionMap, array_of, describe, function, number, numbers, string, whole_number, whole_numbers,
 };
 use super::params::{Parameter, apply_overrides, find_parameters};
-use super::{GridSpec, MaterialSpec, OutputSpec, SceneSpec, SolverSpec};
-use crate::basis::BasisKind;
+use super::seeding::Placement;
+use super::{GridSpec, MaterialSpec, OutputSpec, RecoverySpec, SceneSpec, SolverSpec};
+use crate::basis::{BasisKind, GimpDomain};
 use crate::stages::output::PARTICLE_FIELDS;
 
 /// The scene API functions and how they are called (used in "wrong arguments" messages).
 pub(crate) const API_SIGNATURES: &[(&str, &str)] = &[
     (
         "grid",
-        "grid(#{ lower: [..], upper: [..], cells: [..], basis: \"linear\" | \"bspline\", order: q })",
+        "grid(#{ lower: [..], upper: [..], cells: [..], basis: \"linear\" | \"bspline\" | \"gimp\" | \"cpdi\" | \"fem\", order: q, gimp: \"stretched\" | \"fixed\" })",
     ),
     (
         "material",
@@ -100,7 +102,10 @@ pub(crate) const API_SIGNATURES: &[(&str, &str)] = &[
         "load_phases",
         "load_phases([#{ to: 1.0, steps: 10 }, #{ to: 1.0, steps: 2 }, #{ to: 0.0, steps: 5 }])",
     ),
-    ("solver", "solver(#{ tolerance: .., max_iterations: .. })"),
+    (
+        "solver",
+        "solver(#{ tolerance: .., max_iterations: .., max_step_cuts: .., ghost_penalty: .. })",
+    ),
     (
         "output",
         "output(#{ every: n, steps: [..], fields: [..], grid: true })",
@@ -108,6 +113,10 @@ pub(crate) const API_SIGNATURES: &[(&str, &str)] = &[
     (
         "analytic_column",
         "analytic_column(#{ axis: a, height: L0, material: m, body_force: b })",
+    ),
+    (
+        "stress_recovery",
+        "stress_recovery(#{ order: m, radius: r })",
     ),
 ];
 
@@ -218,6 +227,7 @@ fn scene_engine(state: &SharedBuilder) -> Engine {
     register_unary(&mut engine, "output", declare_output);
     register_unary(&mut engine, "analytic_column", declare_analytic_column);
     register_unary(&mut engine, "traction", declare_traction);
+    register_unary(&mut engine, "stress_recovery", declare_stress_recovery);
 
     let material_state = state.clone();
     engine.register_fn(
@@ -312,7 +322,7 @@ fn declare_grid(builder: &mut SceneBuilder, options: Dynamic, at: Position) -> R
     let options = OptionMap::new(
         "grid",
         options,
-        &["lower", "upper", "cells", "basis", "order"],
+        &["lower", "upper", "cells", "basis", "order", "gimp"],
     )?;
     let lower = numbers(&options.required("lower")?, &options.subject("lower"))?;
     let upper = numbers(&options.required("upper")?, &options.subject("upper"))?;
@@ -337,10 +347,25 @@ fn declare_grid(builder: &mut SceneBuilder, options: Dynamic, at: Position) -> R
             "grid(...): the extent along axis {axis} is not finite"
         ));
     }
+    // validated whatever the basis, so that a misspelt variant is caught; used by "gimp" only
+    let gimp_domain = match options.optional("gimp") {
+        None => GimpDomain::Stretched,
+        Some(value) => match string(&value, &options.subject("gimp"))?.as_str() {
+            "stretched" => GimpDomain::Stretched,
+            "fixed" => GimpDomain::Fixed,
+            other => {
+                return Err(format!(
+                    "grid(...): option 'gimp' must be \"stretched\" (domains follow the deformation, cpGIMP) or \"fixed\" (domains keep their initial size, uGIMP), got {other:?}"
+                ));
+            }
+        },
+    };
     let basis_name = string(&options.required("basis")?, &options.subject("basis"))?;
     let basis = match basis_name.as_str() {
         // order is ignored: linear hat functions are order 1 by definition
         "linear" => BasisKind::Linear,
+        // linear finite elements on the body-fitted mesh; order ignored like "linear"
+        "fem" => BasisKind::Fem,
         "bspline" => {
             let order = options.optional("order").ok_or_else(|| {
                 "grid(...): basis \"bspline\" needs option 'order' (1 linear, 2 quadratic, 3 cubic, ...)"
@@ -350,9 +375,13 @@ fn declare_grid(builder: &mut SceneBuilder, options: Dynamic, at: Position) -> R
                 order: whole_number(&order, &options.subject("order"), 1)?,
             }
         }
+        "gimp" => BasisKind::Gimp {
+            domain: gimp_domain,
+        },
+        "cpdi" => BasisKind::Cpdi,
         other => {
             return Err(format!(
-                "grid(...): option 'basis' must be \"linear\" or \"bspline\", got {other:?}"
+                "grid(...): option 'basis' must be \"linear\", \"bspline\", \"gimp\", \"cpdi\" or \"fem\", got {other:?}"
             ));
         }
     };
@@ -485,7 +514,11 @@ fn make_polygon(vertices: &Dynamic) -> Result<Region, String> {
 }
 
 fn declare_body(builder: &mut SceneBuilder, options: Dynamic, at: Position) -> Result<(), String> {
-    let options = OptionMap::new("body", options, &["name", "material", "region", "ppc"])?;
+    let options = OptionMap::new(
+        "body",
+        options,
+        &["name", "material", "region", "ppc", "placement"],
+    )?;
     let name = string(&options.required("name")?, &options.subject("name"))?;
     if let Some(previous) = builder.bodies.iter().find(|body| body.value.name == name) {
         return Err(format!(
@@ -512,12 +545,26 @@ fn declare_body(builder: &mut SceneBuilder, options: Dynamic, at: Position) -> R
     } else {
         PointsPerCell::Uniform(whole_number(&ppc_value, &options.subject("ppc"), 1)?)
     };
+    let placement = match options.optional("placement") {
+        None => Placement::Uniform,
+        Some(value) => match string(&value, &options.subject("placement"))?.as_str() {
+            "uniform" => Placement::Uniform,
+            "gauss" => Placement::Gauss,
+            other => {
+                return Err(format!(
+                    "{} must be \"uniform\" or \"gauss\", got {other:?}",
+                    options.subject("placement")
+                ));
+            }
+        },
+    };
     builder.bodies.push(Located::new(
         BodyDeclaration {
             name,
             material: material.index,
             region,
             points_per_cell,
+            placement,
         },
         at,
     ));
@@ -780,7 +827,16 @@ fn declare_solver(
     at: Position,
 ) -> Result<(), String> {
     ensure_unset(&builder.solver, "solver")?;
-    let options = OptionMap::new("solver", options, &["tolerance", "max_iterations"])?;
+    let options = OptionMap::new(
+        "solver",
+        options,
+        &[
+            "tolerance",
+            "max_iterations",
+            "max_step_cuts",
+            "ghost_penalty",
+        ],
+    )?;
     let mut solver = SolverSpec::default();
     if let Some(tolerance) = options.optional("tolerance") {
         solver.tolerance = number(&tolerance, &options.subject("tolerance"))?;
@@ -794,6 +850,19 @@ fn declare_solver(
     }
     if let Some(iterations) = options.optional("max_iterations") {
         solver.max_iterations = whole_number(&iterations, &options.subject("max_iterations"), 1)?;
+    }
+    if let Some(gamma) = options.optional("ghost_penalty") {
+        solver.ghost_penalty = number(&gamma, &options.subject("ghost_penalty"))?;
+        if !(solver.ghost_penalty >= 0.0 && solver.ghost_penalty.is_finite()) {
+            return Err(format!(
+                "{} must be zero (off) or positive, got {}",
+                options.subject("ghost_penalty"),
+                solver.ghost_penalty
+            ));
+        }
+    }
+    if let Some(cuts) = options.optional("max_step_cuts") {
+        solver.max_step_cuts = whole_number(&cuts, &options.subject("max_step_cuts"), 0)?;
     }
     builder.solver = Some(Located::new(solver, at));
     Ok(())
@@ -881,6 +950,38 @@ fn declare_analytic_column(
         },
         at,
     ));
+    Ok(())
+}
+
+fn declare_stress_recovery(
+    builder: &mut SceneBuilder,
+    options: Dynamic,
+    at: Position,
+) -> Result<(), String> {
+    ensure_unset(&builder.recovery, "stress_recovery")?;
+    let options = OptionMap::new("stress_recovery", options, &["order", "radius"])?;
+    let mut recovery = RecoverySpec::default();
+    if let Some(order) = options.optional("order") {
+        recovery.order = whole_number(&order, &options.subject("order"), 0)?;
+        if recovery.order > 4 {
+            return Err(format!(
+                "{} must be at most 4, got {}",
+                options.subject("order"),
+                recovery.order
+            ));
+        }
+    }
+    if let Some(radius) = options.optional("radius") {
+        recovery.radius_in_cells = number(&radius, &options.subject("radius"))?;
+        if recovery.radius_in_cells <= 0.0 {
+            return Err(format!(
+                "{} (in cell sizes) must be positive, got {}",
+                options.subject("radius"),
+                recovery.radius_in_cells
+            ));
+        }
+    }
+    builder.recovery = Some(Located::new(recovery, at));
     Ok(())
 }
 
@@ -1128,7 +1229,7 @@ mod tests {
             "{text}"
         );
         assert!(
-            text.contains("cells, basis, order, ppc, body_force, steps"),
+            text.contains("cells, basis, order, gimp, ppc, body_force, steps, placement, recovery"),
             "{text}"
         );
     }
@@ -1147,9 +1248,15 @@ mod tests {
                     ("cells", "50"),
                     ("basis", "\"bspline\""),
                     ("order", "3"),
-                    ("ppc", "if basis == \"linear\" { 1 } else { 4 }"),
+                    ("gimp", "\"stretched\""),
+                    (
+                        "ppc",
+                        "if basis == \"linear\" { 1 } else if basis == \"gimp\" || basis == \"cpdi\" { 2 } else { 4 }"
+                    ),
                     ("body_force", "-800.0"),
                     ("steps", "20"),
+                    ("placement", "\"uniform\""),
+                    ("recovery", "\"none\""),
                 ],
                 "{script}"
             );
@@ -1186,7 +1293,7 @@ mod tests {
         assert!(
             error
                 .message
-                .contains("\"linear\" or \"bspline\", got \"spline\""),
+                .contains("\"linear\", \"bspline\", \"gimp\", \"cpdi\" or \"fem\", got \"spline\""),
             "{error}"
         );
     }
@@ -1236,6 +1343,89 @@ mod tests {
                 .contains("'cells'[0] must be a whole number >= 1, got integer 0"),
             "{error}"
         );
+    }
+
+    #[test]
+    fn gimp_and_cpdi_scene_words() {
+        let grid_with = |options: &str| {
+            format!("grid(#{{ lower: [0.0], upper: [10.0], cells: [cells], {options} }});")
+        };
+        let cases = [
+            (
+                "basis: \"gimp\"",
+                BasisKind::Gimp {
+                    domain: GimpDomain::Stretched,
+                },
+            ),
+            (
+                "basis: \"gimp\", gimp: \"fixed\"",
+                BasisKind::Gimp {
+                    domain: GimpDomain::Fixed,
+                },
+            ),
+            (
+                "basis: \"gimp\", gimp: \"stretched\", order: 3",
+                BasisKind::Gimp {
+                    domain: GimpDomain::Stretched,
+                },
+            ),
+            ("basis: \"cpdi\"", BasisKind::Cpdi),
+            (
+                "basis: \"bspline\", order: 2, gimp: \"fixed\"",
+                BasisKind::BSpline { order: 2 },
+            ),
+        ];
+        for (k, (options, expected)) in cases.into_iter().enumerate() {
+            let text = scene_1d_with("grid", &grid_with(options));
+            let scene = load_scene(&inline_script(&format!("words{k}"), &text), &[]).unwrap();
+            assert_eq!(scene.grid.basis, expected, "{options}");
+            // 10 cells of 1, ppc 2: the points own boxes of side 0.5
+            assert!(
+                scene.bodies[0]
+                    .points
+                    .iter()
+                    .all(|point| point.half_lengths == [0.25]),
+                "{options}"
+            );
+        }
+        let error = failure(
+            "gimp_variant",
+            &scene_1d_with("grid", &grid_with("basis: \"gimp\", gimp: \"ugimp\"")),
+        );
+        assert_eq!(error.line, Some(2), "{error}");
+        assert!(
+            error
+                .message
+                .contains("option 'gimp' must be \"stretched\" (domains follow the deformation, cpGIMP) or \"fixed\""),
+            "{error}"
+        );
+        let error = failure(
+            "gimp_type",
+            &scene_1d_with("grid", &grid_with("basis: \"cpdi\", gimp: 1")),
+        );
+        assert_eq!(error.line, Some(2), "{error}");
+        assert!(error.message.contains("'gimp' must be a string"), "{error}");
+    }
+
+    #[test]
+    fn shipped_columns_run_gimp_and_cpdi_with_two_points_per_cell() {
+        for basis in ["gimp", "cpdi"] {
+            for script in ["column_1d.rhai", "column_2d.rhai", "column_3d.rhai"] {
+                let scene = load_scene(&shipped(script), &set(&[("basis", basis), ("cells", "4")]))
+                    .unwrap();
+                assert!(scene.grid.basis.uses_point_domain());
+                let dim = scene.dim();
+                // cells of 12.5 (one across in 2D/3D), 2 points per cell per axis
+                for point in &scene.bodies[0].points {
+                    assert!(
+                        point.half_lengths.iter().all(|l| (l - 3.125).abs() < 1e-12),
+                        "{script}: {:?}",
+                        point.half_lengths
+                    );
+                }
+                assert_eq!(scene.bodies[0].points.len(), 4 * (1 << dim), "{script}");
+            }
+        }
     }
 
     #[test]
@@ -1448,7 +1638,9 @@ mod tests {
             scene.solver,
             SolverSpec {
                 tolerance: 1e-6,
-                max_iterations: 12
+                max_iterations: 12,
+                max_step_cuts: 8,
+                ghost_penalty: 0.0,
             }
         );
         assert_eq!(scene.output.every, 2);

@@ -11,7 +11,7 @@ use nalgebra::SVector;
 
 use crate::components::{ReferenceVolume, Support, Trial};
 use crate::mechanics::StiffnessFactor;
-use crate::resources::{GridFields, Newton, Stage, StageClock};
+use crate::resources::{GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock};
 use crate::sparse::LinearSystem;
 
 /// Scratch memory of the assembly, kept between iterations.
@@ -53,6 +53,8 @@ pub fn assemble<const D: usize>(
     mut fields: ResMut<GridFields<D>>,
     mut newton: ResMut<Newton>,
     mut clock: ResMut<StageClock>,
+    mut status: ResMut<RunStatus>,
+    step: Res<LoadStep>,
     mut scratch: Local<AssemblyScratch<D>>,
     points: Query<(&Support<D>, &Trial<D>, &ReferenceVolume)>,
 ) {
@@ -96,5 +98,17 @@ pub fn assemble<const D: usize>(
                 }
             }
         }
+    }
+    // Guard: a non-finite internal force is reported here, at the node where it appears.
+    if let Some(node) = fields
+        .internal_force
+        .iter()
+        .position(|f| f.iter().any(|c| !c.is_finite()))
+    {
+        status.fail(SolverError::NotFinite {
+            stage: "assembly",
+            what: format!("internal force of grid node {node}"),
+            step: step.number,
+        });
     }
 }

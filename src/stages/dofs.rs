@@ -5,6 +5,7 @@
 
 use bevy_ecs::prelude::*;
 
+use super::ghost::GhostPenalty;
 use crate::components::{Fixity, GridNode, Support};
 use crate::resources::{GridFields, Newton, Stage, StageClock};
 use crate::sparse::NO_DOF;
@@ -16,6 +17,7 @@ pub fn number_dofs<const D: usize>(
     mut support_nodes: Local<(Vec<usize>, Vec<usize>)>,
     nodes: Query<(&GridNode<D>, &Fixity<D>)>,
     points: Query<&Support<D>>,
+    ghost: Option<Res<GhostPenalty>>,
 ) {
     let _timer = clock.time(Stage::Dofs);
     let fields = &mut *fields;
@@ -44,6 +46,11 @@ pub fn number_dofs<const D: usize>(
     offsets.push(0);
     for support in points.iter() {
         flat.extend(support.0.iter().map(|w| w.node));
+        offsets.push(flat.len());
+    }
+    // The ghost penalty couples the nodes of a face's two cells.
+    for face in ghost.iter().flat_map(|g| g.faces.iter()) {
+        flat.extend(&face.nodes);
         offsets.push(flat.len());
     }
     let supports = offsets.windows(2).map(|w| &flat[w[0]..w[1]]);

@@ -4,8 +4,8 @@
 //! [`crate::simulation::Simulation`] runs, including systems added by plugins) and lists their
 //! systems in execution order with the stage (system set) each belongs to. [`explain_scene`]
 //! does it for a scene without building its points, and also lists the optional systems the
-//! scene leaves out: those of the schedules built with every effect on ([`Effects::ALL`]) that
-//! are missing from the scene's own. `impm check SCENE --explain` prints both.
+//! scene leaves out: those of the schedules built with every optional effect on
+//! ([`Effects::with_every_optional_effect`]) that are missing from the scene's own. `impm check SCENE --explain` prints both.
 
 use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::{InternedScheduleLabel, InternedSystemSet, ScheduleLabel, SystemSet};
@@ -140,7 +140,7 @@ pub fn explain_scene(spec: &SceneSpec) -> Result<Explanation, String> {
         d => return Err(format!("dimension {d} is not supported (1, 2 or 3)")),
     };
     let systems = build(effects)?;
-    let left_out = build(Effects::ALL)?
+    let left_out = build(effects.with_every_optional_effect())?
         .into_iter()
         .filter(|system| !systems.contains(system))
         .collect();

@@ -3,7 +3,8 @@
 //! One load step runs the [`LoadStep`] schedule, whose system sets run in this order:
 //!
 //! 1. [`StepSystems::Connectivity`] — evaluate the basis at the points (P2G connectivity) and
-//!    mark the active nodes (`connectivity.rs`).
+//!    mark the active nodes (`connectivity.rs`; over the points' domains for GIMP and CPDI;
+//!    for linear FEM the element shape functions on the current mesh, `element_basis.rs`).
 //! 2. [`StepSystems::Dofs`] — number the free components of active nodes and build the sparsity
 //!    pattern of the step (`dofs.rs`).
 //! 3. [`StepSystems::Loads`] — external forces and prescribed displacement increments, only the
@@ -11,9 +12,11 @@
 //! 4. [`StepSystems::Solve`] — the Newton loop: an exclusive system that runs the
 //!    [`NewtonIteration`] schedule until converged (`newton.rs`).
 //! 5. [`StepSystems::UpdatePoints`] — G2P: move points, update F, volume (paper eq. 10,
-//!    `update.rs`).
-//! 6. [`StepSystems::Output`] — run the [`WriteOutput`] schedule (VTK files, `output.rs`).
-//! 7. [`StepSystems::ResetGrid`] — clear the grid fields (`reset.rs`).
+//!    `update.rs`); for linear FEM then move the mesh nodes by Δu (`mesh_advance.rs`).
+//! 6. [`StepSystems::Output`] — MLS stress recovery if the scene asks for it (`recovery.rs`),
+//!    then run the [`WriteOutput`] schedule (VTK files, `output.rs`).
+//! 7. [`StepSystems::ResetGrid`] — clear the grid fields (`reset.rs`). The MPM grid is back to
+//!    its undeformed state; the FEM mesh keeps its advanced node positions.
 //!
 //! The [`NewtonIteration`] schedule runs, in order:
 //!
@@ -29,23 +32,32 @@
 mod assembly;
 mod connectivity;
 mod dofs;
+mod element_basis;
 mod explain;
+pub mod ghost;
 mod loads;
+mod mesh_advance;
+mod mesh_output;
 mod newton;
 pub mod output;
+mod recovery;
 mod reset;
 mod stress;
 mod tractions;
 mod update;
 
 pub use assembly::assemble;
-pub use connectivity::evaluate_basis;
+pub use connectivity::{evaluate_basis, evaluate_domain_basis};
 pub use dofs::number_dofs;
+pub use element_basis::evaluate_element_basis;
 pub use explain::{Explanation, ScheduledSystem, explain_scene, scheduled_systems};
 pub use loads::{
     apply_body_force, apply_point_loads, apply_prescribed_displacements, spread_force,
 };
+pub use mesh_advance::advance_mesh;
+pub use mesh_output::write_mesh;
 pub use newton::{check_convergence, solve_linear_system, solve_load_step};
+pub use recovery::recover_stress;
 pub use reset::reset_grid;
 pub use stress::update_stress;
 pub use tractions::{apply_tractions, spread_over_active, update_traction_points};
@@ -89,6 +101,17 @@ pub enum NewtonSystems {
     LinearSolve,
 }
 
+/// The output systems of the crate (particles, grid or mesh, nodes, tractions): systems added
+/// to [`WriteOutput`] by plugins run after them.
+#[derive(SystemSet, Clone, Debug, PartialEq, Eq, Hash)]
+pub struct BuiltInOutput;
+
+/// The connectivity system that evaluates the basis at the points (one per kind of basis:
+/// [`evaluate_basis`], [`evaluate_domain_basis`] or `evaluate_element_basis`); the systems that
+/// need the step's supports run after it.
+#[derive(SystemSet, Clone, Debug, PartialEq, Eq, Hash)]
+struct BasisEvaluation;
+
 /// Which optional effects a scene uses; the schedules contain only their systems.
 ///
 /// A new effect (plasticity, dynamics, contact...) adds a flag here, sets it in
@@ -102,25 +125,45 @@ pub struct Effects {
     /// Surface tractions carried by traction points (`traction`).
     pub tractions: bool,
     pub prescribed_displacements: bool,
+    /// Linear FEM on a body-fitted mesh (`basis = "fem"`) instead of MPM: element
+    /// connectivity, a mesh that advances with the body, and the mesh as grid output.
+    pub fem_mesh: bool,
+    /// Ghost-penalty stabilisation of nearly empty cells (`ghost`).
+    pub ghost_penalty: bool,
+    /// MLS recovery of the point stresses after every step (`RecoveredStress`).
+    pub stress_recovery: bool,
+    /// The basis averages over particle domains (GIMP, CPDI): connectivity uses
+    /// [`evaluate_domain_basis`] instead of [`evaluate_basis`].
+    pub point_domains: bool,
 }
 
 impl Effects {
-    /// Every effect on: the schedules with every optional system (for `--explain` and
-    /// benchmarks).
-    pub const ALL: Effects = Effects {
-        body_force: true,
-        point_loads: true,
-        tractions: true,
-        prescribed_displacements: true,
-    };
+    /// The same method (FEM mesh or not, point domains or not) with every optional effect that
+    /// adds systems on: what `--explain` compares a scene's schedules with. Tractions and the
+    /// ghost penalty are MPM-only, so they stay off with a FEM mesh.
+    pub fn with_every_optional_effect(self) -> Effects {
+        Effects {
+            body_force: true,
+            point_loads: true,
+            tractions: !self.fem_mesh,
+            prescribed_displacements: true,
+            ghost_penalty: !self.fem_mesh,
+            stress_recovery: true,
+            ..self
+        }
+    }
 
     /// `(name, used)` for every effect.
-    pub fn list(&self) -> [(&'static str, bool); 4] {
+    pub fn list(&self) -> [(&'static str, bool); 8] {
         [
             ("body force", self.body_force),
             ("point loads", self.point_loads),
             ("tractions", self.tractions),
             ("prescribed displacements", self.prescribed_displacements),
+            ("ghost penalty", self.ghost_penalty),
+            ("stress recovery", self.stress_recovery),
+            ("point domains (GIMP, CPDI)", self.point_domains),
+            ("finite-element mesh", self.fem_mesh),
         ]
     }
 }
@@ -128,7 +171,7 @@ impl Effects {
 /// Adds the solver's schedules for dimension `D` with only the effects in use to `world`.
 pub fn add_schedules<const D: usize>(world: &mut World, effects: Effects) {
     world.add_schedule(load_step_schedule::<D>(effects));
-    world.add_schedule(newton_schedule::<D>());
+    world.add_schedule(newton_schedule::<D>(effects));
     world.add_schedule(output_schedule::<D>(effects));
 }
 
@@ -158,9 +201,41 @@ pub fn load_step_schedule<const D: usize>(effects: Effects) -> Schedule {
             StepSystems::ResetGrid,
         )
             .chain()
-            .run_if(no_failure),
+            .distributive_run_if(no_failure),
     );
-    schedule.add_systems(evaluate_basis::<D>.in_set(StepSystems::Connectivity));
+    // One basis evaluation per kind of basis, in the BasisEvaluation set.
+    if effects.fem_mesh {
+        schedule.add_systems(
+            evaluate_element_basis::<D>
+                .in_set(StepSystems::Connectivity)
+                .in_set(BasisEvaluation),
+        );
+        schedule.add_systems(
+            advance_mesh::<D>
+                .in_set(StepSystems::UpdatePoints)
+                .after(update_points::<D>)
+                .run_if(no_failure),
+        );
+    } else if effects.point_domains {
+        schedule.add_systems(
+            evaluate_domain_basis::<D>
+                .in_set(StepSystems::Connectivity)
+                .in_set(BasisEvaluation),
+        );
+    } else {
+        schedule.add_systems(
+            evaluate_basis::<D>
+                .in_set(StepSystems::Connectivity)
+                .in_set(BasisEvaluation),
+        );
+    }
+    if effects.ghost_penalty {
+        schedule.add_systems(
+            ghost::find_ghost_faces::<D>
+                .in_set(StepSystems::Connectivity)
+                .after(BasisEvaluation),
+        );
+    }
     schedule.add_systems(number_dofs::<D>.in_set(StepSystems::Dofs));
     if effects.body_force {
         schedule.add_systems(apply_body_force::<D>.in_set(StepSystems::Loads));
@@ -194,23 +269,50 @@ pub fn load_step_schedule<const D: usize>(effects: Effects) -> Schedule {
     }
     schedule.add_systems(solve_load_step.in_set(StepSystems::Solve));
     schedule.add_systems(update_points::<D>.in_set(StepSystems::UpdatePoints));
+    if effects.stress_recovery {
+        schedule.add_systems(
+            recover_stress::<D>
+                .in_set(StepSystems::Output)
+                .before(run_output),
+        );
+    }
     schedule.add_systems(run_output.in_set(StepSystems::Output));
     schedule.add_systems(reset_grid::<D>.in_set(StepSystems::ResetGrid));
     schedule
 }
 
-/// The output schedule for dimension `D`, with the files of the effects in use.
+/// The output schedule for dimension `D`: points, grid (the deformed mesh for FEM), nodes, and
+/// the traction points in scenes with tractions.
 pub fn output_schedule<const D: usize>(effects: Effects) -> Schedule {
     let mut schedule = strict(WriteOutput);
-    schedule.add_systems(
-        (output::write_particles::<D>, output::write_grid::<D>)
-            .chain()
-            .run_if(no_failure),
-    );
+    if effects.fem_mesh {
+        schedule.add_systems(
+            (
+                output::write_particles::<D>,
+                write_mesh::<D>,
+                output::write_nodes::<D>,
+            )
+                .chain()
+                .in_set(BuiltInOutput)
+                .distributive_run_if(no_failure),
+        );
+    } else {
+        schedule.add_systems(
+            (
+                output::write_particles::<D>,
+                output::write_grid::<D>,
+                output::write_nodes::<D>,
+            )
+                .chain()
+                .in_set(BuiltInOutput)
+                .distributive_run_if(no_failure),
+        );
+    }
     if effects.tractions {
         schedule.add_systems(
             output::write_tractions::<D>
-                .after(output::write_grid::<D>)
+                .after(output::write_nodes::<D>)
+                .in_set(BuiltInOutput)
                 .run_if(no_failure),
         );
     }
@@ -223,7 +325,7 @@ pub fn run_output(world: &mut World) {
 }
 
 /// The Newton-iteration schedule for dimension `D`.
-pub fn newton_schedule<const D: usize>() -> Schedule {
+pub fn newton_schedule<const D: usize>(effects: Effects) -> Schedule {
     let mut schedule = strict(NewtonIteration);
     schedule.configure_sets(
         (
@@ -233,7 +335,7 @@ pub fn newton_schedule<const D: usize>() -> Schedule {
             NewtonSystems::LinearSolve,
         )
             .chain()
-            .run_if(no_failure),
+            .distributive_run_if(no_failure),
     );
     schedule.add_systems((
         update_stress::<D>.in_set(NewtonSystems::StressUpdate),
@@ -243,6 +345,13 @@ pub fn newton_schedule<const D: usize>() -> Schedule {
             .in_set(NewtonSystems::LinearSolve)
             .run_if(not_converged),
     ));
+    if effects.ghost_penalty {
+        schedule.add_systems(
+            ghost::assemble_ghost_penalty::<D>
+                .in_set(NewtonSystems::Assembly)
+                .after(assemble::<D>),
+        );
+    }
     schedule
 }
 

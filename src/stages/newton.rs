@@ -18,6 +18,10 @@ use crate::resources::{
 };
 use crate::sparse::NO_DOF;
 
+/// Growth of the out-of-balance force over the step's first residual (or over 1, if smaller)
+/// that is taken as divergence.
+pub const DIVERGENCE_GROWTH: f64 = 1e6;
+
 /// Runs Newton iterations until converged, failed, or out of iterations.
 pub fn solve_load_step(world: &mut World) {
     world.resource_mut::<Newton>().begin_step();
@@ -85,6 +89,14 @@ pub fn check_convergence<const D: usize>(
         return;
     }
     newton.converged = norm <= settings.tolerance;
+    // Diverging: the residual has grown by orders of magnitude over the step's first one.
+    let first = newton.residuals[0].max(1.0);
+    if !newton.converged && newton.residuals.len() > 2 && norm > DIVERGENCE_GROWTH * first {
+        status.fail(SolverError::Diverged {
+            step: step.number,
+            residuals: newton.residuals.clone(),
+        });
+    }
 }
 
 /// Newton stage 4: solve K δ = f_ext − f_int and add δ to the free components of Δu.

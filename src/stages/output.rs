@@ -3,12 +3,15 @@
 //! Files written per output step (`NNNN` = load step, 0 = initial state):
 //! * `particles_NNNN.vtu` — one vertex cell per material point with `reference_position`,
 //!   `reference_volume`, `volume`, `mass`, `displacement`, `cauchy_stress` (3x3, row-major),
-//!   `deformation_gradient` (3x3, row-major) and `body`; in scenes with point loads also
+//!   `deformation_gradient` (3x3, row-major) and `body`; with stress recovery also
+//!   `recovered_stress` (3x3, row-major, see `recovery.rs`); in scenes with point loads also
 //!   `point_load` (λ P, zero on unloaded points).
 //! * `grid_NNNN.vtu` — the background grid cells, with the displacement increment of the step
-//!   evaluated at the grid vertices and the number of material points per cell.
-//! * `nodes_NNNN.vtu` — the control points (grid nodes) with `active`, `fixed`,
-//!   `displacement_increment`, `external_force` and `internal_force`.
+//!   evaluated at the grid vertices and the number of material points per cell; for linear
+//!   FEM the deformed mesh instead (`mesh_output.rs`).
+//! * `nodes_NNNN.vtu` — the control points (grid nodes; for FEM the mesh nodes at their current
+//!   positions) with `active`, `fixed`, `displacement_increment`, `external_force` and
+//!   `internal_force`.
 //!
 //! * `tractions_NNNN.vtu` — only in scenes with tractions: one vertex per traction point with
 //!   `reference_position`, `area` (reference), `traction` (λ h) and `force` (λ h A).
@@ -26,7 +29,7 @@ use nalgebra::{Matrix3, SVector};
 use crate::basis::BasisScratch;
 use crate::components::{
     BodyIndex, DeformationGradient, Displacement, Fixity, GridNode, Mass, PointId, PointLoad,
-    Position, ReferencePosition, ReferenceVolume, TractionPoint, Trial, Volume,
+    Position, RecoveredStress, ReferencePosition, ReferenceVolume, TractionPoint, Trial, Volume,
 };
 use crate::mechanics::{embed, interpolate};
 use crate::output::{Field, PvdSeries, lattice_cells, vertex_cells, write_vtu};
@@ -42,6 +45,7 @@ pub const PARTICLE_FIELDS: &[&str] = &[
     "cauchy_stress",
     "deformation_gradient",
     "body",
+    "recovered_stress",
     "point_load",
 ];
 
@@ -90,12 +94,19 @@ impl OutputPlan {
         }
     }
 
-    /// Whether step `number` is written.
-    pub fn writes(&self, number: usize) -> bool {
-        match &self.steps {
-            Some(steps) => number == 0 || steps.contains(&number),
-            None => number == 0 || number == self.last_step || number.is_multiple_of(self.every),
+    /// Whether the state after `step` is written: the initial state and, for a completed step
+    /// (never an intermediate sub-step of a cut step), the listed steps if `steps` is set, else
+    /// the last step and every n-th step.
+    pub fn writes(&self, step: &LoadStep) -> bool {
+        let number = step.number;
+        if number == 0 {
+            return true;
         }
+        step.completes_step
+            && match &self.steps {
+                Some(steps) => steps.contains(&number),
+                None => number == self.last_step || number.is_multiple_of(self.every),
+            }
     }
 
     /// Whether the particle field `name` is written.
@@ -112,7 +123,7 @@ fn row_major(m: &Matrix3<f64>) -> [f64; 9] {
 }
 
 /// A D-vector padded to 3 components.
-fn pad<const D: usize>(v: &SVector<f64, D>) -> [f64; 3] {
+pub(super) fn pad<const D: usize>(v: &SVector<f64, D>) -> [f64; 3] {
     std::array::from_fn(|k| if k < D { v[k] } else { 0.0 })
 }
 
@@ -133,10 +144,11 @@ pub fn write_particles<const D: usize>(
         &DeformationGradient<D>,
         &Trial<D>,
         &BodyIndex,
+        Option<&RecoveredStress>,
         Option<&PointLoad<D>>,
     )>,
 ) {
-    if !plan.writes(step.number) {
+    if !plan.writes(&step) {
         return;
     }
     let _timer = clock.time(Stage::Output);
@@ -152,9 +164,10 @@ pub fn write_particles<const D: usize>(
     let mut stress = Vec::with_capacity(9 * n);
     let mut deformation = Vec::with_capacity(9 * n);
     let mut body = Vec::with_capacity(n);
-    let has_point_loads = rows.iter().any(|row| row.10.is_some());
+    let mut recovered = Vec::new();
+    let has_point_loads = rows.iter().any(|row| row.11.is_some());
     let mut point_load = Vec::with_capacity(if has_point_loads { 3 * n } else { 0 });
-    for (_, x, xr, v0, v, m, u, f, trial, b, load) in rows {
+    for (_, x, xr, v0, v, m, u, f, trial, b, r, load) in rows {
         positions.push(pad(&x.0));
         reference.extend(pad(&xr.0));
         reference_volume.push(v0.0);
@@ -164,6 +177,9 @@ pub fn write_particles<const D: usize>(
         stress.extend(row_major(&trial.0.cauchy()));
         deformation.extend(row_major(&embed(&f.0)));
         body.push(b.0 as f64);
+        if let Some(r) = r {
+            recovered.extend(row_major(&r.0));
+        }
         if has_point_loads {
             point_load.extend(pad(&(load.map_or(SVector::zeros(), |l| l.0) * step.factor)));
         }
@@ -210,6 +226,14 @@ pub fn write_particles<const D: usize>(
             values: &body,
         },
     ];
+    // Every point has a recovered stress when the scene asks for recovery, none otherwise.
+    if recovered.len() == 9 * n && n > 0 {
+        fields.push(Field {
+            name: "recovered_stress",
+            components: 9,
+            values: &recovered,
+        });
+    }
     if has_point_loads {
         fields.push(Field {
             name: "point_load",
@@ -245,9 +269,8 @@ pub fn write_grid<const D: usize>(
     mut clock: ResMut<StageClock>,
     mut scratch: Local<BasisScratch>,
     positions: Query<&Position<D>>,
-    nodes: Query<(&GridNode<D>, &Fixity<D>)>,
 ) {
-    if !plan.writes(step.number) || !plan.grid_files {
+    if !plan.writes(&step) || !plan.grid_files {
         return;
     }
     let _timer = clock.time(Stage::Output);
@@ -293,8 +316,28 @@ pub fn write_grid<const D: usize>(
             values: &points_per_cell,
         }],
     );
+    let result = grid_result.and_then(|()| plan.grid.push(step.factor, &grid_name));
+    if let Err(e) = result {
+        status.fail(SolverError::Output {
+            step: step.number,
+            why: e.to_string(),
+        });
+    }
+}
 
-    // The control points with their constraints and forces.
+/// The control points (grid nodes) with their constraints and forces: `nodes_NNNN.vtu`.
+pub fn write_nodes<const D: usize>(
+    step: Res<LoadStep>,
+    fields: Res<GridFields<D>>,
+    mut plan: ResMut<OutputPlan>,
+    mut status: ResMut<RunStatus>,
+    mut clock: ResMut<StageClock>,
+    nodes: Query<(&GridNode<D>, &Fixity<D>)>,
+) {
+    if !plan.writes(&step) || !plan.grid_files {
+        return;
+    }
+    let _timer = clock.time(Stage::Output);
     let mut rows: Vec<_> = nodes.iter().collect();
     rows.sort_by_key(|(node, _)| node.index);
     let node_positions: Vec<[f64; 3]> = rows.iter().map(|(node, _)| pad(&node.position)).collect();
@@ -347,10 +390,7 @@ pub fn write_grid<const D: usize>(
         ],
         &[],
     );
-    let result = grid_result
-        .and_then(|()| plan.grid.push(step.factor, &grid_name))
-        .and(nodes_result)
-        .and_then(|()| plan.nodes.push(step.factor, &nodes_name));
+    let result = nodes_result.and_then(|()| plan.nodes.push(step.factor, &nodes_name));
     if let Err(e) = result {
         status.fail(SolverError::Output {
             step: step.number,
@@ -367,7 +407,7 @@ pub fn write_tractions<const D: usize>(
     mut clock: ResMut<StageClock>,
     points: Query<&TractionPoint<D>>,
 ) {
-    if !plan.writes(step.number) {
+    if !plan.writes(&step) {
         return;
     }
     let _timer = clock.time(Stage::Output);

@@ -1,0 +1,139 @@
+//! Helpers shared by the integration tests: running the shipped scenes, and world-level
+//! checks of the assembled tangent and of the schedules.
+#![allow(dead_code)] // each test crate uses its own subset
+#![allow(clippy::needless_range_loop)] // matrix indices read best as indices
+
+use std::path::{Path, PathBuf};
+
+use bevy_ecs::schedule::ScheduleLabel;
+use bevy_ecs::system::RunSystemOnce;
+
+use impm::resources::{GridFields, Newton};
+use impm::scene::load_scene;
+use impm::simulation::Simulation;
+use impm::sparse::NO_DOF;
+use impm::stages::{
+    LoadStep as LoadStepSchedule, NewtonIteration, WriteOutput, assemble, update_stress,
+};
+
+/// A scene shipped under `scripts/`.
+pub fn shipped_scene(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("scripts")
+        .join(name)
+}
+
+/// A fresh (removed, not yet created) folder under the system's temporary folder.
+pub fn temp_dir(prefix: &str, tag: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("impm-{prefix}-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+/// `--set` style overrides from pairs.
+pub fn overrides(pairs: &[(&str, &str)]) -> Vec<(String, String)> {
+    pairs
+        .iter()
+        .map(|(n, v)| (n.to_string(), v.to_string()))
+        .collect()
+}
+
+/// Runs a shipped scene with overrides to its last step (panicking with the solver's message
+/// if it fails) and removes its output; returns the finished simulation.
+pub fn run_shipped<const D: usize>(script: &str, set: &[(&str, &str)]) -> Simulation<D> {
+    let spec =
+        load_scene(&shipped_scene(script), &overrides(set)).unwrap_or_else(|e| panic!("{e}"));
+    let tag: String = set.iter().map(|(n, v)| format!("{n}{v}")).collect();
+    let dir = temp_dir(script, &tag);
+    let mut sim = Simulation::<D>::new(&spec, &dir).unwrap();
+    sim.run(|_| {})
+        .unwrap_or_else(|e| panic!("{script} {set:?}: {e}"));
+    let _ = std::fs::remove_dir_all(&dir);
+    sim
+}
+
+/// Runs the stress update and the assembly for the current increments; returns the internal
+/// force at the free DOFs.
+pub fn internal_force(sim: &mut Simulation<2>) -> Vec<f64> {
+    sim.world.run_system_once(update_stress::<2>).unwrap();
+    sim.world.run_system_once(assemble::<2>).unwrap();
+    let fields = sim.world.resource::<GridFields<2>>();
+    let mut f = vec![0.0; fields.dof_count];
+    for (node, dofs) in fields.dofs.iter().enumerate() {
+        for (c, &d) in dofs.iter().enumerate() {
+            if d != NO_DOF {
+                f[d as usize] = fields.internal_force[node][c];
+            }
+        }
+    }
+    f
+}
+
+/// The grid slot (node, component) of a DOF.
+fn slot_of(sim: &Simulation<2>, dof: usize) -> (usize, usize) {
+    let fields = sim.world.resource::<GridFields<2>>();
+    (0..fields.dofs.len())
+        .flat_map(|node| (0..2).map(move |c| (node, c)))
+        .find(|&(node, c)| fields.dofs[node][c] == dof as u32)
+        .unwrap_or_else(|| panic!("dof {dof} exists"))
+}
+
+/// The assembled tangent at the current increments (connectivity and DOFs already done for
+/// the step) equals central finite differences of the assembled internal force to 1e-6 of
+/// its largest entry, and is symmetric. Returns (max |K - K_fd|, max |K|).
+pub fn assert_tangent_matches_finite_differences(sim: &mut Simulation<2>) -> (f64, f64) {
+    let f0 = internal_force(sim);
+    assert!(f0.iter().all(|v| v.is_finite()));
+    let n = f0.len();
+    let k: Vec<Vec<f64>> = {
+        let newton = sim.world.resource::<Newton>();
+        (0..n)
+            .map(|r| (0..n).map(|c| newton.system.get(r, c)).collect())
+            .collect()
+    };
+    let scale = k.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
+    let h = 1e-6;
+    let mut worst = 0.0f64;
+    for col in 0..n {
+        let (node, c) = slot_of(sim, col);
+        let set = |sim: &mut Simulation<2>, value: f64| {
+            sim.world.resource_mut::<GridFields<2>>().increment[node][c] = value;
+        };
+        let base = sim.world.resource::<GridFields<2>>().increment[node][c];
+        set(sim, base + h);
+        let fp = internal_force(sim);
+        set(sim, base - h);
+        let fm = internal_force(sim);
+        set(sim, base);
+        for row in 0..n {
+            let fd = (fp[row] - fm[row]) / (2.0 * h);
+            worst = worst.max((fd - k[row][col]).abs());
+        }
+    }
+    assert!(
+        worst < 1e-6 * scale,
+        "max |K - K_fd| = {worst:e}, scale {scale:e}"
+    );
+    for r in 0..n {
+        for c in 0..n {
+            assert!((k[r][c] - k[c][r]).abs() < 1e-9 * scale);
+        }
+    }
+    (worst, scale)
+}
+
+/// The world's load-step, Newton and output schedules build without ambiguities (they are
+/// configured to make any ambiguity an error).
+pub fn assert_schedules_unambiguous<const D: usize>(sim: &mut Simulation<D>) {
+    for label in [
+        LoadStepSchedule.intern(),
+        NewtonIteration.intern(),
+        WriteOutput.intern(),
+    ] {
+        sim.world.schedule_scope(label, |world, schedule| {
+            schedule
+                .initialize(world)
+                .unwrap_or_else(|e| panic!("{label:?}: {e}"));
+        });
+    }
+}

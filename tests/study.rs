@@ -1,0 +1,243 @@
+//! `impm study` end to end on small sweeps of the 1D column: the CSV holds what it says (one
+//! row per run, the documented columns, errors equal to each run's own summary.json), failed
+//! runs are recorded and not fatal, and the charts, table and profiles are written.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn impm(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_impm"))
+        .args(args)
+        .output()
+        .expect("impm runs")
+}
+
+fn temp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("impm-study-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+fn column() -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("scripts/column_1d.rhai")
+        .display()
+        .to_string()
+}
+
+/// A CSV without quoted fields: header and rows as maps from column name to text.
+fn read_csv(path: &Path) -> (Vec<String>, Vec<Vec<(String, String)>>) {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<String> = lines
+        .next()
+        .unwrap()
+        .split(',')
+        .map(str::to_string)
+        .collect();
+    let rows = lines
+        .map(|line| {
+            let cells: Vec<&str> = line.split(',').collect();
+            assert_eq!(cells.len(), header.len(), "row {line}");
+            header
+                .iter()
+                .cloned()
+                .zip(cells.iter().map(|c| c.to_string()))
+                .collect()
+        })
+        .collect();
+    (header, rows)
+}
+
+fn get<'a>(row: &'a [(String, String)], name: &str) -> &'a str {
+    &row.iter().find(|(n, _)| n == name).unwrap().1
+}
+
+fn summary(dir: &Path, row: &[(String, String)]) -> serde_json::Value {
+    let path = dir.join(get(row, "run_dir")).join("summary.json");
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+#[test]
+fn study_runs_the_cross_product_and_its_csv_matches_each_run() {
+    let dir = temp("cross");
+    let out = impm(&[
+        "study",
+        &column(),
+        "--sweep",
+        "cells=5,10",
+        "--sweep",
+        "basis=linear,bspline",
+        "--set",
+        "steps=2",
+        "--set",
+        "recovery=mls",
+        "--profiles",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let (header, rows) = read_csv(&dir.join("study.csv"));
+    assert_eq!(rows.len(), 4);
+    assert_eq!(&header[..3], ["index", "cells", "basis"]);
+    for column in [
+        "status",
+        "error",
+        "error_recovered",
+        "points",
+        "dofs",
+        "iterations",
+        "wall_seconds",
+        "t_assembly",
+        "t_linear_solve",
+        "t_stress_recovery",
+        "peak_rss_mib",
+        "message",
+    ] {
+        assert!(header.iter().any(|h| h == column), "column {column}");
+    }
+    let mut bspline_errors = Vec::new();
+    for (k, row) in rows.iter().enumerate() {
+        // first sweep outermost
+        let cells = if k < 2 { "5" } else { "10" };
+        let basis = if k % 2 == 0 { "linear" } else { "bspline" };
+        assert_eq!((get(row, "cells"), get(row, "basis")), (cells, basis));
+        assert_eq!(get(row, "status"), "completed");
+        let s = summary(&dir, row);
+        assert_eq!(s["status"], "completed");
+        for (column, key) in [("error", "error"), ("error_recovered", "error_recovered")] {
+            let value: f64 = get(row, column).parse().unwrap();
+            assert!(value.is_finite() && value > 0.0, "{column} {value}");
+            assert_eq!(value, s[key].as_f64().unwrap(), "{column} of run {k}");
+        }
+        assert_eq!(
+            get(row, "points").parse::<u64>().unwrap(),
+            s["points"].as_u64().unwrap()
+        );
+        assert_eq!(
+            get(row, "iterations").parse::<u64>().unwrap(),
+            s["totals"]["iterations"].as_u64().unwrap()
+        );
+        let steps = s["steps"].as_array().unwrap();
+        assert_eq!(
+            get(row, "dofs").parse::<u64>().unwrap(),
+            steps.last().unwrap()["dofs"].as_u64().unwrap()
+        );
+        let wall: f64 = get(row, "wall_seconds").parse().unwrap();
+        let steps_wall = s["totals"]["wall_seconds"].as_f64().unwrap();
+        assert!(wall >= steps_wall, "run wall {wall} < steps {steps_wall}");
+        let peak: f64 = get(row, "peak_rss_mib").parse().unwrap();
+        let base: f64 = get(row, "baseline_rss_mib").parse().unwrap();
+        assert!(peak >= base && peak > 0.0, "peak {peak}, baseline {base}");
+        if basis == "bspline" {
+            bspline_errors.push(get(row, "error").parse::<f64>().unwrap());
+        }
+        // each run wrote only its initial and final state
+        let run = dir.join(get(row, "run_dir"));
+        assert!(run.join("particles_0000.vtu").exists());
+        assert!(run.join("particles_0002.vtu").exists());
+        assert!(!run.join("particles_0001.vtu").exists());
+    }
+    assert!(
+        bspline_errors[1] < 0.75 * bspline_errors[0],
+        "B-spline error should fall with cells: {bspline_errors:?}"
+    );
+
+    // Profiles: eq. 15 recomputed from the points' stresses equals the study's error.
+    let (_, points) = read_csv(&dir.join("profiles.csv"));
+    for row in &rows {
+        let index = get(row, "index");
+        let run: Vec<_> = points.iter().filter(|p| get(p, "index") == index).collect();
+        let n = get(row, "points").parse::<usize>().unwrap();
+        assert_eq!(run.len(), n);
+        let weight = 800.0 * 50.0;
+        let sum: f64 = run
+            .iter()
+            .map(|p| {
+                let s: f64 = get(p, "stress").parse().unwrap();
+                let a: f64 = get(p, "analytic").parse().unwrap();
+                (s - a).abs()
+            })
+            .sum();
+        // uniform seeding: V0 = L0 / n, so eq. 15 = sum |σ − σ_A| / (n W)
+        let error: f64 = get(row, "error").parse().unwrap();
+        let recomputed = sum / (n as f64 * weight);
+        assert!(
+            (recomputed - error).abs() <= 1e-9 * error,
+            "run {index}: {recomputed} vs {error}"
+        );
+    }
+
+    for stem in [
+        "error_vs_cells",
+        "error_vs_time",
+        "profiles",
+        "profile_errors",
+    ] {
+        let svg = std::fs::read_to_string(dir.join(format!("{stem}.svg"))).unwrap();
+        assert!(
+            svg.contains("<svg") && svg.contains("<polyline"),
+            "{stem}.svg"
+        );
+        let png = std::fs::read(dir.join(format!("{stem}.png"))).unwrap();
+        assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n", "{stem}.png");
+    }
+    let md = std::fs::read_to_string(dir.join("study.md")).unwrap();
+    assert!(md.contains("| 10 | bspline | ok |"), "{md}");
+    assert!(md.contains("| basis=bspline | raw |"), "{md}");
+    assert!(md.contains("| basis=bspline | recovered |"), "{md}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_failed_run_is_recorded_and_the_study_goes_on() {
+    let dir = temp("failed");
+    let out = impm(&[
+        "study",
+        &column(),
+        "--sweep",
+        "basis:order=bspline:2,bspline:0",
+        "--set",
+        "cells=5",
+        "--set",
+        "steps=1",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = std::fs::read_to_string(dir.join("study.csv")).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines.len(), 3);
+    assert!(lines[1].contains(",completed,"), "{}", lines[1]);
+    assert!(
+        lines[2].contains(",failed,") && lines[2].contains("order"),
+        "{}",
+        lines[2]
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn unknown_sweep_parameters_are_refused_before_running() {
+    let dir = temp("unknown");
+    let out = impm(&[
+        "study",
+        &column(),
+        "--sweep",
+        "cels=5,10",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("no parameter 'cels'"), "{err}");
+    assert!(!dir.join("study.csv").exists());
+}
