@@ -146,7 +146,7 @@ fn main() -> Result<(), String> {
         wa, a_lo, a_hi, la
     );
     println!(
-        "  B all effects:       median {:8.4} s  (min {:.4}, max {:.4})  external-force stage {:.6} s",
+        "  B all load effects:  median {:8.4} s  (min {:.4}, max {:.4})  external-force stage {:.6} s",
         wb, b_lo, b_hi, lb
     );
     println!(

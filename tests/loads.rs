@@ -333,6 +333,18 @@ load_steps(1);
     write("traction(#{ on: [[0.0, 2.0], [2.0, 2.0]], tracton: [0.0, 1.0] });");
     let error = load_scene(&path, &[]).unwrap_err();
     assert!(error.message.contains("did you mean 'traction'"), "{error}");
+    // FEM has no background grid for traction points
+    std::fs::write(
+        &path,
+        format!(
+            "{}traction(#{{ on: [[0.0, 2.0], [2.0, 2.0]], traction: [0.0, 1.0] }});\n",
+            base.replace("basis: \"linear\"", "basis: \"fem\"")
+        ),
+    )
+    .unwrap();
+    let error = load_scene(&path, &[]).unwrap_err();
+    assert_eq!(error.line, Some(6), "{error}");
+    assert!(error.message.contains("basis \"fem\""), "{error}");
     // far from the body: a run-time error naming the traction point
     write("traction(#{ on: [[3.2, 3.5], [3.8, 3.5]], traction: [0.0, 1.0] });");
     let spec = load_scene(&path, &[]).unwrap();
