@@ -2,21 +2,25 @@
 
 Usage:
     xvfb-run -a pvpython scripts/check_output.py OUT_DIR [FIELD[:N] ...] [--png FILE]
+        [--nodes FIELD[:N] ...] [--tractions FIELD[:N] ...] [--times T0,T1,...]
 
-Opens OUT_DIR/particles.pvd (and OUT_DIR/grid.pvd when present) with ParaView's readers and
-checks that:
+Opens OUT_DIR/particles.pvd (and OUT_DIR/grid.pvd, nodes.pvd and tractions.pvd when present)
+with ParaView's readers and checks that:
   * the collection is valid XML whose DataSet entries point at existing files, in time order,
     and ParaView reports the same number of time steps (> 0);
   * every named FIELD exists as a point array of particles in every time step, with the right
     number of components: N if given as FIELD:N, else 9 for cauchy_stress and
     deformation_gradient (3x3 row-major), 3 for position/displacement/velocity-like vectors,
     otherwise whatever is found is reported;
-  * all point coordinates and every point and cell array of every time step are finite.
+  * all point coordinates and every point and cell array of every time step are finite;
+  * --nodes / --tractions FIELD[:N]: the same for point arrays of nodes.pvd / tractions.pvd
+    (which must then exist);
+  * --times: the particle series' time values (the load factors) are these, to 1e-12.
 It prints a short report (time steps, points, cells, arrays with component count and range)
 and exits with status 1 and a message on the first failure (2 for a usage error).
 
---png FILE renders the last time step: material points coloured by the yy component
-(index 4) of cauchy_stress, over the background grid's edges when grid.pvd exists.
+--png FILE renders the last time step with scripts/show_stress.py: material points coloured
+by the vertical stress, over the background grid's edges, with tractions and point loads.
 """
 
 import argparse
@@ -211,63 +215,13 @@ def check_series(simple, pvd_path, label, wanted):
     return reader, times, lines
 
 
-def render_png(simple, particles, grid, time, png_path):
-    """Saves a picture of `time`: points coloured by cauchy_stress yy, grid edges behind."""
-    view = simple.CreateView("RenderView")
-    view.OrientationAxesVisibility = 1
-    view.ViewTime = time
-    view.Background = [1.0, 1.0, 1.0]
-    try:
-        view.UseColorPaletteForBackground = 0  # ParaView >= 5.10
-    except AttributeError:
-        pass
-    if grid is not None:
-        g = simple.Show(grid, view)
-        g.SetRepresentationType("Wireframe")
-        g.ColorArrayName = ["POINTS", ""]  # solid colour
-        g.AmbientColor = g.DiffuseColor = [0.55, 0.55, 0.55]
-    p = simple.Show(particles, view)
-    p.SetRepresentationType("Points")
-    p.PointSize = 12
-    try:
-        p.RenderPointsAsSpheres = 1
-    except AttributeError:
-        pass
-    simple.ColorBy(p, ("POINTS", "cauchy_stress"))
-    lut = simple.GetColorTransferFunction("cauchy_stress")
-    lut.VectorMode = "Component"
-    lut.VectorComponent = YY
-    p.RescaleTransferFunctionToDataRange(False, True)
-    p.SetScalarBarVisibility(view, True)
-    bar = simple.GetScalarBar(lut, view)
-    bar.Title = "cauchy_stress yy"
-    bar.ComponentTitle = ""
-    bar.TitleColor = bar.LabelColor = [0.0, 0.0, 0.0]
-    bar.TitleFontSize = 14
-    bar.LabelFontSize = 12
-    bar.ScalarBarLength = 0.6
-    bar.WindowLocation = "Any Location"
-    bar.Position = [0.88, 0.2]
-    view.ViewSize = [1200, 800]
-    view.ResetCamera()
-    # Leave room on the right for the colour bar.
-    camera = view.GetActiveCamera()
-    camera.Zoom(0.85)
-    fx, fy, fz = view.CameraFocalPoint
-    px, py, pz = view.CameraPosition
-    shift = 0.08 * camera.GetParallelScale() * 2 if camera.GetParallelProjection() else 0.0
-    if shift == 0.0:
-        # Perspective: shift by a fraction of the view's width at the focal distance.
-        dist = math.dist((fx, fy, fz), (px, py, pz))
-        shift = 0.1 * dist * math.tan(math.radians(view.CameraViewAngle) / 2) * 2
-    view.CameraFocalPoint = [fx + shift, fy, fz]
-    view.CameraPosition = [px + shift, py, pz]
-    simple.Render(view)
-    simple.SaveScreenshot(png_path, view, ImageResolution=[1200, 800])
-    # Release the OpenGL context while the X display is still there: without this, exiting
-    # under xvfb-run can end in "GLXBadContext" and a non-zero status.
-    simple.Delete(view)
-    del view
+def render_png(simple, out_dir, time, png_path):
+    """Saves a picture of `time` as scripts/show_stress.py shows a run."""
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    import show_stress
+
+    view = show_stress.show(simple, out_dir, time=time)
+    show_stress.save_picture(simple, view, png_path)
 
 
 def parse_field(spec):
@@ -292,6 +246,21 @@ def main(argv):
         help="point arrays that must exist, as NAME or NAME:COMPONENTS",
     )
     parser.add_argument("--png", help="render the last step to this PNG file")
+    parser.add_argument(
+        "--nodes", nargs="+", type=parse_field, default=[], help="point arrays of nodes.pvd"
+    )
+    parser.add_argument(
+        "--tractions",
+        nargs="+",
+        type=parse_field,
+        default=[],
+        help="point arrays of tractions.pvd",
+    )
+    parser.add_argument(
+        "--times",
+        type=lambda text: [float(t) for t in text.split(",")],
+        help="expected time values (load factors) of particles.pvd, comma-separated",
+    )
     args = parser.parse_args(argv)
 
     particles_pvd = os.path.join(args.out_dir, "particles.pvd")
@@ -307,23 +276,39 @@ def main(argv):
 
     try:
         particles, times, report = check_series(simple, particles_pvd, "particles", args.fields)
-        grid = None
+        if args.times is not None:
+            if len(times) != len(args.times) or any(
+                abs(a - b) > 1e-12 for a, b in zip(times, args.times)
+            ):
+                raise CheckError(f"particles.pvd times are {list(times)}, expected {args.times}")
         if os.path.isfile(grid_pvd):
-            grid, _, grid_report = check_series(simple, grid_pvd, "grid", [])
-            report += grid_report
+            report += check_series(simple, grid_pvd, "grid", [])[2]
+        for series, wanted in (("nodes", args.nodes), ("tractions", args.tractions)):
+            path = os.path.join(args.out_dir, f"{series}.pvd")
+            if os.path.isfile(path):
+                report += check_series(simple, path, series, wanted)[2]
+            elif wanted:
+                raise CheckError(f"{path} does not exist")
         print("\n".join(report))
-        for name, expected in args.fields:
-            note = "" if expected is None else f" (expected {expected})"
-            print(f"  required point array {name}: present{note}")
+        for series, wanted in (
+            ("particles", args.fields),
+            ("nodes", args.nodes),
+            ("tractions", args.tractions),
+        ):
+            for name, expected in wanted:
+                note = "" if expected is None else f" (expected {expected})"
+                print(f"  required {series} point array {name}: present{note}")
+        if args.times is not None:
+            print(f"  particles.pvd times: {args.times}")
         if args.png:
             if not any(name == "cauchy_stress" for name, _ in args.fields):
                 data = first_leaf(simple.servermanager.Fetch(particles))
                 if data is None or data.GetPointData().GetArray("cauchy_stress") is None:
                     raise CheckError("--png needs a point array cauchy_stress")
-            render_png(simple, particles, grid, times[-1], args.png)
+            render_png(simple, args.out_dir, times[-1], args.png)
             if not os.path.isfile(args.png) or os.path.getsize(args.png) == 0:
                 raise CheckError(f"no picture was written to {args.png}")
-            print(f"  picture: {args.png} (t = {times[-1]:g}, coloured by cauchy_stress yy)")
+            print(f"  picture: {args.png} (t = {times[-1]:g}, coloured by the vertical stress)")
     except CheckError as e:
         print(f"FAIL: {e}", file=sys.stderr)
         return 1
@@ -332,4 +317,9 @@ def main(argv):
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    status = main(sys.argv[1:])
+    # Skip the interpreter's teardown: under xvfb-run, VTK's X/GLX cleanup sometimes fails after
+    # a picture is saved and would turn success into a non-zero exit status.
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(status)

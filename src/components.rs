@@ -83,6 +83,28 @@ pub struct Trial<const D: usize>(pub TrialState<D>);
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct PointLoad<const D: usize>(pub SVector<f64, D>);
 
+/// A traction point: a quadrature point of the surface term ∫_ΓN h N_i dΓ of paper eq. (9),
+/// an entity of its own (not a material point). It carries a piece of boundary of reference
+/// area `area` with the traction `traction` (force per unit reference area at load factor 1,
+/// fixed direction: a dead load), and moves with the material: it keeps its reference offset
+/// from a host material point, deformed with the host's F (x_s = x_p + F_p (X_s − X_p)).
+#[derive(Component, Clone, Debug, PartialEq)]
+pub struct TractionPoint<const D: usize> {
+    /// Index among the scene's traction points (output order).
+    pub id: u32,
+    /// Current position (converged, start of the load step).
+    pub position: SVector<f64, D>,
+    pub reference_position: SVector<f64, D>,
+    /// The host material point (the nearest one in the reference configuration).
+    pub host: Entity,
+    /// X_s − X_p: the reference offset from the host.
+    pub offset: SVector<f64, D>,
+    pub area: f64,
+    pub traction: SVector<f64, D>,
+    /// The basis at `position` for this load step.
+    pub support: Vec<NodeWeight<D>>,
+}
+
 /// Stress recovered by moving least squares from the neighbouring points' Cauchy stresses
 /// (3x3, as `TrialState::cauchy`). Present only when the scene asks for stress recovery; see
 /// [`crate::recovery`] and `stages/recovery.rs`.

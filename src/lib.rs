@@ -11,6 +11,7 @@
 //! * ECS: [`components`], [`resources`], [`stages`] (systems and schedules).
 //! * Driver and I/O: [`simulation`], [`scene`] (Rhai), [`output`] (VTK), [`summary`],
 //!   [`study`] (parameter sweeps, tables and charts).
+//! * Extension: [`plugin`] (your own systems at named hooks of the schedules).
 
 pub mod analytic;
 pub mod basis;
@@ -20,6 +21,7 @@ pub mod ghost;
 pub mod material;
 pub mod mechanics;
 pub mod output;
+pub mod plugin;
 pub mod recovery;
 pub mod resources;
 pub mod scene;

@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 
 use impm::scene::{load_scene, scene_parameters};
 use impm::simulation::{default_output_dir, effects_of, run_scene};
+use impm::stages::explain_scene;
 use impm::study::{RunOutcome, StudyEvent, StudyPlan, Sweep, default_study_dir, run_study};
 use impm::summary::StepRecord;
 
@@ -61,6 +62,10 @@ enum Command {
         scene: PathBuf,
         #[arg(long = "set", value_name = "NAME=VALUE")]
         set: Vec<String>,
+        /// Also print the stages and systems that will run for this scene (and the optional
+        /// ones it leaves out), read from the built schedules.
+        #[arg(long)]
+        explain: bool,
     },
 }
 
@@ -176,7 +181,11 @@ fn run(cli: Cli) -> Result<(), String> {
             );
             Ok(())
         }
-        Command::Check { scene, set } => {
+        Command::Check {
+            scene,
+            set,
+            explain,
+        } => {
             let overrides = parse_overrides(&set)?;
             let parameters = scene_parameters(&scene).map_err(|e| e.to_string())?;
             let spec = load_scene(&scene, &overrides).map_err(|e| e.to_string())?;
@@ -185,7 +194,6 @@ fn run(cli: Cli) -> Result<(), String> {
             for p in &parameters {
                 println!("  {:<14} = {:<30} (line {})", p.name, p.default, p.line);
             }
-            let effects = effects_of(&spec);
             println!(
                 "{}D grid {:?} cells, basis {}, {} bodies, {} points, {} constraints, {} load steps",
                 spec.dim(),
@@ -197,15 +205,50 @@ fn run(cli: Cli) -> Result<(), String> {
                 spec.load_factors.len()
             );
             println!(
-                "effects: body force {}, point loads {} ({} loaded points), prescribed displacements {}",
-                effects.body_force,
-                effects.point_loads,
+                "loads: {} loaded points, {} traction points; load factors {}",
                 spec.point_loads.len(),
-                effects.prescribed_displacements
+                spec.tractions.len(),
+                describe_factors(&spec.load_factors)
             );
+            if explain {
+                print!("{}", explain_scene(&spec)?);
+            } else {
+                let used: Vec<&str> = effects_of(&spec)
+                    .list()
+                    .iter()
+                    .filter(|(_, used)| *used)
+                    .map(|(name, _)| *name)
+                    .collect();
+                println!(
+                    "effects: {} (--explain lists the systems)",
+                    if used.is_empty() {
+                        "none".to_string()
+                    } else {
+                        used.join(", ")
+                    }
+                );
+            }
             Ok(())
         }
     }
+}
+
+/// The load factors in short: all of them if few, else first, last, extremes.
+fn describe_factors(factors: &[f64]) -> String {
+    if factors.len() <= 8 {
+        return format!("{factors:?}");
+    }
+    let (lo, hi) = factors
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &f| {
+            (lo.min(f), hi.max(f))
+        });
+    format!(
+        "{} .. {} ({} steps, range [{lo}, {hi}])",
+        factors[0],
+        factors[factors.len() - 1],
+        factors.len()
+    )
 }
 
 /// A one-line progress display on a terminal; silent otherwise.

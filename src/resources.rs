@@ -164,6 +164,14 @@ pub enum SolverError {
     },
     /// Writing results failed.
     Output { step: usize, why: String },
+    /// A traction point left the grid, or has no grid node with material points in its
+    /// support, so its force cannot act on the body.
+    TractionPoint {
+        point: u32,
+        position: Vec<f64>,
+        step: usize,
+        why: &'static str,
+    },
 }
 
 impl std::fmt::Display for SolverError {
@@ -232,6 +240,15 @@ impl std::fmt::Display for SolverError {
             SolverError::Output { step, why } => {
                 write!(f, "load step {step}: writing output failed: {why}")
             }
+            SolverError::TractionPoint {
+                point,
+                position,
+                step,
+                why,
+            } => write!(
+                f,
+                "load step {step}: traction point {point} at {position:?} {why}"
+            ),
         }
     }
 }

@@ -19,13 +19,11 @@ use crate::basis::{BasisKind, GridBasis};
 use crate::components::*;
 use crate::material::Hencky;
 use crate::mechanics::TrialState;
+use crate::plugin::Plugin;
 use crate::resources::*;
 use crate::scene::{AnalyticSpec, PointSeed, SceneSpec};
 use crate::stages::output::OutputPlan;
-use crate::stages::{
-    Effects, LoadStep as LoadStepSchedule, WriteOutput, load_step_schedule, newton_schedule,
-    output_schedule,
-};
+use crate::stages::{Effects, LoadStep as LoadStepSchedule, WriteOutput, add_schedules};
 use crate::summary::{StepRecord, SubstepRecord, Summary};
 
 /// Why a simulation could not be built from a scene.
@@ -59,6 +57,10 @@ pub fn effects_of(spec: &SceneSpec) -> Effects {
             .point_loads
             .iter()
             .any(|load| load.force.iter().any(|&c| c != 0.0)),
+        tractions: spec
+            .tractions
+            .iter()
+            .any(|point| point.traction.iter().any(|&c| c != 0.0)),
         prescribed_displacements: spec.constraints.iter().any(|c| c.value != 0.0),
         ghost_penalty: spec.solver.ghost_penalty > 0.0,
         stress_recovery: spec.recovery.is_some(),
@@ -184,10 +186,17 @@ impl<const D: usize> Simulation<D> {
         if id == 0 {
             return Err(BuildError("the scene has no material points".into()));
         }
-        insert_point_loads::<D>(&mut world, spec)?;
+        let point_entities = point_entities(&mut world, spec.point_count());
+        insert_point_loads::<D>(&mut world, spec, &point_entities)?;
+        spawn_traction_points::<D>(&mut world, spec, &point_entities)?;
 
         // Resources.
         let effects = effects_of(spec);
+        if effects.fem_mesh && effects.tractions {
+            return Err(BuildError(
+                "tractions act through the background grid's basis; a finite-element mesh (basis fem) has none".into(),
+            ));
+        }
         if effects.fem_mesh && effects.ghost_penalty {
             return Err(BuildError(
                 "the ghost penalty stabilises nearly empty MPM cells; a finite-element mesh (basis fem) has none".into(),
@@ -221,12 +230,11 @@ impl<const D: usize> Simulation<D> {
         }
         world.insert_resource(RunStatus::default());
         world.insert_resource(StageClock::default());
-        world.insert_resource(OutputPlan::new(
+        world.insert_resource(OutputPlan::from_spec(
             out_dir.to_path_buf(),
-            spec.output.every,
+            &spec.output,
             spec.load_factors.len(),
         ));
-        world.add_schedule(load_step_schedule::<D>(effects));
         if effects.ghost_penalty {
             let modulus = spec
                 .materials
@@ -238,8 +246,7 @@ impl<const D: usize> Simulation<D> {
                 faces: Vec::new(),
             });
         }
-        world.add_schedule(newton_schedule::<D>(effects));
-        world.add_schedule(output_schedule::<D>(effects));
+        add_schedules::<D>(&mut world, effects);
 
         let summary = Summary::new(
             spec,
@@ -468,18 +475,21 @@ impl<const D: usize> Simulation<D> {
     }
 }
 
+/// The entity of every material point, indexed by `PointId`.
+fn point_entities(world: &mut World, count: usize) -> Vec<Entity> {
+    let mut entities = vec![Entity::PLACEHOLDER; count];
+    for (entity, id) in world.query::<(Entity, &PointId)>().iter(world) {
+        entities[id.0 as usize] = entity;
+    }
+    entities
+}
+
 /// Gives the points named by the scene's point loads a [`PointLoad`] component.
 fn insert_point_loads<const D: usize>(
     world: &mut World,
     spec: &SceneSpec,
+    entities: &[Entity],
 ) -> Result<(), BuildError> {
-    if spec.point_loads.is_empty() {
-        return Ok(());
-    }
-    let mut entities = vec![Entity::PLACEHOLDER; spec.point_count()];
-    for (entity, id) in world.query::<(Entity, &PointId)>().iter(world) {
-        entities[id.0 as usize] = entity;
-    }
     for load in &spec.point_loads {
         let entity = *entities.get(load.point).ok_or_else(|| {
             BuildError(format!(
@@ -496,6 +506,46 @@ fn insert_point_loads<const D: usize>(
         let force = SVector::<f64, D>::from_fn(|a, _| load.force[a]);
         world.entity_mut(entity).insert(PointLoad(force));
     }
+    Ok(())
+}
+
+/// Spawns the scene's traction points (entities with a [`TractionPoint`] only).
+fn spawn_traction_points<const D: usize>(
+    world: &mut World,
+    spec: &SceneSpec,
+    entities: &[Entity],
+) -> Result<(), BuildError> {
+    let vector = |values: &[f64], what: &str| {
+        if values.len() != D {
+            return Err(BuildError(format!(
+                "traction point {what} with {} components in {D}D",
+                values.len()
+            )));
+        }
+        Ok(SVector::<f64, D>::from_fn(|a, _| values[a]))
+    };
+    let mut batch = Vec::with_capacity(spec.tractions.len());
+    for (id, point) in spec.tractions.iter().enumerate() {
+        let position = vector(&point.position, "position")?;
+        let host = *entities.get(point.host).ok_or_else(|| {
+            BuildError(format!("traction point host {} does not exist", point.host))
+        })?;
+        let host_position = world
+            .get::<ReferencePosition<D>>(host)
+            .ok_or_else(|| BuildError("traction point host is not a material point".into()))?
+            .0;
+        batch.push(TractionPoint {
+            id: id as u32,
+            position,
+            reference_position: position,
+            host,
+            offset: position - host_position,
+            area: point.area,
+            traction: vector(&point.traction, "traction")?,
+            support: Vec::new(),
+        });
+    }
+    world.spawn_batch(batch);
     Ok(())
 }
 
@@ -531,15 +581,14 @@ pub fn basis_name(kind: BasisKind) -> String {
     }
 }
 
-/// Runs a whole scene in dimension `spec.dim()`, writing to `out_dir`.
+/// Runs a whole scene in dimension `spec.dim()`, writing to `out_dir` (with a plugin:
+/// [`crate::plugin::run_scene_with`]).
 pub fn run_scene(
     spec: &SceneSpec,
     out_dir: &Path,
     on_step: impl FnMut(&StepRecord),
 ) -> Result<Summary, RunError> {
-    let (summary, result) = run_scene_keeping_summary(spec, out_dir, on_step);
-    result?;
-    summary.ok_or_else(|| RunError::Build(BuildError("the run produced no summary".into())))
+    crate::plugin::run_scene_with(spec, out_dir, &(), on_step)
 }
 
 /// Like [`run_scene`], but also returns the summary of a run that failed after it was built
@@ -549,10 +598,20 @@ pub fn run_scene_keeping_summary(
     out_dir: &Path,
     on_step: impl FnMut(&StepRecord),
 ) -> (Option<Summary>, Result<(), RunError>) {
+    run_scene_keeping_summary_with(spec, out_dir, &(), on_step)
+}
+
+/// [`run_scene_keeping_summary`] with a plugin (see [`crate::plugin`]).
+pub fn run_scene_keeping_summary_with(
+    spec: &SceneSpec,
+    out_dir: &Path,
+    plugin: &impl Plugin,
+    on_step: impl FnMut(&StepRecord),
+) -> (Option<Summary>, Result<(), RunError>) {
     match spec.dim() {
-        1 => run_in::<1>(spec, out_dir, on_step),
-        2 => run_in::<2>(spec, out_dir, on_step),
-        3 => run_in::<3>(spec, out_dir, on_step),
+        1 => run_in::<1>(spec, out_dir, plugin, on_step),
+        2 => run_in::<2>(spec, out_dir, plugin, on_step),
+        3 => run_in::<3>(spec, out_dir, plugin, on_step),
         d => (
             None,
             Err(RunError::Build(BuildError(format!(
@@ -565,12 +624,16 @@ pub fn run_scene_keeping_summary(
 fn run_in<const D: usize>(
     spec: &SceneSpec,
     out_dir: &Path,
+    plugin: &impl Plugin,
     on_step: impl FnMut(&StepRecord),
 ) -> (Option<Summary>, Result<(), RunError>) {
     let mut sim = match Simulation::<D>::new(spec, out_dir) {
         Ok(sim) => sim,
         Err(e) => return (None, Err(RunError::Build(e))),
     };
+    if let Err(e) = sim.add_plugin(plugin) {
+        return (None, Err(RunError::Build(e)));
+    }
     let result = sim
         .write_initial_state()
         .and_then(|()| sim.run(on_step))

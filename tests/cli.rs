@@ -184,6 +184,26 @@ fn a_point_leaving_the_grid_is_reported_not_a_panic() {
 }
 
 #[test]
+fn check_explain_lists_the_systems_of_the_scene() {
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/beam_point_load.rhai");
+    let out = impm(&["check", scene.to_str().unwrap(), "--explain"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("force          = -0.2"), "{text}");
+    assert!(text.contains("  point loads                yes"), "{text}");
+    let scheduled = text.split("left out").next().unwrap();
+    assert!(
+        scheduled.contains("Loads                loads::apply_point_loads"),
+        "{text}"
+    );
+    assert!(!scheduled.contains("apply_body_force"), "{text}");
+    assert!(!scheduled.contains("tractions::"), "{text}");
+    let left_out = text.split("left out").nth(1).unwrap();
+    assert!(left_out.contains("loads::apply_body_force"), "{text}");
+    assert!(left_out.contains("tractions::apply_tractions"), "{text}");
+}
+
+#[test]
 fn a_cpdi_domain_leaving_the_grid_names_the_point_and_corner() {
     let dir = temp("cpdi-leave");
     // A gently rising column with CPDI: the top point's domain reaches the top of the grid at

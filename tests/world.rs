@@ -77,6 +77,7 @@ fn block_2d(cells: [usize; 2], body_cells: [usize; 2], basis: BasisKind) -> Scen
         body_force: Some(vec![0.0, -10.0]),
         constraints,
         point_loads: vec![],
+        tractions: vec![],
         load_factors: vec![0.5, 1.0],
         solver: SolverSpec::default(),
         output: OutputSpec::default(),

@@ -12,11 +12,15 @@ use rhai::{AST, Dynamic, Engine, FnPtr, Position};
 
 use super::error::ScriptError;
 use super::fem_seeding::{PartialCell, seed_element_points};
-use super::options::describe;
-use super::seeding::{Placement, first_point_outside_grid, seed_box, seed_points_placed};
+use super::geometry::point_in_polygon;
+use super::options::{describe, number};
+use super::seeding::{
+    Placement, first_point_outside_grid, nearest_points, seed_boundary, seed_box,
+    seed_points_placed,
+};
 use super::{
     AnalyticSpec, BodySpec, GridSpec, MaterialSpec, NodeConstraint, OutputSpec, PointLoadSpec,
-    PointSeed, RecoverySpec, SceneSpec, SolverSpec,
+    PointSeed, RecoverySpec, SceneSpec, SolverSpec, TractionPointSpec,
 };
 use crate::basis::{BasisKind, control_points_1d};
 
@@ -53,11 +57,14 @@ pub(crate) struct MaterialHandle {
     pub name: String,
 }
 
-/// Where a body is: returned to the script by `box(...)`, or a script predicate on positions.
+/// Where a body is: returned to the script by `box(...)` or `polygon(...)`, or a script
+/// predicate on positions.
 #[derive(Clone, Debug)]
 pub(crate) enum Region {
     /// Axis-aligned box, bounds included.
     Box { lower: Vec<f64>, upper: Vec<f64> },
+    /// A 2D polygon (even-odd rule, see `geometry::point_in_polygon`).
+    Polygon(Vec<[f64; 2]>),
     /// A script function `|x| -> bool` of the position array.
     Predicate(FnPtr),
 }
@@ -66,7 +73,39 @@ impl Region {
     fn describe(&self) -> String {
         match self {
             Region::Box { lower, upper } => format!("box({lower:?}, {upper:?})"),
+            Region::Polygon(vertices) => format!("polygon({vertices:?})"),
             Region::Predicate(_) => "region predicate".to_string(),
+        }
+    }
+
+    /// The bounding box of a shape (`None` for a predicate).
+    fn bounds(&self) -> Option<(Vec<f64>, Vec<f64>)> {
+        match self {
+            Region::Box { lower, upper } => Some((lower.clone(), upper.clone())),
+            Region::Polygon(vertices) => Some(
+                (0..2)
+                    .map(|axis| {
+                        vertices
+                            .iter()
+                            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+                                (lo.min(v[axis]), hi.max(v[axis]))
+                            })
+                    })
+                    .unzip(),
+            ),
+            Region::Predicate(_) => None,
+        }
+    }
+
+    /// Whether a shape contains `x` (false for a predicate, which is called instead).
+    fn contains(&self, x: &[f64]) -> bool {
+        match self {
+            Region::Box { lower, upper } => x
+                .iter()
+                .zip(lower.iter().zip(upper))
+                .all(|(&c, (&lo, &hi))| lo <= c && c <= hi),
+            Region::Polygon(vertices) => point_in_polygon([x[0], x[1]], vertices),
+            Region::Predicate(_) => false,
         }
     }
 }
@@ -93,6 +132,7 @@ pub(crate) struct ConstraintDeclaration {
     /// The API function that declared it, for messages.
     pub function: &'static str,
     pub selector: FnPtr,
+    /// The constrained components; empty = all of them (full fixity, `fix(|x| ..)`).
     pub components: Vec<usize>,
     /// One prescribed displacement (at load factor 1) per component.
     pub values: Vec<f64>,
@@ -117,6 +157,22 @@ pub(crate) struct PointLoadDeclaration {
     pub share: PointLoadShare,
 }
 
+/// The load factors of the steps: given (`load_steps`, `load_factors([..])`, `load_phases`) or
+/// computed by a script function of the step number (`load_factors(n, |k| ..)`).
+#[derive(Clone, Debug)]
+pub(crate) enum LoadSchedule {
+    Factors(Vec<f64>),
+    Function { steps: usize, function: FnPtr },
+}
+
+/// `traction(...)`: a traction on a flat piece of boundary given by its corners.
+#[derive(Clone, Debug)]
+pub(crate) struct TractionDeclaration {
+    pub corners: Vec<Vec<f64>>,
+    pub traction: Vec<f64>,
+    pub per_cell: usize,
+}
+
 #[derive(Clone, Debug)]
 pub(crate) struct ColumnDeclaration {
     pub axis: usize,
@@ -134,7 +190,8 @@ pub(crate) struct SceneBuilder {
     pub body_force: Option<Located<Vec<f64>>>,
     pub constraints: Vec<Located<ConstraintDeclaration>>,
     pub point_loads: Vec<Located<PointLoadDeclaration>>,
-    pub load_factors: Option<Located<Vec<f64>>>,
+    pub tractions: Vec<Located<TractionDeclaration>>,
+    pub load_schedule: Option<Located<LoadSchedule>>,
     pub solver: Option<Located<SolverSpec>>,
     pub output: Option<Located<OutputSpec>>,
     pub analytic: Option<Located<ColumnDeclaration>>,
@@ -201,12 +258,22 @@ impl SceneBuilder {
                 "solver(...): ghost_penalty stabilises nearly empty MPM cells; basis \"fem\" has a body-fitted mesh without such cells (remove ghost_penalty)",
             ));
         }
+        if let Some(traction) = self.tractions.first()
+            && grid.value.basis == BasisKind::Fem
+        {
+            return Err(ScriptError::at(
+                traction.at,
+                "traction(...): tractions are applied through the background grid's basis; basis \"fem\" has a body-fitted mesh instead (use point_load_total on the boundary points)",
+            ));
+        }
+        let tractions = resolve_tractions(&self.tractions, &grid, &bodies)?;
 
-        let load_factors = self.load_factors.ok_or_else(|| {
+        let load_schedule = self.load_schedule.ok_or_else(|| {
             ScriptError::unlocated(
-                "the scene has no load steps: call load_steps(n) or load_factors([..])",
+                "the scene has no load steps: call load_steps(n), load_factors([..]), load_factors(n, |k| ..) or load_phases([..])",
             )
         })?;
+        let load_factors = resolve_load_schedule(&load_schedule, engine, ast)?;
 
         let analytic = match &self.analytic {
             None => None,
@@ -244,7 +311,8 @@ impl SceneBuilder {
             body_force: self.body_force.map(|body_force| body_force.value),
             constraints,
             point_loads,
-            load_factors: load_factors.value,
+            tractions,
+            load_factors,
             solver: self.solver.map(|solver| solver.value).unwrap_or_default(),
             output: self.output.map(|output| output.value).unwrap_or_default(),
             analytic,
@@ -301,6 +369,41 @@ pub(crate) fn checked_node_count(grid: &GridSpec) -> Option<usize> {
             count.checked_mul(cells.checked_add(order)?)
         })
         .filter(|&count| count <= MAX_NODES)
+}
+
+/// The load factors of a schedule; a function is called for k = 1..=steps and must return a
+/// finite number each time. k is passed as a float (1.0, 2.0, ...) so that `k / n` divides as
+/// the user means even when n is an integer (Rhai divides integers by integers exactly).
+fn resolve_load_schedule(
+    schedule: &Located<LoadSchedule>,
+    engine: &Engine,
+    ast: &AST,
+) -> Result<Vec<f64>, ScriptError> {
+    match &schedule.value {
+        LoadSchedule::Factors(factors) => Ok(factors.clone()),
+        LoadSchedule::Function { steps, function } => {
+            let context = format!(
+                "load factor function of load_factors(...){}",
+                schedule.line_note()
+            );
+            (1..=*steps)
+                .map(|step| {
+                    let value = function
+                        .call::<Dynamic>(engine, ast, (step as rhai::FLOAT,))
+                        .map_err(|error| {
+                            let mut error = ScriptError::from_eval(error).with_context(&context);
+                            if error.position.is_none() {
+                                error.position = schedule.at;
+                            }
+                            error
+                        })?;
+                    number(&value, &format!("the {context}")).map_err(|message| {
+                        ScriptError::at(schedule.at, format!("{message} for step k = {step}"))
+                    })
+                })
+                .collect()
+        }
+    }
 }
 
 /// Calls a script predicate on a position; it must return a boolean.
@@ -372,11 +475,12 @@ fn resolve_body(
     }
     let grid_bounds = format!("[{:?} .. {:?}]", grid.value.lower, grid.value.upper);
     let points = match &declaration.region {
-        Region::Box { lower, upper } => {
+        shape @ (Region::Box { .. } | Region::Polygon(_)) => {
+            let (lower, upper) = shape.bounds().unwrap_or_default();
             if lower.len() != dim {
                 return fail(format!(
                     "{} has {} coordinates but the grid is {dim}-dimensional",
-                    declaration.region.describe(),
+                    shape.describe(),
                     lower.len()
                 ));
             }
@@ -388,26 +492,25 @@ fn resolve_body(
             if outside {
                 return fail(format!(
                     "region {} is not inside the grid {grid_bounds}; material points must lie in the grid",
-                    declaration.region.describe()
+                    shape.describe()
                 ));
             }
-            if grid.value.basis == BasisKind::Fem {
-                let inside = |x: &[f64]| {
-                    Ok::<_, ScriptError>(
-                        x.iter()
-                            .zip(lower.iter().zip(upper))
-                            .all(|(&c, (&lo, &hi))| lo <= c && c <= hi),
-                    )
-                };
-                seed_element_points(&grid.value, &points_per_cell, inside)?
-            } else {
-                Ok(seed_box(
+            match shape {
+                Region::Polygon(_) => {
+                    let inside = |x: &[f64]| Ok::<_, ScriptError>(shape.contains(x));
+                    seed_body(&grid.value, &points_per_cell, declaration.placement, inside)?
+                }
+                _ if grid.value.basis == BasisKind::Fem => {
+                    let inside = |x: &[f64]| Ok::<_, ScriptError>(shape.contains(x));
+                    seed_element_points(&grid.value, &points_per_cell, inside)?
+                }
+                _ => Ok(seed_box(
                     &grid.value,
                     &points_per_cell,
                     declaration.placement,
-                    lower,
-                    upper,
-                ))
+                    &lower,
+                    &upper,
+                )),
             }
         }
         Region::Predicate(predicate) => {
@@ -478,7 +581,11 @@ fn resolve_constraints(
     // (node, component) -> (value, line of the declaring call)
     let mut prescribed: BTreeMap<(usize, usize), (f64, Position)> = BTreeMap::new();
     for declaration in declarations {
-        let constraint = &declaration.value;
+        let mut constraint = declaration.value.clone();
+        if constraint.components.is_empty() {
+            constraint.components = (0..dim).collect();
+            constraint.values = vec![0.0; dim];
+        }
         let function = constraint.function;
         if let Some(&component) = constraint.components.iter().find(|&&c| c >= dim) {
             return Err(ScriptError::at(
@@ -617,6 +724,107 @@ fn resolve_point_loads(
         .into_iter()
         .map(|(point, force)| PointLoadSpec { point, force })
         .collect())
+}
+
+/// Traction points of every `traction(...)`: the corners must match the grid's dimension and
+/// lie in the grid (so every point does).
+fn resolve_tractions(
+    declarations: &[Located<TractionDeclaration>],
+    grid: &Located<GridSpec>,
+    bodies: &[BodySpec],
+) -> Result<Vec<TractionPointSpec>, ScriptError> {
+    let dim = grid.value.dim();
+    let material_points: Vec<&[f64]> = bodies
+        .iter()
+        .flat_map(|body| &body.points)
+        .map(|point| point.position.as_slice())
+        .collect();
+    let mut points = Vec::new();
+    for declaration in declarations {
+        let traction = &declaration.value;
+        let fail = |message: String| {
+            Err(ScriptError::at(
+                declaration.at,
+                format!("traction(...): {message}"),
+            ))
+        };
+        let shape = [
+            "the end point of the bar",
+            "the two ends of a segment",
+            "three corners of a parallelogram (corner, corner + edge 1, corner + edge 2)",
+        ];
+        if traction.corners.len() != dim {
+            return fail(format!(
+                "option 'on' has {} points but the grid is {dim}-dimensional: give {dim}, {}",
+                traction.corners.len(),
+                shape[dim - 1]
+            ));
+        }
+        if let Some(corner) = traction.corners.iter().find(|corner| corner.len() != dim) {
+            return fail(format!(
+                "the point {corner:?} of option 'on' has {} coordinates, the grid is {dim}-dimensional",
+                corner.len()
+            ));
+        }
+        if traction.traction.len() != dim {
+            return fail(format!(
+                "option 'traction' has {} components but the grid is {dim}-dimensional",
+                traction.traction.len()
+            ));
+        }
+        let (lower, upper) = (&grid.value.lower, &grid.value.upper);
+        if let Some(corner) = traction.corners.iter().find(|corner| {
+            (0..dim).any(|axis| corner[axis] < lower[axis] || corner[axis] > upper[axis])
+        }) {
+            return fail(format!(
+                "the point {corner:?} is outside the grid [{lower:?} .. {upper:?}]"
+            ));
+        }
+        if dim == 3 {
+            // the fourth corner (corner 1 + corner 2 − corner 0) must be in the grid too
+            let c = &traction.corners;
+            let fourth: Vec<f64> = (0..3).map(|a| c[1][a] + c[2][a] - c[0][a]).collect();
+            if (0..dim).any(|axis| fourth[axis] < lower[axis] || fourth[axis] > upper[axis]) {
+                return fail(format!(
+                    "the parallelogram's fourth corner {fourth:?} is outside the grid [{lower:?} .. {upper:?}]"
+                ));
+            }
+        }
+        let seeded = match seed_boundary(
+            &grid.value,
+            &traction.corners,
+            traction.per_cell,
+            MAX_SEED_CANDIDATES,
+        ) {
+            Ok(seeded) => seeded,
+            Err(count) => {
+                return fail(format!(
+                    "{count} traction points exceed the limit of {MAX_SEED_CANDIDATES}; lower per_cell"
+                ));
+            }
+        };
+        if seeded.iter().all(|(_, area)| *area == 0.0) {
+            return fail(
+                "the boundary piece has zero length or area (repeated or collinear points)"
+                    .to_string(),
+            );
+        }
+        let positions: Vec<Vec<f64>> = seeded
+            .iter()
+            .map(|(position, _)| position.clone())
+            .collect();
+        let hosts = nearest_points(&grid.value, &material_points, &positions);
+        for ((position, area), host) in seeded.into_iter().zip(hosts) {
+            points.push(TractionPointSpec {
+                position,
+                area,
+                traction: traction.traction.clone(),
+                // bodies are resolved first and have points
+                host: host.unwrap_or_default(),
+            });
+        }
+    }
+    Ok(points)
 }
 
 #[cfg(test)]

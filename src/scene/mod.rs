@@ -29,17 +29,19 @@
 mod builder;
 mod error;
 mod fem_seeding;
+mod geometry;
 mod options;
 mod params;
 mod rhai_api;
 mod seeding;
 
 pub use error::SceneError;
+pub use geometry::{point_in_polygon, polygon_double_area};
 pub use params::Parameter;
 pub use rhai_api::{load_scene, scene_parameters};
 pub use seeding::{
-    Placement, first_point_outside_grid, gauss_legendre_unit, seed_box, seed_points,
-    seed_points_placed,
+    Placement, first_point_outside_grid, gauss_legendre_unit, nearest_points, seed_boundary,
+    seed_box, seed_points, seed_points_placed,
 };
 
 use crate::basis::BasisKind;
@@ -109,6 +111,19 @@ pub struct PointLoadSpec {
     pub force: Vec<f64>,
 }
 
+/// A quadrature point of a surface traction (paper eqs. 1 and 9: the Neumann term
+/// ∫_ΓN h N_i dΓ): a piece of boundary of reference area (length in 2D, 1 in 1D) `area` at
+/// `position`, carrying the traction `traction` (force per unit reference area at load factor
+/// 1). It adds λ h A N_i(x_s) to the external force and moves with the material: with the
+/// deformation of its host, the nearest material point (`host`, a global point index).
+#[derive(Clone, Debug, PartialEq)]
+pub struct TractionPointSpec {
+    pub position: Vec<f64>,
+    pub area: f64,
+    pub traction: Vec<f64>,
+    pub host: usize,
+}
+
 /// Newton solver controls.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SolverSpec {
@@ -132,16 +147,27 @@ impl Default for SolverSpec {
     }
 }
 
-/// Which steps are written.
+/// Which steps and fields are written.
 #[derive(Clone, Debug, PartialEq)]
 pub struct OutputSpec {
     /// Write every n-th load step (the initial state and the last step are always written).
     pub every: usize,
+    /// If set, write exactly these load steps (and the initial state) instead.
+    pub steps: Option<Vec<usize>>,
+    /// If set, the particle fields written (names from `stages::output::PARTICLE_FIELDS`).
+    pub fields: Option<Vec<String>>,
+    /// Write the grid and node files (`grid_*.vtu`, `nodes_*.vtu`).
+    pub grid: bool,
 }
 
 impl Default for OutputSpec {
     fn default() -> Self {
-        Self { every: 1 }
+        Self {
+            every: 1,
+            steps: None,
+            fields: None,
+            grid: true,
+        }
     }
 }
 
@@ -190,6 +216,8 @@ pub struct SceneSpec {
     pub constraints: Vec<NodeConstraint>,
     /// Forces on single material points (summed per point), at load factor 1.
     pub point_loads: Vec<PointLoadSpec>,
+    /// Traction points of all `traction(...)` declarations.
+    pub tractions: Vec<TractionPointSpec>,
     /// Load factor at the end of each load step, in order (`len()` = number of steps).
     pub load_factors: Vec<f64>,
     pub solver: SolverSpec,

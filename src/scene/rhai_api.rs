@@ -1,7 +1,7 @@
 //! The Rhai front end: runs a scene script with the scene API registered and returns the
 //! resolved `SceneSpec`.
 //!
-//! # Scene API (brief reference)
+//! # Scene API (brief reference; the full one is `docs/scene-api.md`)
 //!
 //! Numbers may be written as integers or floats everywhere (`E: 1000000` and `E: 1e6` are the
 //! same); counts must be whole numbers. Option maps accept only the keys listed (a misspelt key
@@ -13,15 +13,20 @@
 //! | `grid(#{ lower: [..], upper: [..], cells: [..], basis: "linear" \| "bspline" \| "gimp" \| "cpdi" \| "fem", order: q, gimp: "stretched" \| "fixed" })` | background grid; the dimension (1, 2, 3) is the array length. `basis`: `"linear"` standard MPM (hat functions), `"bspline"` B-splines of `order` q >= 1 (required), `"gimp"` GIMP (hats averaged over the point's box domain), `"cpdi"` CPDI1 (hats averaged from the corners of the point's domain carried by F), `"fem"` linear finite elements on the body-fitted mesh of grid cells (see `fem`). `gimp` (GIMP only, default `"stretched"`): `"stretched"` domain half-lengths follow the diagonal of F (cpGIMP), `"fixed"` domains keep their initial size (uGIMP). `order` is ignored except for B-splines. A point's domain is the box of its seeding share (`h / ppc` per axis); GIMP clips domains to the grid, CPDI stops with an error naming the point when a domain corner leaves it. Call once. |
 //! | `material(#{ name: "..", E: .., nu: .., density: .. })` | linear-elastic Hencky material (E > 0, -1 < nu < 0.5, density > 0); returns a handle |
 //! | `box([lo..], [hi..])` | an axis-aligned box region (bounds included) |
-//! | `body(#{ name: "..", material: m, region: box(..) or \|x\| pred, ppc: n or [n0, n1, ..], placement: "uniform" \| "gauss" })` | material points: `ppc` per cell per direction at cell-local `(i + 1/2) / ppc`, kept where the region holds; volume = cell volume / points per cell. With `placement: "gauss"` (optional) the points sit at the Gauss–Legendre points of each cell with volumes from the Gauss weights. The region must lie inside the grid. With `basis: "fem"` the region must be made of whole grid cells (the elements) and `ppc` is the number of Gauss points per direction. |
+//! | `polygon([[x, y], ..])` | a 2D polygon region (at least 3 vertices, any orientation, even-odd rule) |
+//! | `body(#{ name: "..", material: m, region: box(..), polygon(..) or \|x\| pred, ppc: n or [n0, n1, ..], placement: "uniform" \| "gauss" })` | material points: `ppc` per cell per direction at cell-local `(i + 1/2) / ppc`, kept where the region holds; volume = cell volume / points per cell. With `placement: "gauss"` (optional) the points sit at the Gauss–Legendre points of each cell with volumes from the Gauss weights. The region must lie inside the grid. With `basis: "fem"` the region must be made of whole grid cells (the elements) and `ppc` is the number of Gauss points per direction. |
 //! | `body_force([..])` | body force per unit mass at load factor 1 (one entry per axis) |
-//! | `fix(\|x\| pred, [components])` | fix the listed displacement components (0-based axes) of every grid node whose position satisfies `pred` |
+//! | `fix(\|x\| pred, [components])` | fix the listed displacement components (0-based axes) of every grid node whose position satisfies `pred` (a roller: one component) |
+//! | `fix(\|x\| pred)` | full fixity: every component |
 //! | `displace(\|x\| pred, [components], [values])` | prescribe displacements (values at load factor 1, ramped with the load factor) |
 //! | `point_load(\|x\| pred, [force])` | a force (at load factor 1) on every material point whose reference position satisfies `pred` |
 //! | `point_load_total(\|x\| pred, [force])` | a total force shared by the selected points in proportion to their volume |
+//! | `traction(#{ on: [corners..], traction: [h..], per_cell: n })` | surface traction h (force per unit reference area at load factor 1) on a flat piece of boundary: 1D `on: [[x]]`, 2D a segment `on: [[x0, y0], [x1, y1]]`, 3D a parallelogram `on: [c0, c1, c2]` (edges c1 − c0, c2 − c0); `per_cell` (default 2) traction points per cell crossed |
 //! | `load_steps(n)` / `load_factors([..])` | load schedule: factors k/n, k = 1..n, or an explicit list |
+//! | `load_factors(n, \|k\| ..)` | n steps whose factors a function of the step number k = 1..n gives (k is a float, so `k / n` is not an integer division) |
+//! | `load_phases([#{ to: λ, steps: n }, ..])` | phases from λ = 0: each goes linearly to `to` in `steps` equal steps (loading, holding: same `to`, unloading) |
 //! | `solver(#{ tolerance: .., max_iterations: .., max_step_cuts: .., ghost_penalty: .. })` | Newton controls (optional; defaults 1e-9, 30, 8) |
-//! | `output(#{ every: n })` | write every n-th step (optional) |
+//! | `output(#{ every: n, steps: [..], fields: [..], grid: bool })` | optional: write every n-th step or the listed steps (plus the initial state; `every` also the last step), only the named particle fields, with or without the grid and node files |
 //! | `analytic_column(#{ axis: a, height: L0, material: m, body_force: b })` | declare the self-weight column solution (paper eqs. 11-14) for error reports |
 //! | `stress_recovery(#{ order: m, radius: r })` | moving-least-squares stress recovery after every step (optional; defaults `order: 2`, `radius: 2.5` cell sizes): writes `recovered_stress` beside `cauchy_stress` and reports `error_recovered` |
 //!
@@ -36,18 +41,20 @@ use std::sync::{Arc, Mutex, PoisonError};
 use rhai::{Dynamic, Engine, EvalAltResult, NativeCallContext, Position};
 
 use super::builder::{
-    BodyDeclaration, ColumnDeclaration, ConstraintDeclaration, Located, MAX_NODES, MaterialHandle,
-    PointLoadDeclaration, PointLoadShare, PointsPerCell, Region, SceneBuilder, checked_node_count,
-    ensure_unset,
+    BodyDeclaration, ColumnDeclaration, ConstraintDeclaration, LoadSchedule, Located, MAX_NODES,
+    MaterialHandle, PointLoadDeclaration, PointLoadShare, PointsPerCell, Region, SceneBuilder,
+    TractionDeclaration, checked_node_count, ensure_unset,
 };
 use super::error::{SceneError, ScriptError};
+use super::geometry::polygon_double_area;
 use super::options::{
-    OptionMap, describe, function, number, numbers, string, whole_number, whole_numbers,
+    OptionMap, array_of, describe, function, number, numbers, string, whole_number, whole_numbers,
 };
 use super::params::{Parameter, apply_overrides, find_parameters};
 use super::seeding::Placement;
 use super::{GridSpec, MaterialSpec, OutputSpec, RecoverySpec, SceneSpec, SolverSpec};
 use crate::basis::{BasisKind, GimpDomain};
+use crate::stages::output::PARTICLE_FIELDS;
 
 /// The scene API functions and how they are called (used in "wrong arguments" messages).
 pub(crate) const API_SIGNATURES: &[(&str, &str)] = &[
@@ -60,12 +67,16 @@ pub(crate) const API_SIGNATURES: &[(&str, &str)] = &[
         "material(#{ name: \"..\", E: .., nu: .., density: .. })",
     ),
     ("box", "box([lower..], [upper..])"),
+    ("polygon", "polygon([[x0, y0], [x1, y1], [x2, y2], ..])"),
     (
         "body",
         "body(#{ name: \"..\", material: m, region: box(..) or |x| .., ppc: n })",
     ),
     ("body_force", "body_force([b0, ..])"),
-    ("fix", "fix(|x| predicate, [components])"),
+    (
+        "fix",
+        "fix(|x| predicate, [components]) or fix(|x| predicate)",
+    ),
     (
         "displace",
         "displace(|x| predicate, [components], [values])",
@@ -78,13 +89,27 @@ pub(crate) const API_SIGNATURES: &[(&str, &str)] = &[
         "point_load_total",
         "point_load_total(|x| predicate, [total force components])",
     ),
+    (
+        "traction",
+        "traction(#{ on: [[x0, y0], [x1, y1]], traction: [hx, hy], per_cell: n })",
+    ),
     ("load_steps", "load_steps(n)"),
-    ("load_factors", "load_factors([f1, f2, ..])"),
+    (
+        "load_factors",
+        "load_factors([f1, f2, ..]) or load_factors(n, |k| factor of step k)",
+    ),
+    (
+        "load_phases",
+        "load_phases([#{ to: 1.0, steps: 10 }, #{ to: 1.0, steps: 2 }, #{ to: 0.0, steps: 5 }])",
+    ),
     (
         "solver",
         "solver(#{ tolerance: .., max_iterations: .., max_step_cuts: .., ghost_penalty: .. })",
     ),
-    ("output", "output(#{ every: n })"),
+    (
+        "output",
+        "output(#{ every: n, steps: [..], fields: [..], grid: true })",
+    ),
     (
         "analytic_column",
         "analytic_column(#{ axis: a, height: L0, material: m, body_force: b })",
@@ -197,9 +222,11 @@ fn scene_engine(state: &SharedBuilder) -> Engine {
     register_unary(&mut engine, "body_force", declare_body_force);
     register_unary(&mut engine, "load_steps", declare_load_steps);
     register_unary(&mut engine, "load_factors", declare_load_factors);
+    register_unary(&mut engine, "load_phases", declare_load_phases);
     register_unary(&mut engine, "solver", declare_solver);
     register_unary(&mut engine, "output", declare_output);
     register_unary(&mut engine, "analytic_column", declare_analytic_column);
+    register_unary(&mut engine, "traction", declare_traction);
     register_unary(&mut engine, "stress_recovery", declare_stress_recovery);
 
     let material_state = state.clone();
@@ -219,12 +246,38 @@ fn scene_engine(state: &SharedBuilder) -> Engine {
             })
         },
     );
+    engine.register_fn(
+        "polygon",
+        |context: NativeCallContext, vertices: Dynamic| {
+            make_polygon(&vertices).map_err(|message| -> Box<EvalAltResult> {
+                EvalAltResult::ErrorRuntime(message.into(), context.call_position()).into()
+            })
+        },
+    );
     let fix_state = state.clone();
     engine.register_fn(
         "fix",
         move |context: NativeCallContext, selector: Dynamic, components: Dynamic| {
             with_builder(&fix_state, &context, |builder, at| {
                 declare_constraint(builder, "fix", &selector, &components, None, at)
+            })
+        },
+    );
+    let function_schedule_state = state.clone();
+    engine.register_fn(
+        "load_factors",
+        move |context: NativeCallContext, steps: Dynamic, function_value: Dynamic| {
+            with_builder(&function_schedule_state, &context, |builder, at| {
+                declare_load_function(builder, &steps, &function_value, at)
+            })
+        },
+    );
+    let fix_all_state = state.clone();
+    engine.register_fn(
+        "fix",
+        move |context: NativeCallContext, selector: Dynamic| {
+            with_builder(&fix_all_state, &context, |builder, at| {
+                declare_constraint(builder, "fix", &selector, &Dynamic::UNIT, None, at)
             })
         },
     );
@@ -428,6 +481,38 @@ fn make_box(lower: &Dynamic, upper: &Dynamic) -> Result<Region, String> {
     Ok(Region::Box { lower, upper })
 }
 
+fn make_polygon(vertices: &Dynamic) -> Result<Region, String> {
+    let subject = "polygon(...): the vertices";
+    let vertices = array_of(
+        vertices,
+        subject,
+        "points like [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]",
+        numbers,
+    )?;
+    if vertices.len() < 3 {
+        return Err(format!(
+            "{subject} must be at least 3 points, got {}",
+            vertices.len()
+        ));
+    }
+    let vertices = vertices
+        .iter()
+        .enumerate()
+        .map(|(index, vertex)| match vertex.as_slice() {
+            &[x, y] => Ok([x, y]),
+            _ => Err(format!(
+                "{subject}[{index}] must have 2 coordinates (polygons are 2D), got {vertex:?}"
+            )),
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    if polygon_double_area(&vertices) == 0.0 {
+        return Err(format!(
+            "{subject} enclose no area (collinear or repeated points)"
+        ));
+    }
+    Ok(Region::Polygon(vertices))
+}
+
 fn declare_body(builder: &mut SceneBuilder, options: Dynamic, at: Position) -> Result<(), String> {
     let options = OptionMap::new(
         "body",
@@ -449,7 +534,7 @@ fn declare_body(builder: &mut SceneBuilder, options: Dynamic, at: Position) -> R
         Region::Predicate(function(&region_value, &options.subject("region"))?)
     } else {
         return Err(format!(
-            "{} must be box([..], [..]) or a predicate |x| .. on the position, got {}",
+            "{} must be box([..], [..]), polygon([..]) or a predicate |x| .. on the position, got {}",
             options.subject("region"),
             describe(&region_value)
         ));
@@ -513,8 +598,14 @@ fn declare_constraint(
         &format!("{function_name}(...): the first argument"),
     )?;
     let components_subject = format!("{function_name}(...): the components");
-    let components = whole_numbers(components, &components_subject, 0)?;
-    if components.is_empty() {
+    // fix(|x| ..) without components: all of them, known once the grid is
+    let all_components = components.is_unit();
+    let components = if all_components {
+        Vec::new()
+    } else {
+        whole_numbers(components, &components_subject, 0)?
+    };
+    if components.is_empty() && !all_components {
         return Err(format!(
             "{components_subject} must list at least one axis index, got []"
         ));
@@ -577,10 +668,44 @@ fn declare_point_load(
     Ok(())
 }
 
+fn declare_traction(
+    builder: &mut SceneBuilder,
+    options: Dynamic,
+    at: Position,
+) -> Result<(), String> {
+    let options = OptionMap::new("traction", options, &["on", "traction", "per_cell"])?;
+    let corners = array_of(
+        &options.required("on")?,
+        &options.subject("on"),
+        "points like [[0.0, 1.0], [2.0, 1.0]]",
+        numbers,
+    )?;
+    let traction = numbers(&options.required("traction")?, &options.subject("traction"))?;
+    let per_cell = match options.optional("per_cell") {
+        Some(value) => whole_number(&value, &options.subject("per_cell"), 1)?,
+        None => 2,
+    };
+    if per_cell > 1000 {
+        return Err(format!(
+            "{} must be at most 1000, got {per_cell}",
+            options.subject("per_cell")
+        ));
+    }
+    builder.tractions.push(Located::new(
+        TractionDeclaration {
+            corners,
+            traction,
+            per_cell,
+        },
+        at,
+    ));
+    Ok(())
+}
+
 fn ensure_no_load_schedule(builder: &SceneBuilder) -> Result<(), String> {
-    match &builder.load_factors {
+    match &builder.load_schedule {
         Some(previous) => Err(format!(
-            "the load schedule was already set{}; call load_steps(n) or load_factors([..]) once",
+            "the load schedule was already set{}; call one of load_steps, load_factors or load_phases once",
             previous.line_note()
         )),
         None => Ok(()),
@@ -594,11 +719,11 @@ fn declare_load_steps(
 ) -> Result<(), String> {
     ensure_no_load_schedule(builder)?;
     let steps = whole_number(&steps, "load_steps(...): the number of steps", 1)?;
-    if steps > 10_000_000 {
+    if steps > MAX_STEPS {
         return Err(format!("load_steps(...): {steps} steps is too many"));
     }
     let factors = (1..=steps).map(|step| step as f64 / steps as f64).collect();
-    builder.load_factors = Some(Located::new(factors, at));
+    builder.load_schedule = Some(Located::new(LoadSchedule::Factors(factors), at));
     Ok(())
 }
 
@@ -612,7 +737,87 @@ fn declare_load_factors(
     if factors.is_empty() {
         return Err("load_factors(...) needs at least one load factor, got []".to_string());
     }
-    builder.load_factors = Some(Located::new(factors, at));
+    builder.load_schedule = Some(Located::new(LoadSchedule::Factors(factors), at));
+    Ok(())
+}
+
+/// Largest number of load steps a schedule may have.
+const MAX_STEPS: usize = 10_000_000;
+
+fn declare_load_function(
+    builder: &mut SceneBuilder,
+    steps: &Dynamic,
+    function_value: &Dynamic,
+    at: Position,
+) -> Result<(), String> {
+    ensure_no_load_schedule(builder)?;
+    let steps = whole_number(steps, "load_factors(...): the number of steps", 1)?;
+    if steps > MAX_STEPS {
+        return Err(format!("load_factors(...): {steps} steps is too many"));
+    }
+    let function = function_value.flatten_clone();
+    if !function.is_fnptr() {
+        return Err(format!(
+            "load_factors(...): the second argument must be a function of the step like |k| k / 10.0, got {}",
+            describe(&function)
+        ));
+    }
+    builder.load_schedule = Some(Located::new(
+        LoadSchedule::Function {
+            steps,
+            function: function.cast::<rhai::FnPtr>(),
+        },
+        at,
+    ));
+    Ok(())
+}
+
+/// Load factors of phases that start at λ = 0 and each go linearly to their `to` in `steps`
+/// equal steps.
+pub(crate) fn phase_factors(phases: &[(f64, usize)]) -> Vec<f64> {
+    let mut factors = Vec::new();
+    let mut start = 0.0;
+    for &(to, steps) in phases {
+        factors.extend((1..=steps).map(|k| start + (to - start) * k as f64 / steps as f64));
+        start = to;
+    }
+    factors
+}
+
+fn declare_load_phases(
+    builder: &mut SceneBuilder,
+    phases: Dynamic,
+    at: Position,
+) -> Result<(), String> {
+    ensure_no_load_schedule(builder)?;
+    let phases = array_of(
+        &phases,
+        "load_phases(...): the phases",
+        "option maps like #{ to: 1.0, steps: 10 }",
+        |phase, subject| {
+            let options = OptionMap::new("load_phases", phase.clone(), &["to", "steps"])?;
+            let to = number(&options.required("to")?, &format!("{subject}: option 'to'"))?;
+            let steps = whole_number(
+                &options.required("steps")?,
+                &format!("{subject}: option 'steps'"),
+                1,
+            )?;
+            Ok((to, steps))
+        },
+    )?;
+    if phases.is_empty() {
+        return Err("load_phases(...) needs at least one phase, got []".to_string());
+    }
+    let total = phases
+        .iter()
+        .try_fold(0usize, |total, (_, steps)| total.checked_add(*steps));
+    if total.is_none_or(|total| total > MAX_STEPS) {
+        return Err(format!("load_phases(...): more than {MAX_STEPS} steps"));
+    }
+    builder.load_schedule = Some(Located::new(
+        LoadSchedule::Factors(phase_factors(&phases)),
+        at,
+    ));
     Ok(())
 }
 
@@ -669,10 +874,44 @@ fn declare_output(
     at: Position,
 ) -> Result<(), String> {
     ensure_unset(&builder.output, "output")?;
-    let options = OptionMap::new("output", options, &["every"])?;
+    let options = OptionMap::new("output", options, &["every", "steps", "fields", "grid"])?;
     let mut output = OutputSpec::default();
     if let Some(every) = options.optional("every") {
         output.every = whole_number(&every, &options.subject("every"), 1)?;
+    }
+    if let Some(steps) = options.optional("steps") {
+        if options.optional("every").is_some() {
+            return Err("output(...): give 'every' or 'steps', not both".to_string());
+        }
+        output.steps = Some(whole_numbers(&steps, &options.subject("steps"), 1)?);
+    }
+    if let Some(fields) = options.optional("fields") {
+        let fields = array_of(
+            &fields,
+            &options.subject("fields"),
+            "field names like [\"displacement\", \"cauchy_stress\"]",
+            string,
+        )?;
+        if let Some(unknown) = fields
+            .iter()
+            .find(|field| !PARTICLE_FIELDS.contains(&field.as_str()))
+        {
+            return Err(format!(
+                "{}: unknown particle field {unknown:?}; the fields are: {}",
+                options.subject("fields"),
+                PARTICLE_FIELDS.join(", ")
+            ));
+        }
+        output.fields = Some(fields);
+    }
+    if let Some(grid) = options.optional("grid") {
+        output.grid = grid.as_bool().map_err(|_| {
+            format!(
+                "{} must be true or false, got {}",
+                options.subject("grid"),
+                describe(&grid)
+            )
+        })?;
     }
     builder.output = Some(Located::new(output, at));
     Ok(())
@@ -1341,12 +1580,20 @@ mod tests {
                 .contains("must be a whole number >= 1, got string \"ten\""),
             "{error}"
         );
-        let error = failure("wrong_arity", &scene_1d_with("fix", "fix([0]);"));
+        let error = failure("wrong_arity", &scene_1d_with("fix", "fix();"));
         assert_eq!(error.line, Some(5), "{error}");
         assert!(
             error
                 .message
-                .contains("expected fix(|x| predicate, [components])"),
+                .contains("expected fix(|x| predicate, [components]) or fix(|x| predicate)"),
+            "{error}"
+        );
+        let error = failure("wrong_first", &scene_1d_with("fix", "fix([0]);"));
+        assert_eq!(error.line, Some(5), "{error}");
+        assert!(
+            error
+                .message
+                .contains("fix(...): the first argument must be a function of the position"),
             "{error}"
         );
         let error = failure(
@@ -1398,5 +1645,170 @@ mod tests {
         );
         assert_eq!(scene.output.every, 2);
         assert_eq!(scene.body_force, None);
+    }
+
+    #[test]
+    fn polygons_seed_inside_and_are_checked() {
+        let text = "grid(#{ lower: [0.0, 0.0], upper: [4.0, 4.0], cells: [4, 4], basis: \"linear\" });\nconst m = material(#{ name: \"m\", E: 1e6, nu: 0.0, density: 1.0 });\nbody(#{ name: \"wedge\", material: m, region: polygon([[0.0, 0.0], [4.0, 0.0], [0, 4]]), ppc: 2 });\nfix(|x| x[1] == 0.0);\nload_steps(1);\n";
+        let scene = load_scene(&inline_script("polygon", text), &[]).unwrap();
+        let points = &scene.bodies[0].points;
+        // lattice points with x + y < 4 (none lies on the hypotenuse): 8 x 8 lattice, spacing
+        // 0.5 from 0.25: pairs (i, j) with i + j < 7, i.e. 28
+        assert_eq!(points.len(), 28);
+        assert!(points.iter().all(|p| p.position[0] + p.position[1] < 4.0));
+        // fix(|x| ..) fixes every component of the 5 bottom nodes
+        assert_eq!(scene.constraints.len(), 10);
+
+        let error = failure("polygon_3d", &text.replace("[0, 4]]", "[0, 4, 1]]"));
+        assert_eq!(error.line, Some(3), "{error}");
+        assert!(error.message.contains("must have 2 coordinates"), "{error}");
+        let error = failure("polygon_out", &text.replace("[0, 4]]", "[0, 5]]"));
+        assert!(error.message.contains("not inside the grid"), "{error}");
+        let error = failure("polygon_flat", &text.replace("[0, 4]]", "[2, 0]]"));
+        assert!(error.message.contains("enclose no area"), "{error}");
+    }
+
+    #[test]
+    fn several_bodies_keep_their_materials_and_order() {
+        let text = "grid(#{ lower: [0.0, 0.0], upper: [2.0, 4.0], cells: [2, 4], basis: \"bspline\", order: 2 });\nconst soft = material(#{ name: \"soft\", E: 1e3, nu: 0.2, density: 1.0 });\nconst hard = material(#{ name: \"hard\", E: 1e6, nu: 0.3, density: 3.0 });\nbody(#{ name: \"base\", material: hard, region: box([0.0, 0.0], [2.0, 2.0]), ppc: 2 });\nbody(#{ name: \"top\", material: soft, region: |x| x[1] > 2.0 && x[1] < 3.0 && x[0] > 0.0 && x[0] < 2.0, ppc: [1, 3] });\nfix(|x| x[1] == 0.0);\nload_steps(1);\n";
+        let scene = load_scene(&inline_script("bodies", text), &[]).unwrap();
+        assert_eq!(scene.materials.len(), 2);
+        assert_eq!(scene.bodies.len(), 2);
+        assert_eq!((scene.bodies[0].material, scene.bodies[1].material), (1, 0));
+        assert_eq!(scene.bodies[0].points.len(), 2 * 2 * 4);
+        assert_eq!(scene.bodies[1].points.len(), 2 * 3);
+        assert_close(total_volume(&scene), 4.0 + 2.0);
+        let error = failure(
+            "same_body",
+            &text.replace("name: \"top\"", "name: \"base\""),
+        );
+        assert_eq!(error.line, Some(5), "{error}");
+        assert!(
+            error.message.contains("already declared at line 4"),
+            "{error}"
+        );
+    }
+
+    #[test]
+    fn load_schedules_from_functions_and_phases() {
+        let function = scene_1d_with("load_steps", "load_factors(4, |k| (k / 4) ** 2);");
+        let scene = load_scene(&inline_script("function", &function), &[]).unwrap();
+        assert_eq!(scene.load_factors, [1.0 / 16.0, 0.25, 9.0 / 16.0, 1.0]);
+        let function = scene_1d_with(
+            "load_steps",
+            "let n = 4;\nload_factors(n, |k| if k <= 2 { k / n } else { 0.5 });",
+        );
+        let scene = load_scene(&inline_script("function_if", &function), &[]).unwrap();
+        assert_eq!(scene.load_factors, [0.25, 0.5, 0.5, 0.5]);
+
+        let phases = scene_1d_with(
+            "load_steps",
+            "load_phases([#{ to: 1.0, steps: 4 }, #{ to: 1, steps: 2 }, #{ to: -0.5, steps: 3 }]);",
+        );
+        let scene = load_scene(&inline_script("phases", &phases), &[]).unwrap();
+        assert_eq!(
+            scene.load_factors,
+            [0.25, 0.5, 0.75, 1.0, 1.0, 1.0, 0.5, 0.0, -0.5]
+        );
+
+        let error = failure(
+            "function_error",
+            &scene_1d_with(
+                "load_steps",
+                "load_factors(3, |k| {\n  if k == 2 { \"two\" } else { 1.0 }\n});",
+            ),
+        );
+        assert_eq!(error.line, Some(6), "{error}");
+        assert!(
+            error
+                .message
+                .contains("load factor function of load_factors(...) at line 6 must be a number, got string \"two\" for step k = 2"),
+            "{error}"
+        );
+        let error = failure(
+            "function_runtime",
+            &scene_1d_with(
+                "load_steps",
+                "load_factors(3, |k| {\n  let a = [1.0];\n  a[k.to_int()]\n});",
+            ),
+        );
+        assert_eq!(error.line, Some(8), "{error}");
+        assert!(error.message.contains("out of bounds"), "{error}");
+        let error = failure(
+            "phase_key",
+            &scene_1d_with("load_steps", "load_phases([#{ to: 1.0, step: 4 }]);"),
+        );
+        assert!(error.message.contains("did you mean 'steps'"), "{error}");
+        let error = failure(
+            "two_schedules",
+            &format!(
+                "{}\nload_phases([#{{ to: 1.0, steps: 4 }}]);",
+                scene_1d_with("#", "")
+            ),
+        );
+        assert!(error.message.contains("already set at line 6"), "{error}");
+    }
+
+    #[test]
+    fn output_control_is_validated() {
+        let text = format!(
+            "{}\noutput(#{{ steps: [1, 2], fields: [\"displacement\", \"cauchy_stress\"], grid: false }});",
+            scene_1d_with("#", "")
+        );
+        let scene = load_scene(&inline_script("output", &text), &[]).unwrap();
+        assert_eq!(scene.output.steps, Some(vec![1, 2]));
+        assert_eq!(
+            scene.output.fields,
+            Some(vec![
+                "displacement".to_string(),
+                "cauchy_stress".to_string()
+            ])
+        );
+        assert!(!scene.output.grid);
+        let error = failure("bad_field", &text.replace("\"displacement\"", "\"stress\""));
+        assert_eq!(error.line, Some(7), "{error}");
+        assert!(
+            error
+                .message
+                .contains("unknown particle field \"stress\"; the fields are: reference_position"),
+            "{error}"
+        );
+        let error = failure(
+            "every_and_steps",
+            &text.replace("steps: [1, 2]", "every: 2, steps: [1]"),
+        );
+        assert!(
+            error.message.contains("'every' or 'steps', not both"),
+            "{error}"
+        );
+    }
+
+    #[test]
+    fn runtime_errors_in_point_selectors_point_inside_the_closure() {
+        let text = scene_1d_with(
+            "fix",
+            "fix(|x| x[0] == 0.0);\npoint_load(|x| {\n  x[1] > 2.0\n}, [1.0]);",
+        );
+        let error = failure("selector_error", &text);
+        assert_eq!(error.line, Some(7), "{error}");
+        assert!(
+            error.message.contains("out of bounds")
+                && error
+                    .message
+                    .contains("point selector of point_load(...) at line 6"),
+            "{error}"
+        );
+        let text = scene_1d_with(
+            "fix",
+            "fix(|x| x[0] == 0.0);\npoint_load_total(|x| 1.0, [1.0]);",
+        );
+        let error = failure("selector_not_bool", &text);
+        assert_eq!(error.line, Some(6), "{error}");
+        assert!(
+            error
+                .message
+                .contains("must return true or false, got float 1.0"),
+            "{error}"
+        );
     }
 }

@@ -208,6 +208,149 @@ pub fn first_point_outside_grid<E>(
     Ok(found)
 }
 
+/// Quadrature points of a flat piece of boundary given by `dim` corners (the grid's dimension):
+///
+/// * 1D: one corner, the end of the bar: one point of area 1 (the bar's unit cross-section);
+/// * 2D: a segment from `corners[0]` to `corners[1]`;
+/// * 3D: the parallelogram with corner `corners[0]` and edges `corners[1] − corners[0]` and
+///   `corners[2] − corners[0]`.
+///
+/// Each edge e is split into `n = max(1, ceil(per_cell · max_a |e_a| / h_a))` equal parts (h_a =
+/// cell size along axis a), so there are about `per_cell` points per cell crossed; the points
+/// sit at the part midpoints and carry the part's area (midpoint rule: the areas sum exactly to
+/// the segment length / parallelogram area). Returns `(position, area)` pairs, first edge
+/// fastest, or `Err(count)` if there would be more than `max_points`.
+pub fn seed_boundary(
+    grid: &GridSpec,
+    corners: &[Vec<f64>],
+    per_cell: usize,
+    max_points: usize,
+) -> Result<Vec<(Vec<f64>, f64)>, usize> {
+    let dim = grid.dim();
+    let origin = &corners[0];
+    let edges: Vec<Vec<f64>> = corners[1..]
+        .iter()
+        .map(|corner| corner.iter().zip(origin).map(|(c, o)| c - o).collect())
+        .collect();
+    let parts: Vec<usize> = edges
+        .iter()
+        .map(|edge| {
+            let cells_crossed = (0..dim)
+                .map(|axis| {
+                    edge[axis].abs() * grid.cells[axis] as f64
+                        / (grid.upper[axis] - grid.lower[axis])
+                })
+                .fold(0.0, f64::max);
+            ((per_cell.max(1) as f64 * cells_crossed).ceil() as usize).max(1)
+        })
+        .collect();
+    let area = match edges.len() {
+        0 => 1.0,
+        1 => norm(&edges[0]),
+        _ => {
+            let (a, b) = (&edges[0], &edges[1]);
+            let cross = [
+                a[1] * b[2] - a[2] * b[1],
+                a[2] * b[0] - a[0] * b[2],
+                a[0] * b[1] - a[1] * b[0],
+            ];
+            norm(&cross)
+        }
+    };
+    let count = parts
+        .iter()
+        .try_fold(1usize, |count, &n| count.checked_mul(n))
+        .unwrap_or(usize::MAX);
+    if count > max_points {
+        return Err(count);
+    }
+    let piece = area / count as f64;
+    let ranges: Vec<(i64, i64)> = parts.iter().map(|&n| (0, n as i64)).collect();
+    let mut points = Vec::with_capacity(count);
+    let _ = for_each_index::<std::convert::Infallible>(&ranges, |index| {
+        let mut position = origin.clone();
+        for (edge, (&i, &n)) in edges.iter().zip(index.iter().zip(&parts)) {
+            let t = (i as f64 + 0.5) / n as f64;
+            for (x, e) in position.iter_mut().zip(edge) {
+                *x += t * e;
+            }
+        }
+        points.push((position, piece));
+        Ok(())
+    });
+    Ok(points)
+}
+
+/// For every query position, the index of the nearest of `points` (Euclidean distance, the
+/// lowest index among equals), or `None` if `points` is empty.
+///
+/// The points are bucketed by grid cell; the search visits shells of cells at Chebyshev
+/// distance r = 0, 1, 2, ... around the query's cell and stops after shell r once the best
+/// distance is at most r · (smallest cell size), since every point in a farther shell is at
+/// least that far away.
+pub fn nearest_points(
+    grid: &GridSpec,
+    points: &[&[f64]],
+    queries: &[Vec<f64>],
+) -> Vec<Option<usize>> {
+    use std::collections::HashMap;
+    let dim = grid.dim();
+    let size: Vec<f64> = (0..dim)
+        .map(|axis| (grid.upper[axis] - grid.lower[axis]) / grid.cells[axis] as f64)
+        .collect();
+    let smallest = size.iter().copied().fold(f64::INFINITY, f64::min);
+    let cell_of = |x: &[f64]| -> Vec<i64> {
+        (0..dim)
+            .map(|axis| ((x[axis] - grid.lower[axis]) / size[axis]).floor() as i64)
+            .collect()
+    };
+    let mut buckets: HashMap<Vec<i64>, Vec<usize>> = HashMap::new();
+    for (index, point) in points.iter().enumerate() {
+        buckets.entry(cell_of(point)).or_default().push(index);
+    }
+    let widest = grid.cells.iter().max().copied().unwrap_or(1) as i64 + 2;
+    queries
+        .iter()
+        .map(|query| {
+            if points.is_empty() {
+                return None;
+            }
+            let centre = cell_of(query);
+            let mut best: Option<(f64, usize)> = None;
+            for r in 0..=widest {
+                let ranges: Vec<(i64, i64)> = centre.iter().map(|&c| (c - r, c + r + 1)).collect();
+                let _ = for_each_index::<std::convert::Infallible>(&ranges, |cell| {
+                    let on_shell = cell.iter().zip(&centre).any(|(&c, &m)| (c - m).abs() == r);
+                    if !on_shell {
+                        return Ok(());
+                    }
+                    for &index in buckets.get(cell).map_or(&[][..], Vec::as_slice) {
+                        let d = norm(
+                            &points[index]
+                                .iter()
+                                .zip(query)
+                                .map(|(a, b)| a - b)
+                                .collect::<Vec<_>>(),
+                        );
+                        if best.is_none_or(|(bd, bi)| d < bd || (d == bd && index < bi)) {
+                            best = Some((d, index));
+                        }
+                    }
+                    Ok(())
+                });
+                if best.is_some_and(|(d, _)| d <= r as f64 * smallest) {
+                    break;
+                }
+            }
+            best.map(|(_, index)| index)
+        })
+        .collect()
+}
+
+fn norm(v: &[f64]) -> f64 {
+    v.iter().map(|x| x * x).sum::<f64>().sqrt()
+}
+
 /// The global lattice of candidate points: `counts[a] = cells[a] * ppc[a]` along axis `a`.
 struct SeedLattice<'a> {
     grid: &'a GridSpec,
@@ -414,6 +557,66 @@ mod tests {
         assert!(points.iter().all(|point| disc(&point.position).unwrap()));
         let failing = |x: &[f64]| if x[0] > 3.0 { Err("boom") } else { Ok(true) };
         assert_eq!(seed_points(&grid, &[1, 1], failing).unwrap_err(), "boom");
+    }
+
+    #[test]
+    fn boundary_points_split_segments_and_parallelograms_by_the_cell_size() {
+        // 1D: the end point, unit area
+        let points = seed_boundary(&grid(&[0.0], &[2.0], &[4]), &[vec![2.0]], 3, 10).unwrap();
+        assert_eq!(points, [(vec![2.0], 1.0)]);
+        // 2D: a slanted segment crossing 2 cells along x and 1 along y, 2 per cell -> 4 parts
+        let g = grid(&[0.0, 0.0], &[4.0, 4.0], &[4, 4]);
+        let points = seed_boundary(&g, &[vec![1.0, 1.0], vec![3.0, 2.0]], 2, 10).unwrap();
+        assert_eq!(points.len(), 4);
+        let length: f64 = points.iter().map(|(_, a)| a).sum();
+        assert!((length - 5f64.sqrt()).abs() < 1e-12);
+        assert_eq!(points[0].0, [1.25, 1.125]);
+        assert_eq!(points[3].0, [2.75, 1.875]);
+        // 3D: a 2 x 1 rectangle in the plane z = 1 with 1 point per cell of size 0.5
+        let g = grid(&[0.0, 0.0, 0.0], &[2.0, 2.0, 2.0], &[4, 4, 4]);
+        let corners = [
+            vec![0.0, 0.0, 1.0],
+            vec![2.0, 0.0, 1.0],
+            vec![0.0, 1.0, 1.0],
+        ];
+        let points = seed_boundary(&g, &corners, 1, 8).unwrap();
+        assert_eq!(seed_boundary(&g, &corners, 1, 7), Err(8));
+        assert_eq!(points.len(), 4 * 2);
+        assert!(points.iter().all(|(x, a)| x[2] == 1.0 && *a == 0.25));
+        assert_eq!(points[1].0, [0.75, 0.25, 1.0]);
+        assert_eq!(points[4].0, [0.25, 0.75, 1.0]);
+    }
+
+    #[test]
+    fn nearest_points_match_a_brute_force_search() {
+        let g = grid(&[0.0, 0.0], &[8.0, 8.0], &[8, 8]);
+        // a sparse, irregular cloud: the nearest point is often several cells away
+        let cloud: Vec<Vec<f64>> = (0..40)
+            .map(|k| {
+                let t = k as f64;
+                vec![(t * 1.37).rem_euclid(8.0), (t * t * 0.61).rem_euclid(3.0)]
+            })
+            .collect();
+        let points: Vec<&[f64]> = cloud.iter().map(Vec::as_slice).collect();
+        let queries: Vec<Vec<f64>> = (0..50)
+            .map(|k| {
+                vec![
+                    (k as f64 * 0.83).rem_euclid(8.0),
+                    (k as f64 * 0.157).rem_euclid(8.0),
+                ]
+            })
+            .collect();
+        let found = nearest_points(&g, &points, &queries);
+        for (query, found) in queries.iter().zip(found) {
+            let distance = |i: usize| {
+                ((points[i][0] - query[0]).powi(2) + (points[i][1] - query[1]).powi(2)).sqrt()
+            };
+            let brute = (0..points.len())
+                .min_by(|&a, &b| distance(a).total_cmp(&distance(b)))
+                .unwrap();
+            assert_eq!(distance(found.unwrap()), distance(brute), "{query:?}");
+        }
+        assert_eq!(nearest_points(&g, &[], &queries[..1]), [None]);
     }
 
     #[test]

@@ -25,7 +25,7 @@ pub fn write_mesh<const D: usize>(
     nodes: Query<&GridNode<D>>,
     points: Query<&ElementPoint<D>>,
 ) {
-    if !plan.writes(&step) {
+    if !plan.writes(&step) || !plan.grid_files {
         return;
     }
     let _timer = clock.time(Stage::Output);

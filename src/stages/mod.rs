@@ -33,6 +33,7 @@ mod assembly;
 mod connectivity;
 mod dofs;
 mod element_basis;
+mod explain;
 pub mod ghost;
 mod loads;
 mod mesh_advance;
@@ -42,12 +43,14 @@ pub mod output;
 mod recovery;
 mod reset;
 mod stress;
+mod tractions;
 mod update;
 
 pub use assembly::assemble;
 pub use connectivity::{evaluate_basis, evaluate_domain_basis};
 pub use dofs::number_dofs;
 pub use element_basis::evaluate_element_basis;
+pub use explain::{Explanation, ScheduledSystem, explain_scene, scheduled_systems};
 pub use loads::{
     apply_body_force, apply_point_loads, apply_prescribed_displacements, spread_force,
 };
@@ -57,6 +60,7 @@ pub use newton::{check_convergence, solve_linear_system, solve_load_step};
 pub use recovery::recover_stress;
 pub use reset::reset_grid;
 pub use stress::update_stress;
+pub use tractions::{apply_tractions, spread_over_active, update_traction_points};
 pub use update::update_points;
 
 use bevy_ecs::prelude::*;
@@ -97,6 +101,11 @@ pub enum NewtonSystems {
     LinearSolve,
 }
 
+/// The output systems of the crate (particles, grid or mesh, nodes, tractions): systems added
+/// to [`WriteOutput`] by plugins run after them.
+#[derive(SystemSet, Clone, Debug, PartialEq, Eq, Hash)]
+pub struct BuiltInOutput;
+
 /// The connectivity system that evaluates the basis at the points (one per kind of basis:
 /// [`evaluate_basis`], [`evaluate_domain_basis`] or `evaluate_element_basis`); the systems that
 /// need the step's supports run after it.
@@ -104,11 +113,17 @@ pub enum NewtonSystems {
 struct BasisEvaluation;
 
 /// Which optional effects a scene uses; the schedules contain only their systems.
+///
+/// A new effect (plasticity, dynamics, contact...) adds a flag here, sets it in
+/// `simulation::effects_of` from what the scene declares, and adds its systems in
+/// [`load_step_schedule`] / [`newton_schedule`] / [`output_schedule`] only when the flag is set.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Effects {
     pub body_force: bool,
     /// Forces on material points (`point_load`).
     pub point_loads: bool,
+    /// Surface tractions carried by traction points (`traction`).
+    pub tractions: bool,
     pub prescribed_displacements: bool,
     /// Linear FEM on a body-fitted mesh (`basis = "fem"`) instead of MPM: element
     /// connectivity, a mesh that advances with the body, and the mesh as grid output.
@@ -120,6 +135,44 @@ pub struct Effects {
     /// The basis averages over particle domains (GIMP, CPDI): connectivity uses
     /// [`evaluate_domain_basis`] instead of [`evaluate_basis`].
     pub point_domains: bool,
+}
+
+impl Effects {
+    /// The same method (FEM mesh or not, point domains or not) with every optional effect that
+    /// adds systems on: what `--explain` compares a scene's schedules with. Tractions and the
+    /// ghost penalty are MPM-only, so they stay off with a FEM mesh.
+    pub fn with_every_optional_effect(self) -> Effects {
+        Effects {
+            body_force: true,
+            point_loads: true,
+            tractions: !self.fem_mesh,
+            prescribed_displacements: true,
+            ghost_penalty: !self.fem_mesh,
+            stress_recovery: true,
+            ..self
+        }
+    }
+
+    /// `(name, used)` for every effect.
+    pub fn list(&self) -> [(&'static str, bool); 8] {
+        [
+            ("body force", self.body_force),
+            ("point loads", self.point_loads),
+            ("tractions", self.tractions),
+            ("prescribed displacements", self.prescribed_displacements),
+            ("ghost penalty", self.ghost_penalty),
+            ("stress recovery", self.stress_recovery),
+            ("point domains (GIMP, CPDI)", self.point_domains),
+            ("finite-element mesh", self.fem_mesh),
+        ]
+    }
+}
+
+/// Adds the solver's schedules for dimension `D` with only the effects in use to `world`.
+pub fn add_schedules<const D: usize>(world: &mut World, effects: Effects) {
+    world.add_schedule(load_step_schedule::<D>(effects));
+    world.add_schedule(newton_schedule::<D>(effects));
+    world.add_schedule(output_schedule::<D>(effects));
 }
 
 /// Schedule settings shared by all solver schedules: single-threaded, and any ambiguity in
@@ -194,12 +247,24 @@ pub fn load_step_schedule<const D: usize>(effects: Effects) -> Schedule {
                 .after(apply_body_force::<D>),
         );
     }
+    if effects.tractions {
+        schedule.add_systems((
+            apply_tractions::<D>
+                .in_set(StepSystems::Loads)
+                .after(apply_body_force::<D>)
+                .after(apply_point_loads::<D>),
+            update_traction_points::<D>
+                .in_set(StepSystems::UpdatePoints)
+                .after(update_points::<D>),
+        ));
+    }
     if effects.prescribed_displacements {
         schedule.add_systems(
             apply_prescribed_displacements::<D>
                 .in_set(StepSystems::Loads)
                 .after(apply_body_force::<D>)
-                .after(apply_point_loads::<D>),
+                .after(apply_point_loads::<D>)
+                .after(apply_tractions::<D>),
         );
     }
     schedule.add_systems(solve_load_step.in_set(StepSystems::Solve));
@@ -216,7 +281,8 @@ pub fn load_step_schedule<const D: usize>(effects: Effects) -> Schedule {
     schedule
 }
 
-/// The output schedule for dimension `D`: points, grid (the deformed mesh for FEM), nodes.
+/// The output schedule for dimension `D`: points, grid (the deformed mesh for FEM), nodes, and
+/// the traction points in scenes with tractions.
 pub fn output_schedule<const D: usize>(effects: Effects) -> Schedule {
     let mut schedule = strict(WriteOutput);
     if effects.fem_mesh {
@@ -227,6 +293,7 @@ pub fn output_schedule<const D: usize>(effects: Effects) -> Schedule {
                 output::write_nodes::<D>,
             )
                 .chain()
+                .in_set(BuiltInOutput)
                 .distributive_run_if(no_failure),
         );
     } else {
@@ -237,7 +304,16 @@ pub fn output_schedule<const D: usize>(effects: Effects) -> Schedule {
                 output::write_nodes::<D>,
             )
                 .chain()
+                .in_set(BuiltInOutput)
                 .distributive_run_if(no_failure),
+        );
+    }
+    if effects.tractions {
+        schedule.add_systems(
+            output::write_tractions::<D>
+                .after(output::write_nodes::<D>)
+                .in_set(BuiltInOutput)
+                .run_if(no_failure),
         );
     }
     schedule

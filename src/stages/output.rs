@@ -4,7 +4,8 @@
 //! * `particles_NNNN.vtu` — one vertex cell per material point with `reference_position`,
 //!   `reference_volume`, `volume`, `mass`, `displacement`, `cauchy_stress` (3x3, row-major),
 //!   `deformation_gradient` (3x3, row-major) and `body`; with stress recovery also
-//!   `recovered_stress` (3x3, row-major, see `recovery.rs`).
+//!   `recovered_stress` (3x3, row-major, see `recovery.rs`); in scenes with point loads also
+//!   `point_load` (λ P, zero on unloaded points).
 //! * `grid_NNNN.vtu` — the background grid cells, with the displacement increment of the step
 //!   evaluated at the grid vertices and the number of material points per cell; for linear
 //!   FEM the deformed mesh instead (`mesh_output.rs`).
@@ -12,7 +13,11 @@
 //!   positions) with `active`, `fixed`, `displacement_increment`, `external_force` and
 //!   `internal_force`.
 //!
-//! and the time series `particles.pvd`, `grid.pvd`, `nodes.pvd` with the load factor as time.
+//! * `tractions_NNNN.vtu` — only in scenes with tractions: one vertex per traction point with
+//!   `reference_position`, `area` (reference), `traction` (λ h) and `force` (λ h A).
+//!
+//! and the time series `particles.pvd`, `grid.pvd`, `nodes.pvd` (and `tractions.pvd`) with the
+//! load factor as time.
 //! Every file is written atomically and a series lists a file only once it is complete, so a
 //! run that stops leaves valid results behind.
 
@@ -23,12 +28,26 @@ use nalgebra::{Matrix3, SVector};
 
 use crate::basis::BasisScratch;
 use crate::components::{
-    BodyIndex, DeformationGradient, Displacement, Fixity, GridNode, Mass, PointId, Position,
-    RecoveredStress, ReferencePosition, ReferenceVolume, Trial, Volume,
+    BodyIndex, DeformationGradient, Displacement, Fixity, GridNode, Mass, PointId, PointLoad,
+    Position, RecoveredStress, ReferencePosition, ReferenceVolume, TractionPoint, Trial, Volume,
 };
 use crate::mechanics::{embed, interpolate};
 use crate::output::{Field, PvdSeries, lattice_cells, vertex_cells, write_vtu};
 use crate::resources::{Grid, GridFields, LoadStep, RunStatus, SolverError, Stage, StageClock};
+
+/// The particle fields, in file order (`output(#{ fields: [..] })` picks some).
+pub const PARTICLE_FIELDS: &[&str] = &[
+    "reference_position",
+    "reference_volume",
+    "volume",
+    "mass",
+    "displacement",
+    "cauchy_stress",
+    "deformation_gradient",
+    "body",
+    "recovered_stress",
+    "point_load",
+];
 
 /// Where and when output is written.
 #[derive(Resource)]
@@ -37,9 +56,16 @@ pub struct OutputPlan {
     /// Write every n-th step (the initial state and the last step are always written).
     pub every: usize,
     pub last_step: usize,
+    /// If set, exactly these steps (and the initial state) are written instead.
+    pub steps: Option<Vec<usize>>,
+    /// If set, only these particle fields are written.
+    pub fields: Option<Vec<String>>,
+    /// Whether the grid and node files are written.
+    pub grid_files: bool,
     pub particles: PvdSeries,
     pub grid: PvdSeries,
     pub nodes: PvdSeries,
+    pub tractions: PvdSeries,
 }
 
 impl OutputPlan {
@@ -48,18 +74,46 @@ impl OutputPlan {
             particles: PvdSeries::new(dir.join("particles.pvd")),
             grid: PvdSeries::new(dir.join("grid.pvd")),
             nodes: PvdSeries::new(dir.join("nodes.pvd")),
+            tractions: PvdSeries::new(dir.join("tractions.pvd")),
             dir,
             every: every.max(1),
             last_step,
+            steps: None,
+            fields: None,
+            grid_files: true,
         }
     }
 
-    /// Whether the state after `step` is written: the initial state, the last step and every
-    /// n-th step, never an intermediate sub-step of a cut step.
+    /// The plan of a scene's `output(...)` declaration.
+    pub fn from_spec(dir: PathBuf, spec: &crate::scene::OutputSpec, last_step: usize) -> Self {
+        Self {
+            steps: spec.steps.clone(),
+            fields: spec.fields.clone(),
+            grid_files: spec.grid,
+            ..Self::new(dir, spec.every, last_step)
+        }
+    }
+
+    /// Whether the state after `step` is written: the initial state and, for a completed step
+    /// (never an intermediate sub-step of a cut step), the listed steps if `steps` is set, else
+    /// the last step and every n-th step.
     pub fn writes(&self, step: &LoadStep) -> bool {
         let number = step.number;
-        (step.completes_step || number == 0)
-            && (number == 0 || number == self.last_step || number.is_multiple_of(self.every))
+        if number == 0 {
+            return true;
+        }
+        step.completes_step
+            && match &self.steps {
+                Some(steps) => steps.contains(&number),
+                None => number == self.last_step || number.is_multiple_of(self.every),
+            }
+    }
+
+    /// Whether the particle field `name` is written.
+    pub fn writes_field(&self, name: &str) -> bool {
+        self.fields
+            .as_ref()
+            .is_none_or(|fields| fields.iter().any(|field| field == name))
     }
 }
 
@@ -91,6 +145,7 @@ pub fn write_particles<const D: usize>(
         &Trial<D>,
         &BodyIndex,
         Option<&RecoveredStress>,
+        Option<&PointLoad<D>>,
     )>,
 ) {
     if !plan.writes(&step) {
@@ -110,7 +165,9 @@ pub fn write_particles<const D: usize>(
     let mut deformation = Vec::with_capacity(9 * n);
     let mut body = Vec::with_capacity(n);
     let mut recovered = Vec::new();
-    for (_, x, xr, v0, v, m, u, f, trial, b, r) in rows {
+    let has_point_loads = rows.iter().any(|row| row.11.is_some());
+    let mut point_load = Vec::with_capacity(if has_point_loads { 3 * n } else { 0 });
+    for (_, x, xr, v0, v, m, u, f, trial, b, r, load) in rows {
         positions.push(pad(&x.0));
         reference.extend(pad(&xr.0));
         reference_volume.push(v0.0);
@@ -122,6 +179,9 @@ pub fn write_particles<const D: usize>(
         body.push(b.0 as f64);
         if let Some(r) = r {
             recovered.extend(row_major(&r.0));
+        }
+        if has_point_loads {
+            point_load.extend(pad(&(load.map_or(SVector::zeros(), |l| l.0) * step.factor)));
         }
     }
     let mut fields = vec![
@@ -174,6 +234,14 @@ pub fn write_particles<const D: usize>(
             values: &recovered,
         });
     }
+    if has_point_loads {
+        fields.push(Field {
+            name: "point_load",
+            components: 3,
+            values: &point_load,
+        });
+    }
+    fields.retain(|field| plan.writes_field(field.name));
     let name = format!("particles_{:04}.vtu", step.number);
     let result = write_vtu(
         &plan.dir.join(&name),
@@ -202,7 +270,7 @@ pub fn write_grid<const D: usize>(
     mut scratch: Local<BasisScratch>,
     positions: Query<&Position<D>>,
 ) {
-    if !plan.writes(&step) {
+    if !plan.writes(&step) || !plan.grid_files {
         return;
     }
     let _timer = clock.time(Stage::Output);
@@ -266,7 +334,7 @@ pub fn write_nodes<const D: usize>(
     mut clock: ResMut<StageClock>,
     nodes: Query<(&GridNode<D>, &Fixity<D>)>,
 ) {
-    if !plan.writes(&step) {
+    if !plan.writes(&step) || !plan.grid_files {
         return;
     }
     let _timer = clock.time(Stage::Output);
@@ -327,6 +395,54 @@ pub fn write_nodes<const D: usize>(
         status.fail(SolverError::Output {
             step: step.number,
             why: e.to_string(),
+        });
+    }
+}
+
+/// The traction points (only scheduled in scenes with tractions).
+pub fn write_tractions<const D: usize>(
+    step: Res<LoadStep>,
+    mut plan: ResMut<OutputPlan>,
+    mut status: ResMut<RunStatus>,
+    mut clock: ResMut<StageClock>,
+    points: Query<&TractionPoint<D>>,
+) {
+    if !plan.writes(&step) {
+        return;
+    }
+    let _timer = clock.time(Stage::Output);
+    let mut rows: Vec<&TractionPoint<D>> = points.iter().collect();
+    rows.sort_by_key(|point| point.id);
+    let n = rows.len();
+    let positions: Vec<[f64; 3]> = rows.iter().map(|point| pad(&point.position)).collect();
+    let mut reference = Vec::with_capacity(3 * n);
+    let mut area = Vec::with_capacity(n);
+    let mut traction = Vec::with_capacity(3 * n);
+    let mut force = Vec::with_capacity(3 * n);
+    for point in &rows {
+        reference.extend(pad(&point.reference_position));
+        area.push(point.area);
+        traction.extend(pad(&(point.traction * step.factor)));
+        force.extend(pad(&(point.traction * (point.area * step.factor))));
+    }
+    let name = format!("tractions_{:04}.vtu", step.number);
+    let result = write_vtu(
+        &plan.dir.join(&name),
+        &positions,
+        &vertex_cells(n),
+        &[
+            Field::new("reference_position", 3, &reference),
+            Field::scalar("area", &area),
+            Field::new("traction", 3, &traction),
+            Field::new("force", 3, &force),
+        ],
+        &[],
+    )
+    .and_then(|()| plan.tractions.push(step.factor, &name));
+    if let Err(e) = result {
+        status.fail(SolverError::Output {
+            step: step.number,
+            why: format!("{name}: {e}"),
         });
     }
 }
