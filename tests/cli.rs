@@ -2,31 +2,19 @@
 //! their results valid and exit non-zero.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
-fn impm(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_impm"))
-        .args(args)
-        .output()
-        .expect("impm runs")
-}
+mod common;
+use common::{column_script, impm};
 
 fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
 
 fn temp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("impm-cli-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
+    let dir = common::temp_dir("cli", name);
     std::fs::create_dir_all(&dir).unwrap();
     dir
-}
-
-fn column() -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("scripts/column_1d.rhai")
-        .display()
-        .to_string()
 }
 
 /// A 1D column scene with a solver section, written to `dir`.
@@ -52,7 +40,7 @@ fn run_writes_the_series_and_the_summary() {
     let dir = temp("run");
     let out = impm(&[
         "run",
-        &column(),
+        &column_script(),
         "--set",
         "cells=10",
         "--set",
@@ -127,7 +115,7 @@ fn bad_scenes_name_the_file_and_line() {
         ("cells=0", "cells"),
         ("nope=1", "no parameter 'nope'"),
     ] {
-        let out = impm(&["check", &column(), "--set", set]);
+        let out = impm(&["check", &column_script(), "--set", set]);
         assert!(!out.status.success());
         assert!(stderr(&out).contains(needle), "{set}: {}", stderr(&out));
     }

@@ -3,26 +3,12 @@
 //! runs are recorded and not fatal, and the charts, table and profiles are written.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
-fn impm(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_impm"))
-        .args(args)
-        .output()
-        .expect("impm runs")
-}
+mod common;
+use common::{column_script, impm};
 
 fn temp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("impm-study-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
-}
-
-fn column() -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("scripts/column_1d.rhai")
-        .display()
-        .to_string()
+    common::temp_dir("study", name)
 }
 
 /// A CSV without quoted fields: header and rows as maps from column name to text.
@@ -63,7 +49,7 @@ fn study_runs_the_cross_product_and_its_csv_matches_each_run() {
     let dir = temp("cross");
     let out = impm(&[
         "study",
-        &column(),
+        &column_script(),
         "--sweep",
         "cells=5,10",
         "--sweep",
@@ -198,7 +184,7 @@ fn a_failed_run_is_recorded_and_the_study_goes_on() {
     let dir = temp("failed");
     let out = impm(&[
         "study",
-        &column(),
+        &column_script(),
         "--sweep",
         "basis:order=bspline:2,bspline:0",
         "--set",
@@ -230,7 +216,7 @@ fn unknown_sweep_parameters_are_refused_before_running() {
     let dir = temp("unknown");
     let out = impm(&[
         "study",
-        &column(),
+        &column_script(),
         "--sweep",
         "cels=5,10",
         "--out",

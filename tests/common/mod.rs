@@ -23,6 +23,19 @@ pub fn shipped_scene(name: &str) -> PathBuf {
         .join(name)
 }
 
+/// Runs the `impm` binary with `args`.
+pub fn impm(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_impm"))
+        .args(args)
+        .output()
+        .expect("impm runs")
+}
+
+/// The 1D column scene's path, as a command-line argument.
+pub fn column_script() -> String {
+    shipped_scene("column_1d.rhai").display().to_string()
+}
+
 /// A fresh (removed, not yet created) folder under the system's temporary folder.
 pub fn temp_dir(prefix: &str, tag: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("impm-{prefix}-{tag}-{}", std::process::id()));
