@@ -575,6 +575,7 @@ pub fn basis_name(kind: BasisKind) -> String {
     match kind {
         BasisKind::Linear => "linear".into(),
         BasisKind::BSpline { order } => format!("bspline(q={order})"),
+        BasisKind::BSplineDomain { order } => format!("bspline(q={order}, domain integration)"),
         BasisKind::Gimp { domain } => format!("gimp({})", domain.name()),
         BasisKind::Cpdi => "cpdi".into(),
         BasisKind::Fem => "fem(linear elements)".into(),

@@ -105,7 +105,7 @@ fn start_step(sim: &mut Simulation<2>) {
 
 /// The assembled tangent equals central finite differences of the assembled internal force,
 /// at a strongly deformed, rotated iterate (2D, several points per cell): B-spline q = 2 from
-/// the undeformed state, and GIMP and CPDI from a stretched and sheared state at the start of
+/// the undeformed state, and GIMP, CPDI and domain-averaged B-splines from a stretched and sheared state at the start of
 /// the step, whose domains (and so weights) differ from the undeformed ones. The weights are
 /// frozen over the step, so the tangent is exact for every method.
 #[test]
@@ -119,6 +119,7 @@ fn assembled_tangent_matches_finite_differences() {
         Some(sheared),
     );
     check_tangent(BasisKind::Cpdi, Some(sheared));
+    check_tangent(BasisKind::BSplineDomain { order: 2 }, Some(sheared));
 }
 
 fn check_tangent(basis: BasisKind, start_deformation: Option<nalgebra::Matrix2<f64>>) {
@@ -232,7 +233,11 @@ fn schedules_have_no_ambiguities() {
     with_prescribed.constraints[0].value = 0.1;
     check::<2>(&with_prescribed);
     // the connectivity of particle-domain methods, alone and with the ghost penalty after it
-    for basis in [BasisKind::Linear, BasisKind::Cpdi] {
+    for basis in [
+        BasisKind::Linear,
+        BasisKind::Cpdi,
+        BasisKind::BSplineDomain { order: 2 },
+    ] {
         let mut spec = block_2d([4, 4], [2, 2], basis);
         check::<2>(&spec);
         spec.solver.ghost_penalty = 0.1;

@@ -178,7 +178,7 @@ impl Axis {
             BasisKind::Linear | BasisKind::Fem | BasisKind::Gimp { .. } | BasisKind::Cpdi => {
                 hat_span(cell, t, values, derivatives)
             }
-            BasisKind::BSpline { order } => {
+            BasisKind::BSpline { order } | BasisKind::BSplineDomain { order } => {
                 bspline_span(order, self.cells, cell, t, values, derivatives)
             }
         }

@@ -11,6 +11,7 @@
 //! | uGIMP (`gimp: "fixed"`) | box, `l_k = lp0_k` | [`super::gimp`] |
 //! | cpGIMP (`gimp: "stretched"`) | box, `l_k = lp0_k F_kk` | [`super::gimp`] |
 //! | CPDI1 (`"cpdi"`) | parallelepiped, `r_k = F lp0_k e_k` | [`super::cpdi`] |
+//! | B-splines, `integration: "domain"` | box, `l_k = lp0_k F_kk` | [`super::averaged`] |
 //!
 //! The stretched box follows the diagonal of F, as in contiguous-particle GIMP: for the
 //! axis-aligned stretches of a column the boxes of neighbouring points stay contiguous; a
@@ -113,14 +114,20 @@ pub fn eval_point_domain<const D: usize>(
         BasisKind::Gimp {
             domain: GimpDomain::Fixed,
         } => grid
-            .eval_gimp(position, initial_half_lengths, &mut scratch.basis, out)
+            .eval_domain_average(position, initial_half_lengths, &mut scratch.basis, out)
             .map_err(DomainError::Outside),
         BasisKind::Gimp {
             domain: GimpDomain::Stretched,
         } => {
             out.clear();
             let half_lengths = stretched_half_lengths(deformation_gradient, initial_half_lengths)?;
-            grid.eval_gimp(position, &half_lengths, &mut scratch.basis, out)
+            grid.eval_domain_average(position, &half_lengths, &mut scratch.basis, out)
+                .map_err(DomainError::Outside)
+        }
+        BasisKind::BSplineDomain { .. } => {
+            out.clear();
+            let half_lengths = stretched_half_lengths(deformation_gradient, initial_half_lengths)?;
+            grid.eval_domain_average(position, &half_lengths, &mut scratch.basis, out)
                 .map_err(DomainError::Outside)
         }
         BasisKind::Cpdi => grid.eval_cpdi(
@@ -168,7 +175,7 @@ mod tests {
         let expect = |kind: BasisKind, l: Vector2<f64>| {
             let mut out = Vec::new();
             grid(kind)
-                .eval_gimp(&x, &l, &mut BasisScratch::default(), &mut out)
+                .eval_domain_average(&x, &l, &mut BasisScratch::default(), &mut out)
                 .unwrap();
             out
         };

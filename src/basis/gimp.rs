@@ -31,7 +31,7 @@
 //!          0                            otherwise
 //! ```
 //!
-//! The kernel [`gimp_span`] computes the same integral for any `l` (also `l > h/2`, which a
+//! The kernel [`gimp_span`] (the order-1 case of [`super::averaged`]) computes the same integral for any `l` (also `l > h/2`, which a
 //! stretched domain can reach) without case analysis: the hat is linear on every cell, so its
 //! integral over the part `[a_c, b_c]` of the domain inside cell c is exact by the midpoint
 //! rule, and
@@ -77,11 +77,8 @@
 //! elements on the statically determinate column and reproduces the semi-analytic stress
 //! almost to round-off: eq. 15 error 4e-12 at W = 10000, 3.5e-9 at W = 40000.)
 
-use nalgebra::SVector;
-
+use super::averaged::averaged_span;
 use super::axis::{Axis, OutsideGrid};
-use super::bspline::hat_span;
-use super::grid::{BasisScratch, GridBasis, NodeWeight};
 
 /// 1D GIMP weights on one axis: the hat functions averaged over the domain
 /// `[x - half_length, x + half_length]` clipped to the axis.
@@ -98,68 +95,18 @@ pub fn gimp_span(
     values: &mut Vec<f64>,
     derivatives: &mut Vec<f64>,
 ) -> Result<usize, OutsideGrid> {
-    debug_assert!(half_length >= 0.0 && half_length.is_finite());
-    values.clear();
-    derivatives.clear();
-    let (cell, t) = axis.locate(x)?;
-    let h = axis.spacing();
-    let cells = axis.cells;
-    // the clipped domain in knot units
-    let half = half_length / h;
-    let ta = (t - half).max(0.0);
-    let tb = (t + half).min(cells as f64);
-    let first = if tb <= ta {
-        // zero-length domain: linear MPM
-        values.resize(2, 0.0);
-        derivatives.resize(2, 0.0);
-        hat_span(cell, t, values, derivatives);
-        cell
-    } else {
-        let first = (ta.floor() as usize).min(cells - 1);
-        let last = (tb.ceil() as usize)
-            .saturating_sub(1)
-            .clamp(first, cells - 1);
-        values.resize(last - first + 2, 0.0);
-        derivatives.resize(last - first + 2, 0.0);
-        let inverse_length = 1.0 / (tb - ta);
-        for c in first..=last {
-            let a = ta.max(c as f64);
-            let b = tb.min((c + 1) as f64);
-            if b <= a {
-                continue;
-            }
-            let w = (b - a) * inverse_length;
-            let m = 0.5 * (a + b) - c as f64;
-            let j = c - first;
-            values[j] += w * (1.0 - m);
-            values[j + 1] += w * m;
-            derivatives[j] -= w;
-            derivatives[j + 1] += w;
-        }
-        first
-    };
-    let inverse_h = 1.0 / h;
-    for d in derivatives.iter_mut() {
-        *d *= inverse_h;
-    }
-    Ok(first)
-}
-
-impl<const D: usize> GridBasis<D> {
-    /// GIMP weights of a point at `x` with the box domain of half-lengths `half_lengths`: the
-    /// tensor product of [`gimp_span`] on every axis. Fills `out` like [`GridBasis::eval`]
-    /// (increasing node order, only nonzero weights or gradients; empty on error).
-    pub fn eval_gimp(
-        &self,
-        x: &SVector<f64, D>,
-        half_lengths: &SVector<f64, D>,
-        scratch: &mut BasisScratch,
-        out: &mut Vec<NodeWeight<D>>,
-    ) -> Result<(), OutsideGrid> {
-        self.eval_tensor_product(scratch, out, |k, axis, values, derivatives| {
-            gimp_span(axis, x[k], half_lengths[k], values, derivatives)
-        })
-    }
+    // the hats are the B-splines of order 1, and the one-point Gauss rule is the midpoint rule
+    let mut work = [Vec::new(), Vec::new()];
+    averaged_span(
+        axis,
+        1,
+        x,
+        half_length,
+        &[(0.0, 2.0)],
+        &mut work,
+        values,
+        derivatives,
+    )
 }
 
 #[cfg(test)]
@@ -167,6 +114,8 @@ pub(crate) mod tests {
     use super::*;
     use crate::basis::test_points::{Lcg, assert_linear_reproduction, weight_of};
     use crate::basis::{BasisKind, GimpDomain};
+    use crate::basis::{BasisScratch, GridBasis};
+    use nalgebra::SVector;
 
     const GIMP: BasisKind = BasisKind::Gimp {
         domain: GimpDomain::Fixed,
@@ -389,7 +338,8 @@ pub(crate) mod tests {
             let x = SVector::<f64, D>::from_fn(|k, _| {
                 rng.uniform(grid.axes[k].lower + l[k], grid.axes[k].upper - l[k])
             });
-            grid.eval_gimp(&x, &l, &mut scratch, &mut out).unwrap();
+            grid.eval_domain_average(&x, &l, &mut scratch, &mut out)
+                .unwrap();
             let axes: Vec<(Vec<f64>, Vec<f64>)> = (0..D)
                 .map(|k| dense_1d(&grid.axes[k], x[k], l[k]))
                 .collect();

@@ -39,11 +39,33 @@ pub struct NodeWeight<const D: usize> {
 pub struct BasisScratch {
     values: Vec<Vec<f64>>,
     derivatives: Vec<Vec<f64>>,
+    /// Gauss–Legendre rule `(point, weight)` of the domain averages of B-splines.
+    rule: Vec<(f64, f64)>,
+    /// Span values and derivatives at one Gauss point of a domain average.
+    span: [Vec<f64>; 2],
 }
 
 impl BasisScratch {
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// The `n`-point Gauss–Legendre rule and span buffers of the B-spline domain averages
+    /// (`super::averaged`), taken out so that the per-axis buffers can be lent at the same time.
+    pub(super) fn take_domain_buffers(&mut self, n: usize) -> (Vec<(f64, f64)>, [Vec<f64>; 2]) {
+        if self.rule.len() != n {
+            let (points, weights) = crate::fem::gauss_legendre(n);
+            self.rule = points.into_iter().zip(weights).collect();
+        }
+        (
+            std::mem::take(&mut self.rule),
+            std::mem::take(&mut self.span),
+        )
+    }
+
+    pub(super) fn put_domain_buffers(&mut self, rule: Vec<(f64, f64)>, span: [Vec<f64>; 2]) {
+        self.rule = rule;
+        self.span = span;
     }
 }
 

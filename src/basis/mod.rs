@@ -59,6 +59,7 @@
 //! whose function or gradient is nonzero there, with values and physical gradients, without
 //! allocating (buffers in [`BasisScratch`]).
 
+pub mod averaged;
 pub mod axis;
 pub mod bspline;
 pub mod cpdi;
@@ -78,6 +79,10 @@ pub enum BasisKind {
     Linear,
     /// B-splines of order `order >= 1` on the open uniform knot vector over the grid.
     BSpline { order: usize },
+    /// B-splines of order `order` averaged over the point's box domain, stretched with the
+    /// deformation like contiguous GIMP: GIMP's integration with the B-spline basis
+    /// ([`averaged`]; `integration: "domain"` in scenes).
+    BSplineDomain { order: usize },
     /// GIMP (Bardenhagen & Kober 2004): the hat functions averaged over the point's box-shaped
     /// domain ([`gimp`]).
     Gimp { domain: GimpDomain },
@@ -117,14 +122,17 @@ impl BasisKind {
     pub fn order(&self) -> usize {
         match self {
             BasisKind::Linear | BasisKind::Fem | BasisKind::Gimp { .. } | BasisKind::Cpdi => 1,
-            BasisKind::BSpline { order } => *order,
+            BasisKind::BSpline { order } | BasisKind::BSplineDomain { order } => *order,
         }
     }
 
-    /// Whether a point's weights depend on its domain (GIMP, CPDI) rather than on its position
+    /// Whether a point's weights depend on its domain (GIMP, CPDI, averaged B-splines) rather than on its position
     /// alone: such points carry a `ParticleDomain` and use [`eval_point_domain`].
     pub fn uses_point_domain(&self) -> bool {
-        matches!(self, BasisKind::Gimp { .. } | BasisKind::Cpdi)
+        matches!(
+            self,
+            BasisKind::Gimp { .. } | BasisKind::Cpdi | BasisKind::BSplineDomain { .. }
+        )
     }
 }
 

@@ -10,7 +10,7 @@
 //!
 //! | call | meaning |
 //! |------|---------|
-//! | `grid(#{ lower: [..], upper: [..], cells: [..], basis: "linear" \| "bspline" \| "gimp" \| "cpdi" \| "fem", order: q, gimp: "stretched" \| "fixed" })` | background grid; the dimension (1, 2, 3) is the array length. `basis`: `"linear"` standard MPM (hat functions), `"bspline"` B-splines of `order` q >= 1 (required), `"gimp"` GIMP (hats averaged over the point's box domain), `"cpdi"` CPDI1 (hats averaged from the corners of the point's domain carried by F), `"fem"` linear finite elements on the body-fitted mesh of grid cells (see `fem`). `gimp` (GIMP only, default `"stretched"`): `"stretched"` domain half-lengths follow the diagonal of F (cpGIMP), `"fixed"` domains keep their initial size (uGIMP). `order` is ignored except for B-splines. A point's domain is the box of its seeding share (`h / ppc` per axis); GIMP clips domains to the grid, CPDI stops with an error naming the point when a domain corner leaves it. Call once. |
+//! | `grid(#{ lower: [..], upper: [..], cells: [..], basis: "linear" \| "bspline" \| "gimp" \| "cpdi" \| "fem", order: q, gimp: "stretched" \| "fixed", integration: "points" \| "domain" })` | background grid; the dimension (1, 2, 3) is the array length. `basis`: `"linear"` standard MPM (hat functions), `"bspline"` B-splines of `order` q >= 1 (required), `"gimp"` GIMP (hats averaged over the point's box domain), `"cpdi"` CPDI1 (hats averaged from the corners of the point's domain carried by F), `"fem"` linear finite elements on the body-fitted mesh of grid cells (see `fem`). `gimp` (GIMP only, default `"stretched"`): `"stretched"` domain half-lengths follow the diagonal of F (cpGIMP), `"fixed"` domains keep their initial size (uGIMP). `integration` (B-splines only, default `"points"`): `"points"` evaluates the basis at the material points, `"domain"` averages it over each point's box domain, stretched like cpGIMP's (`basis::averaged`). `order` is ignored except for B-splines. A point's domain is the box of its seeding share (`h / ppc` per axis); GIMP clips domains to the grid, CPDI stops with an error naming the point when a domain corner leaves it. Call once. |
 //! | `material(#{ name: "..", E: .., nu: .., density: .. })` | linear-elastic Hencky material (E > 0, -1 < nu < 0.5, density > 0); returns a handle |
 //! | `box([lo..], [hi..])` | an axis-aligned box region (bounds included) |
 //! | `polygon([[x, y], ..])` | a 2D polygon region (at least 3 vertices, any orientation, even-odd rule) |
@@ -322,7 +322,15 @@ fn declare_grid(builder: &mut SceneBuilder, options: Dynamic, at: Position) -> R
     let options = OptionMap::new(
         "grid",
         options,
-        &["lower", "upper", "cells", "basis", "order", "gimp"],
+        &[
+            "lower",
+            "upper",
+            "cells",
+            "basis",
+            "order",
+            "gimp",
+            "integration",
+        ],
     )?;
     let lower = numbers(&options.required("lower")?, &options.subject("lower"))?;
     let upper = numbers(&options.required("upper")?, &options.subject("upper"))?;
@@ -360,7 +368,24 @@ fn declare_grid(builder: &mut SceneBuilder, options: Dynamic, at: Position) -> R
             }
         },
     };
+    let domain_integration = match options.optional("integration") {
+        None => false,
+        Some(value) => match string(&value, &options.subject("integration"))?.as_str() {
+            "points" => false,
+            "domain" => true,
+            other => {
+                return Err(format!(
+                    "grid(...): option 'integration' must be \"points\" (the basis at the material points) or \"domain\" (B-splines averaged over the points' domains), got {other:?}"
+                ));
+            }
+        },
+    };
     let basis_name = string(&options.required("basis")?, &options.subject("basis"))?;
+    if domain_integration && basis_name != "bspline" {
+        return Err(format!(
+            "grid(...): integration \"domain\" is an option of basis \"bspline\" (for the hat functions it is basis \"gimp\"), got basis {basis_name:?}"
+        ));
+    }
     let basis = match basis_name.as_str() {
         // order is ignored: linear hat functions are order 1 by definition
         "linear" => BasisKind::Linear,
@@ -371,8 +396,11 @@ fn declare_grid(builder: &mut SceneBuilder, options: Dynamic, at: Position) -> R
                 "grid(...): basis \"bspline\" needs option 'order' (1 linear, 2 quadratic, 3 cubic, ...)"
                     .to_string()
             })?;
-            BasisKind::BSpline {
-                order: whole_number(&order, &options.subject("order"), 1)?,
+            let order = whole_number(&order, &options.subject("order"), 1)?;
+            if domain_integration {
+                BasisKind::BSplineDomain { order }
+            } else {
+                BasisKind::BSpline { order }
             }
         }
         "gimp" => BasisKind::Gimp {
@@ -1229,7 +1257,7 @@ mod tests {
             "{text}"
         );
         assert!(
-            text.contains("cells, basis, order, gimp, ppc, body_force, steps, placement, recovery"),
+            text.contains("cells, basis, order, gimp, ppc, body_force, steps, placement, integration, recovery"),
             "{text}"
         );
     }
@@ -1256,6 +1284,7 @@ mod tests {
                     ("body_force", "-800.0"),
                     ("steps", "20"),
                     ("placement", "\"uniform\""),
+                    ("integration", "\"points\""),
                     ("recovery", "\"none\""),
                 ],
                 "{script}"
@@ -1405,6 +1434,39 @@ mod tests {
         );
         assert_eq!(error.line, Some(2), "{error}");
         assert!(error.message.contains("'gimp' must be a string"), "{error}");
+    }
+
+    #[test]
+    fn integration_domain_averages_bsplines_and_is_checked() {
+        let grid_with = |options: &str| {
+            format!("grid(#{{ lower: [0.0], upper: [10.0], cells: [cells], {options} }});")
+        };
+        let path = inline_script(
+            "integration",
+            &scene_1d_with(
+                "grid",
+                &grid_with("basis: \"bspline\", order: 2, integration: \"domain\""),
+            ),
+        );
+        let scene = load_scene(&path, &[]).unwrap();
+        assert_eq!(scene.grid.basis, BasisKind::BSplineDomain { order: 2 });
+        assert!(scene.grid.basis.uses_point_domain());
+        for (name, options, expected) in [
+            (
+                "integration_gimp",
+                "basis: \"gimp\", integration: \"domain\"",
+                "integration \"domain\" is an option of basis \"bspline\"",
+            ),
+            (
+                "integration_word",
+                "basis: \"bspline\", order: 2, integration: \"exact\"",
+                "option 'integration' must be \"points\" (the basis at the material points) or \"domain\"",
+            ),
+        ] {
+            let error = failure(name, &scene_1d_with("grid", &grid_with(options)));
+            assert_eq!(error.line, Some(2), "{error}");
+            assert!(error.message.contains(expected), "{error}");
+        }
     }
 
     #[test]
