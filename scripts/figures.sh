@@ -11,19 +11,24 @@ IMPM=target/release/impm
 SCENE=scripts/column_1d.rhai
 CELLS=5,10,20,50,100,200,400
 
-# The methods of Fig. 3, one per line as basis:order:ppc:placement (order is ignored by methods
-# without one). Adding a method is adding its line. GIMP is the scene default (stretched
-# domains); GIMP and CPDI use 2 points per cell.
+# The methods of Fig. 3, one per line as basis:order:ppc:placement:integration (order is ignored
+# by methods without one, integration by all but bspline). Adding a method is adding its line.
+# GIMP is the scene default (stretched domains); GIMP and CPDI use 2 points per cell. The last
+# four are the options for the paper's closing question: Gauss placement, and B-splines
+# averaged over the point domains.
 METHODS=(
-  bspline:2:4:uniform
-  bspline:3:4:uniform
-  bspline:4:4:uniform
-  bspline:4:8:uniform
-  linear:1:1:uniform
-  gimp:1:2:uniform
-  cpdi:1:2:uniform
-  fem:1:2:uniform
-  bspline:3:4:gauss
+  bspline:2:4:uniform:points
+  bspline:3:4:uniform:points
+  bspline:4:4:uniform:points
+  bspline:4:8:uniform:points
+  linear:1:1:uniform:points
+  gimp:1:2:uniform:points
+  cpdi:1:2:uniform:points
+  fem:1:2:uniform:points
+  bspline:3:4:gauss:points
+  bspline:2:4:uniform:domain
+  bspline:3:4:uniform:domain
+  bspline:4:4:uniform:domain
 )
 
 study() { # OUT ARGS...: run one study into docs/OUT and drop the per-run files
@@ -45,18 +50,21 @@ if [[ $what == all || $what == fig3 ]]; then
   # Fig. 3 and the accuracy-cost front: eq. 15 error against cells and against wall time.
   methods=$(IFS=,; echo "${METHODS[*]}")
   for bf in 200 8000; do
-    study "fig3/W$((bf * 50))" --sweep "basis:order:ppc:placement=$methods" \
+    study "fig3/W$((bf * 50))" --sweep "basis:order:ppc:placement:integration=$methods" \
       --sweep "cells=$CELLS" --set "body_force=-$bf"
   done
 fi
 if [[ $what == all || $what == where ]]; then
   # Where B-spline MPM loses accuracy: the pointwise error along the column at three
   # resolutions (cubic, 4 points per cell, W = 10000), raw and MLS-recovered, for the regular
-  # lattice and for Gauss placement; and the rates of raw, recovered and Gauss-placed stress.
-  for placement in uniform gauss; do
-    study "where/$placement" --sweep cells=10,40,160 --set placement=$placement \
-      --set body_force=-200 --set recovery=mls --profiles
+  # lattice, for Gauss placement and for the basis averaged over the point domains; and the
+  # rates of raw and recovered stress for the three.
+  for variant in uniform:points gauss:points uniform:domain; do
+    placement=${variant%:*} integration=${variant#*:}
+    name=$placement; [[ $integration == domain ]] && name=domain
+    study "where/$name" --sweep cells=10,40,160 --set placement=$placement \
+      --set integration=$integration --set body_force=-200 --set recovery=mls --profiles
   done
-  study "where/rates" --sweep placement=uniform,gauss --sweep order=2,3,4 \
-    --sweep "cells=$CELLS" --set body_force=-200 --set recovery=mls
+  study "where/rates" --sweep "placement:integration=uniform:points,gauss:points,uniform:domain" \
+    --sweep order=2,3,4 --sweep "cells=$CELLS" --set body_force=-200 --set recovery=mls
 fi

@@ -66,9 +66,10 @@ pub struct BodyIndex(pub u32);
 pub struct Support<const D: usize>(pub Vec<NodeWeight<D>>);
 
 /// The initial domain of a material point, for the methods whose weights average the grid
-/// functions over it (GIMP, CPDI; `basis::domain`): the half-lengths `lp0_k` of the box the
-/// point owns at seeding (`h_k / (2 ppc_k)` on the lattice; its share of the overlap where a
-/// box region cuts a cell). Spawned only for those methods.
+/// functions over it (GIMP, CPDI, B-splines with `integration: "domain"`; `basis::domain`):
+/// the half-lengths `lp0_k` of the box the point owns at seeding (`h_k / (2 ppc_k)` on the
+/// lattice; its share of the overlap where a box region cuts a cell). Spawned only for those
+/// methods.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct ParticleDomain<const D: usize> {
     pub initial_half_lengths: SVector<f64, D>,

@@ -123,7 +123,8 @@ pub enum SolverError {
         position: Vec<f64>,
         step: usize,
     },
-    /// A point's domain (GIMP, CPDI) cannot be used: a corner left the grid, or it inverted.
+    /// A point's domain (GIMP, CPDI, domain-integrated B-splines) cannot be used: a corner left
+    /// the grid, or it inverted.
     PointDomain {
         point: u32,
         step: usize,

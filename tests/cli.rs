@@ -178,7 +178,7 @@ fn check_explain_lists_the_systems_of_the_scene() {
     assert!(out.status.success(), "{}", stderr(&out));
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("force          = -0.2"), "{text}");
-    assert!(text.contains("  point loads                yes"), "{text}");
+    assert!(text.contains("  point loads                 yes"), "{text}");
     let scheduled = text.split("left out").next().unwrap();
     assert!(
         scheduled.contains("Loads                loads::apply_point_loads"),

@@ -79,8 +79,9 @@ pub fn stretched_half_lengths<const D: usize>(
         let stretch = deformation_gradient[(k, k)];
         if !(stretch > 0.0 && stretch.is_finite()) {
             return Err(DomainError::Degenerate(format!(
-                "its stretched GIMP domain is inverted: F[{k}][{k}] = {stretch:e} is not positive \
-                 (large rotation or shear; use basis \"cpdi\")"
+                "its stretched box domain is inverted: F[{k}][{k}] = {stretch:e} is not positive \
+                 (large rotation or shear; use basis \"cpdi\", or B-splines with integration \
+                 \"points\")"
             )));
         }
     }

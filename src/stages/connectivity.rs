@@ -5,9 +5,10 @@
 //! them for the whole step (`Support`). A node is active when some point's support contains it.
 //!
 //! Two systems, one per kind of basis, so that the point bases (linear, B-spline) keep their
-//! lean query: [`evaluate_basis`] evaluates `N_i(x_p)`; [`evaluate_domain_basis`] (GIMP, CPDI)
-//! averages the hats over the point's domain at the start of the step, built from its
-//! `ParticleDomain` and converged `DeformationGradient` (`basis::domain`).
+//! lean query: [`evaluate_basis`] evaluates `N_i(x_p)`; [`evaluate_domain_basis`] (GIMP, CPDI,
+//! B-splines with `integration: "domain"`) averages the grid functions over the point's domain
+//! at the start of the step, built from its `ParticleDomain` and converged
+//! `DeformationGradient` (`basis::domain`).
 
 use bevy_ecs::prelude::*;
 

@@ -155,7 +155,7 @@ impl std::fmt::Display for Explanation {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(f, "effects used by the scene:")?;
         for (name, used) in self.effects.list() {
-            writeln!(f, "  {name:<26} {}", if used { "yes" } else { "no" })?;
+            writeln!(f, "  {name:<27} {}", if used { "yes" } else { "no" })?;
         }
         let mut schedule = "";
         for system in &self.systems {

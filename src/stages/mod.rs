@@ -132,8 +132,8 @@ pub struct Effects {
     pub ghost_penalty: bool,
     /// MLS recovery of the point stresses after every step (`RecoveredStress`).
     pub stress_recovery: bool,
-    /// The basis averages over particle domains (GIMP, CPDI): connectivity uses
-    /// [`evaluate_domain_basis`] instead of [`evaluate_basis`].
+    /// The basis averages over particle domains (GIMP, CPDI, domain-integrated B-splines):
+    /// connectivity uses [`evaluate_domain_basis`] instead of [`evaluate_basis`].
     pub point_domains: bool,
 }
 
@@ -162,7 +162,7 @@ impl Effects {
             ("prescribed displacements", self.prescribed_displacements),
             ("ghost penalty", self.ghost_penalty),
             ("stress recovery", self.stress_recovery),
-            ("point domains (GIMP, CPDI)", self.point_domains),
+            ("basis averaged over domains", self.point_domains),
             ("finite-element mesh", self.fem_mesh),
         ]
     }

@@ -19,8 +19,9 @@ use super::{RunOutcome, RunRecord};
 const FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans-subset.ttf");
 const SIZE: (u32, u32) = (960, 640);
 
-/// Tableau-10 colours; `usize::MAX` is black (a reference curve).
-const PALETTE: [(u8, u8, u8); 10] = [
+/// Tableau-10 colours, then six darker ones for studies with more series (Fig. 3 has 12);
+/// `usize::MAX` is black (a reference curve).
+const PALETTE: [(u8, u8, u8); 16] = [
     (31, 119, 180),
     (255, 127, 14),
     (44, 160, 44),
@@ -31,6 +32,12 @@ const PALETTE: [(u8, u8, u8); 10] = [
     (127, 127, 127),
     (188, 189, 34),
     (23, 190, 207),
+    (128, 0, 0),
+    (0, 0, 128),
+    (0, 128, 128),
+    (128, 128, 0),
+    (190, 0, 190),
+    (60, 60, 60),
 ];
 
 fn colour(index: usize) -> RGBColor {
