@@ -1,6 +1,8 @@
 //! What one point's weights cost per method: nanoseconds per point for the connectivity kernel
-//! (`GridBasis::eval` for linear and B-splines, `basis::eval_point_domain` for GIMP and CPDI),
-//! in 1D, 2D and 3D, on points spread over a grid with a mildly stretched and sheared F.
+//! (`GridBasis::eval` for linear and B-splines, `basis::eval_point_domain` for GIMP, CPDI and
+//! B-splines averaged over the domain), in 1D, 2D and 3D, on points spread over a grid with a
+//! mildly stretched and sheared F, and the ratio to linear MPM in the same process. Results are
+//! recorded in docs/performance.md.
 //!
 //!     cargo run --release --example basis_cost
 
@@ -49,6 +51,8 @@ fn main() {
         ("linear", BasisKind::Linear),
         ("bspline q=2", BasisKind::BSpline { order: 2 }),
         ("bspline q=3", BasisKind::BSpline { order: 3 }),
+        ("bspline q=2 dom", BasisKind::BSplineDomain { order: 2 }),
+        ("bspline q=3 dom", BasisKind::BSplineDomain { order: 3 }),
         (
             "gimp fixed",
             BasisKind::Gimp {
@@ -64,13 +68,20 @@ fn main() {
         ("cpdi", BasisKind::Cpdi),
     ];
     println!(
-        "{:<16} {:>22} {:>22} {:>22}",
-        "basis", "1D ns/point (nodes)", "2D ns/point (nodes)", "3D ns/point (nodes)"
+        "{:<16} {:>30} {:>30} {:>30}",
+        "basis",
+        "1D ns/point (nodes) vs linear",
+        "2D ns/point (nodes) vs linear",
+        "3D ns/point (nodes) vs linear"
     );
+    let mut linear = None;
     for (name, kind) in kinds {
-        let (t1, n1) = cost::<1>(kind);
-        let (t2, n2) = cost::<2>(kind);
-        let (t3, n3) = cost::<3>(kind);
-        println!("{name:<16} {t1:>14.1} ({n1:>5.2}) {t2:>14.1} ({n2:>5.2}) {t3:>14.1} ({n3:>5.2})");
+        let costs = [cost::<1>(kind), cost::<2>(kind), cost::<3>(kind)];
+        let baseline = *linear.get_or_insert(costs.map(|(t, _)| t));
+        print!("{name:<16}");
+        for ((t, n), t_linear) in costs.iter().zip(baseline) {
+            print!(" {t:>14.1} ({n:>6.2}) {:>6.2}x", t / t_linear);
+        }
+        println!();
     }
 }

@@ -52,6 +52,22 @@ impl<const D: usize> GridBasis<D> {
         out: &mut Vec<NodeWeight<D>>,
     ) -> Result<(), OutsideGrid> {
         let order = self.axes[0].order();
+        if order == 1 {
+            // the hats (GIMP) need no Gauss rule: their pieces are averaged in closed form
+            let mut no_work = [Vec::new(), Vec::new()];
+            return self.eval_tensor_product(scratch, out, |k, axis, values, derivatives| {
+                averaged_span(
+                    axis,
+                    1,
+                    x[k],
+                    half_lengths[k],
+                    &[],
+                    &mut no_work,
+                    values,
+                    derivatives,
+                )
+            });
+        }
         let (mut rule, mut span) = scratch.take_domain_buffers(order / 2 + 1);
         let evaluated = self.eval_tensor_product(scratch, out, |k, axis, values, derivatives| {
             averaged_span(
@@ -75,7 +91,9 @@ impl<const D: usize> GridBasis<D> {
 /// `[x − half_length, x + half_length]` clipped to the axis, with the Gauss rule `rule` (points
 /// on `[−1, 1]`, weights summing to 2) of at least `⌊q/2⌋ + 1` points. Returns the index of the
 /// first function with a weight and fills `values`/`derivatives` for consecutive functions
-/// (cleared first; left empty on error). `work` holds the per-point span values.
+/// (cleared first; left empty on error). `work` holds the per-point span values. For q = 1 the
+/// pieces are averaged in closed form (the hats are linear on them) and `rule` and `work` are
+/// not used.
 #[allow(clippy::too_many_arguments)]
 pub fn averaged_span(
     axis: &Axis,
@@ -88,7 +106,7 @@ pub fn averaged_span(
     derivatives: &mut Vec<f64>,
 ) -> Result<usize, OutsideGrid> {
     debug_assert!(half_length >= 0.0 && half_length.is_finite());
-    debug_assert!(2 * rule.len() > order);
+    debug_assert!(order == 1 || 2 * rule.len() > order);
     values.clear();
     derivatives.clear();
     let (cell, t) = axis.locate(x)?;
@@ -96,9 +114,6 @@ pub fn averaged_span(
     let half = half_length / axis.spacing();
     let ta = (t - half).max(0.0);
     let tb = (t + half).min(cells as f64);
-    let [span_values, span_derivatives] = work;
-    span_values.resize(order + 1, 0.0);
-    span_derivatives.resize(order + 1, 0.0);
     let first = if tb <= ta {
         values.resize(order + 1, 0.0);
         derivatives.resize(order + 1, 0.0);
@@ -119,6 +134,19 @@ pub fn averaged_span(
                 continue;
             }
             let (middle, radius) = (0.5 * (a + b), 0.5 * (b - a));
+            let offset = c - first;
+            if order == 1 {
+                // the hats (GIMP): linear on the piece, the midpoint value in closed form
+                let (w, m) = ((b - a) * inverse_length, middle - c as f64);
+                values[offset] += w * (1.0 - m);
+                values[offset + 1] += w * m;
+                derivatives[offset] -= w;
+                derivatives[offset + 1] += w;
+                continue;
+            }
+            let [span_values, span_derivatives] = &mut *work;
+            span_values.resize(order + 1, 0.0);
+            span_derivatives.resize(order + 1, 0.0);
             for &(xi, weight) in rule {
                 let w = 0.5 * weight * (b - a) * inverse_length;
                 bspline_span(
@@ -129,7 +157,6 @@ pub fn averaged_span(
                     span_values,
                     span_derivatives,
                 );
-                let offset = c - first;
                 for j in 0..=order {
                     values[offset + j] += w * span_values[j];
                     derivatives[offset + j] += w * span_derivatives[j];
