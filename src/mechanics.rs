@@ -157,8 +157,8 @@ impl<const D: usize> TrialState<D> {
         self.stiffness_from(reference_volume, g_i, &self.stiffness_factor(g_j))
     }
 
-    /// The part of K_ij that depends on node j only: m[a][b][k] = Σ_d c_abkd (b g_j)_d and
-    /// τ g_j. Computing it once per node turns the D⁴ work per node pair into D³.
+    /// The part of K_ij that depends on node j only: `m[a][b][k] = Σ_d c_abkd (b g_j)_d` and
+    /// `τ g_j`. Computing it once per node turns the D⁴ work per node pair into D³.
     #[inline]
     pub fn stiffness_factor(&self, g_j: &SVector<f64, D>) -> StiffnessFactor<D> {
         let h_j = self.left_cauchy_green * g_j;
@@ -174,7 +174,7 @@ impl<const D: usize> TrialState<D> {
         }
     }
 
-    /// K_ij = V0 (Σ_b g_i[b] m_j[a][b][k] − (τ g_j)[a] g_i[k]).
+    /// `K_ij = V0 (Σ_b g_i[b] m_j[a][b][k] − (τ g_j)[a] g_i[k])`.
     #[inline]
     pub fn stiffness_from(
         &self,

@@ -1,7 +1,7 @@
 //! # Moving-least-squares (MLS) stress recovery
 //!
 //! The paper closes with "optimum rates of convergence were not achieved due to projection and
-//! integration errors", and names MLS data reconstruction (its ref. [11], Sulsky & Gong) as the
+//! integration errors", and names MLS data reconstruction (its ref. \[11\], Sulsky & Gong) as the
 //! remedy. This module is that reconstruction as a pure kernel over plain slices: given values
 //! `v_j` (any number of components) at points `x_j`, it returns at every point `x_p` the value
 //! of the weighted least-squares polynomial fitted to its neighbours.

@@ -32,7 +32,9 @@
 //! ```
 //!
 //! a partition of unity piece by piece (`Σ_i S_i = 1`, `Σ_i S_i' = 0`); a domain of zero length
-//! gives the B-spline at the point. In 2D/3D the weights are tensor products, as for GIMP.
+//! gives the B-spline at the point. For q = 1 these are GIMP's weights (`super::gimp`): the
+//! one-point rule is the midpoint, taken in closed form. In 2D/3D the weights are tensor
+//! products.
 
 use nalgebra::SVector;
 
@@ -52,23 +54,12 @@ impl<const D: usize> GridBasis<D> {
         out: &mut Vec<NodeWeight<D>>,
     ) -> Result<(), OutsideGrid> {
         let order = self.axes[0].order();
-        if order == 1 {
-            // the hats (GIMP) need no Gauss rule: their pieces are averaged in closed form
-            let mut no_work = [Vec::new(), Vec::new()];
-            return self.eval_tensor_product(scratch, out, |k, axis, values, derivatives| {
-                averaged_span(
-                    axis,
-                    1,
-                    x[k],
-                    half_lengths[k],
-                    &[],
-                    &mut no_work,
-                    values,
-                    derivatives,
-                )
-            });
-        }
-        let (mut rule, mut span) = scratch.take_domain_buffers(order / 2 + 1);
+        // the hats (GIMP) are averaged in closed form: no Gauss rule, no work buffers
+        let (mut rule, mut span) = if order == 1 {
+            (Vec::new(), [Vec::new(), Vec::new()])
+        } else {
+            scratch.take_domain_buffers(order / 2 + 1)
+        };
         let evaluated = self.eval_tensor_product(scratch, out, |k, axis, values, derivatives| {
             averaged_span(
                 axis,
@@ -81,14 +72,16 @@ impl<const D: usize> GridBasis<D> {
                 derivatives,
             )
         });
-        scratch.put_domain_buffers(std::mem::take(&mut rule), std::mem::take(&mut span));
+        if order > 1 {
+            scratch.put_domain_buffers(std::mem::take(&mut rule), std::mem::take(&mut span));
+        }
         evaluated
     }
 }
 
 /// Averages of the order-q B-splines of `axis` (q = `order`; the hats for q = 1) and of their
-/// derivatives (physical units) over
-/// `[x − half_length, x + half_length]` clipped to the axis, with the Gauss rule `rule` (points
+/// derivatives (physical units) over `[x − half_length, x + half_length]` clipped to the axis,
+/// with the Gauss rule `rule` (points
 /// on `[−1, 1]`, weights summing to 2) of at least `⌊q/2⌋ + 1` points. Returns the index of the
 /// first function with a weight and fills `values`/`derivatives` for consecutive functions
 /// (cleared first; left empty on error). `work` holds the per-point span values. For q = 1 the

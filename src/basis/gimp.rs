@@ -31,10 +31,10 @@
 //!          0                            otherwise
 //! ```
 //!
-//! The kernel [`gimp_span`] (the order-1 case of [`super::averaged`]) computes the same integral for any `l` (also `l > h/2`, which a
-//! stretched domain can reach) without case analysis: the hat is linear on every cell, so its
-//! integral over the part `[a_c, b_c]` of the domain inside cell c is exact by the midpoint
-//! rule, and
+//! The kernel [`gimp_span`] (the order-1 case of [`super::averaged`]) computes the same
+//! integral for any `l` (also `l > h/2`, which a stretched domain can reach) without case
+//! analysis: the hat is linear on every cell, so its integral over the part `[a_c, b_c]` of the
+//! domain inside cell c is exact by the midpoint rule, and
 //!
 //! ```text
 //!   S_i = Σ_c w_c N_i(m_c),    S_i' = Σ_c w_c N_i'|_c,    w_c = (b_c - a_c) / (b - a),

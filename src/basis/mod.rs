@@ -45,6 +45,10 @@
 //! and dispatches. [`GridBasis::eval`] on such a grid evaluates the plain hat functions (used
 //! for grid output).
 //!
+//! [`BasisKind::BSplineDomain`] applies GIMP's average to the B-splines ([`averaged`], whose
+//! order-1 case is GIMP's kernel): the basis is integrated exactly over the point's box, which
+//! removes the quadrature error of the boundary functions at a fixed base.
+//!
 //! # Control points (nodes)
 //!
 //! Function `i` is attached to a node at the Greville abscissa
@@ -126,8 +130,9 @@ impl BasisKind {
         }
     }
 
-    /// Whether a point's weights depend on its domain (GIMP, CPDI, averaged B-splines) rather than on its position
-    /// alone: such points carry a `ParticleDomain` and use [`eval_point_domain`].
+    /// Whether a point's weights depend on its domain (GIMP, CPDI, averaged B-splines) rather
+    /// than on its position alone: such points carry a `ParticleDomain` and use
+    /// [`eval_point_domain`].
     pub fn uses_point_domain(&self) -> bool {
         matches!(
             self,

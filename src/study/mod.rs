@@ -31,7 +31,7 @@
 //! * `wall_seconds`: the whole run as a user waits for it — scene evaluation, building the world,
 //!   the load steps and the output of the run.
 //! * `t_<stage>`: seconds per stage summed over the load steps (from `summary.json`).
-//! * Memory ([`memory`]): the peak resident size of the process during the run (`VmHWM`, reset
+//! * Memory (`study::memory`): the peak resident size of the process during the run (`VmHWM`, reset
 //!   before each run), which includes the baseline resident size before the run (also
 //!   recorded). Where the reset is not available, the column holds the process's lifetime peak
 //!   and `study.md` says so.
