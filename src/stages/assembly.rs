@@ -2,12 +2,14 @@
 //!
 //! Every point adds V0 τ g_i to the internal force of its support nodes and the blocks K_ij to
 //! the tangent. K is symmetric, so only j >= i is computed and the transpose is added for the
-//! mirror block. The node-j factor of K_ij is computed once per node, and the positions of
-//! the blocks in the sparse values are cached for consecutive points with the same support
-//! (all points of a cell), so the inner loop is D³ multiply-adds and D² additions per pair.
+//! mirror block. The node-j factor of K_ij is computed once per node. Consecutive points with
+//! the same support (the points of a cell) form a group: their blocks are summed in a dense
+//! buffer, and the group's sum is scattered into the sparse values once, at positions cached
+//! for the group; so the inner loop is D³ multiply-adds and D² additions per pair, and the
+//! scattered writes are paid per cell rather than per point.
 
 use bevy_ecs::prelude::*;
-use nalgebra::SVector;
+use nalgebra::{SMatrix, SVector};
 
 use crate::components::{ReferenceVolume, Support, Trial};
 use crate::mechanics::StiffnessFactor;
@@ -23,6 +25,8 @@ pub struct AssemblyScratch<const D: usize> {
     cached_nodes: Vec<usize>,
     /// Block positions for the pairs (i, j) and (j, i), j >= i, in loop order.
     starts: Vec<([usize; D], [usize; D])>,
+    /// The blocks K_ij (j >= i, loop order) summed over the points of the current group.
+    blocks: Vec<SMatrix<f64, D, D>>,
 }
 
 impl<const D: usize> AssemblyScratch<D> {
@@ -35,6 +39,7 @@ impl<const D: usize> AssemblyScratch<D> {
         self.cached_nodes.clear();
         self.cached_nodes.extend(nodes);
         self.starts.clear();
+        self.blocks.clear();
         let m = self.cached_nodes.len();
         for i in 0..m {
             let dofs_i = &dofs[self.cached_nodes[i]];
@@ -44,6 +49,27 @@ impl<const D: usize> AssemblyScratch<D> {
                     system.block_starts(dofs_i, dofs_j),
                     system.block_starts(dofs_j, dofs_i),
                 ));
+                self.blocks.push(SMatrix::zeros());
+            }
+        }
+    }
+
+    /// Adds the group's summed blocks (and their transposes for j != i) to the sparse values
+    /// and clears them.
+    fn flush(&mut self, dofs: &[[u32; D]], system: &mut LinearSystem) {
+        let m = self.cached_nodes.len();
+        let mut pair = 0;
+        for i in 0..m {
+            let dofs_i = &dofs[self.cached_nodes[i]];
+            for j in i..m {
+                let (starts_ij, starts_ji) = &self.starts[pair];
+                let k = &mut self.blocks[pair];
+                system.add_block_at(starts_ij, dofs_i, k);
+                if j != i {
+                    system.add_block_at(starts_ji, &dofs[self.cached_nodes[j]], &k.transpose());
+                }
+                *k = SMatrix::zeros();
+                pair += 1;
             }
         }
     }
@@ -73,6 +99,7 @@ pub fn assemble<const D: usize>(
             .copied()
             .eq(support.iter().map(|w| w.node))
         {
+            scratch.flush(&fields.dofs, system);
             scratch.cache_block_positions(support.iter().map(|w| w.node), &fields.dofs, system);
         }
         scratch.gradients.clear();
@@ -87,18 +114,13 @@ pub fn assemble<const D: usize>(
         for (i, wi) in support.iter().enumerate() {
             let g_i = &scratch.gradients[i];
             fields.internal_force[wi.node] += state.internal_force(v0, g_i);
-            let dofs_i = &fields.dofs[wi.node];
-            for (j, wj) in support.iter().enumerate().skip(i) {
-                let k = state.stiffness_from(v0, g_i, &scratch.factors[j]);
-                let (starts_ij, starts_ji) = &scratch.starts[pair];
+            for factor_j in &scratch.factors[i..] {
+                scratch.blocks[pair] += state.stiffness_from(v0, g_i, factor_j);
                 pair += 1;
-                system.add_block_at(starts_ij, dofs_i, &k);
-                if j != i {
-                    system.add_block_at(starts_ji, &fields.dofs[wj.node], &k.transpose());
-                }
             }
         }
     }
+    scratch.flush(&fields.dofs, system);
     // Guard: a non-finite internal force is reported here, at the node where it appears.
     if let Some(node) = fields
         .internal_force
