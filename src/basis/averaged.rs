@@ -169,6 +169,7 @@ pub fn averaged_span(
 mod tests {
     use super::*;
     use crate::basis::BasisKind;
+    use crate::basis::test_points::dense_span;
     use crate::fem::gauss_legendre;
 
     fn rule(n: usize) -> Vec<(f64, f64)> {
@@ -178,24 +179,11 @@ mod tests {
 
     /// All function averages of the axis as dense vectors.
     fn dense(axis: &Axis, order: usize, x: f64, l: f64) -> (Vec<f64>, Vec<f64>) {
-        let (mut v, mut d) = (Vec::new(), Vec::new());
+        let rule = rule(order / 2 + 1);
         let mut work = [Vec::new(), Vec::new()];
-        let first = averaged_span(
-            axis,
-            order,
-            x,
-            l,
-            &rule(order / 2 + 1),
-            &mut work,
-            &mut v,
-            &mut d,
-        )
-        .unwrap();
-        let mut values = vec![0.0; axis.num_functions()];
-        let mut derivatives = vec![0.0; axis.num_functions()];
-        values[first..first + v.len()].copy_from_slice(&v);
-        derivatives[first..first + d.len()].copy_from_slice(&d);
-        (values, derivatives)
+        dense_span(axis, |v, d| {
+            averaged_span(axis, order, x, l, &rule, &mut work, v, d).unwrap()
+        })
     }
 
     /// Function i and its derivative at y, from the point evaluation.

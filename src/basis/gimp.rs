@@ -112,7 +112,7 @@ pub fn gimp_span(
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use crate::basis::test_points::{Lcg, assert_linear_reproduction, weight_of};
+    use crate::basis::test_points::{Lcg, assert_linear_reproduction, dense_span, weight_of};
     use crate::basis::{BasisKind, GimpDomain};
     use crate::basis::{BasisScratch, GridBasis};
     use nalgebra::SVector;
@@ -127,13 +127,7 @@ pub(crate) mod tests {
 
     /// All vertex weights of the axis as dense vectors.
     pub(crate) fn dense_1d(axis: &Axis, x: f64, l: f64) -> (Vec<f64>, Vec<f64>) {
-        let (mut v, mut d) = (Vec::new(), Vec::new());
-        let first = gimp_span(axis, x, l, &mut v, &mut d).unwrap();
-        let mut vals = vec![0.0; axis.num_functions()];
-        let mut ders = vec![0.0; axis.num_functions()];
-        vals[first..first + v.len()].copy_from_slice(&v);
-        ders[first..first + d.len()].copy_from_slice(&d);
-        (vals, ders)
+        dense_span(axis, |v, d| gimp_span(axis, x, l, v, d).unwrap())
     }
 
     /// The hat of vertex i and its derivative at y (0 outside the axis).

@@ -147,7 +147,22 @@ impl BasisKind {
 pub(crate) mod test_points {
     use nalgebra::{SMatrix, SVector};
 
-    use super::{GridBasis, NodeWeight};
+    use super::{Axis, GridBasis, NodeWeight};
+
+    /// All the 1D weights of `axis` as dense vectors (values, derivatives), from a span kernel
+    /// that fills consecutive functions and returns the index of the first.
+    pub fn dense_span(
+        axis: &Axis,
+        span: impl FnOnce(&mut Vec<f64>, &mut Vec<f64>) -> usize,
+    ) -> (Vec<f64>, Vec<f64>) {
+        let (mut v, mut d) = (Vec::new(), Vec::new());
+        let first = span(&mut v, &mut d);
+        let mut values = vec![0.0; axis.num_functions()];
+        let mut derivatives = vec![0.0; axis.num_functions()];
+        values[first..first + v.len()].copy_from_slice(&v);
+        derivatives[first..first + d.len()].copy_from_slice(&d);
+        (values, derivatives)
+    }
 
     /// Value and gradient of `node` among `weights` (zero if it is not there).
     pub fn weight_of<const D: usize>(
