@@ -40,7 +40,7 @@
 
 use crate::basis::bspline::{bspline_span, open_uniform_knot};
 use crate::basis::{Axis, GridBasis};
-use crate::scene::gauss_legendre_unit;
+use crate::quadrature::gauss_legendre_unit;
 
 /// d^k N_i^p / dt^k at `t` (knot units) on the open uniform knot vector, by recursion on the
 /// order: N^(k)_{i,p} = p (N^(k-1)_{i,p-1} / (ξ_{i+p} − ξ_i) − N^(k-1)_{i+1,p-1} / (ξ_{i+p+1} − ξ_{i+1})),

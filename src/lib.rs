@@ -22,6 +22,7 @@ pub mod material;
 pub mod mechanics;
 pub mod output;
 pub mod plugin;
+pub mod quadrature;
 pub mod recovery;
 pub mod resources;
 pub mod scene;

@@ -198,7 +198,7 @@ fn run(cli: Cli) -> Result<(), String> {
                 "{}D grid {:?} cells, basis {}, {} bodies, {} points, {} constraints, {} load steps",
                 spec.dim(),
                 spec.grid.cells,
-                impm::simulation::basis_name(spec.grid.basis),
+                spec.grid.basis,
                 spec.bodies.len(),
                 spec.bodies.iter().map(|b| b.points.len()).sum::<usize>(),
                 spec.constraints.len(),

@@ -570,18 +570,6 @@ fn particle_domain<const D: usize>(
     })
 }
 
-/// A human name for a basis.
-pub fn basis_name(kind: BasisKind) -> String {
-    match kind {
-        BasisKind::Linear => "linear".into(),
-        BasisKind::BSpline { order } => format!("bspline(q={order})"),
-        BasisKind::BSplineDomain { order } => format!("bspline(q={order}, domain integration)"),
-        BasisKind::Gimp { domain } => format!("gimp({})", domain.name()),
-        BasisKind::Cpdi => "cpdi".into(),
-        BasisKind::Fem => "fem(linear elements)".into(),
-    }
-}
-
 /// Runs a whole scene in dimension `spec.dim()`, writing to `out_dir` (with a plugin:
 /// [`crate::plugin::run_scene_with`]).
 pub fn run_scene(

@@ -8,7 +8,6 @@ use serde_json::{Map, Value, json};
 
 use crate::resources::{Stage, StageClock};
 use crate::scene::SceneSpec;
-use crate::simulation::basis_name;
 
 /// What one load step did.
 #[derive(Clone, Debug)]
@@ -122,7 +121,7 @@ impl Summary {
             path: out_dir.join("summary.json"),
             scene: spec.name.clone(),
             dimension: spec.dim(),
-            basis: basis_name(spec.grid.basis),
+            basis: spec.grid.basis.to_string(),
             points,
             nodes,
             planned_steps: spec.load_factors.len(),

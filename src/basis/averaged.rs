@@ -170,7 +170,7 @@ mod tests {
     use super::*;
     use crate::basis::BasisKind;
     use crate::basis::test_points::dense_span;
-    use crate::fem::gauss_legendre;
+    use crate::quadrature::gauss_legendre;
 
     fn rule(n: usize) -> Vec<(f64, f64)> {
         let (points, weights) = gauss_legendre(n);

@@ -51,7 +51,7 @@
 
 use nalgebra::{SMatrix, SVector};
 
-use super::domain::DomainError;
+use super::error::DomainError;
 use super::grid::{BasisScratch, GridBasis, NodeWeight};
 
 /// How far (in cells) a corner may lie outside the grid and be projected onto its boundary.

@@ -27,41 +27,12 @@
 //! derivative of the discrete internal force and Newton keeps its quadratic convergence. (The
 //! dependence of the domain on F enters only from one step to the next.)
 
-use std::fmt;
-
 use nalgebra::{SMatrix, SVector};
 
-use super::axis::OutsideGrid;
 use super::cpdi::CpdiScratch;
+use super::error::DomainError;
 use super::grid::{BasisScratch, GridBasis, NodeWeight};
 use super::{BasisKind, GimpDomain};
-
-/// Why a point's domain weights could not be evaluated.
-#[derive(Clone, Debug, PartialEq)]
-pub enum DomainError {
-    /// The point itself is outside the grid.
-    Outside(OutsideGrid),
-    /// A corner of the point's CPDI domain is outside the grid (beyond round-off).
-    CornerOutside { corner: Vec<f64>, axis: usize },
-    /// The domain is inverted or degenerate.
-    Degenerate(String),
-}
-
-impl fmt::Display for DomainError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            DomainError::Outside(outside) => write!(f, "{outside}"),
-            DomainError::CornerOutside { corner, axis } => write!(
-                f,
-                "the corner {corner:?} of its CPDI domain is outside the background grid along \
-                 axis {axis}; the grid must contain the points' domains (enlarge it)"
-            ),
-            DomainError::Degenerate(why) => f.write_str(why),
-        }
-    }
-}
-
-impl std::error::Error for DomainError {}
 
 /// Buffers reused by [`eval_point_domain`] (no allocation once warm).
 #[derive(Clone, Debug, Default)]

@@ -54,7 +54,7 @@ impl BasisScratch {
     /// (`super::averaged`), taken out so that the per-axis buffers can be lent at the same time.
     pub(super) fn take_domain_buffers(&mut self, n: usize) -> (Vec<(f64, f64)>, [Vec<f64>; 2]) {
         if self.rule.len() != n {
-            let (points, weights) = crate::fem::gauss_legendre(n);
+            let (points, weights) = crate::quadrature::gauss_legendre(n);
             self.rule = points.into_iter().zip(weights).collect();
         }
         (

@@ -68,12 +68,14 @@ pub mod axis;
 pub mod bspline;
 pub mod cpdi;
 pub mod domain;
+pub mod error;
 pub mod gimp;
 pub mod grid;
 
 pub use axis::{Axis, OutsideGrid};
 pub use bspline::control_points_1d;
-pub use domain::{DomainError, DomainScratch, eval_point_domain};
+pub use domain::{DomainScratch, eval_point_domain};
+pub use error::DomainError;
 pub use grid::{BasisScratch, GridBasis, NodeWeight};
 
 /// Which family of grid functions maps between points and grid.
@@ -116,6 +118,24 @@ impl GimpDomain {
         match self {
             GimpDomain::Fixed => "fixed",
             GimpDomain::Stretched => "stretched",
+        }
+    }
+}
+
+/// The human name of a basis, as in `impm check` and `summary.json`: `linear`,
+/// `bspline(q=3)`, `bspline(q=2, domain integration)`, `gimp(stretched)`, `cpdi`,
+/// `fem(linear elements)`.
+impl std::fmt::Display for BasisKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            BasisKind::Linear => f.write_str("linear"),
+            BasisKind::BSpline { order } => write!(f, "bspline(q={order})"),
+            BasisKind::BSplineDomain { order } => {
+                write!(f, "bspline(q={order}, domain integration)")
+            }
+            BasisKind::Gimp { domain } => write!(f, "gimp({})", domain.name()),
+            BasisKind::Cpdi => f.write_str("cpdi"),
+            BasisKind::Fem => f.write_str("fem(linear elements)"),
         }
     }
 }

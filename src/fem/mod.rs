@@ -26,7 +26,7 @@
 //!   J = ∂x/∂ξ = Σ_a x_a ⊗ ∇_ξ N_a,      ∇_x N_a = J⁻ᵀ ∇_ξ N_a,      dV = det J dξ.
 //! ```
 //!
-//! # Integration points ([`gauss`])
+//! # Integration points ([`crate::quadrature`])
 //!
 //! The body's `ppc` becomes the number of Gauss–Legendre points per direction (1 = element
 //! centre, 2 = 2x2(x2), ...): points ξ_g and weights w_g of the n-point rule, exact for
@@ -67,14 +67,13 @@
 //! deformed mesh as `grid_NNNN.vtu` and the integration points as `particles_NNNN.vtu`.
 
 pub mod element;
-pub mod gauss;
 pub mod mesh;
 mod setup;
 
+pub use crate::quadrature::{gauss_legendre, tensor_gauss_rule};
 pub use element::{
     DegenerateElement, corner_count, element_jacobian, element_weights, jacobian_determinant,
     map_to_element, shape_function,
 };
-pub use gauss::{gauss_legendre, tensor_gauss_rule};
 pub use mesh::Mesh;
 pub use setup::{attach_mesh, move_reference_nodes};

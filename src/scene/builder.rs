@@ -23,6 +23,7 @@ use super::{
     PointSeed, RecoverySpec, SceneSpec, SolverSpec, TractionPointSpec,
 };
 use crate::basis::{BasisKind, control_points_1d};
+use crate::material::Hencky;
 
 /// Largest number of grid nodes accepted (node predicates are called once per node).
 pub(crate) const MAX_NODES: usize = 100_000_000;
@@ -294,7 +295,11 @@ impl SceneBuilder {
                     height: column.value.height,
                     density: material.density,
                     body_force: column.value.body_force,
-                    modulus: constrained_modulus(material),
+                    modulus: Hencky::new(material.youngs_modulus, material.poisson_ratio)
+                        .map_err(|why| {
+                            ScriptError::at(column.at, format!("analytic_column(...): {why}"))
+                        })?
+                        .constrained_modulus(),
                 })
             }
         };
@@ -319,12 +324,6 @@ impl SceneBuilder {
             recovery: self.recovery.map(|recovery| recovery.value),
         })
     }
-}
-
-/// Oedometric (constrained) modulus lambda + 2 mu = E (1 - nu) / ((1 + nu) (1 - 2 nu)).
-pub(crate) fn constrained_modulus(material: &MaterialSpec) -> f64 {
-    let (e, nu) = (material.youngs_modulus, material.poisson_ratio);
-    e * (1.0 - nu) / ((1.0 + nu) * (1.0 - 2.0 * nu))
 }
 
 /// Grid node (control point) positions, global index with axis 0 fastest. The end nodes of
@@ -846,21 +845,5 @@ mod tests {
         assert_eq!(nodes[4][1], nodes[5][1]);
         assert_eq!(nodes[23], [0.1, 1.0]);
         assert_eq!(checked_node_count(&grid), Some(24));
-    }
-
-    #[test]
-    fn constrained_modulus_reduces_to_e_for_zero_poisson_ratio() {
-        let material = MaterialSpec {
-            name: "m".into(),
-            youngs_modulus: 1e6,
-            poisson_ratio: 0.0,
-            density: 1.0,
-        };
-        assert_eq!(constrained_modulus(&material), 1e6);
-        let material = MaterialSpec {
-            poisson_ratio: 0.25,
-            ..material
-        };
-        assert!((constrained_modulus(&material) - 1.2e6).abs() < 1e-6);
     }
 }

@@ -9,14 +9,14 @@
 //! cell that miss every probe (a hole inside one cell) are not detected.
 //!
 //! Every element gets the tensor-product Gauss–Legendre rule with `gauss_points[k]` points
-//! along axis k (see `fem::gauss`): point `x_k = lower_k + h_k (c_k + (1 + ξ_k) / 2)` and
+//! along axis k (see `crate::quadrature`): point `x_k = lower_k + h_k (c_k + (1 + ξ_k) / 2)` and
 //! volume `w Π_k h_k / 2` (the weight times the reference Jacobian). Points are ordered cell by
 //! cell (axis 0 fastest), and within a cell by Gauss point (axis 0 fastest), so the points of
 //! one element are consecutive.
 
 use super::seeding::for_each_index;
 use super::{GridSpec, PointSeed};
-use crate::fem::gauss_legendre;
+use crate::quadrature::gauss_legendre;
 
 /// Parent coordinate of the probes near the corners of a cell.
 const NEAR_CORNER: f64 = 1.0 - 1e-6;

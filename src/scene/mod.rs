@@ -40,8 +40,8 @@ pub use geometry::{point_in_polygon, polygon_double_area};
 pub use params::Parameter;
 pub use rhai_api::{load_scene, scene_parameters};
 pub use seeding::{
-    Placement, first_point_outside_grid, gauss_legendre_unit, nearest_points, seed_boundary,
-    seed_box, seed_points, seed_points_placed,
+    Placement, first_point_outside_grid, nearest_points, seed_boundary, seed_box, seed_points,
+    seed_points_placed,
 };
 
 use crate::basis::BasisKind;

@@ -28,6 +28,7 @@
 //! the shifted copies of each other whose errors cancel (see `docs/results.md`).
 
 use super::{GridSpec, PointSeed};
+use crate::quadrature::gauss_legendre_unit;
 
 /// Where the points of a cell are placed.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -37,37 +38,6 @@ pub enum Placement {
     Uniform,
     /// Gauss–Legendre points of the cell, volumes from the Gauss weights.
     Gauss,
-}
-
-/// The `n` Gauss–Legendre points and weights on `[0, 1]`, increasing: Newton's method on the
-/// Legendre polynomial `P_n` from the usual cosine guesses (to round-off for `n <= 64`).
-pub fn gauss_legendre_unit(n: usize) -> Vec<(f64, f64)> {
-    let mut rule = Vec::with_capacity(n);
-    for i in 0..n {
-        let mut x = (std::f64::consts::PI * (i as f64 + 0.75) / (n as f64 + 0.5)).cos();
-        let mut derivative = 1.0;
-        for _ in 0..100 {
-            // P_n(x) and P_n'(x) by the three-term recurrence.
-            let (mut p0, mut p1) = (1.0, x);
-            for k in 2..=n {
-                let p2 = ((2 * k - 1) as f64 * x * p1 - (k - 1) as f64 * p0) / k as f64;
-                p0 = p1;
-                p1 = p2;
-            }
-            let pn = if n == 0 { 1.0 } else { p1 };
-            let pn_1 = if n <= 1 { 1.0 } else { p0 };
-            derivative = n as f64 * (x * pn - pn_1) / (x * x - 1.0);
-            let step = pn / derivative;
-            x -= step;
-            if step.abs() < 1e-16 {
-                break;
-            }
-        }
-        let weight = 2.0 / ((1.0 - x * x) * derivative * derivative);
-        rule.push((0.5 * (1.0 - x), 0.5 * weight));
-    }
-    rule.sort_by(|a, b| a.0.total_cmp(&b.0));
-    rule
 }
 
 /// Points of the seeding lattice inside the region `inside(position)`.
@@ -504,25 +474,6 @@ mod tests {
         assert_eq!(points[0].position, [0.125, 1.0 / 9.0 * 2.0 / 2.0, 0.375]);
         assert!(points[1].position[0] > points[0].position[0]);
         assert_eq!(points[1].position[1], points[0].position[1]);
-    }
-
-    #[test]
-    fn gauss_legendre_integrates_degree_2n_minus_1_exactly() {
-        for n in 1..=8usize {
-            let rule = gauss_legendre_unit(n);
-            assert_eq!(rule.len(), n);
-            for degree in 0..2 * n {
-                let sum: f64 = rule.iter().map(|(x, w)| w * x.powi(degree as i32)).sum();
-                let exact = 1.0 / (degree as f64 + 1.0);
-                assert!((sum - exact).abs() < 1e-14, "n {n}, degree {degree}: {sum}");
-            }
-            // ... and not degree 2n (the test can fail)
-            let sum: f64 = rule.iter().map(|(x, w)| w * x.powi(2 * n as i32)).sum();
-            assert!((sum - 1.0 / (2 * n + 1) as f64).abs() > 1e-11, "n {n}");
-        }
-        let two = gauss_legendre_unit(2);
-        let a = 0.5 - 0.5 / 3f64.sqrt();
-        assert!((two[0].0 - a).abs() < 1e-15 && (two[0].1 - 0.5).abs() < 1e-15);
     }
 
     #[test]

@@ -1,4 +1,7 @@
-//! Gauss–Legendre quadrature on the parent interval `[-1, 1]` and its tensor products.
+//! Gauss–Legendre quadrature: the rule on the parent interval `[-1, 1]`, on the unit interval
+//! `[0, 1]`, and tensor products. One implementation serves every user: FEM integration
+//! points, Gauss placement of material points, the ghost penalty's face integrals and the
+//! B-spline domain averages.
 //!
 //! The n-point rule takes the roots ξ_g of the Legendre polynomial P_n as points and
 //!
@@ -64,6 +67,17 @@ pub fn gauss_legendre(n: usize) -> (Vec<f64>, Vec<f64>) {
         weights[n - 1 - g] = weight;
     }
     (points, weights)
+}
+
+/// The n-point rule mapped to `[0, 1]`: `(point, weight)` pairs in increasing order,
+/// `u_g = (1 + ξ_g) / 2`, `w_g / 2`.
+pub fn gauss_legendre_unit(n: usize) -> Vec<(f64, f64)> {
+    let (points, weights) = gauss_legendre(n);
+    points
+        .into_iter()
+        .zip(weights)
+        .map(|(xi, w)| (0.5 * (1.0 + xi), 0.5 * w))
+        .collect()
 }
 
 /// The tensor-product Gauss rule with `counts[k]` points along axis `k`: every point's parent
@@ -149,6 +163,25 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn unit_rule_integrates_degree_2n_minus_1_exactly() {
+        for n in 1..=8usize {
+            let rule = gauss_legendre_unit(n);
+            assert_eq!(rule.len(), n);
+            for degree in 0..2 * n {
+                let sum: f64 = rule.iter().map(|(x, w)| w * x.powi(degree as i32)).sum();
+                let exact = 1.0 / (degree as f64 + 1.0);
+                assert!((sum - exact).abs() < 1e-14, "n {n}, degree {degree}: {sum}");
+            }
+            // ... and not degree 2n (the test can fail)
+            let sum: f64 = rule.iter().map(|(x, w)| w * x.powi(2 * n as i32)).sum();
+            assert!((sum - 1.0 / (2 * n + 1) as f64).abs() > 1e-11, "n {n}");
+        }
+        let two = gauss_legendre_unit(2);
+        let a = 0.5 - 0.5 / 3f64.sqrt();
+        assert!((two[0].0 - a).abs() < 1e-15 && (two[0].1 - 0.5).abs() < 1e-15);
     }
 
     #[test]
