@@ -1,11 +1,11 @@
 //! Benchmark: what the systems of unused effects would cost if they were always scheduled.
 //!
-//! impm builds each scene's schedules from the effects the scene uses (`stages::Effects`), so a
+//! impm builds each scene's world from the modules the scene uses (`Plugin::used_by`), so a
 //! scene without point loads, tractions or prescribed displacements runs none of their systems.
 //! This program measures what that saves on one scene, honestly: the same world is run with
 //!
 //! * A, "scene": the schedules built for the scene (what `impm run` does), and
-//! * B, "all":   the schedules built with every load effect on (body force, point loads,
+//! * B, "all":   the world built with every load module too (body force, point loads,
 //!   tractions, prescribed displacements): the systems of the unused ones are registered and run
 //!   every step, with nothing to do (no point carries a point load, there are no traction
 //!   points, every prescribed value is zero, an unused body force is zero but still spread from
@@ -26,18 +26,33 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use impm::resources::{BodyForce, Stage};
+use impm::effects::{self, body_force::BodyForce};
+use impm::explain::explain_scene;
+use impm::plugin::Module;
+use impm::resources::Stage;
+use impm::run::Simulation;
 use impm::scene::{SceneSpec, load_scene};
-use impm::simulation::{Simulation, effects_of};
 use impm::stages::output::OutputPlan;
-use impm::stages::{Effects, add_schedules, explain_scene};
 use nalgebra::SVector;
 
-/// One timed run: wall seconds of all load steps, seconds in the external-force stage.
-fn run_once<const D: usize>(spec: &SceneSpec, effects: Effects, out: &Path) -> (f64, f64) {
-    let mut sim = Simulation::<D>::new(spec, out).expect("the scene builds");
-    add_schedules::<D>(&mut sim.world, effects);
-    if effects.body_force && !sim.world.contains_resource::<BodyForce<D>>() {
+/// The modules of the loads: what variant B adds when the scene does not use them.
+const LOAD_MODULES: [&str; 4] = [
+    "body force",
+    "point loads",
+    "tractions",
+    "prescribed displacements",
+];
+
+/// One timed run: wall seconds of all load steps, seconds in the loads stage. `all_loads`:
+/// variant B.
+fn run_once<const D: usize>(spec: &SceneSpec, all_loads: bool, out: &Path) -> (f64, f64) {
+    let modules = effects::built_in();
+    let include = |module: &dyn Module| {
+        module.used_by(spec) || (all_loads && LOAD_MODULES.contains(&module.name()))
+    };
+    let mut sim = Simulation::<D>::with_modules_where(spec, out, &modules, &include)
+        .expect("the scene builds");
+    if all_loads && !sim.world.contains_resource::<BodyForce<D>>() {
         // an idle body force: zero, but applied to every point every step
         sim.world
             .insert_resource(BodyForce(SVector::<f64, D>::zeros()));
@@ -46,7 +61,7 @@ fn run_once<const D: usize>(spec: &SceneSpec, effects: Effects, out: &Path) -> (
     sim.world.resource_mut::<OutputPlan>().steps = Some(Vec::new());
     let start = Instant::now();
     let mut loads = 0.0;
-    sim.run(|record| loads += record.seconds.get(Stage::ExternalForce).as_secs_f64())
+    sim.run(|record| loads += record.seconds.get(Stage::Loads).as_secs_f64())
         .expect("the scene runs");
     (start.elapsed().as_secs_f64(), loads)
 }
@@ -78,18 +93,22 @@ fn main() -> Result<(), String> {
         }
     }
     let spec = load_scene(&scene, &overrides).map_err(|e| e.to_string())?;
-    let effects = effects_of(&spec);
-    let unused: Vec<&str> = effects
-        .list()
+    let modules = effects::built_in();
+    let unused: Vec<&str> = modules
         .iter()
-        .take(4)
-        .filter(|(_, used)| !used)
-        .map(|(name, _)| *name)
+        .filter(|m| LOAD_MODULES.contains(&m.name()) && !m.used_by(&spec))
+        .map(|m| m.name())
         .collect();
-    let left_out: Vec<_> = explain_scene(&spec)?
+    let load_systems = [
+        "body_force::",
+        "point_loads::apply",
+        "tractions::",
+        "prescribed",
+    ];
+    let left_out: Vec<_> = explain_scene(&spec, &modules)?
         .left_out
         .into_iter()
-        .filter(|system| system.name.contains("loads::") || system.name.contains("tractions"))
+        .filter(|system| load_systems.iter().any(|s| system.name.contains(s)))
         .collect();
     println!(
         "scene {}: {}D, {} points, {} load steps; unused effects: {}",
@@ -104,26 +123,19 @@ fn main() -> Result<(), String> {
         println!("  {} ({})", system.name, system.schedule);
     }
     let out = std::env::temp_dir().join(format!("impm-effects-cost-{}", std::process::id()));
-    let run: fn(&SceneSpec, Effects, &Path) -> (f64, f64) = match spec.dim() {
+    let run: fn(&SceneSpec, bool, &Path) -> (f64, f64) = match spec.dim() {
         1 => run_once::<1>,
         2 => run_once::<2>,
         3 => run_once::<3>,
         d => return Err(format!("dimension {d}")),
     };
-    let all_loads = Effects {
-        body_force: true,
-        point_loads: true,
-        tractions: true,
-        prescribed_displacements: true,
-        ..effects
-    };
-    run(&spec, effects, &out); // warm-up (page faults, allocator)
+    run(&spec, false, &out); // warm-up (page faults, allocator)
     let (mut wall_a, mut wall_b, mut loads_a, mut loads_b) = (vec![], vec![], vec![], vec![]);
     for _ in 0..rounds {
-        let (wall, loads) = run(&spec, effects, &out);
+        let (wall, loads) = run(&spec, false, &out);
         wall_a.push(wall);
         loads_a.push(loads);
-        let (wall, loads) = run(&spec, all_loads, &out);
+        let (wall, loads) = run(&spec, true, &out);
         wall_b.push(wall);
         loads_b.push(loads);
     }
@@ -142,11 +154,11 @@ fn main() -> Result<(), String> {
     let (la, lb) = (median(&mut loads_a), median(&mut loads_b));
     println!("{rounds} rounds, alternating; wall time of all load steps, output off:");
     println!(
-        "  A scene schedules:   median {:8.4} s  (min {:.4}, max {:.4})  external-force stage {:.6} s",
+        "  A scene schedules:   median {:8.4} s  (min {:.4}, max {:.4})  loads stage {:.6} s",
         wa, a_lo, a_hi, la
     );
     println!(
-        "  B all load effects:  median {:8.4} s  (min {:.4}, max {:.4})  external-force stage {:.6} s",
+        "  B all load effects:  median {:8.4} s  (min {:.4}, max {:.4})  loads stage {:.6} s",
         wb, b_lo, b_hi, lb
     );
     println!(

@@ -29,7 +29,7 @@ use impm::components::{Displacement, Mass, ReferencePosition, Support};
 use impm::mechanics::interpolate;
 use impm::plugin::{Extension, Hook, Plugin};
 use impm::resources::{GridFields, Newton};
-use impm::simulation::Simulation;
+use impm::run::Simulation;
 
 /// A linear spring between a material point and its reference position.
 #[derive(Component, Clone, Copy)]

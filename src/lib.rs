@@ -3,31 +3,38 @@
 //! Quasi-static finite-deformation elasticity (Hencky) solved with a fully implicit Newton
 //! method per load step, material points carried through a background grid that is reset after
 //! every step, and B-spline bases of any order (Motlagh & Coombs, MPM 2017).
-//! See `ARCHITECTURE.md` for the one-screen map of stages and entities.
+//! See `ARCHITECTURE.md` for the one-screen map; read [`method`] first.
 //!
-//! * Pure kernels: [`basis`], [`material`], [`mechanics`], [`sparse`], [`analytic`],
-//!   [`recovery`] (MLS stress recovery), [`fem`] (linear finite elements on a body-fitted
-//!   mesh, the paper's FEM comparator).
-//! * ECS: [`components`], [`resources`], [`stages`] (systems and schedules).
-//! * Driver and I/O: [`simulation`], [`scene`] (Rhai), [`output`] (VTK), [`summary`],
-//!   [`study`] (parameter sweeps, tables and charts).
-//! * Extension: [`plugin`] (your own systems at named hooks of the schedules).
+//! * The method: [`method`] (the load step on one page, its stages and hooks), [`control`]
+//!   (load-step cutting), [`stages`] (the core systems), [`components`], [`resources`].
+//! * Modules: [`plugin`] (the trait every effect, material and user extension implements),
+//!   [`effects`] (the built-in ones: materials, loads, constraints, GIMP/CPDI, FEM, ghost
+//!   penalty, stress recovery).
+//! * Pure kernels: [`basis`], [`material`], [`mechanics`], [`quadrature`], [`sparse`],
+//!   [`analytic`], [`recovery`], [`ghost`], [`fem`].
+//! * Driver and I/O: [`run`] (build and drive a simulation), [`records`] (summary.json),
+//!   [`explain`] (what a scene runs), [`scene`] (Rhai), [`output`] (VTK), [`study`] (sweeps,
+//!   tables and charts).
 
 pub mod analytic;
 pub mod basis;
 pub mod components;
+pub mod control;
+pub mod effects;
+pub mod explain;
 pub mod fem;
 pub mod ghost;
 pub mod material;
 pub mod mechanics;
+pub mod method;
 pub mod output;
 pub mod plugin;
 pub mod quadrature;
+pub mod records;
 pub mod recovery;
 pub mod resources;
+pub mod run;
 pub mod scene;
-pub mod simulation;
 pub mod sparse;
 pub mod stages;
 pub mod study;
-pub mod summary;

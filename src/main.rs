@@ -6,11 +6,12 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+use impm::effects;
+use impm::explain::explain_scene;
+use impm::records::StepRecord;
+use impm::run::{default_output_dir, run_scene};
 use impm::scene::{load_scene, scene_parameters};
-use impm::simulation::{default_output_dir, effects_of, run_scene};
-use impm::stages::explain_scene;
 use impm::study::{RunOutcome, StudyEvent, StudyPlan, Sweep, default_study_dir, run_study};
-use impm::summary::StepRecord;
 
 #[derive(Parser)]
 #[command(
@@ -210,17 +211,17 @@ fn run(cli: Cli) -> Result<(), String> {
                 spec.tractions.len(),
                 describe_factors(&spec.load_factors)
             );
+            let modules = effects::built_in();
             if explain {
-                print!("{}", explain_scene(&spec)?);
+                print!("{}", explain_scene(&spec, &modules)?);
             } else {
-                let used: Vec<&str> = effects_of(&spec)
-                    .list()
+                let used: Vec<&str> = modules
                     .iter()
-                    .filter(|(_, used)| *used)
-                    .map(|(name, _)| *name)
+                    .filter(|module| module.used_by(&spec))
+                    .map(|module| module.name())
                     .collect();
                 println!(
-                    "effects: {} (--explain lists the systems)",
+                    "modules: {} (--explain lists the systems)",
                     if used.is_empty() {
                         "none".to_string()
                     } else {

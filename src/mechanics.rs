@@ -12,7 +12,7 @@
 //! ```
 //!
 //! # Stress and internal force (paper eq. 9)
-//! The Hencky model gives the Kirchhoff stress τ(b) (`material`); the Cauchy stress is τ/J and
+//! The material gives the Kirchhoff stress τ (`material::Material`); the Cauchy stress is τ/J and
 //! the current volume V = J V0, so σ V = τ V0 and
 //!
 //! ```text
@@ -27,10 +27,17 @@
 //!   K_ij[a][k] = V0 ( Σ_{b,d} g_i[b] c[a][b][k][d] (b g_j)[d]  −  (τ g_j)[a] g_i[k] ),
 //! ```
 //!
-//! with c_abkd = 2 ∂τ_ab/∂b_kd the material's spatial tangent. The first term is the material
-//! stiffness, the second the geometric (initial-stress) stiffness. Because the Hencky model is
-//! hyperelastic and the loads are dead within a step, K is the Hessian of the potential energy
-//! and is symmetric.
+//! with c_abkd = 2 ∂τ_ab/∂b_kd the material's spatial tangent and b the tensor it is taken at
+//! (`F Fᵀ` for hyperelastic models, the trial elastic left Cauchy-Green tensor for plastic ones:
+//! its derivative with respect to Δu has the same form). The first term is the material
+//! stiffness, the second the geometric (initial-stress) stiffness. For a hyperelastic model
+//! under dead loads K is the Hessian of the potential energy and is symmetric.
+//!
+//! # Forces spread to the grid
+//! A force F acting at a point with basis values N_i reaches node i as F N_i ([`spread_force`]:
+//! body force, point loads); at a boundary point whose support reaches nodes without material,
+//! the inactive nodes' share goes to the active ones in proportion ([`spread_over_active`]:
+//! tractions). Both keep the resultant exactly (partition of unity).
 //!
 //! Lower dimensions: in 2D (plane strain) and 1D (uniaxial strain) the out-of-plane stretches
 //! are 1; the material works on the 3x3 `b` padded with ones and only the D x D block enters
@@ -39,7 +46,7 @@
 use nalgebra::{Matrix3, SMatrix, SVector};
 
 use crate::basis::NodeWeight;
-use crate::material::{Hencky, Tangent};
+use crate::material::{Material, Tangent};
 
 /// A D x D matrix embedded in 3x3 with the identity in the remaining diagonal.
 pub fn embed<const D: usize>(m: &SMatrix<f64, D, D>) -> Matrix3<f64> {
@@ -79,6 +86,45 @@ pub fn interpolate<const D: usize>(
         .fold(SVector::zeros(), |acc, w| acc + increment(w.node) * w.value)
 }
 
+/// Adds `force N_i` to `external_force[i]` for every node i of `support` (the force of one point
+/// distributed to the grid, paper eq. 9).
+pub fn spread_force<const D: usize>(
+    force: &SVector<f64, D>,
+    support: &[NodeWeight<D>],
+    external_force: &mut [SVector<f64, D>],
+) {
+    for w in support {
+        external_force[w.node] += force * w.value;
+    }
+}
+
+/// Σ_{i active} N_i over `support`.
+fn active_weight<const D: usize>(support: &[NodeWeight<D>], active: &[bool]) -> f64 {
+    support
+        .iter()
+        .filter(|w| active[w.node])
+        .map(|w| w.value)
+        .sum()
+}
+
+/// Adds `force N_i / Σ_{j active} N_j` to `external_force[i]` for every active node i of
+/// `support`. Returns false (and adds nothing) if no node of the support is active.
+pub fn spread_over_active<const D: usize>(
+    force: &SVector<f64, D>,
+    support: &[NodeWeight<D>],
+    active: &[bool],
+    external_force: &mut [SVector<f64, D>],
+) -> bool {
+    let total = active_weight(support, active);
+    if total <= 0.0 {
+        return false;
+    }
+    for w in support.iter().filter(|w| active[w.node]) {
+        external_force[w.node] += force * (w.value / total);
+    }
+    true
+}
+
 /// Why a point's trial state could not be evaluated.
 #[derive(Clone, Debug, PartialEq)]
 pub enum KinematicsError {
@@ -113,7 +159,8 @@ pub struct TrialState<const D: usize> {
     pub increment_inverse: SMatrix<f64, D, D>,
     /// J = det F (of the D x D block; out-of-plane stretches are 1).
     pub jacobian: f64,
-    /// Left Cauchy-Green tensor b = F Fᵀ, D x D block.
+    /// The left Cauchy-Green tensor the tangent is taken at (D x D block): b = F Fᵀ for
+    /// hyperelastic models, the trial elastic one for plastic models.
     pub left_cauchy_green: SMatrix<f64, D, D>,
     /// Kirchhoff stress, full 3x3.
     pub kirchhoff: Matrix3<f64>,
@@ -122,10 +169,16 @@ pub struct TrialState<const D: usize> {
 }
 
 impl<const D: usize> TrialState<D> {
-    /// The unstressed state (F = I).
-    pub fn undeformed(material: &Hencky) -> Self {
-        trial_state(material, &SMatrix::identity(), &SMatrix::identity())
-            .expect("the undeformed state is always valid")
+    /// The state of a point before its first stress update: F = I, no stress, no tangent.
+    pub fn unstressed() -> Self {
+        Self {
+            deformation_gradient: SMatrix::identity(),
+            increment_inverse: SMatrix::identity(),
+            jacobian: 1.0,
+            left_cauchy_green: SMatrix::identity(),
+            kirchhoff: Matrix3::zeros(),
+            tangent: [[[[0.0; D]; D]; D]; D],
+        }
     }
 
     /// Cauchy stress σ = τ / J, full 3x3.
@@ -199,13 +252,14 @@ pub struct StiffnessFactor<const D: usize> {
     pub tau_g: SVector<f64, D>,
 }
 
-/// Evaluates F = Δf F^n, b and the Hencky stress and tangent; fails (never panics) when the
-/// deformation is inadmissible.
-pub fn trial_state<const D: usize>(
-    material: &Hencky,
+/// Evaluates F = Δf F^n and the material's stress, tangent and trial history from the
+/// committed history; fails (never panics) when the deformation is inadmissible.
+pub fn trial_state_with_history<const D: usize, M: Material>(
+    material: &M,
+    committed: &M::History,
     previous_deformation_gradient: &SMatrix<f64, D, D>,
     increment_gradient: &SMatrix<f64, D, D>,
-) -> Result<TrialState<D>, KinematicsError> {
+) -> Result<(TrialState<D>, M::History), KinematicsError> {
     if increment_gradient.iter().any(|v| !v.is_finite()) {
         return Err(KinematicsError::SingularIncrement);
     }
@@ -220,23 +274,40 @@ pub fn trial_state<const D: usize>(
         .try_inverse()
         .map(|inv| block::<D>(&inv))
         .ok_or(KinematicsError::SingularIncrement)?;
-    let b = f * f.transpose();
-    let (kirchhoff, tangent) = material
-        .try_kirchhoff_and_tangent::<D>(&embed(&b))
+    let response = material
+        .respond(&f, increment_gradient, committed)
         .map_err(KinematicsError::Material)?;
-    Ok(TrialState {
+    let state = TrialState {
         deformation_gradient: f,
         increment_inverse,
         jacobian,
-        left_cauchy_green: b,
-        kirchhoff,
-        tangent,
-    })
+        left_cauchy_green: response.left_cauchy_green,
+        kirchhoff: response.kirchhoff,
+        tangent: response.tangent,
+    };
+    Ok((state, response.history))
+}
+
+/// [`trial_state_with_history`] for a model without history (Hencky elasticity).
+pub fn trial_state<const D: usize, M: Material<History = ()>>(
+    material: &M,
+    previous_deformation_gradient: &SMatrix<f64, D, D>,
+    increment_gradient: &SMatrix<f64, D, D>,
+) -> Result<TrialState<D>, KinematicsError> {
+    trial_state_with_history(
+        material,
+        &(),
+        previous_deformation_gradient,
+        increment_gradient,
+    )
+    .map(|(state, ())| state)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::basis::{BasisKind, BasisScratch, GridBasis};
+    use crate::material::Hencky;
 
     fn material() -> Hencky {
         Hencky::new(1e6, 0.3).unwrap()
@@ -373,5 +444,85 @@ mod tests {
         .unwrap();
         let f: f64 = 0.72;
         assert!((s.cauchy()[(0, 0)] - e * f.ln() / f).abs() < 1e-6);
+    }
+
+    /// The spread force sums to the point force (partition of unity) and its first moment
+    /// about the origin reproduces x_p × P: Σ_i N_i x_i = x_p for B-splines with Greville nodes
+    /// (linear precision), so a load is placed where the point is.
+    #[test]
+    fn spread_force_keeps_resultant_and_moment() {
+        let basis = GridBasis::<2>::new(
+            &[0.0, 0.0],
+            &[4.0, 3.0],
+            &[4, 3],
+            BasisKind::BSpline { order: 2 },
+        )
+        .unwrap();
+        let x = SVector::<f64, 2>::new(2.3, 0.7);
+        let mut support = Vec::new();
+        basis
+            .eval(&x, &mut BasisScratch::default(), &mut support)
+            .unwrap();
+        let force = SVector::<f64, 2>::new(3.0, -5.0);
+        let mut external = vec![SVector::<f64, 2>::zeros(); basis.num_nodes()];
+        spread_force(&force, &support, &mut external);
+        let resultant: SVector<f64, 2> = external.iter().sum();
+        assert!((resultant - force).norm() < 1e-12, "{resultant}");
+        let moment: f64 = external
+            .iter()
+            .enumerate()
+            .map(|(i, f)| {
+                let xi = basis.node_position(i);
+                xi.x * f.y - xi.y * f.x
+            })
+            .sum();
+        let expected = x.x * force.y - x.y * force.x;
+        assert!((moment - expected).abs() < 1e-12, "{moment} vs {expected}");
+        // only the support nodes receive force
+        let loaded = external.iter().filter(|f| f.norm() > 0.0).count();
+        assert_eq!(loaded, support.iter().filter(|w| w.value > 0.0).count());
+    }
+
+    fn weight(node: usize, value: f64) -> NodeWeight<1> {
+        NodeWeight {
+            node,
+            value,
+            gradient: SVector::zeros(),
+        }
+    }
+
+    #[test]
+    fn all_active_is_the_plain_quadrature_and_inactive_shares_go_to_active_nodes() {
+        let support = [weight(0, 0.25), weight(1, 0.5), weight(2, 0.25)];
+        let force = SVector::<f64, 1>::new(8.0);
+        let mut external = vec![SVector::<f64, 1>::zeros(); 3];
+        assert!(spread_over_active(
+            &force,
+            &support,
+            &[true; 3],
+            &mut external
+        ));
+        assert_eq!(external, [2.0, 4.0, 2.0].map(SVector::<f64, 1>::new));
+
+        let mut external = vec![SVector::<f64, 1>::zeros(); 3];
+        assert!(spread_over_active(
+            &force,
+            &support,
+            &[true, true, false],
+            &mut external
+        ));
+        // 0.25 : 0.5 of the force, resultant kept
+        assert!((external[0][0] - 8.0 / 3.0).abs() < 1e-12);
+        assert!((external[1][0] - 16.0 / 3.0).abs() < 1e-12);
+        assert_eq!(external[2][0], 0.0);
+
+        let mut external = vec![SVector::<f64, 1>::zeros(); 3];
+        assert!(!spread_over_active(
+            &force,
+            &support,
+            &[false; 3],
+            &mut external
+        ));
+        assert!(external.iter().all(|f| f[0] == 0.0));
     }
 }

@@ -1,15 +1,9 @@
-//! Extending a simulation with your own systems, without editing the crate.
+//! Modules: how every optional effect, every material and your own code extend the solver.
 //!
 //! A [`Plugin`] adds bevy systems (and the resources or components they need) to a simulation
-//! at named [`Hook`]s of the solver's schedules:
-//!
-//! | hook | schedule, place | typical use |
-//! |------|-----------------|-------------|
-//! | [`Hook::Loads`] | `LoadStep`, after the built-in loads, before the Newton loop | a custom external force into `GridFields::external_force`, a custom prescribed increment |
-//! | [`Hook::BeforeAssembly`] | `NewtonIteration`, after the stress update, before assembly | inspect or adjust the trial state of the points |
-//! | [`Hook::AfterAssembly`] | `NewtonIteration`, after assembly, before the convergence check | add to the internal force and the tangent (springs, penalties, contact) |
-//! | [`Hook::AfterStep`] | `LoadStep`, after a converged step's point update, before output | diagnostics, state updates of your own components |
-//! | [`Hook::Output`] | `WriteOutput`, after the built-in files; also for the initial state | your own output files (see `OutputPlan::dir`, `LoadStep`) |
+//! at the [`Hook`]s of the method (`method.rs` lists them and where they sit). The built-in
+//! effects (`effects/`) and materials (`material/`) are plugins too, built through exactly this
+//! trait: the core never names them.
 //!
 //! ```no_run
 //! use bevy_ecs::prelude::*;
@@ -33,44 +27,51 @@
 //! ```
 //!
 //! A plugin is generic over the dimension `D` (it is built for the scene's), so its systems can
-//! use `Position<D>`, `GridFields<D>` and so on. The solver's schedules detect ambiguous system
-//! order as an error: the systems of one hook are ordered after the built-in stages before the
-//! hook and before those after it, but two systems a plugin adds to the same hook that write
-//! the same data must be ordered among themselves (`.chain()`, `.after(...)`), or the schedule
-//! does not build (a `BuildError` naming both).
+//! use `Position<D>`, `GridFields<D>` and so on. A module says whether a scene uses it
+//! ([`Plugin::used_by`]): only then is it built, so a scene pays only for what it declares.
 //!
-//! Hooks cost nothing when unused: a hook's system set is configured only when a plugin adds a
-//! system to it, and `()` is the plugin that adds nothing.
+//! Order: systems added to one hook run in the order they were added (one `add_systems` call
+//! after the previous); systems of one call that write the same data must be ordered among
+//! themselves (`.chain()`), or the schedule does not build (a `BuildError` naming both).
+//! Hooks cost nothing when unused, and `()` is the plugin that adds nothing.
 
 use std::path::Path;
+use std::sync::Arc;
 
 use bevy_ecs::prelude::*;
-use bevy_ecs::schedule::{IntoScheduleConfigs, ScheduleLabel};
+use bevy_ecs::schedule::IntoScheduleConfigs;
 use bevy_ecs::system::ScheduleSystem;
 
+use crate::components::PointId;
+use crate::explain::scheduled_systems;
+pub use crate::method::Hook;
+use crate::method::Providers;
+use crate::records::{StepMeasures, StepRecord, Summary};
 use crate::resources::no_failure;
+use crate::run::{BuildError, RunError, Simulation, run_scene_keeping_summary_with};
 use crate::scene::SceneSpec;
-use crate::simulation::{BuildError, RunError, Simulation, run_scene_keeping_summary_with};
-use crate::stages::{
-    BuiltInOutput, LoadStep, NewtonIteration, NewtonSystems, StepSystems, WriteOutput,
-    scheduled_systems,
-};
-use crate::summary::{StepRecord, Summary};
 
-/// Where a plugin's systems run (see the module docs for the table).
-#[derive(SystemSet, Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum Hook {
-    Loads,
-    BeforeAssembly,
-    AfterAssembly,
-    AfterStep,
-    Output,
-}
-
-/// A set of systems and resources to add to a simulation.
+/// A set of systems, resources and components that extends a simulation.
 pub trait Plugin {
+    /// A short name for `impm check` and messages (e.g. `"tractions"`).
+    fn name(&self) -> &'static str {
+        let name = std::any::type_name::<Self>();
+        name.rsplit("::").next().unwrap_or(name)
+    }
+
+    /// Whether a scene uses the plugin; only then is it built. User plugins: always.
+    fn used_by(&self, _spec: &SceneSpec) -> bool {
+        true
+    }
+
+    /// Whether the plugin could run with the scene's method (basis, dimension): `impm check
+    /// --explain` lists the systems of the applicable plugins a scene does not use.
+    fn applies_to(&self, _spec: &SceneSpec) -> bool {
+        true
+    }
+
     /// Adds the plugin's systems, resources and components to a simulation of dimension `D`
-    /// (called once, after the world is built from the scene and before the first step).
+    /// (called once, after the core world is built from the scene and before the first step).
     fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>);
 }
 
@@ -87,20 +88,129 @@ impl<A: Plugin, B: Plugin> Plugin for (A, B) {
 }
 
 impl<P: Plugin> Plugin for &P {
+    fn name(&self) -> &'static str {
+        (*self).name()
+    }
+    fn used_by(&self, spec: &SceneSpec) -> bool {
+        (*self).used_by(spec)
+    }
+    fn applies_to(&self, spec: &SceneSpec) -> bool {
+        (*self).applies_to(spec)
+    }
     fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
         (*self).build(simulation);
     }
 }
 
-/// What a plugin sees of the simulation it extends.
-pub struct Extension<'w, const D: usize> {
-    world: &'w mut World,
+/// A plugin as an object, so that a list of different plugins can be kept and built for the
+/// dimension of a scene (implemented for every [`Plugin`]).
+pub trait Module: Send + Sync {
+    fn name(&self) -> &'static str;
+    fn used_by(&self, spec: &SceneSpec) -> bool;
+    fn applies_to(&self, spec: &SceneSpec) -> bool;
+    /// Builds the plugin into `world` for the scene's dimension.
+    fn build_into(&self, world: &mut World, spec: &SceneSpec) -> Result<(), BuildError>;
 }
 
+impl<P: Plugin + Send + Sync> Module for P {
+    fn name(&self) -> &'static str {
+        Plugin::name(self)
+    }
+    fn used_by(&self, spec: &SceneSpec) -> bool {
+        Plugin::used_by(self, spec)
+    }
+    fn applies_to(&self, spec: &SceneSpec) -> bool {
+        Plugin::applies_to(self, spec)
+    }
+    fn build_into(&self, world: &mut World, spec: &SceneSpec) -> Result<(), BuildError> {
+        match spec.dim() {
+            1 => build_plugin::<1>(self, world, spec),
+            2 => build_plugin::<2>(self, world, spec),
+            3 => build_plugin::<3>(self, world, spec),
+            d => Err(BuildError(format!(
+                "dimension {d} is not supported (1, 2 or 3)"
+            ))),
+        }
+    }
+}
+
+/// The modules a run can use, in build order (`effects::built_in()` and your own).
+#[derive(Clone, Default)]
+pub struct ModuleSet(Vec<Arc<dyn Module>>);
+
+impl ModuleSet {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Adds a module after the others.
+    pub fn with(mut self, module: impl Plugin + Send + Sync + 'static) -> Self {
+        self.0.push(Arc::new(module));
+        self
+    }
+
+    pub fn iter(&self) -> impl Iterator<Item = &dyn Module> {
+        self.0.iter().map(|module| module.as_ref())
+    }
+
+    /// Every material model a body uses must have its module (a module named like the
+    /// model, see `effects::materials`).
+    pub fn check_materials(&self, spec: &SceneSpec) -> Result<(), BuildError> {
+        for body in &spec.bodies {
+            let Some(material) = spec.materials.get(body.material) else {
+                return Err(BuildError(format!(
+                    "body '{}' names no material",
+                    body.name
+                )));
+            };
+            if !self.iter().any(|module| module.name() == material.model) {
+                return Err(BuildError(format!(
+                    "material '{}' is of model '{}', which no module provides",
+                    material.name, material.model
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Builds `plugin` for dimension `D`; the first error it reported, if any.
+pub fn build_plugin<const D: usize>(
+    plugin: &(impl Plugin + ?Sized),
+    world: &mut World,
+    spec: &SceneSpec,
+) -> Result<(), BuildError> {
+    let mut extension = Extension::<D>::new(world, spec);
+    plugin.build(&mut extension);
+    match extension.error {
+        Some(error) => Err(error),
+        None => Ok(()),
+    }
+}
+
+/// What a plugin sees of the simulation it extends: the world, the scene, and the hooks.
+pub struct Extension<'w, const D: usize> {
+    world: &'w mut World,
+    spec: &'w SceneSpec,
+    error: Option<BuildError>,
+}
+
+/// How many `add_systems` calls each hook has had (their order is the run order).
+#[derive(Resource, Default)]
+struct HookSlots([u32; Hook::ALL.len()]);
+
+/// The systems of one `add_systems` call at a hook.
+#[derive(SystemSet, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+struct HookSlot(Hook, u32);
+
 impl<'w, const D: usize> Extension<'w, D> {
-    /// Wraps a simulation's world (usually through [`Simulation::add_plugin`]).
-    pub fn new(world: &'w mut World) -> Self {
-        Self { world }
+    /// Wraps a simulation's world and scene (usually through [`Simulation::add_plugin`]).
+    pub fn new(world: &'w mut World, spec: &'w SceneSpec) -> Self {
+        Self {
+            world,
+            spec,
+            error: None,
+        }
     }
 
     /// The simulation's world: insert resources, give points components of your own...
@@ -108,68 +218,109 @@ impl<'w, const D: usize> Extension<'w, D> {
         self.world
     }
 
-    /// Adds `systems` at `hook`. They run only while no stage has failed, like the built-in
-    /// stages.
+    /// The scene the simulation was built from.
+    pub fn spec(&self) -> &'w SceneSpec {
+        self.spec
+    }
+
+    /// Reports why the plugin cannot be built for this scene; the first error is kept and the
+    /// simulation is not built.
+    pub fn fail(&mut self, why: impl Into<String>) {
+        if self.error.is_none() {
+            self.error = Some(BuildError(why.into()));
+        }
+    }
+
+    /// The entity of every material point, indexed by `PointId` (points are numbered body
+    /// after body in seeding order).
+    pub fn point_entities(&mut self) -> Vec<Entity> {
+        let mut query = self.world.query::<(Entity, &PointId)>();
+        let mut entities = vec![Entity::PLACEHOLDER; query.iter(self.world).len()];
+        for (entity, id) in query.iter(self.world) {
+            entities[id.0 as usize] = entity;
+        }
+        entities
+    }
+
+    /// Adds a quantity measured after every converged step (a key of the step's record in
+    /// `summary.json`, e.g. `error_recovered`).
+    pub fn add_measure(
+        &mut self,
+        name: &'static str,
+        measure: impl Fn(&mut World, f64) -> Option<f64> + Send + Sync + 'static,
+    ) -> &mut Self {
+        self.world
+            .get_resource_or_init::<StepMeasures>()
+            .0
+            .push((name, Box::new(measure)));
+        self
+    }
+
+    /// Adds `systems` at `hook`, after the systems added there before. They run only while no
+    /// stage has failed, like the core stages.
     pub fn add_systems<M>(
         &mut self,
         hook: Hook,
         systems: impl IntoScheduleConfigs<ScheduleSystem, M>,
     ) -> &mut Self {
-        let systems = systems.in_set(hook);
-        let mut schedules = self.world.resource_mut::<Schedules>();
-        match hook {
-            Hook::Loads => schedules.entry(LoadStep).configure_sets(
-                hook.after(StepSystems::Loads)
-                    .before(StepSystems::Solve)
-                    .run_if(no_failure),
-            ),
-            Hook::AfterStep => schedules.entry(LoadStep).configure_sets(
-                hook.after(StepSystems::UpdatePoints)
-                    .before(StepSystems::Output)
-                    .run_if(no_failure),
-            ),
-            Hook::BeforeAssembly => schedules.entry(NewtonIteration).configure_sets(
-                hook.after(NewtonSystems::StressUpdate)
-                    .before(NewtonSystems::Assembly)
-                    .run_if(no_failure),
-            ),
-            Hook::AfterAssembly => schedules.entry(NewtonIteration).configure_sets(
-                hook.after(NewtonSystems::Assembly)
-                    .before(NewtonSystems::Convergence)
-                    .run_if(no_failure),
-            ),
-            Hook::Output => schedules
-                .entry(WriteOutput)
-                .configure_sets(hook.after(BuiltInOutput).run_if(no_failure)),
+        let slot = {
+            let mut slots = self.world.get_resource_or_init::<HookSlots>();
+            let counter = &mut slots.0[hook as usize];
+            *counter += 1;
+            HookSlot(hook, *counter - 1)
         };
-        schedules.entry(hook.schedule()).add_systems(systems);
+        let mut schedules = self.world.resource_mut::<Schedules>();
+        let schedule = schedules.entry(hook.schedule());
+        if slot.1 == 0 {
+            schedule.configure_sets(slot.in_set(hook).run_if(no_failure));
+        } else {
+            schedule.configure_sets(
+                slot.in_set(hook)
+                    .after(HookSlot(hook, slot.1 - 1))
+                    .run_if(no_failure),
+            );
+        }
+        schedule.add_systems(systems.in_set(slot));
         self
     }
-}
 
-impl Hook {
-    /// The schedule the hook belongs to.
-    pub fn schedule(self) -> impl ScheduleLabel {
-        match self {
-            Hook::Loads | Hook::AfterStep => LoadStep.intern(),
-            Hook::BeforeAssembly | Hook::AfterAssembly => NewtonIteration.intern(),
-            Hook::Output => WriteOutput.intern(),
+    /// Provides a stage that the core otherwise fills with its default (the basis evaluation
+    /// at `Hook::Basis`, the grid file at `Hook::GridOutput`). One module per stage.
+    pub fn provide<M>(
+        &mut self,
+        hook: Hook,
+        name: &'static str,
+        systems: impl IntoScheduleConfigs<ScheduleSystem, M>,
+    ) -> &mut Self {
+        debug_assert!(hook.is_replaceable_default(), "{hook:?} has no default");
+        let other = self
+            .world
+            .get_resource_or_init::<Providers>()
+            .0
+            .iter()
+            .find(|(h, _)| *h == hook)
+            .map(|(_, other)| *other);
+        if let Some(other) = other {
+            self.fail(format!("{name} and {other} both provide {hook:?}"));
+            return self;
         }
+        self.world.resource_mut::<Providers>().0.push((hook, name));
+        self.add_systems(hook, systems)
     }
 }
 
 impl<const D: usize> Simulation<D> {
     /// Adds a plugin's systems and resources, and checks that the schedules still build.
     pub fn add_plugin(&mut self, plugin: &impl Plugin) -> Result<(), BuildError> {
-        plugin.build(&mut Extension::<D>::new(&mut self.world));
+        build_plugin::<D>(plugin, &mut self.world, &self.spec)?;
         scheduled_systems(&mut self.world)
             .map(|_| ())
             .map_err(|why| BuildError(format!("a plugin's systems do not fit: {why}")))
     }
 }
 
-/// [`crate::simulation::run_scene`] with a plugin: builds the simulation for the scene's
-/// dimension, adds the plugin, writes the initial state and runs every load step.
+/// [`crate::run::run_scene`] with a plugin: builds the simulation for the scene's dimension,
+/// adds the plugin, writes the initial state and runs every load step.
 pub fn run_scene_with(
     spec: &SceneSpec,
     out_dir: &Path,

@@ -1,4 +1,5 @@
-//! World resources: the grid, the load step, the Newton state, diagnostics and errors.
+//! The core's world resources: the grid, the load step, the Newton state, diagnostics and
+//! errors. Modules add their own (`effects/`).
 
 use std::time::{Duration, Instant};
 
@@ -6,17 +7,11 @@ use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 
 use crate::basis::GridBasis;
-use crate::fem::Mesh;
 use crate::sparse::{LinearSystem, NO_DOF};
 
 /// The background grid and its basis.
 #[derive(Resource, Clone, Debug)]
 pub struct Grid<const D: usize>(pub GridBasis<D>);
-
-/// Linear FEM only: the body-fitted mesh (element topology, reference node positions). The
-/// current node positions are the `GridNode` positions.
-#[derive(Resource, Clone, Debug)]
-pub struct FemMesh<const D: usize>(pub Mesh<D>);
 
 /// Dense fields on the grid nodes during a load step, indexed by node (see `components`).
 /// Reset after every load step.
@@ -24,6 +19,12 @@ pub struct FemMesh<const D: usize>(pub Mesh<D>);
 pub struct GridFields<const D: usize> {
     /// Nodes supported by at least one material point this step.
     pub active: Vec<bool>,
+    /// Components whose displacement a module prescribes (set at `Hook::Constraints`; kept
+    /// through the grid reset, so that the initial output shows them): they get no DOF.
+    pub constrained: Vec<[bool; D]>,
+    /// Groups of nodes coupled in the tangent beyond the points' supports (e.g. the two cells
+    /// of a ghost-penalty face), added by modules at `Hook::Connectivity`.
+    pub couplings: Vec<Vec<usize>>,
     /// DOF number of each component (`NO_DOF` if fixed or inactive).
     pub dofs: Vec<[u32; D]>,
     /// Displacement increment Δu of the step (the unknown).
@@ -40,6 +41,8 @@ impl<const D: usize> GridFields<D> {
     pub fn new(nodes: usize) -> Self {
         Self {
             active: vec![false; nodes],
+            constrained: vec![[false; D]; nodes],
+            couplings: Vec::new(),
             dofs: vec![[NO_DOF; D]; nodes],
             increment: vec![SVector::zeros(); nodes],
             external_force: vec![SVector::zeros(); nodes],
@@ -51,21 +54,13 @@ impl<const D: usize> GridFields<D> {
     /// Grid reset: the grid returns to its undeformed state and holds no fields.
     pub fn reset(&mut self) {
         self.active.fill(false);
+        self.couplings.clear();
         self.dofs.fill([NO_DOF; D]);
         self.increment.fill(SVector::zeros());
         self.external_force.fill(SVector::zeros());
         self.internal_force.fill(SVector::zeros());
         self.dof_count = 0;
     }
-}
-
-/// Settings of the MLS stress recovery (inserted only when the scene asks for it).
-#[derive(Resource, Clone, Copy, Debug, PartialEq)]
-pub struct StressRecovery {
-    /// Total degree of the fitted polynomial.
-    pub order: usize,
-    /// Support radius as a multiple of the largest cell size of the grid.
-    pub radius_in_cells: f64,
 }
 
 /// The load step being solved.
@@ -87,10 +82,6 @@ pub struct NewtonSettings {
     pub tolerance: f64,
     pub max_iterations: usize,
 }
-
-/// Body force per unit mass at load factor 1.
-#[derive(Resource, Clone, Copy, Debug, PartialEq)]
-pub struct BodyForce<const D: usize>(pub SVector<f64, D>);
 
 /// The state of the Newton loop of the current step.
 #[derive(Resource, Default)]
@@ -122,13 +113,6 @@ pub enum SolverError {
         point: u32,
         position: Vec<f64>,
         step: usize,
-    },
-    /// A point's domain (GIMP, CPDI, domain-integrated B-splines) cannot be used: a corner left
-    /// the grid, or it inverted.
-    PointDomain {
-        point: u32,
-        step: usize,
-        why: String,
     },
     /// A point's deformation became inadmissible (det F <= 0, not finite...).
     BadPointState {
@@ -165,13 +149,12 @@ pub enum SolverError {
     },
     /// Writing results failed.
     Output { step: usize, why: String },
-    /// A traction point left the grid, or has no grid node with material points in its
-    /// support, so its force cannot act on the body.
-    TractionPoint {
-        point: u32,
-        position: Vec<f64>,
+    /// A module's stage failed (e.g. a traction point left the grid, a GIMP or CPDI domain
+    /// cannot be used); `recoverable` if a smaller load step may succeed.
+    Module {
         step: usize,
-        why: &'static str,
+        what: String,
+        recoverable: bool,
     },
 }
 
@@ -185,10 +168,6 @@ impl std::fmt::Display for SolverError {
             } => write!(
                 f,
                 "load step {step}: material point {point} left the background grid (at {position:?})"
-            ),
-            SolverError::PointDomain { point, step, why } => write!(
-                f,
-                "load step {step}: the domain of material point {point} cannot be used: {why}"
             ),
             SolverError::BadPointState {
                 point,
@@ -241,15 +220,7 @@ impl std::fmt::Display for SolverError {
             SolverError::Output { step, why } => {
                 write!(f, "load step {step}: writing output failed: {why}")
             }
-            SolverError::TractionPoint {
-                point,
-                position,
-                step,
-                why,
-            } => write!(
-                f,
-                "load step {step}: traction point {point} at {position:?} {why}"
-            ),
+            SolverError::Module { step, what, .. } => write!(f, "load step {step}: {what}"),
         }
     }
 }
@@ -261,14 +232,17 @@ impl SolverError {
     /// and inadmissible or non-finite iterates are; points leaving the grid and output
     /// failures are not.
     pub fn is_recoverable_by_cutting(&self) -> bool {
-        matches!(
-            self,
-            SolverError::NotConverged { .. }
-                | SolverError::Diverged { .. }
-                | SolverError::BadPointState { .. }
-                | SolverError::LinearSolve { .. }
-                | SolverError::NotFinite { .. }
-        )
+        match self {
+            SolverError::Module { recoverable, .. } => *recoverable,
+            other => matches!(
+                other,
+                SolverError::NotConverged { .. }
+                    | SolverError::Diverged { .. }
+                    | SolverError::BadPointState { .. }
+                    | SolverError::LinearSolve { .. }
+                    | SolverError::NotFinite { .. }
+            ),
+        }
     }
 }
 
@@ -290,47 +264,46 @@ pub fn no_failure(status: Res<RunStatus>) -> bool {
     status.0.is_none()
 }
 
-/// The stages whose time is measured, in schedule order.
+/// The stages whose time is measured: the stages of `method.rs` (`StepSystems`, and
+/// `NewtonSystems` inside the solve), with the same names. A module's systems count to the
+/// stage their hook belongs to.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Stage {
     Connectivity,
     Dofs,
-    ExternalForce,
+    Loads,
     StressUpdate,
     Assembly,
     LinearSolve,
-    PointUpdate,
-    GridReset,
-    StressRecovery,
+    UpdatePoints,
     Output,
+    ResetGrid,
 }
 
 impl Stage {
-    pub const ALL: [Stage; 10] = [
+    pub const ALL: [Stage; 9] = [
         Stage::Connectivity,
         Stage::Dofs,
-        Stage::ExternalForce,
+        Stage::Loads,
         Stage::StressUpdate,
         Stage::Assembly,
         Stage::LinearSolve,
-        Stage::PointUpdate,
-        Stage::GridReset,
-        Stage::StressRecovery,
+        Stage::UpdatePoints,
         Stage::Output,
+        Stage::ResetGrid,
     ];
 
     pub fn name(self) -> &'static str {
         match self {
             Stage::Connectivity => "connectivity",
             Stage::Dofs => "dofs",
-            Stage::ExternalForce => "external_force",
+            Stage::Loads => "loads",
             Stage::StressUpdate => "stress_update",
             Stage::Assembly => "assembly",
             Stage::LinearSolve => "linear_solve",
-            Stage::PointUpdate => "point_update",
-            Stage::GridReset => "grid_reset",
-            Stage::StressRecovery => "stress_recovery",
+            Stage::UpdatePoints => "update_points",
             Stage::Output => "output",
+            Stage::ResetGrid => "reset_grid",
         }
     }
 }

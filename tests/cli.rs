@@ -181,13 +181,13 @@ fn check_explain_lists_the_systems_of_the_scene() {
     assert!(text.contains("  point loads                 yes"), "{text}");
     let scheduled = text.split("left out").next().unwrap();
     assert!(
-        scheduled.contains("Loads                loads::apply_point_loads"),
+        scheduled.contains("Hook::Loads          point_loads::apply_point_loads"),
         "{text}"
     );
     assert!(!scheduled.contains("apply_body_force"), "{text}");
     assert!(!scheduled.contains("tractions::"), "{text}");
     let left_out = text.split("left out").nth(1).unwrap();
-    assert!(left_out.contains("loads::apply_body_force"), "{text}");
+    assert!(left_out.contains("body_force::apply_body_force"), "{text}");
     assert!(left_out.contains("tractions::apply_tractions"), "{text}");
 }
 

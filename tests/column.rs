@@ -5,10 +5,10 @@ mod common;
 
 use common::{overrides, run_shipped, shipped_scene, temp_dir};
 use impm::analytic::SelfWeightColumn;
+use impm::records::Summary;
+use impm::run::Simulation;
 use impm::scene::load_scene;
-use impm::simulation::Simulation;
 use impm::study::convergence_rates;
-use impm::summary::Summary;
 
 /// Runs a column scene; returns the summary and the final (reference height, vertical stress)
 /// of every point.
@@ -284,14 +284,17 @@ fn stress_recovery_only_when_asked() {
         let mut sim = Simulation::<1>::new(&spec, &dir).unwrap();
         sim.write_initial_state().unwrap();
         sim.run(|_| {}).unwrap();
-        assert_eq!(sim.summary.final_error_recovered().is_some(), expected);
+        assert_eq!(
+            sim.summary.final_measure("error_recovered").is_some(),
+            expected
+        );
         let file = dir.join("particles_0002.vtu");
         let vtu = impm::output::read_vtu(&file).unwrap();
         assert_eq!(vtu.point_field("recovered_stress").is_some(), expected);
         if expected {
             let (raw, recovered) = (
                 sim.summary.final_error().unwrap(),
-                sim.summary.final_error_recovered().unwrap(),
+                sim.summary.final_measure("error_recovered").unwrap(),
             );
             assert!(
                 recovered.is_finite() && recovered < raw,

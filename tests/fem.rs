@@ -11,15 +11,18 @@ use bevy_ecs::system::RunSystemOnce;
 use nalgebra::{Matrix3, SMatrix, SVector};
 
 use impm::analytic::SelfWeightColumn;
-use impm::components::{DeformationGradient, ElementPoint, GridNode, ReferencePosition, Trial};
-use impm::fem::{move_reference_nodes, shape_function, tensor_gauss_rule};
+use impm::components::{DeformationGradient, GridNode, ReferencePosition, Trial};
+use impm::effects::fem_mesh::{
+    ElementPoint, FemMesh, evaluate_element_basis, move_reference_nodes,
+};
+use impm::fem::{shape_function, tensor_gauss_rule};
 use impm::material::Hencky;
 use impm::mechanics::{embed, trial_state};
-use impm::resources::{FemMesh, GridFields, LoadStep};
+use impm::resources::{GridFields, LoadStep};
+use impm::run::Simulation;
 use impm::scene::{NodeConstraint, SceneSpec, load_scene};
-use impm::simulation::Simulation;
 use impm::sparse::NO_DOF;
-use impm::stages::{evaluate_element_basis, number_dofs};
+use impm::stages::number_dofs;
 
 fn temp_dir(tag: &str) -> PathBuf {
     common::temp_dir("fem", tag)

@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 
 use impm::components::Position;
 use impm::output::read_vtu;
+use impm::run::Simulation;
 use impm::scene::{SceneSpec, load_scene};
-use impm::simulation::Simulation;
 
 fn temp_dir(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("impm-loads-{name}-{}", std::process::id()));
@@ -185,7 +185,8 @@ load_steps(2);
 /// with the end of the bar: x_s = x_p + (10 − X_p) F_p for the last material point p.
 #[test]
 fn traction_on_a_bar_end_gives_the_exact_stresses_and_moves_with_the_end() {
-    use impm::components::{DeformationGradient, PointId, TractionPoint, Volume};
+    use impm::components::{DeformationGradient, PointId, Volume};
+    use impm::effects::tractions::TractionPoint;
     let dir = temp_dir("traction_bar");
     let spec = scene(
         &dir,

@@ -6,12 +6,12 @@ use std::path::{Path, PathBuf};
 use bevy_ecs::prelude::*;
 
 use impm::components::Position;
+use impm::explain::scheduled_systems;
 use impm::plugin::{Extension, Hook, Plugin};
 use impm::resources::{GridFields, LoadStep, Newton};
+use impm::run::Simulation;
 use impm::scene::load_scene;
-use impm::simulation::Simulation;
 use impm::stages::output::OutputPlan;
-use impm::stages::scheduled_systems;
 
 fn temp_dir(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("impm-plugin-{name}-{}", std::process::id()));

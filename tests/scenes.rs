@@ -3,10 +3,11 @@
 
 use std::path::{Path, PathBuf};
 
+use impm::effects;
+use impm::explain::{ScheduledSystem, explain_scene, scheduled_systems};
 use impm::output::read_vtu;
+use impm::run::Simulation;
 use impm::scene::{SceneSpec, load_scene};
-use impm::simulation::{Simulation, effects_of};
-use impm::stages::{Effects, explain_scene, scheduled_systems};
 
 fn scripts() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts")
@@ -182,16 +183,17 @@ fn block_3d_traction_runs() {
     sim.run(|_| {}).unwrap();
 }
 
-fn names(systems: &[impm::stages::ScheduledSystem]) -> Vec<String> {
+fn names(systems: &[ScheduledSystem]) -> Vec<String> {
     systems.iter().map(|s| s.name.clone()).collect()
 }
 
-const OPTIONAL: [&str; 5] = [
-    "loads::apply_body_force",
-    "loads::apply_point_loads",
+const OPTIONAL: [&str; 6] = [
+    "body_force::apply_body_force",
+    "point_loads::apply_point_loads",
+    "point_loads::point_load_field",
     "tractions::apply_tractions",
     "tractions::update_traction_points",
-    "loads::apply_prescribed_displacements",
+    "grid_constraints::apply_prescribed_displacements",
 ];
 
 /// For several scenes, the schedule holds the systems of exactly the effects it uses, and
@@ -200,8 +202,14 @@ const OPTIONAL: [&str; 5] = [
 #[test]
 fn schedules_hold_only_the_effects_a_scene_uses() {
     let cases: [(&str, &[&str]); 6] = [
-        ("column_2d.rhai", &["loads::apply_body_force"]),
-        ("beam_point_load.rhai", &["loads::apply_point_loads"]),
+        ("column_2d.rhai", &["body_force::apply_body_force"]),
+        (
+            "beam_point_load.rhai",
+            &[
+                "point_loads::apply_point_loads",
+                "point_loads::point_load_field",
+            ],
+        ),
         (
             "footing_traction.rhai",
             &[
@@ -211,9 +219,9 @@ fn schedules_hold_only_the_effects_a_scene_uses() {
         ),
         (
             "stretch_phases.rhai",
-            &["loads::apply_prescribed_displacements"],
+            &["grid_constraints::apply_prescribed_displacements"],
         ),
-        ("embankment.rhai", &["loads::apply_body_force"]),
+        ("embankment.rhai", &["body_force::apply_body_force"]),
         (
             "block_3d_traction.rhai",
             &[
@@ -222,9 +230,10 @@ fn schedules_hold_only_the_effects_a_scene_uses() {
             ],
         ),
     ];
+    let modules = effects::built_in();
     for (scene, expected) in cases {
         let spec = load(scene, &[]);
-        let explanation = explain_scene(&spec).unwrap();
+        let explanation = explain_scene(&spec, &modules).unwrap();
         let scheduled = names(&explanation.systems);
         for system in OPTIONAL {
             assert_eq!(
@@ -238,37 +247,50 @@ fn schedules_hold_only_the_effects_a_scene_uses() {
                 "{scene}: {system} left out"
             );
         }
-        let writes_tractions = scheduled.iter().any(|s| s == "output::write_tractions");
+        let writes_tractions = scheduled.iter().any(|s| s == "tractions::write_tractions");
         assert_eq!(
             writes_tractions,
             expected.contains(&"tractions::apply_tractions")
         );
-        // the core stages are always there, in order
-        let core: Vec<&str> = explanation
+        // the core stages are always there, in the method's order, with the hooks in between
+        let order = [
+            "Hook::Basis",
+            "Hook::Connectivity",
+            "Hook::Constraints",
+            "Dofs",
+            "Hook::Loads",
+            "Solve",
+            "UpdatePoints",
+            "Hook::PointUpdate",
+            "Hook::AfterStep",
+            "Output",
+            "ResetGrid",
+        ];
+        let mut stages: Vec<&str> = explanation
             .systems
             .iter()
-            .filter(|s| s.schedule == "LoadStep")
+            .filter(|s| s.schedule == "StepSchedule")
             .filter_map(|s| s.stage.as_deref())
             .collect();
-        let mut stages = core.clone();
         stages.dedup();
-        assert_eq!(
-            stages,
-            [
-                "Connectivity",
-                "Dofs",
-                "Loads",
-                "Solve",
-                "UpdatePoints",
-                "Output",
-                "ResetGrid"
-            ]
+        let positions: Vec<usize> = stages
             .iter()
-            .filter(|stage| **stage != "Loads" || core.contains(&"Loads"))
-            .copied()
-            .collect::<Vec<_>>(),
-            "{scene}"
+            .map(|stage| order.iter().position(|o| o == stage).unwrap())
+            .collect();
+        assert!(
+            positions.windows(2).all(|p| p[0] < p[1]),
+            "{scene}: {stages:?}"
         );
+        for core in [
+            "Hook::Basis",
+            "Dofs",
+            "Solve",
+            "UpdatePoints",
+            "Output",
+            "ResetGrid",
+        ] {
+            assert!(stages.contains(&core), "{scene}: {core} in {stages:?}");
+        }
         // the same systems as the simulation's own world
         let dir = temp_dir("explain");
         let built = match spec.dim() {
@@ -283,31 +305,50 @@ fn schedules_hold_only_the_effects_a_scene_uses() {
             _ => unreachable!(),
         };
         assert_eq!(built, explanation.systems, "{scene}");
-        assert_eq!(effects_of(&spec), explanation.effects);
+        let used: Vec<&str> = modules
+            .iter()
+            .filter(|m| m.used_by(&spec))
+            .map(|m| m.name())
+            .collect();
+        let listed: Vec<&str> = explanation
+            .modules
+            .iter()
+            .filter(|(_, used)| *used)
+            .map(|(name, _)| *name)
+            .collect();
+        assert_eq!(used, listed, "{scene}");
     }
-    // a scene with no optional effect at all has no Loads stage
+    // a scene with no load at all has no loads stage; its only modules are the material and
+    // the grid constraints
     let spec = load("stretch_phases.rhai", &[("lift", "0.0")]);
-    let explanation = explain_scene(&spec).unwrap();
-    assert_eq!(explanation.effects, Effects::default());
+    let explanation = explain_scene(&spec, &modules).unwrap();
+    let used: Vec<&str> = explanation
+        .modules
+        .iter()
+        .filter(|(_, used)| *used)
+        .map(|(name, _)| *name)
+        .collect();
+    assert_eq!(used, ["hencky", "grid constraints"]);
     assert!(
         explanation
             .systems
             .iter()
-            .all(|s| s.stage.as_deref() != Some("Loads"))
+            .all(|s| s.stage.as_deref() != Some("Hook::Loads"))
     );
     let left_out = names(&explanation.left_out);
     for system in OPTIONAL.iter().chain(&[
-        "output::write_tractions",
-        "ghost::find_ghost_faces",
-        "ghost::assemble_ghost_penalty",
-        "recovery::recover_stress",
+        "tractions::write_tractions",
+        "ghost_penalty::find_ghost_faces",
+        "ghost_penalty::assemble_ghost_penalty",
+        "stress_recovery::recover_stress",
     ]) {
         assert!(
             left_out.iter().any(|s| s == system),
             "{system}: {left_out:?}"
         );
     }
-    assert_eq!(left_out.len(), OPTIONAL.len() + 4, "{left_out:?}");
+    // the optional systems above and the recovered-stress output field
+    assert_eq!(left_out.len(), OPTIONAL.len() + 5, "{left_out:?}");
 }
 
 /// The complete scene of docs/scene-api.md, written from the documentation alone, runs.
@@ -352,28 +393,28 @@ fn the_method_and_solver_options_pick_their_systems() {
         (&[], "connectivity::evaluate_basis", &[]),
         (
             &[("basis", "gimp")],
-            "connectivity::evaluate_domain_basis",
+            "point_domains::evaluate_domain_basis",
             &[],
         ),
         (
             &[("basis", "cpdi")],
-            "connectivity::evaluate_domain_basis",
+            "point_domains::evaluate_domain_basis",
             &[],
         ),
         (
             &[("basis", "fem"), ("ppc", "1")],
-            "element_basis::evaluate_element_basis",
-            &["mesh_advance::advance_mesh", "mesh_output::write_mesh"],
+            "fem_mesh::evaluate_element_basis",
+            &["fem_mesh::advance_mesh", "fem_mesh::write_mesh"],
         ),
     ];
     let evaluations = [
         "connectivity::evaluate_basis",
-        "connectivity::evaluate_domain_basis",
-        "element_basis::evaluate_element_basis",
+        "point_domains::evaluate_domain_basis",
+        "fem_mesh::evaluate_element_basis",
     ];
     for (overrides, evaluation, extra) in cases {
         let spec = load("column_1d.rhai", overrides);
-        let scheduled = names(&explain_scene(&spec).unwrap().systems);
+        let scheduled = names(&explain_scene(&spec, &effects::built_in()).unwrap().systems);
         for candidate in evaluations {
             assert_eq!(
                 scheduled.iter().any(|s| s == candidate),
@@ -381,21 +422,25 @@ fn the_method_and_solver_options_pick_their_systems() {
                 "{overrides:?}: {candidate}"
             );
         }
-        for system in ["mesh_advance::advance_mesh", "mesh_output::write_mesh"] {
+        for system in ["fem_mesh::advance_mesh", "fem_mesh::write_mesh"] {
             assert_eq!(
                 scheduled.iter().any(|s| s == system),
                 extra.contains(&system),
                 "{overrides:?}: {system}"
             );
         }
-        assert!(!scheduled.iter().any(|s| s.starts_with("ghost::")));
-        assert!(!scheduled.iter().any(|s| s == "recovery::recover_stress"));
+        assert!(!scheduled.iter().any(|s| s.starts_with("ghost_penalty::")));
+        assert!(
+            !scheduled
+                .iter()
+                .any(|s| s == "stress_recovery::recover_stress")
+        );
     }
     let spec = load("sliver_column.rhai", &[]);
-    let scheduled = names(&explain_scene(&spec).unwrap().systems);
+    let scheduled = names(&explain_scene(&spec, &effects::built_in()).unwrap().systems);
     assert!(
         scheduled
             .iter()
-            .any(|s| s == "ghost::assemble_ghost_penalty")
+            .any(|s| s == "ghost_penalty::assemble_ghost_penalty")
     );
 }

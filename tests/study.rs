@@ -80,7 +80,7 @@ fn study_runs_the_cross_product_and_its_csv_matches_each_run() {
         "wall_seconds",
         "t_assembly",
         "t_linear_solve",
-        "t_stress_recovery",
+        "t_update_points",
         "peak_rss_mib",
         "message",
     ] {

@@ -10,13 +10,13 @@ use nalgebra::SVector;
 
 use impm::basis::{BasisKind, GimpDomain};
 use impm::components::{DeformationGradient, Position, Support, Trial};
+use impm::effects::point_domains::evaluate_domain_basis;
+use impm::material::Hencky;
 use impm::resources::{GridFields, LoadStep};
+use impm::run::Simulation;
 use impm::scene::*;
-use impm::simulation::Simulation;
 use impm::sparse::NO_DOF;
-use impm::stages::{
-    evaluate_basis, evaluate_domain_basis, number_dofs, reset_grid, update_points, update_stress,
-};
+use impm::stages::{evaluate_basis, number_dofs, reset_grid, update_points, update_stress};
 
 fn temp_dir(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("impm-world-{name}-{}", std::process::id()));
@@ -63,12 +63,7 @@ fn block_2d(cells: [usize; 2], body_cells: [usize; 2], basis: BasisKind) -> Scen
             cells: cells.to_vec(),
             basis,
         },
-        materials: vec![MaterialSpec {
-            name: "m".into(),
-            youngs_modulus: 1e3,
-            poisson_ratio: 0.3,
-            density: 1.0,
-        }],
+        materials: vec![MaterialSpec::hencky("m", 1e3, 0.3, 1.0)],
         bodies: vec![BodySpec {
             name: "block".into(),
             material: 0,
@@ -194,7 +189,9 @@ fn point_update_moves_points_by_the_interpolated_increment_and_reset_clears_the_
         .iter(&sim.world)
         .map(|p| p.0)
         .collect();
-    sim.world.run_system_once(update_stress::<2>).unwrap();
+    sim.world
+        .run_system_once(update_stress::<2, Hencky>)
+        .unwrap();
     sim.world.run_system_once(update_points::<2>).unwrap();
     let after: Vec<_> = sim
         .world
@@ -301,7 +298,9 @@ fn a_non_finite_increment_is_caught_at_the_stress_update_naming_the_point() {
             .unwrap()
     };
     sim.world.resource_mut::<GridFields<2>>().increment[node][0] = f64::NAN;
-    sim.world.run_system_once(update_stress::<2>).unwrap();
+    sim.world
+        .run_system_once(update_stress::<2, Hencky>)
+        .unwrap();
     let status = sim.world.resource::<impm::resources::RunStatus>();
     let message = status.0.as_ref().expect("the NaN is reported").to_string();
     assert!(

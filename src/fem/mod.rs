@@ -32,7 +32,7 @@
 //! centre, 2 = 2x2(x2), ...): points ξ_g and weights w_g of the n-point rule, exact for
 //! polynomials of degree 2n - 1, tensor products in 2D/3D. Integration point p of element e
 //! replaces a material point, with a fixed element and parent coordinate ξ_p
-//! ([`crate::components::ElementPoint`]) and
+//! (`effects::fem_mesh::ElementPoint`) and
 //!
 //! ```text
 //!   X_p = Σ_a N_a(ξ_p) X_a,     V0_p = w_p det J_0(ξ_p),     m_p = ρ0 V0_p,
@@ -42,7 +42,7 @@
 //!
 //! # The MPM stages are exactly linear FEM
 //!
-//! Only connectivity changes: at the start of step n+1, `stages::element_basis` gives each
+//! Only connectivity changes: at the start of step n+1, `effects::fem_mesh` gives each
 //! point the values `N_a(ξ_p)` and the gradients `∇_n N_a = J_n⁻ᵀ ∇_ξ N_a` from the current node
 //! positions x^n, in place of the background-grid basis. Everything downstream is unchanged,
 //! and is the FEM discretisation:
@@ -62,13 +62,12 @@
 //! * Loads: `f_ext,a = Σ_p m_p b N_a(ξ_p)`, the consistent FEM body force.
 //! * Point update (paper eq. 10): `x_p += Σ_a N_a(ξ_p) Δu_a` keeps `x_p = Σ_a N_a(ξ_p) x_a`.
 //!
-//! The schedule swaps the connectivity system and adds `stages::mesh_advance` (the nodes move
-//! by Δu) while the grid fields are still cleared after each step; the output writes the
+//! The module `effects::fem_mesh` swaps the connectivity system and adds the mesh advance (the
+//! nodes move by Δu) while the grid fields are still cleared after each step; the output writes the
 //! deformed mesh as `grid_NNNN.vtu` and the integration points as `particles_NNNN.vtu`.
 
 pub mod element;
 pub mod mesh;
-mod setup;
 
 pub use crate::quadrature::{gauss_legendre, tensor_gauss_rule};
 pub use element::{
@@ -76,4 +75,3 @@ pub use element::{
     map_to_element, shape_function,
 };
 pub use mesh::Mesh;
-pub use setup::{attach_mesh, move_reference_nodes};

@@ -50,7 +50,9 @@
 //! functions ([`Hencky::try_kirchhoff`], [`Hencky::try_kirchhoff_and_tangent`]) return `Err` with
 //! a message, and the unchecked ones return stresses and tangents filled with NaN. Nothing panics.
 
-use nalgebra::{Matrix3, SymmetricEigen, Vector3};
+use nalgebra::{Matrix3, SMatrix, SymmetricEigen, Vector3};
+
+use super::{Material, MaterialParameters, Response};
 
 /// Spatial tangent `c[a][b][k][d] = 2 d tau_ab / d b_kd` for indices below the dimension `D`.
 pub type Tangent<const D: usize> = [[[[f64; D]; D]; D]; D];
@@ -124,6 +126,43 @@ fn log_divided_difference(x: f64, y: f64) -> f64 {
         r.ln_1p() / difference
     } else {
         (small / large).ln() / difference
+    }
+}
+
+/// Hyperelastic: no history, `b = F Fᵀ` (padded to 3x3 in 1D and 2D).
+impl Material for Hencky {
+    type History = ();
+    const MODEL: &'static str = "hencky";
+
+    /// Parameters `E` (Young's modulus) and `nu` (Poisson's ratio).
+    fn from_parameters(parameters: &MaterialParameters) -> Result<Self, String> {
+        Hencky::new(parameters.number("E")?, parameters.number("nu")?)
+    }
+
+    fn respond<const D: usize>(
+        &self,
+        deformation_gradient: &SMatrix<f64, D, D>,
+        _increment: &SMatrix<f64, D, D>,
+        _committed: &(),
+    ) -> Result<Response<D, ()>, String> {
+        let b = deformation_gradient * deformation_gradient.transpose();
+        let mut padded = Matrix3::identity();
+        for i in 0..D {
+            for j in 0..D {
+                padded[(i, j)] = b[(i, j)];
+            }
+        }
+        let (kirchhoff, tangent) = self.try_kirchhoff_and_tangent::<D>(&padded)?;
+        Ok(Response {
+            kirchhoff,
+            tangent,
+            left_cauchy_green: b,
+            history: (),
+        })
+    }
+
+    fn stiffness_scale(&self) -> f64 {
+        self.youngs_modulus
     }
 }
 

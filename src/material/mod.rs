@@ -5,15 +5,138 @@
 //! `eps = ln V = 1/2 ln b`, and the Kirchhoff stress `tau = J sigma` is a linear isotropic function
 //! of `eps` ([`Hencky`]).
 //!
+//! # The [`Material`] trait
+//!
+//! A model answers one question per point and Newton iterate: given the trial deformation
+//! (`F = Δf F^n` and the increment `Δf` of the load step) and the history it committed at the
+//! end of the last converged step, what are the Kirchhoff stress `τ` (3x3), the spatial tangent
+//! `c_abkd = 2 ∂τ_ab/∂b_kd` and the history this iterate would commit ([`Response`])? The
+//! tangent is taken with respect to a left Cauchy-Green-like tensor `b` that the response also
+//! returns: `b = F Fᵀ` for a hyperelastic model, the trial elastic `b_e = Δf b_e^n Δfᵀ` for
+//! elasto-plasticity at finite strain (`F = F_e F_p`); `mechanics` turns `(τ, c, b)` into the
+//! internal force and the consistent tangent, so assembly never knows which model it assembles.
+//!
+//! History is never written by a trial: the stress-update stage keeps the trial history beside
+//! the committed one, and only a converged load step commits it (a cut step restarts from the
+//! committed state). Models without history use `()`, which costs nothing per point.
+//!
 //! Every kernel here works on a full 3x3 `b` whatever the dimension `D` of the analysis (plane
 //! strain and uniaxial strain simply pass a `b` whose out-of-plane block is the identity), so one
 //! model serves 1D, 2D and 3D. The tangent is returned only for the `D` in-plane indices, as a
-//! [`Tangent<D>`].
+//! [`Tangent<D>`]. Kernels take plain `nalgebra` arguments and never panic.
 //!
-//! Kernels take plain `nalgebra` arguments and never panic: invalid input (a `b` that is not
-//! positive definite, or non-finite) gives `Err` from the `try_` variants and NaN-filled results
-//! from the unchecked ones.
+//! Adding a model: implement [`Material`] (and its parameters' scene description, see
+//! `effects::materials`), then register `MaterialModule::<YourModel>` with the other modules;
+//! `examples/custom_material.rs` does it for a compressible neo-Hookean solid outside the crate.
 
 pub mod hencky;
 
 pub use hencky::{Hencky, Tangent};
+
+use std::fmt::Debug;
+
+use nalgebra::{Matrix3, SMatrix};
+
+/// What a model returns for a trial deformation.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Response<const D: usize, H> {
+    /// Kirchhoff stress τ, full 3x3.
+    pub kirchhoff: Matrix3<f64>,
+    /// `c_abkd = 2 ∂τ_ab/∂b_kd` for the in-plane indices.
+    pub tangent: Tangent<D>,
+    /// The tensor `b` (D x D block) the tangent is taken with respect to: `F Fᵀ` for
+    /// hyperelastic models, the trial elastic left Cauchy-Green tensor for plastic ones.
+    pub left_cauchy_green: SMatrix<f64, D, D>,
+    /// The history this iterate would commit if the load step converged here.
+    pub history: H,
+}
+
+/// A constitutive model (see the module docs).
+pub trait Material: Clone + Debug + PartialEq + Send + Sync + 'static {
+    /// The state a point carries from one converged load step to the next (`()` if none).
+    type History: Clone + Debug + Default + PartialEq + Send + Sync + 'static;
+
+    /// The model's word in scenes: `material(#{ model: "hencky", .. })`.
+    const MODEL: &'static str;
+
+    /// Whether the model carries history (points then get a history component).
+    const HAS_HISTORY: bool = std::mem::size_of::<Self::History>() > 0;
+
+    /// Builds the model from its scene parameters, checking them (ranges, combinations).
+    fn from_parameters(parameters: &MaterialParameters) -> Result<Self, String>;
+
+    /// The point fields the model adds to the output: `(name, components)`, e.g.
+    /// `("plastic_strain", 1)`. None by default.
+    fn output_fields() -> &'static [(&'static str, usize)] {
+        &[]
+    }
+
+    /// The values of [`Material::output_fields`] for a point's committed history, appended to
+    /// `out` in field order.
+    fn output_values(_history: &Self::History, _out: &mut Vec<f64>) {}
+
+    /// The response at the trial state `F = Δf F^n` from the committed history.
+    fn respond<const D: usize>(
+        &self,
+        deformation_gradient: &SMatrix<f64, D, D>,
+        increment: &SMatrix<f64, D, D>,
+        committed: &Self::History,
+    ) -> Result<Response<D, Self::History>, String>;
+
+    /// A stiffness scale of the model (Young's modulus for isotropic models), used for the
+    /// default penalty factors of the ghost penalty and of weakly imposed conditions.
+    fn stiffness_scale(&self) -> f64;
+
+    /// Whether the consistent tangent of the model is symmetric (hyperelastic and associated
+    /// plastic models are; the linear solve must not use Cholesky otherwise).
+    fn tangent_is_symmetric(&self) -> bool {
+        true
+    }
+}
+
+/// The parameters of a material as the scene gives them: `E`, `nu`, `phi`... by name.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct MaterialParameters(pub Vec<(String, ParameterValue)>);
+
+/// One parameter value.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ParameterValue {
+    Number(f64),
+    Text(String),
+    Flag(bool),
+}
+
+impl MaterialParameters {
+    /// Parameters from `(name, number)` pairs.
+    pub fn numbers(pairs: &[(&str, f64)]) -> Self {
+        Self(
+            pairs
+                .iter()
+                .map(|&(name, value)| (name.to_string(), ParameterValue::Number(value)))
+                .collect(),
+        )
+    }
+
+    pub fn get(&self, name: &str) -> Option<&ParameterValue> {
+        self.0.iter().find(|(key, _)| key == name).map(|(_, v)| v)
+    }
+
+    /// A number parameter, or an error naming it.
+    pub fn number(&self, name: &str) -> Result<f64, String> {
+        match self.get(name) {
+            Some(ParameterValue::Number(value)) => Ok(*value),
+            Some(other) => Err(format!(
+                "parameter '{name}' must be a number, got {other:?}"
+            )),
+            None => Err(format!("missing parameter '{name}'")),
+        }
+    }
+
+    /// An optional number parameter.
+    pub fn optional_number(&self, name: &str) -> Result<Option<f64>, String> {
+        match self.get(name) {
+            None => Ok(None),
+            Some(_) => self.number(name).map(Some),
+        }
+    }
+}

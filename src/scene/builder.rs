@@ -23,7 +23,7 @@ use super::{
     PointSeed, RecoverySpec, SceneSpec, SolverSpec, TractionPointSpec,
 };
 use crate::basis::{BasisKind, control_points_1d};
-use crate::material::Hencky;
+use crate::material::{Hencky, Material};
 
 /// Largest number of grid nodes accepted (node predicates are called once per node).
 pub(crate) const MAX_NODES: usize = 100_000_000;
@@ -295,9 +295,15 @@ impl SceneBuilder {
                     height: column.value.height,
                     density: material.density,
                     body_force: column.value.body_force,
-                    modulus: Hencky::new(material.youngs_modulus, material.poisson_ratio)
+                    modulus: Hencky::from_parameters(&material.parameters)
                         .map_err(|why| {
-                            ScriptError::at(column.at, format!("analytic_column(...): {why}"))
+                            ScriptError::at(
+                                column.at,
+                                format!(
+                                    "analytic_column(...): the column solution is for Hencky materials; material '{}': {why}",
+                                    material.name
+                                ),
+                            )
                         })?
                         .constrained_modulus(),
                 })

@@ -44,7 +44,9 @@ pub use seeding::{
     seed_points_placed,
 };
 
+use crate::analytic::SelfWeightColumn;
 use crate::basis::BasisKind;
+use crate::material::MaterialParameters;
 
 /// The background grid: an axis-aligned box split into uniform cells.
 #[derive(Clone, Debug, PartialEq)]
@@ -61,14 +63,33 @@ impl GridSpec {
     }
 }
 
-/// A linear-elastic Hencky material (Kirchhoff stress linear in logarithmic strain).
+/// A material: its model (`"hencky"`, ...), the model's parameters and the density.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MaterialSpec {
     pub name: String,
-    pub youngs_modulus: f64,
-    pub poisson_ratio: f64,
+    /// The model's scene word; a module of that name builds it (`effects::materials`).
+    pub model: String,
+    pub parameters: MaterialParameters,
     /// Reference (initial) mass density rho0.
     pub density: f64,
+    /// A stiffness scale of the model (Young's modulus): default penalty factors use it.
+    pub stiffness: f64,
+}
+
+impl MaterialSpec {
+    /// A Hencky material (Kirchhoff stress linear in logarithmic strain).
+    pub fn hencky(name: &str, youngs_modulus: f64, poisson_ratio: f64, density: f64) -> Self {
+        Self {
+            name: name.to_string(),
+            model: "hencky".to_string(),
+            parameters: MaterialParameters::numbers(&[
+                ("E", youngs_modulus),
+                ("nu", poisson_ratio),
+            ]),
+            density,
+            stiffness: youngs_modulus,
+        }
+    }
 }
 
 /// One material point as seeded: reference position and reference volume, and the box it
@@ -183,6 +204,26 @@ pub enum AnalyticSpec {
         body_force: f64,
         modulus: f64,
     },
+}
+
+impl AnalyticSpec {
+    /// The column at load factor `factor` and its axis.
+    pub fn column_at(&self, factor: f64) -> (SelfWeightColumn, usize) {
+        let AnalyticSpec::Column {
+            axis,
+            height,
+            density,
+            body_force,
+            modulus,
+        } = *self;
+        let column = SelfWeightColumn {
+            density,
+            body_force: body_force * factor,
+            height,
+            modulus,
+        };
+        (column, axis)
+    }
 }
 
 /// Moving-least-squares recovery of the point stresses (see `crate::recovery`).

@@ -56,6 +56,9 @@ use super::{GridSpec, MaterialSpec, OutputSpec, RecoverySpec, SceneSpec, SolverS
 use crate::basis::{BasisKind, GimpDomain};
 use crate::stages::output::PARTICLE_FIELDS;
 
+/// The point fields modules add (checked by `output(#{ fields: .. })`).
+const MODULE_FIELDS: &[&str] = &["recovered_stress", "point_load"];
+
 /// The scene API functions and how they are called (used in "wrong arguments" messages).
 pub(crate) const API_SIGNATURES: &[(&str, &str)] = &[
     (
@@ -467,12 +470,7 @@ fn declare_material(
     }
     let index = builder.materials.len();
     builder.materials.push(Located::new(
-        MaterialSpec {
-            name: name.clone(),
-            youngs_modulus,
-            poisson_ratio,
-            density,
-        },
+        MaterialSpec::hencky(&name, youngs_modulus, poisson_ratio, density),
         at,
     ));
     Ok(MaterialHandle { index, name })
@@ -920,14 +918,16 @@ fn declare_output(
             "field names like [\"displacement\", \"cauchy_stress\"]",
             string,
         )?;
-        if let Some(unknown) = fields
+        let known: Vec<&str> = PARTICLE_FIELDS
             .iter()
-            .find(|field| !PARTICLE_FIELDS.contains(&field.as_str()))
-        {
+            .chain(MODULE_FIELDS)
+            .copied()
+            .collect();
+        if let Some(unknown) = fields.iter().find(|field| !known.contains(&field.as_str())) {
             return Err(format!(
                 "{}: unknown particle field {unknown:?}; the fields are: {}",
                 options.subject("fields"),
-                PARTICLE_FIELDS.join(", ")
+                known.join(", ")
             ));
         }
         output.fields = Some(fields);
@@ -1096,7 +1096,7 @@ mod tests {
         assert_eq!(scene.bodies.len(), 1);
         assert_eq!(scene.bodies[0].points.len(), 50 * 4);
         assert_close(total_volume(&scene), 50.0);
-        assert_eq!(scene.materials[0].youngs_modulus, 1e6);
+        assert_eq!(scene.materials[0].stiffness, 1e6);
         assert_eq!(scene.materials[0].density, 1.0);
         assert_eq!(scene.body_force, Some(vec![-800.0]));
         assert_eq!(

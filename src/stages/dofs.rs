@@ -1,12 +1,14 @@
 //! Stage 2: DOF numbering of the active nodes and the sparsity pattern of the step.
 //!
-//! Free components of active nodes are numbered node-major in node order; fixed components and
-//! inactive nodes get no DOF (`NO_DOF`), which eliminates Dirichlet conditions from the system.
+//! Free components of active nodes are numbered node-major in node order; constrained
+//! components (`GridFields::constrained`, set by modules at `Hook::Constraints`) and inactive
+//! nodes get no DOF (`NO_DOF`), which eliminates Dirichlet conditions from the system. Two
+//! nodes couple when a point's support or a module's coupling group (`GridFields::couplings`)
+//! holds both.
 
 use bevy_ecs::prelude::*;
 
-use super::ghost::GhostPenalty;
-use crate::components::{Fixity, GridNode, Support};
+use crate::components::Support;
 use crate::resources::{GridFields, Newton, Stage, StageClock};
 use crate::sparse::NO_DOF;
 
@@ -15,17 +17,15 @@ pub fn number_dofs<const D: usize>(
     mut newton: ResMut<Newton>,
     mut clock: ResMut<StageClock>,
     mut support_nodes: Local<(Vec<usize>, Vec<usize>)>,
-    nodes: Query<(&GridNode<D>, &Fixity<D>)>,
     points: Query<&Support<D>>,
-    ghost: Option<Res<GhostPenalty>>,
 ) {
     let _timer = clock.time(Stage::Dofs);
     let fields = &mut *fields;
     // Mark free components of active nodes (0 = free, NO_DOF = none)...
-    for (node, fixity) in nodes.iter() {
-        let i = node.index;
+    for i in 0..fields.dofs.len() {
+        let constrained = fields.constrained[i];
         fields.dofs[i] = if fields.active[i] {
-            std::array::from_fn(|c| if fixity.fixed[c] { NO_DOF } else { 0 })
+            std::array::from_fn(|c| if constrained[c] { NO_DOF } else { 0 })
         } else {
             [NO_DOF; D]
         };
@@ -48,9 +48,8 @@ pub fn number_dofs<const D: usize>(
         flat.extend(support.0.iter().map(|w| w.node));
         offsets.push(flat.len());
     }
-    // The ghost penalty couples the nodes of a face's two cells.
-    for face in ghost.iter().flat_map(|g| g.faces.iter()) {
-        flat.extend(&face.nodes);
+    for group in &fields.couplings {
+        flat.extend(group);
         offsets.push(flat.len());
     }
     let supports = offsets.windows(2).map(|w| &flat[w[0]..w[1]]);

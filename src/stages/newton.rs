@@ -1,7 +1,6 @@
-//! Stage 4: the Newton loop of a load step.
-//!
-//! [`solve_load_step`] is an exclusive system that runs the `NewtonIteration` schedule until the
-//! normalised out-of-balance force
+//! Newton stages 3 and 4: the convergence check and the linear solve. The loop that runs them,
+//! `method::solve_load_step`, repeats the Newton schedule until the normalised out-of-balance
+//! force
 //!
 //! ```text
 //!   ‖f_ext − f_int‖_free / max(‖f_ext‖, ‖f_int‖)      (norms over all active components)
@@ -12,7 +11,6 @@
 
 use bevy_ecs::prelude::*;
 
-use super::NewtonIteration;
 use crate::resources::{
     GridFields, LoadStep, Newton, NewtonSettings, RunStatus, SolverError, Stage, StageClock,
 };
@@ -21,32 +19,6 @@ use crate::sparse::NO_DOF;
 /// Growth of the out-of-balance force over the step's first residual (or over 1, if smaller)
 /// that is taken as divergence.
 pub const DIVERGENCE_GROWTH: f64 = 1e6;
-
-/// Runs Newton iterations until converged, failed, or out of iterations.
-pub fn solve_load_step(world: &mut World) {
-    world.resource_mut::<Newton>().begin_step();
-    loop {
-        let before = world.resource::<Newton>().iterations;
-        world.run_schedule(NewtonIteration);
-        if world.resource::<RunStatus>().0.is_some() {
-            return;
-        }
-        let newton = world.resource::<Newton>();
-        if newton.converged {
-            return;
-        }
-        if newton.iterations == before {
-            // No solve happened: out of iterations.
-            let error = SolverError::NotConverged {
-                step: world.resource::<LoadStep>().number,
-                residuals: newton.residuals.clone(),
-                tolerance: world.resource::<NewtonSettings>().tolerance,
-            };
-            world.resource_mut::<RunStatus>().fail(error);
-            return;
-        }
-    }
-}
 
 /// Newton stage 3: out-of-balance force at the free DOFs and the convergence test.
 pub fn check_convergence<const D: usize>(

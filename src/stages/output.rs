@@ -3,21 +3,16 @@
 //! Files written per output step (`NNNN` = load step, 0 = initial state):
 //! * `particles_NNNN.vtu` — one vertex cell per material point with `reference_position`,
 //!   `reference_volume`, `volume`, `mass`, `displacement`, `cauchy_stress` (3x3, row-major),
-//!   `deformation_gradient` (3x3, row-major) and `body`; with stress recovery also
-//!   `recovered_stress` (3x3, row-major, see `recovery.rs`); in scenes with point loads also
-//!   `point_load` (λ P, zero on unloaded points).
-//! * `grid_NNNN.vtu` — the background grid cells, with the displacement increment of the step
-//!   evaluated at the grid vertices and the number of material points per cell; for linear
-//!   FEM the deformed mesh instead (`mesh_output.rs`).
-//! * `nodes_NNNN.vtu` — the control points (grid nodes; for FEM the mesh nodes at their current
-//!   positions) with `active`, `fixed`, `displacement_increment`, `external_force` and
-//!   `internal_force`.
+//!   `deformation_gradient` (3x3, row-major) and `body`, then the fields modules add at
+//!   `Hook::PointFields` ([`PointFields`]: e.g. `point_load`, `recovered_stress`).
+//! * `grid_NNNN.vtu` — [`write_grid`], the default of `Hook::GridOutput`: the background grid
+//!   cells, with the displacement increment of the step evaluated at the grid vertices and the
+//!   number of material points per cell (a module may provide another grid file: the FEM mesh).
+//! * `nodes_NNNN.vtu` — the control points (grid nodes) with `active`, `fixed` (the components
+//!   constrained in the step), `displacement_increment`, `external_force` and `internal_force`.
 //!
-//! * `tractions_NNNN.vtu` — only in scenes with tractions: one vertex per traction point with
-//!   `reference_position`, `area` (reference), `traction` (λ h) and `force` (λ h A).
-//!
-//! and the time series `particles.pvd`, `grid.pvd`, `nodes.pvd` (and `tractions.pvd`) with the
-//! load factor as time.
+//! and the time series `particles.pvd`, `grid.pvd`, `nodes.pvd` with the load factor as time;
+//! modules write their own files at `Hook::Output` (e.g. `tractions_NNNN.vtu`).
 //! Every file is written atomically and a series lists a file only once it is complete, so a
 //! run that stops leaves valid results behind.
 
@@ -28,14 +23,14 @@ use nalgebra::{Matrix3, SVector};
 
 use crate::basis::BasisScratch;
 use crate::components::{
-    BodyIndex, DeformationGradient, Displacement, Fixity, GridNode, Mass, PointId, PointLoad,
-    Position, RecoveredStress, ReferencePosition, ReferenceVolume, TractionPoint, Trial, Volume,
+    BodyIndex, DeformationGradient, Displacement, GridNode, Mass, PointId, Position,
+    ReferencePosition, ReferenceVolume, Trial, Volume,
 };
 use crate::mechanics::{embed, interpolate};
 use crate::output::{Field, PvdSeries, lattice_cells, vertex_cells, write_vtu};
 use crate::resources::{Grid, GridFields, LoadStep, RunStatus, SolverError, Stage, StageClock};
 
-/// The particle fields, in file order (`output(#{ fields: [..] })` picks some).
+/// The core's particle fields, in file order (`output(#{ fields: [..] })` picks some).
 pub const PARTICLE_FIELDS: &[&str] = &[
     "reference_position",
     "reference_volume",
@@ -45,9 +40,49 @@ pub const PARTICLE_FIELDS: &[&str] = &[
     "cauchy_stress",
     "deformation_gradient",
     "body",
-    "recovered_stress",
-    "point_load",
 ];
+
+/// Extra point fields of the output step, added by modules at `Hook::PointFields` and written
+/// after the core's fields (then cleared).
+#[derive(Resource, Default, Debug)]
+pub struct PointFields(pub Vec<PointField>);
+
+/// One extra point field: `components` values per point, in point order (`PointId`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct PointField {
+    pub name: &'static str,
+    pub components: usize,
+    pub values: Vec<f64>,
+}
+
+impl PointFields {
+    /// Adds a field of `count` points from `(point id, values)` pairs; points not listed get
+    /// zeros.
+    pub fn add<const C: usize>(
+        &mut self,
+        name: &'static str,
+        count: usize,
+        values: impl Iterator<Item = (u32, [f64; C])>,
+    ) {
+        let mut field = vec![0.0; C * count];
+        for (id, value) in values {
+            let start = C * id as usize;
+            if let Some(slot) = field.get_mut(start..start + C) {
+                slot.copy_from_slice(&value);
+            }
+        }
+        self.0.push(PointField {
+            name,
+            components: C,
+            values: field,
+        });
+    }
+}
+
+/// Run condition: the current step is an output step.
+pub fn writes_output(step: Res<LoadStep>, plan: Res<OutputPlan>) -> bool {
+    plan.writes(&step)
+}
 
 /// Where and when output is written.
 #[derive(Resource)]
@@ -65,7 +100,6 @@ pub struct OutputPlan {
     pub particles: PvdSeries,
     pub grid: PvdSeries,
     pub nodes: PvdSeries,
-    pub tractions: PvdSeries,
 }
 
 impl OutputPlan {
@@ -74,7 +108,6 @@ impl OutputPlan {
             particles: PvdSeries::new(dir.join("particles.pvd")),
             grid: PvdSeries::new(dir.join("grid.pvd")),
             nodes: PvdSeries::new(dir.join("nodes.pvd")),
-            tractions: PvdSeries::new(dir.join("tractions.pvd")),
             dir,
             every: every.max(1),
             last_step,
@@ -118,12 +151,12 @@ impl OutputPlan {
 }
 
 /// Row-major components of a 3x3 tensor.
-fn row_major(m: &Matrix3<f64>) -> [f64; 9] {
+pub fn row_major(m: &Matrix3<f64>) -> [f64; 9] {
     std::array::from_fn(|k| m[(k / 3, k % 3)])
 }
 
 /// A D-vector padded to 3 components.
-pub(super) fn pad<const D: usize>(v: &SVector<f64, D>) -> [f64; 3] {
+pub fn pad<const D: usize>(v: &SVector<f64, D>) -> [f64; 3] {
     std::array::from_fn(|k| if k < D { v[k] } else { 0.0 })
 }
 
@@ -131,6 +164,7 @@ pub(super) fn pad<const D: usize>(v: &SVector<f64, D>) -> [f64; 3] {
 pub fn write_particles<const D: usize>(
     step: Res<LoadStep>,
     mut plan: ResMut<OutputPlan>,
+    mut extra: ResMut<PointFields>,
     mut status: ResMut<RunStatus>,
     mut clock: ResMut<StageClock>,
     points: Query<(
@@ -144,8 +178,6 @@ pub fn write_particles<const D: usize>(
         &DeformationGradient<D>,
         &Trial<D>,
         &BodyIndex,
-        Option<&RecoveredStress>,
-        Option<&PointLoad<D>>,
     )>,
 ) {
     if !plan.writes(&step) {
@@ -164,10 +196,7 @@ pub fn write_particles<const D: usize>(
     let mut stress = Vec::with_capacity(9 * n);
     let mut deformation = Vec::with_capacity(9 * n);
     let mut body = Vec::with_capacity(n);
-    let mut recovered = Vec::new();
-    let has_point_loads = rows.iter().any(|row| row.11.is_some());
-    let mut point_load = Vec::with_capacity(if has_point_loads { 3 * n } else { 0 });
-    for (_, x, xr, v0, v, m, u, f, trial, b, r, load) in rows {
+    for (_, x, xr, v0, v, m, u, f, trial, b) in rows {
         positions.push(pad(&x.0));
         reference.extend(pad(&xr.0));
         reference_volume.push(v0.0);
@@ -177,12 +206,6 @@ pub fn write_particles<const D: usize>(
         stress.extend(row_major(&trial.0.cauchy()));
         deformation.extend(row_major(&embed(&f.0)));
         body.push(b.0 as f64);
-        if let Some(r) = r {
-            recovered.extend(row_major(&r.0));
-        }
-        if has_point_loads {
-            point_load.extend(pad(&(load.map_or(SVector::zeros(), |l| l.0) * step.factor)));
-        }
     }
     let mut fields = vec![
         Field {
@@ -226,21 +249,12 @@ pub fn write_particles<const D: usize>(
             values: &body,
         },
     ];
-    // Every point has a recovered stress when the scene asks for recovery, none otherwise.
-    if recovered.len() == 9 * n && n > 0 {
-        fields.push(Field {
-            name: "recovered_stress",
-            components: 9,
-            values: &recovered,
-        });
-    }
-    if has_point_loads {
-        fields.push(Field {
-            name: "point_load",
-            components: 3,
-            values: &point_load,
-        });
-    }
+    let extra = std::mem::take(&mut extra.0);
+    fields.extend(extra.iter().map(|field| Field {
+        name: field.name,
+        components: field.components,
+        values: &field.values,
+    }));
     fields.retain(|field| plan.writes_field(field.name));
     let name = format!("particles_{:04}.vtu", step.number);
     let result = write_vtu(
@@ -259,6 +273,7 @@ pub fn write_particles<const D: usize>(
     }
 }
 
+/// The default grid file (`Hook::GridOutput`): the background grid.
 #[allow(clippy::too_many_arguments)]
 pub fn write_grid<const D: usize>(
     step: Res<LoadStep>,
@@ -332,25 +347,29 @@ pub fn write_nodes<const D: usize>(
     mut plan: ResMut<OutputPlan>,
     mut status: ResMut<RunStatus>,
     mut clock: ResMut<StageClock>,
-    nodes: Query<(&GridNode<D>, &Fixity<D>)>,
+    nodes: Query<&GridNode<D>>,
 ) {
     if !plan.writes(&step) || !plan.grid_files {
         return;
     }
     let _timer = clock.time(Stage::Output);
     let mut rows: Vec<_> = nodes.iter().collect();
-    rows.sort_by_key(|(node, _)| node.index);
-    let node_positions: Vec<[f64; 3]> = rows.iter().map(|(node, _)| pad(&node.position)).collect();
+    rows.sort_by_key(|node| node.index);
+    let node_positions: Vec<[f64; 3]> = rows.iter().map(|node| pad(&node.position)).collect();
     let mut active = Vec::with_capacity(rows.len());
     let mut fixed = Vec::with_capacity(3 * rows.len());
     let mut node_increment = Vec::with_capacity(3 * rows.len());
     let mut external = Vec::with_capacity(3 * rows.len());
     let mut internal = Vec::with_capacity(3 * rows.len());
-    for (node, fixity) in &rows {
+    for node in &rows {
         let i = node.index;
         active.push(if fields.active[i] { 1.0 } else { 0.0 });
         fixed.extend(std::array::from_fn::<f64, 3, _>(|c| {
-            if c < D && fixity.fixed[c] { 1.0 } else { 0.0 }
+            if c < D && fields.constrained[i][c] {
+                1.0
+            } else {
+                0.0
+            }
         }));
         node_increment.extend(pad(&fields.increment[i]));
         external.extend(pad(&fields.external_force[i]));
@@ -395,54 +414,6 @@ pub fn write_nodes<const D: usize>(
         status.fail(SolverError::Output {
             step: step.number,
             why: e.to_string(),
-        });
-    }
-}
-
-/// The traction points (only scheduled in scenes with tractions).
-pub fn write_tractions<const D: usize>(
-    step: Res<LoadStep>,
-    mut plan: ResMut<OutputPlan>,
-    mut status: ResMut<RunStatus>,
-    mut clock: ResMut<StageClock>,
-    points: Query<&TractionPoint<D>>,
-) {
-    if !plan.writes(&step) {
-        return;
-    }
-    let _timer = clock.time(Stage::Output);
-    let mut rows: Vec<&TractionPoint<D>> = points.iter().collect();
-    rows.sort_by_key(|point| point.id);
-    let n = rows.len();
-    let positions: Vec<[f64; 3]> = rows.iter().map(|point| pad(&point.position)).collect();
-    let mut reference = Vec::with_capacity(3 * n);
-    let mut area = Vec::with_capacity(n);
-    let mut traction = Vec::with_capacity(3 * n);
-    let mut force = Vec::with_capacity(3 * n);
-    for point in &rows {
-        reference.extend(pad(&point.reference_position));
-        area.push(point.area);
-        traction.extend(pad(&(point.traction * step.factor)));
-        force.extend(pad(&(point.traction * (point.area * step.factor))));
-    }
-    let name = format!("tractions_{:04}.vtu", step.number);
-    let result = write_vtu(
-        &plan.dir.join(&name),
-        &positions,
-        &vertex_cells(n),
-        &[
-            Field::new("reference_position", 3, &reference),
-            Field::scalar("area", &area),
-            Field::new("traction", 3, &traction),
-            Field::new("force", 3, &force),
-        ],
-        &[],
-    )
-    .and_then(|()| plan.tractions.push(step.factor, &name));
-    if let Err(e) = result {
-        status.fail(SolverError::Output {
-            step: step.number,
-            why: format!("{name}: {e}"),
         });
     }
 }

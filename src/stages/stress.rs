@@ -1,13 +1,46 @@
 //! Newton stage 1: the trial state of every point for the current displacement increment:
-//! Δf = I + Σ Δu_i ⊗ ∇_n N_i, F = Δf F^n, and the Hencky stress and tangent (`mechanics`).
+//! Δf = I + Σ Δu_i ⊗ ∇_n N_i, F = Δf F^n, and the material's stress and tangent (`mechanics`).
+//!
+//! One system per material kind ([`update_stress`] monomorphised for `M`), each over the points
+//! of that kind only: the hot loop knows its model at compile time, and a scene that mixes kinds
+//! runs one system per kind. The systems are added by the kinds' modules
+//! (`effects::materials::MaterialModule`), never by the core.
+//!
+//! History: the trial history of an iterate is computed from the committed one and kept beside
+//! it ([`PointHistory::trial`]); [`commit_history`] makes it the committed one after a converged
+//! load step. A failed attempt leaves the committed history untouched, so a cut step restarts
+//! from it.
 
 use bevy_ecs::prelude::*;
 
-use crate::components::{DeformationGradient, Elastic, PointId, Support, Trial};
-use crate::mechanics::{increment_gradient, trial_state};
+use crate::components::{DeformationGradient, PointId, Support, Trial};
+use crate::material::Material;
+use crate::mechanics::{increment_gradient, trial_state_with_history};
 use crate::resources::{GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock};
 
-pub fn update_stress<const D: usize>(
+/// The point's constitutive model.
+#[derive(Component, Clone, Debug, PartialEq)]
+pub struct PointMaterial<M: Material>(pub M);
+
+/// The history of a point whose model has one: committed at the end of the last converged
+/// load step, and that of the current Newton iterate.
+#[derive(Component, Clone, Debug, PartialEq)]
+pub struct PointHistory<M: Material> {
+    pub committed: M::History,
+    pub trial: M::History,
+}
+
+impl<M: Material> Default for PointHistory<M> {
+    fn default() -> Self {
+        Self {
+            committed: M::History::default(),
+            trial: M::History::default(),
+        }
+    }
+}
+
+#[allow(clippy::type_complexity)]
+pub fn update_stress<const D: usize, M: Material>(
     fields: Res<GridFields<D>>,
     step: Res<LoadStep>,
     newton: Res<Newton>,
@@ -17,15 +50,23 @@ pub fn update_stress<const D: usize>(
         &PointId,
         &Support<D>,
         &DeformationGradient<D>,
-        &Elastic,
+        &PointMaterial<M>,
         &mut Trial<D>,
+        Option<&mut PointHistory<M>>,
     )>,
 ) {
     let _timer = clock.time(Stage::StressUpdate);
-    for (id, support, f, material, mut trial) in points.iter_mut() {
+    let none = M::History::default();
+    for (id, support, f, material, mut trial, history) in points.iter_mut() {
         let df = increment_gradient(&support.0, |node| fields.increment[node]);
-        match trial_state(&material.0, &f.0, &df) {
-            Ok(state) => trial.0 = state,
+        let committed = history.as_ref().map_or(&none, |h| &h.committed);
+        match trial_state_with_history(&material.0, committed, &f.0, &df) {
+            Ok((state, trial_history)) => {
+                trial.0 = state;
+                if let Some(mut history) = history {
+                    history.trial = trial_history;
+                }
+            }
             Err(why) => {
                 status.fail(SolverError::BadPointState {
                     point: id.0,
@@ -36,5 +77,13 @@ pub fn update_stress<const D: usize>(
                 return;
             }
         }
+    }
+}
+
+/// After a converged load step: the trial history becomes the committed one.
+pub fn commit_history<M: Material>(mut points: Query<&mut PointHistory<M>>) {
+    for mut history in points.iter_mut() {
+        let history = &mut *history;
+        history.committed.clone_from(&history.trial);
     }
 }

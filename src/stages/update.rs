@@ -26,7 +26,7 @@ pub fn update_points<const D: usize>(
         &mut Volume,
     )>,
 ) {
-    let _timer = clock.time(Stage::PointUpdate);
+    let _timer = clock.time(Stage::UpdatePoints);
     for (id, support, trial, v0, mut x, mut u, mut f, mut v) in points.iter_mut() {
         let du = interpolate(&support.0, |node| fields.increment[node]);
         if du.iter().any(|c| !c.is_finite()) {

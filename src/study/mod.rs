@@ -50,8 +50,8 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use crate::resources::Stage;
+use crate::run::run_scene_keeping_summary;
 use crate::scene::{AnalyticSpec, load_scene, scene_parameters};
-use crate::simulation::run_scene_keeping_summary;
 
 /// One `--sweep`: parameter names moved together and their value tuples.
 #[derive(Clone, Debug, PartialEq)]
@@ -268,7 +268,7 @@ fn run_one(plan: &StudyPlan, index: usize, parameters: Vec<(String, String)>) ->
         }
         if record.outcome == RunOutcome::Completed {
             record.error = summary.final_error();
-            record.error_recovered = summary.final_error_recovered();
+            record.error_recovered = summary.final_measure("error_recovered");
         }
     }
     if plan.profiles && record.outcome == RunOutcome::Completed {

@@ -8,13 +8,13 @@ use std::path::{Path, PathBuf};
 use bevy_ecs::schedule::ScheduleLabel;
 use bevy_ecs::system::RunSystemOnce;
 
+use impm::material::Hencky;
+use impm::method::{NewtonSchedule, OutputSchedule, RollbackSchedule, StepSchedule};
 use impm::resources::{GridFields, Newton};
+use impm::run::Simulation;
 use impm::scene::load_scene;
-use impm::simulation::Simulation;
 use impm::sparse::NO_DOF;
-use impm::stages::{
-    LoadStep as LoadStepSchedule, NewtonIteration, WriteOutput, assemble, update_stress,
-};
+use impm::stages::{assemble, update_stress};
 
 /// A scene shipped under `scripts/`.
 pub fn shipped_scene(name: &str) -> PathBuf {
@@ -68,7 +68,9 @@ pub fn run_shipped<const D: usize>(script: &str, set: &[(&str, &str)]) -> Simula
 /// Runs the stress update and the assembly for the current increments; returns the internal
 /// force at the free DOFs.
 pub fn internal_force(sim: &mut Simulation<2>) -> Vec<f64> {
-    sim.world.run_system_once(update_stress::<2>).unwrap();
+    sim.world
+        .run_system_once(update_stress::<2, Hencky>)
+        .unwrap();
     sim.world.run_system_once(assemble::<2>).unwrap();
     let fields = sim.world.resource::<GridFields<2>>();
     let mut f = vec![0.0; fields.dof_count];
@@ -139,9 +141,10 @@ pub fn assert_tangent_matches_finite_differences(sim: &mut Simulation<2>) -> (f6
 /// configured to make any ambiguity an error).
 pub fn assert_schedules_unambiguous<const D: usize>(sim: &mut Simulation<D>) {
     for label in [
-        LoadStepSchedule.intern(),
-        NewtonIteration.intern(),
-        WriteOutput.intern(),
+        StepSchedule.intern(),
+        NewtonSchedule.intern(),
+        OutputSchedule.intern(),
+        RollbackSchedule.intern(),
     ] {
         sim.world.schedule_scope(label, |world, schedule| {
             schedule

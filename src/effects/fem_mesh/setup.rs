@@ -1,16 +1,15 @@
-//! Building the FEM part of a world (the one place in this module that knows the ECS): the
-//! mesh resource from the integration points the scene seeded, and an optional distortion of
-//! the reference mesh before the run.
+//! Building the FEM part of a world: the mesh resource from the integration points the scene
+//! seeded, and an optional distortion of the reference mesh before the run.
 
 use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 
-use super::element::{jacobian_determinant, map_to_element};
-use super::mesh::Mesh;
+use super::{ElementPoint, FemMesh};
 use crate::components::{
-    ElementPoint, GridNode, Mass, PointId, Position, ReferencePosition, ReferenceVolume, Volume,
+    GridNode, Mass, PointId, Position, ReferencePosition, ReferenceVolume, Volume,
 };
-use crate::resources::{FemMesh, Grid, LoadStep};
+use crate::fem::{Mesh, jacobian_determinant, map_to_element};
+use crate::resources::{Grid, LoadStep};
 
 /// Makes the world a linear-FEM world: every point is an integration point of the grid cell
 /// that contains it (its element gets parent coordinates ξ from its position, see

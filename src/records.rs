@@ -1,13 +1,25 @@
-//! `summary.json`: per load step the load factor, Newton iterations and residual history,
-//! seconds per stage and, when the scene declares an analytic solution, the paper's error
-//! (eq. 15); then totals. Rewritten atomically after every step, so it is valid at any time.
+//! The run's records (bookkeeping beside the method): per load step the load factor, Newton
+//! iterations and residual history, the attempts of a cut step, seconds per stage and, when the
+//! scene declares an analytic solution, the paper's error (eq. 15), plus the measures modules
+//! add ([`StepMeasures`], e.g. `error_recovered`); then totals. Written as `summary.json`,
+//! atomically after every step, so it is valid at any time.
 
 use std::path::{Path, PathBuf};
 
+use bevy_ecs::prelude::*;
 use serde_json::{Map, Value, json};
 
+use crate::control::Attempt;
 use crate::resources::{Stage, StageClock};
 use crate::scene::SceneSpec;
+
+/// A quantity a module measures after every converged step, from the world and the load
+/// factor (`None` when it does not apply).
+pub type Measure = Box<dyn Fn(&mut World, f64) -> Option<f64> + Send + Sync>;
+
+/// The measures of the run, by name; each becomes a key of the step's record.
+#[derive(Resource, Default)]
+pub struct StepMeasures(pub Vec<(&'static str, Measure)>);
 
 /// What one load step did.
 #[derive(Clone, Debug)]
@@ -24,12 +36,61 @@ pub struct StepRecord {
     pub wall_seconds: f64,
     /// Eq. 15 error after the step, if the scene has an analytic solution.
     pub error: Option<f64>,
-    /// Eq. 15 error of the MLS-recovered stress, if the scene asks for stress recovery.
-    pub error_recovered: Option<f64>,
+    /// The modules' measures after the step (see [`StepMeasures`]).
+    pub measures: Vec<(&'static str, f64)>,
     /// How many times the step was cut (halved) after a failed Newton solve.
     pub cuts: usize,
     /// Every attempt in order, failed ones included (one entry when the step was not cut).
     pub substeps: Vec<SubstepRecord>,
+}
+
+impl StepRecord {
+    /// The record of load step `step` towards load factor `load_factor`, before any attempt.
+    pub fn new(step: usize, load_factor: f64) -> Self {
+        Self {
+            step,
+            load_factor,
+            iterations: 0,
+            residuals: Vec::new(),
+            converged: false,
+            dofs: 0,
+            seconds: StageClock::default(),
+            wall_seconds: 0.0,
+            error: None,
+            measures: Vec::new(),
+            cuts: 0,
+            substeps: Vec::new(),
+        }
+    }
+
+    /// A measure by name.
+    pub fn measure(&self, name: &str) -> Option<f64> {
+        self.measures
+            .iter()
+            .find(|(key, _)| *key == name)
+            .map(|(_, value)| *value)
+    }
+
+    /// Adds an attempt (a Newton solve from `from` to `to`) with its outcome.
+    pub fn add_attempt(
+        &mut self,
+        attempt: &Attempt,
+        iterations: usize,
+        residuals: &[f64],
+        failure: Option<String>,
+    ) {
+        self.iterations += iterations;
+        self.residuals = residuals.to_vec();
+        self.converged = failure.is_none();
+        self.substeps.push(SubstepRecord {
+            from: attempt.from,
+            to: attempt.to,
+            iterations,
+            residuals: residuals.to_vec(),
+            converged: failure.is_none(),
+            failure,
+        });
+    }
 }
 
 /// One Newton solve from load factor `from` to `to` within a load step.
@@ -88,8 +149,8 @@ fn step_json(r: &StepRecord) -> Value {
     if let Some(e) = r.error {
         v["error"] = number(e);
     }
-    if let Some(e) = r.error_recovered {
-        v["error_recovered"] = number(e);
+    for (name, value) in &r.measures {
+        v[*name] = number(*value);
     }
     v["cuts"] = json!(r.cuts);
     if r.substeps.len() > 1 {
@@ -153,9 +214,9 @@ impl Summary {
         self.steps.last().and_then(|s| s.error)
     }
 
-    /// The eq. 15 error of the recovered stress after the last completed step.
-    pub fn final_error_recovered(&self) -> Option<f64> {
-        self.steps.last().and_then(|s| s.error_recovered)
+    /// A measure (e.g. `error_recovered`) after the last completed step.
+    pub fn final_measure(&self, name: &str) -> Option<f64> {
+        self.steps.last().and_then(|s| s.measure(name))
     }
 
     /// Total Newton iterations.
@@ -196,8 +257,10 @@ impl Summary {
         if let Some(e) = self.final_error() {
             v["error"] = number(e);
         }
-        if let Some(e) = self.final_error_recovered() {
-            v["error_recovered"] = number(e);
+        if let Some(last) = self.steps.last() {
+            for (name, value) in &last.measures {
+                v[*name] = number(*value);
+            }
         }
         if let Some(f) = &self.failure {
             v["failure"] = Value::String(f.clone());

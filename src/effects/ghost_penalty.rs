@@ -1,29 +1,74 @@
-//! Ghost-penalty stabilisation of nearly empty cells (see `ghost` for the formulation).
-//! Scheduled only when the scene sets `solver(#{ ghost_penalty: γ })` with γ > 0.
+//! Ghost-penalty stabilisation of nearly empty cells (the formulation and kernels: `ghost`).
+//! Used when the scene sets `solver(#{ ghost_penalty: γ })` with γ > 0 (MPM bases only).
 //!
-//! * [`find_ghost_faces`] (connectivity stage): cell fill fractions from the points, the faces
-//!   next to boundary cells, and their penalty matrices, constant through the load step.
-//! * [`assemble_ghost_penalty`] (assembly stage, after the points): f_int += G Δu, K += G.
+//! * [`find_ghost_faces`] (`Hook::Connectivity`): cell fill fractions from the points, the faces
+//!   next to boundary cells, and their penalty matrices, constant through the load step; each
+//!   face couples the nodes of its two cells (`GridFields::couplings`).
+//! * [`assemble_ghost_penalty`] (`Hook::AfterAssembly`): f_int += G Δu, K += G (symmetric).
 
 use bevy_ecs::prelude::*;
 
+use crate::basis::BasisKind;
 use crate::components::{Position, Volume};
 use crate::ghost::{FacePenalty, face_penalty, ghost_faces};
+use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{Grid, GridFields, Newton, Stage, StageClock};
+use crate::scene::SceneSpec;
 use crate::sparse::NO_DOF;
 
 /// The ghost penalty of the current load step.
 #[derive(Resource, Clone, Debug, Default)]
 pub struct GhostPenalty {
-    /// γ E: the dimensionless penalty times the scene's largest Young's modulus.
+    /// γ E: the dimensionless penalty times the scene's largest stiffness (Young's modulus).
     pub gamma_modulus: f64,
     /// The penalised faces of this step.
     pub faces: Vec<FacePenalty>,
 }
 
+/// The module.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct GhostPenaltyModule;
+
+impl Plugin for GhostPenaltyModule {
+    fn name(&self) -> &'static str {
+        "ghost penalty"
+    }
+
+    fn used_by(&self, spec: &SceneSpec) -> bool {
+        spec.solver.ghost_penalty > 0.0
+    }
+
+    fn applies_to(&self, spec: &SceneSpec) -> bool {
+        spec.grid.basis != BasisKind::Fem
+    }
+
+    fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
+        let spec = simulation.spec();
+        if !self.applies_to(spec) && self.used_by(spec) {
+            simulation.fail(
+                "the ghost penalty stabilises nearly empty MPM cells; a finite-element mesh (basis fem) has none",
+            );
+            return;
+        }
+        let modulus = spec
+            .materials
+            .iter()
+            .map(|m| m.stiffness)
+            .fold(0.0, f64::max);
+        simulation.world().insert_resource(GhostPenalty {
+            gamma_modulus: spec.solver.ghost_penalty * modulus,
+            faces: Vec::new(),
+        });
+        simulation
+            .add_systems(Hook::Connectivity, find_ghost_faces::<D>)
+            .add_systems(Hook::AfterAssembly, assemble_ghost_penalty::<D>);
+    }
+}
+
 pub fn find_ghost_faces<const D: usize>(
     grid: Res<Grid<D>>,
     mut ghost: ResMut<GhostPenalty>,
+    mut fields: ResMut<GridFields<D>>,
     mut clock: ResMut<StageClock>,
     mut filled: Local<Vec<f64>>,
     points: Query<(&Position<D>, &Volume)>,
@@ -43,6 +88,9 @@ pub fn find_ghost_faces<const D: usize>(
         .iter()
         .map(|face| face_penalty(basis, face, gamma_modulus))
         .collect();
+    fields
+        .couplings
+        .extend(ghost.faces.iter().map(|face| face.nodes.clone()));
 }
 
 pub fn assemble_ghost_penalty<const D: usize>(

@@ -1,0 +1,188 @@
+//! Load-step control: which load factors the driver attempts within one load step.
+//!
+//! A policy is a small state machine, pure (no world, no solver): the driver asks it for the
+//! first attempt of a step, tells it how each attempt ended, and gets the next attempt or the
+//! end of the step. The built-in policy is [`StepCutting`]; other policies (arc-length control,
+//! which also moves the load factor inside the Newton solve) implement [`LoadStepControl`].
+//!
+//! # Step cutting
+//!
+//! The step from λ_n to λ_{n+1} is tried whole. When an attempt fails in a way a smaller step
+//! may cure (Newton does not converge or diverges, an inverted point, a singular tangent), the
+//! attempt is discarded (the grid is reset; points were not touched) and repeated with half the
+//! increment, down to 2^-max_cuts of the step. After a successful sub-step the increment grows
+//! back by a factor 2. The last sub-step lands exactly on λ_{n+1}.
+
+/// One attempt: solve from load factor `from` to `to`; `completes_step` when `to` is the step's
+/// target (output is written only then).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Attempt {
+    pub from: f64,
+    pub to: f64,
+    pub completes_step: bool,
+}
+
+/// A policy for the attempts of one load step.
+pub trait LoadStepControl: Send + Sync {
+    /// Starts a load step from `start` to `target`; the first attempt.
+    fn begin(&mut self, start: f64, target: f64) -> Attempt;
+    /// The attempt converged: the next one, or `None` when the step is complete.
+    fn succeeded(&mut self, attempt: Attempt) -> Option<Attempt>;
+    /// The attempt failed (`recoverable`: a smaller step may succeed): the next attempt, or
+    /// `None` to give up.
+    fn failed(&mut self, attempt: Attempt, recoverable: bool) -> Option<Attempt>;
+    /// How many times the current step was cut.
+    fn cuts(&self) -> usize;
+}
+
+/// Halve the increment on failure, double it back on success (see the module docs).
+#[derive(Clone, Debug, PartialEq)]
+pub struct StepCutting {
+    pub max_cuts: usize,
+    target: f64,
+    full: f64,
+    level: usize,
+    cuts: usize,
+}
+
+impl StepCutting {
+    pub fn new(max_cuts: usize) -> Self {
+        Self {
+            max_cuts,
+            target: 0.0,
+            full: 0.0,
+            level: 0,
+            cuts: 0,
+        }
+    }
+
+    /// The attempt from `from` with the increment of the current level.
+    fn attempt_from(&self, from: f64) -> Attempt {
+        let (full, target) = (self.full, self.target);
+        let increment = full / f64::powi(2.0, self.level as i32);
+        let completes_step = (from + increment - target).abs() <= 1e-12 * full.abs().max(1e-300)
+            || (full > 0.0 && from + increment >= target)
+            || (full < 0.0 && from + increment <= target)
+            || full == 0.0;
+        Attempt {
+            from,
+            to: if completes_step {
+                target
+            } else {
+                from + increment
+            },
+            completes_step,
+        }
+    }
+}
+
+impl LoadStepControl for StepCutting {
+    fn begin(&mut self, start: f64, target: f64) -> Attempt {
+        self.target = target;
+        self.full = target - start;
+        self.level = 0;
+        self.cuts = 0;
+        self.attempt_from(start)
+    }
+
+    fn succeeded(&mut self, attempt: Attempt) -> Option<Attempt> {
+        if attempt.completes_step {
+            return None;
+        }
+        self.level = self.level.saturating_sub(1);
+        Some(self.attempt_from(attempt.to))
+    }
+
+    fn failed(&mut self, attempt: Attempt, recoverable: bool) -> Option<Attempt> {
+        if !recoverable || self.level >= self.max_cuts {
+            return None;
+        }
+        self.level += 1;
+        self.cuts += 1;
+        Some(self.attempt_from(attempt.from))
+    }
+
+    fn cuts(&self) -> usize {
+        self.cuts
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Runs a step whose attempts succeed when their increment is at most `largest`; returns
+    /// the attempts (from, to) and whether the step completed.
+    fn run(
+        control: &mut StepCutting,
+        start: f64,
+        target: f64,
+        largest: f64,
+    ) -> (Vec<(f64, f64)>, bool) {
+        let mut attempts = Vec::new();
+        let mut attempt = control.begin(start, target);
+        loop {
+            attempts.push((attempt.from, attempt.to));
+            let next = if (attempt.to - attempt.from).abs() <= largest + 1e-15 {
+                match control.succeeded(attempt) {
+                    None => return (attempts, true),
+                    next => next,
+                }
+            } else {
+                control.failed(attempt, true)
+            };
+            match next {
+                Some(next) => attempt = next,
+                None => return (attempts, false),
+            }
+        }
+    }
+
+    #[test]
+    fn a_step_that_converges_is_one_attempt() {
+        let mut control = StepCutting::new(8);
+        let (attempts, done) = run(&mut control, 0.25, 0.5, 1.0);
+        assert_eq!(attempts, [(0.25, 0.5)]);
+        assert!(done && control.cuts() == 0);
+    }
+
+    #[test]
+    fn failures_halve_and_successes_grow_back_to_land_on_the_target() {
+        let mut control = StepCutting::new(8);
+        // only increments of at most a quarter of the step converge
+        let (attempts, done) = run(&mut control, 0.0, 1.0, 0.25);
+        assert!(done);
+        assert_eq!(
+            attempts,
+            [
+                (0.0, 1.0),
+                (0.0, 0.5),
+                (0.0, 0.25),
+                (0.25, 0.75),
+                (0.25, 0.5),
+                (0.5, 1.0),
+                (0.5, 0.75),
+                (0.75, 1.0)
+            ]
+        );
+        assert_eq!(control.cuts(), 4);
+    }
+
+    #[test]
+    fn gives_up_after_max_cuts_or_an_unrecoverable_failure() {
+        let mut control = StepCutting::new(2);
+        let (attempts, done) = run(&mut control, 0.0, 1.0, 0.1);
+        assert!(!done);
+        assert_eq!(attempts, [(0.0, 1.0), (0.0, 0.5), (0.0, 0.25)]);
+        let first = control.begin(0.0, 1.0);
+        assert_eq!(control.failed(first, false), None);
+    }
+
+    #[test]
+    fn unloading_steps_are_cut_the_same_way() {
+        let mut control = StepCutting::new(8);
+        let (attempts, done) = run(&mut control, 1.0, 0.0, 0.5);
+        assert!(done);
+        assert_eq!(attempts, [(1.0, 0.0), (1.0, 0.5), (0.5, 0.0)]);
+    }
+}

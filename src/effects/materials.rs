@@ -1,0 +1,125 @@
+//! Materials as modules: [`MaterialModule<M>`] gives every point of a body whose material is of
+//! model `M` its [`PointMaterial<M>`] (and a [`PointHistory<M>`] if `M` carries history), and
+//! adds `M`'s stress update at `Hook::StressUpdate`, its history commit at `Hook::PointUpdate`
+//! and its output fields at `Hook::PointFields`. A scene whose bodies use two models runs two
+//! stress-update systems, each over its own points; a model no body uses schedules nothing.
+//!
+//! ```text
+//! let modules = impm::effects::built_in().with(MaterialModule::<MyModel>::default());
+//! ```
+//! registers a model of your own (`examples/custom_material.rs`).
+
+use std::marker::PhantomData;
+
+use bevy_ecs::prelude::*;
+
+use crate::components::{BodyIndex, PointId};
+use crate::material::Material;
+use crate::plugin::{Extension, Hook, Plugin};
+use crate::scene::SceneSpec;
+use crate::stages::output::PointFields;
+use crate::stages::{PointHistory, PointMaterial, commit_history, update_stress};
+
+/// The module of material model `M`.
+pub struct MaterialModule<M>(PhantomData<fn() -> M>);
+
+impl<M> Default for MaterialModule<M> {
+    fn default() -> Self {
+        Self(PhantomData)
+    }
+}
+
+impl<M: Material> Plugin for MaterialModule<M> {
+    fn name(&self) -> &'static str {
+        M::MODEL
+    }
+
+    fn used_by(&self, spec: &SceneSpec) -> bool {
+        spec.bodies.iter().any(|body| {
+            spec.materials
+                .get(body.material)
+                .is_some_and(|m| m.model == M::MODEL)
+        })
+    }
+
+    fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
+        let spec = simulation.spec();
+        // The model of each body, or None for bodies of other models.
+        let mut models = Vec::with_capacity(spec.bodies.len());
+        for body in &spec.bodies {
+            let Some(material) = spec.materials.get(body.material) else {
+                simulation.fail(format!("body '{}' names no material", body.name));
+                return;
+            };
+            if material.model != M::MODEL {
+                models.push(None);
+                continue;
+            }
+            match M::from_parameters(&material.parameters) {
+                Ok(model) => models.push(Some(model)),
+                Err(why) => {
+                    simulation.fail(format!("material '{}': {why}", material.name));
+                    return;
+                }
+            }
+        }
+        let world = simulation.world();
+        let points: Vec<(Entity, M)> = world
+            .query::<(Entity, &BodyIndex)>()
+            .iter(world)
+            .filter_map(|(entity, body)| Some((entity, models[body.0 as usize].clone()?)))
+            .collect();
+        if M::HAS_HISTORY {
+            world.insert_batch(points.iter().map(|(entity, model)| {
+                (
+                    *entity,
+                    (PointMaterial(model.clone()), PointHistory::<M>::default()),
+                )
+            }));
+        } else {
+            world.insert_batch(
+                points
+                    .into_iter()
+                    .map(|(entity, model)| (entity, PointMaterial(model))),
+            );
+        }
+        simulation.add_systems(Hook::StressUpdate, update_stress::<D, M>);
+        if M::HAS_HISTORY {
+            simulation.add_systems(Hook::PointUpdate, commit_history::<M>);
+        }
+        if !M::output_fields().is_empty() {
+            simulation.add_systems(Hook::PointFields, history_fields::<M>);
+        }
+    }
+}
+
+/// The model's output fields from the committed history (zeros on points of other models).
+fn history_fields<M: Material>(
+    mut out: ResMut<PointFields>,
+    all: Query<&PointId>,
+    points: Query<(&PointId, &PointHistory<M>)>,
+) {
+    let count = all.iter().count();
+    let mut values = Vec::new();
+    let mut offset = 0;
+    for &(name, components) in M::output_fields() {
+        let mut field = vec![0.0; components * count];
+        for (id, history) in points.iter() {
+            values.clear();
+            M::output_values(&history.committed, &mut values);
+            let start = components * id.0 as usize;
+            if let (Some(slot), Some(value)) = (
+                field.get_mut(start..start + components),
+                values.get(offset..offset + components),
+            ) {
+                slot.copy_from_slice(value);
+            }
+        }
+        out.0.push(crate::stages::output::PointField {
+            name,
+            components,
+            values: field,
+        });
+        offset += components;
+    }
+}

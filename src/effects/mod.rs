@@ -1,0 +1,45 @@
+//! The built-in modules: every optional effect and every material model of the scene language,
+//! each a [`Plugin`](crate::plugin::Plugin) in a file of its own that owns its components,
+//! resources, world setup and systems. [`built_in`] lists them, one line each; a scene builds
+//! only the ones it uses (`Plugin::used_by`).
+//!
+//! | module | what |
+//! |---|---|
+//! | `materials.rs` | a material model per body (Hencky elasticity built in) |
+//! | `point_domains.rs` | GIMP, CPDI and domain-averaged B-splines: weights over point domains |
+//! | `fem_mesh/` | linear FEM on the body-fitted mesh of grid cells |
+//! | `body_force.rs` | body force per unit mass |
+//! | `point_loads.rs` | forces on material points |
+//! | `tractions.rs` | surface tractions carried by traction points |
+//! | `grid_constraints.rs` | `fix` and `displace` on grid nodes |
+//! | `ghost_penalty.rs` | stabilisation of nearly empty cells |
+//! | `stress_recovery.rs` | moving-least-squares stress recovery |
+
+pub mod body_force;
+pub mod fem_mesh;
+pub mod ghost_penalty;
+pub mod grid_constraints;
+pub mod materials;
+pub mod point_domains;
+pub mod point_loads;
+pub mod stress_recovery;
+pub mod tractions;
+
+use crate::material::Hencky;
+use crate::plugin::ModuleSet;
+
+/// The modules every run has, in the order they are built (which is also the order of their
+/// systems at a shared hook).
+pub fn built_in() -> ModuleSet {
+    ModuleSet::new()
+        .with(materials::MaterialModule::<Hencky>::default())
+        .with(point_domains::PointDomainsModule)
+        .with(fem_mesh::FemMeshModule)
+        .with(body_force::BodyForceModule)
+        .with(point_loads::PointLoadsModule)
+        .with(tractions::TractionsModule)
+        .with(grid_constraints::GridConstraintsModule)
+        .with(grid_constraints::PrescribedDisplacementsModule)
+        .with(ghost_penalty::GhostPenaltyModule)
+        .with(stress_recovery::StressRecoveryModule)
+}

@@ -1,0 +1,130 @@
+//! Moving-least-squares stress recovery (optional, `stress_recovery(#{ .. })` in scenes).
+//!
+//! After the point update of every load step ([`recover_stress`], `Hook::AfterStep`) a
+//! polynomial is fitted, around every material point, to the converged Cauchy stresses of the
+//! points within `radius_in_cells` times the largest cell size, in the current configuration,
+//! and its value at the point is kept in [`RecoveredStress`] (kernel and math: `recovery`). The
+//! raw point stress is left untouched: the output writes both (`recovered_stress`, at
+//! `Hook::PointFields`), and a scene with an analytic column also reports the eq. 15 error of
+//! the recovered stress (`error_recovered` in `summary.json`).
+
+use bevy_ecs::prelude::*;
+use nalgebra::{Matrix3, SVector};
+
+use crate::components::{PointId, Position, ReferencePosition, ReferenceVolume, Trial};
+use crate::plugin::{Extension, Hook, Plugin};
+use crate::recovery::{MlsSettings, mls_recover};
+use crate::resources::{Grid, LoadStep, RunStatus, SolverError, Stage, StageClock};
+use crate::scene::SceneSpec;
+use crate::stages::output::{PointFields, row_major};
+
+/// Stress recovered from the neighbouring points' Cauchy stresses (3x3, as
+/// `TrialState::cauchy`).
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct RecoveredStress(pub Matrix3<f64>);
+
+/// Settings of the recovery.
+#[derive(Resource, Clone, Copy, Debug, PartialEq)]
+pub struct StressRecovery {
+    /// Total degree of the fitted polynomial.
+    pub order: usize,
+    /// Support radius as a multiple of the largest cell size of the grid.
+    pub radius_in_cells: f64,
+}
+
+/// The module.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct StressRecoveryModule;
+
+impl Plugin for StressRecoveryModule {
+    fn name(&self) -> &'static str {
+        "stress recovery"
+    }
+
+    fn used_by(&self, spec: &SceneSpec) -> bool {
+        spec.recovery.is_some()
+    }
+
+    fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
+        let spec = simulation.spec();
+        let settings = spec.recovery.unwrap_or_default();
+        let analytic = spec.analytic.clone();
+        let world = simulation.world();
+        world.insert_resource(StressRecovery {
+            order: settings.order,
+            radius_in_cells: settings.radius_in_cells,
+        });
+        let points: Vec<Entity> = world
+            .query_filtered::<Entity, With<PointId>>()
+            .iter(world)
+            .collect();
+        world.insert_batch(
+            points
+                .into_iter()
+                .map(|entity| (entity, RecoveredStress(Matrix3::zeros()))),
+        );
+        simulation
+            .add_systems(Hook::AfterStep, recover_stress::<D>)
+            .add_systems(Hook::PointFields, recovered_stress_field);
+        if let Some(analytic) = analytic {
+            simulation.add_measure("error_recovered", move |world, factor| {
+                let (column, axis) = analytic.column_at(factor);
+                let mut query =
+                    world.query::<(&ReferencePosition<D>, &ReferenceVolume, &RecoveredStress)>();
+                let points: Vec<(f64, f64, f64)> = query
+                    .iter(world)
+                    .map(|(x, v, s)| (x.0[axis], v.0, s.0[(axis, axis)]))
+                    .collect();
+                Some(column.error(points))
+            });
+        }
+    }
+}
+
+pub fn recover_stress<const D: usize>(
+    settings: Res<StressRecovery>,
+    grid: Res<Grid<D>>,
+    step: Res<LoadStep>,
+    mut status: ResMut<RunStatus>,
+    mut clock: ResMut<StageClock>,
+    mut points: Query<(&Position<D>, &Trial<D>, &mut RecoveredStress)>,
+) {
+    let _timer = clock.time(Stage::Output);
+    let cell = grid.0.axes.iter().fold(0.0f64, |m, a| m.max(a.spacing()));
+    let mut positions: Vec<SVector<f64, D>> = Vec::new();
+    let mut stresses = Vec::new();
+    for (x, trial, _) in points.iter() {
+        positions.push(x.0);
+        let sigma = trial.0.cauchy();
+        stresses.extend(sigma.iter().copied());
+    }
+    let mut recovered = Vec::new();
+    let mls = MlsSettings {
+        order: settings.order,
+        radius: settings.radius_in_cells * cell,
+    };
+    if let Err(why) = mls_recover(&positions, &stresses, 9, mls, &mut recovered) {
+        status.fail(SolverError::NotFinite {
+            stage: "stress recovery",
+            what: why,
+            step: step.number,
+        });
+        return;
+    }
+    // The query iterates in the same order as above (no structural change in between).
+    for (k, (_, _, mut out)) in points.iter_mut().enumerate() {
+        out.0 = Matrix3::from_column_slice(&recovered[9 * k..9 * k + 9]);
+    }
+}
+
+/// The output field `recovered_stress` (3x3, row-major).
+fn recovered_stress_field(
+    mut out: ResMut<PointFields>,
+    points: Query<(&PointId, &RecoveredStress)>,
+) {
+    out.add(
+        "recovered_stress",
+        points.iter().count(),
+        points.iter().map(|(id, s)| (id.0, row_major(&s.0))),
+    );
+}

@@ -1,0 +1,256 @@
+//! Surface tractions (paper eqs. 1 and 9): the Neumann term of the external force,
+//!
+//! ```text
+//!   f_ext,i += λ ∫_ΓN h N_i dΓ  ≈  λ Σ_s h_s A_s N_i(x_s),
+//! ```
+//!
+//! integrated with traction points s: quadrature points seeded on a flat piece of boundary
+//! (`traction(...)` in scenes, see `scene::seed_boundary`) that need not align with the grid.
+//! Each carries its reference area A_s and the traction h_s (force per unit reference area, of
+//! fixed direction: a dead load), and moves with the material ([`update_traction_points`]).
+//!
+//! Systems, added only when a scene declares tractions:
+//!
+//! * [`apply_tractions`] (`Hook::Loads`): evaluate the basis at x_s and spread λ h_s A_s over
+//!   the support (`mechanics::spread_over_active`).
+//! * [`update_traction_points`] (`Hook::PointUpdate`, after the material points):
+//!   x_s = x_p + F_p (X_s − X_p), with p the host of s, the material point nearest to it in the
+//!   reference configuration. This keeps the traction point on the body's boundary exactly for
+//!   any homogeneous deformation of the host's neighbourhood, which interpolating the grid
+//!   increment at x_s would not: part of a boundary point's support is grid nodes outside the
+//!   body, whose increments are not unknowns (see below).
+//! * [`write_tractions`] (`Hook::Output`): `tractions_NNNN.vtu` (one vertex per traction point
+//!   with `reference_position`, `area`, `traction` λ h and `force` λ h A) and `tractions.pvd`.
+//!
+//! A traction point lies on the body's boundary, where part of its support may be grid nodes
+//! that no material point supports (inactive nodes, with no unknown). The force those nodes
+//! would receive is given to the active nodes of the support in proportion to their basis
+//! values, so the resultant λ h_s A_s is kept exactly; when every support node is active (the
+//! usual case: a boundary inside or on the face of a cell with material points) this is exactly
+//! the quadrature above. A traction point with no active node in its support is an error.
+//! Tractions act through the background grid's basis, so they do not apply to linear FEM.
+
+use bevy_ecs::prelude::*;
+use nalgebra::SVector;
+
+use crate::basis::{BasisKind, BasisScratch, NodeWeight};
+use crate::components::{DeformationGradient, Position, ReferencePosition};
+use crate::mechanics::spread_over_active;
+use crate::output::{Field, PvdSeries, vertex_cells, write_vtu};
+use crate::plugin::{Extension, Hook, Plugin};
+use crate::resources::{Grid, GridFields, LoadStep, RunStatus, SolverError, Stage, StageClock};
+use crate::scene::SceneSpec;
+use crate::stages::output::{OutputPlan, pad};
+
+/// A traction point: a quadrature point of the surface term ∫_ΓN h N_i dΓ of paper eq. (9),
+/// an entity of its own (not a material point). It carries a piece of boundary of reference
+/// area `area` with the traction `traction` (force per unit reference area at load factor 1,
+/// fixed direction: a dead load), and moves with the material: it keeps its reference offset
+/// from a host material point, deformed with the host's F (x_s = x_p + F_p (X_s − X_p)).
+#[derive(Component, Clone, Debug, PartialEq)]
+pub struct TractionPoint<const D: usize> {
+    /// Index among the scene's traction points (output order).
+    pub id: u32,
+    /// Current position (converged, start of the load step).
+    pub position: SVector<f64, D>,
+    pub reference_position: SVector<f64, D>,
+    /// The host material point (the nearest one in the reference configuration).
+    pub host: Entity,
+    /// X_s − X_p: the reference offset from the host.
+    pub offset: SVector<f64, D>,
+    pub area: f64,
+    pub traction: SVector<f64, D>,
+    /// The basis at `position` for this load step.
+    pub support: Vec<NodeWeight<D>>,
+}
+
+/// The `tractions.pvd` series.
+#[derive(Resource)]
+pub struct TractionSeries(pub PvdSeries);
+
+/// The module: scheduled when a scene declares a non-zero traction (MPM bases only).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct TractionsModule;
+
+impl Plugin for TractionsModule {
+    fn name(&self) -> &'static str {
+        "tractions"
+    }
+
+    fn used_by(&self, spec: &SceneSpec) -> bool {
+        spec.tractions
+            .iter()
+            .any(|point| point.traction.iter().any(|&c| c != 0.0))
+    }
+
+    fn applies_to(&self, spec: &SceneSpec) -> bool {
+        spec.grid.basis != BasisKind::Fem
+    }
+
+    fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
+        if !self.applies_to(simulation.spec()) && self.used_by(simulation.spec()) {
+            simulation.fail(
+                "tractions act through the background grid's basis; a finite-element mesh (basis fem) has none",
+            );
+            return;
+        }
+        if let Err(why) = spawn_traction_points(simulation) {
+            simulation.fail(why);
+            return;
+        }
+        let dir = simulation.world().resource::<OutputPlan>().dir.clone();
+        simulation
+            .world()
+            .insert_resource(TractionSeries(PvdSeries::new(dir.join("tractions.pvd"))));
+        simulation
+            .add_systems(Hook::Loads, apply_tractions::<D>)
+            .add_systems(Hook::PointUpdate, update_traction_points::<D>)
+            .add_systems(Hook::Output, write_tractions::<D>);
+    }
+}
+
+/// Spawns the scene's traction points (entities with a [`TractionPoint`] only).
+fn spawn_traction_points<const D: usize>(simulation: &mut Extension<'_, D>) -> Result<(), String> {
+    let vector = |values: &[f64], what: &str| {
+        if values.len() != D {
+            return Err(format!(
+                "traction point {what} with {} components in {D}D",
+                values.len()
+            ));
+        }
+        Ok(SVector::<f64, D>::from_fn(|a, _| values[a]))
+    };
+    let entities = simulation.point_entities();
+    let spec = simulation.spec();
+    let world = simulation.world();
+    let mut batch = Vec::with_capacity(spec.tractions.len());
+    for (id, point) in spec.tractions.iter().enumerate() {
+        let position = vector(&point.position, "position")?;
+        let host = *entities
+            .get(point.host)
+            .ok_or_else(|| format!("traction point host {} does not exist", point.host))?;
+        let host_position = world
+            .get::<ReferencePosition<D>>(host)
+            .ok_or("traction point host is not a material point")?
+            .0;
+        batch.push(TractionPoint {
+            id: id as u32,
+            position,
+            reference_position: position,
+            host,
+            offset: position - host_position,
+            area: point.area,
+            traction: vector(&point.traction, "traction")?,
+            support: Vec::new(),
+        });
+    }
+    world.spawn_batch(batch);
+    Ok(())
+}
+
+/// Traction forces λ h_s A_s N_i(x_s) at the start-of-step positions.
+pub fn apply_tractions<const D: usize>(
+    grid: Res<Grid<D>>,
+    step: Res<LoadStep>,
+    mut fields: ResMut<GridFields<D>>,
+    mut status: ResMut<RunStatus>,
+    mut clock: ResMut<StageClock>,
+    mut scratch: Local<BasisScratch>,
+    mut points: Query<&mut TractionPoint<D>>,
+) {
+    let _timer = clock.time(Stage::Loads);
+    let fields = &mut *fields;
+    for mut point in points.iter_mut() {
+        let point = &mut *point;
+        let fail = |why: &str| SolverError::Module {
+            step: step.number,
+            what: format!(
+                "traction point {} at {:?} {why}",
+                point.id,
+                point.position.iter().copied().collect::<Vec<_>>()
+            ),
+            recoverable: false,
+        };
+        if grid
+            .0
+            .eval(&point.position, &mut scratch, &mut point.support)
+            .is_err()
+        {
+            status.fail(fail("left the background grid"));
+            return;
+        }
+        let force = point.traction * (point.area * step.factor);
+        if !spread_over_active(
+            &force,
+            &point.support,
+            &fields.active,
+            &mut fields.external_force,
+        ) {
+            status.fail(fail(
+                "is not next to any material point (no grid node of its support is active); put tractions on a body's boundary",
+            ));
+            return;
+        }
+    }
+}
+
+/// Traction points follow their host material point, x_s = x_p + F_p (X_s − X_p).
+pub fn update_traction_points<const D: usize>(
+    hosts: Query<(&Position<D>, &DeformationGradient<D>)>,
+    mut points: Query<&mut TractionPoint<D>>,
+) {
+    for mut point in points.iter_mut() {
+        if let Ok((x, f)) = hosts.get(point.host) {
+            point.position = x.0 + f.0 * point.offset;
+        }
+    }
+}
+
+/// `tractions_NNNN.vtu` and its series.
+pub fn write_tractions<const D: usize>(
+    step: Res<LoadStep>,
+    plan: Res<OutputPlan>,
+    mut series: ResMut<TractionSeries>,
+    mut status: ResMut<RunStatus>,
+    mut clock: ResMut<StageClock>,
+    points: Query<&TractionPoint<D>>,
+) {
+    if !plan.writes(&step) {
+        return;
+    }
+    let _timer = clock.time(Stage::Output);
+    let mut rows: Vec<&TractionPoint<D>> = points.iter().collect();
+    rows.sort_by_key(|point| point.id);
+    let n = rows.len();
+    let positions: Vec<[f64; 3]> = rows.iter().map(|point| pad(&point.position)).collect();
+    let mut reference = Vec::with_capacity(3 * n);
+    let mut area = Vec::with_capacity(n);
+    let mut traction = Vec::with_capacity(3 * n);
+    let mut force = Vec::with_capacity(3 * n);
+    for point in &rows {
+        reference.extend(pad(&point.reference_position));
+        area.push(point.area);
+        traction.extend(pad(&(point.traction * step.factor)));
+        force.extend(pad(&(point.traction * (point.area * step.factor))));
+    }
+    let name = format!("tractions_{:04}.vtu", step.number);
+    let result = write_vtu(
+        &plan.dir.join(&name),
+        &positions,
+        &vertex_cells(n),
+        &[
+            Field::new("reference_position", 3, &reference),
+            Field::scalar("area", &area),
+            Field::new("traction", 3, &traction),
+            Field::new("force", 3, &force),
+        ],
+        &[],
+    )
+    .and_then(|()| series.0.push(step.factor, &name));
+    if let Err(e) = result {
+        status.fail(SolverError::Output {
+            step: step.number,
+            why: format!("{name}: {e}"),
+        });
+    }
+}

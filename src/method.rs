@@ -1,0 +1,340 @@
+//! The method on one page: what one load step does, in the order the paper states it.
+//!
+//! ```text
+//! for each load step n -> n+1 (load factor λ_n -> λ_{n+1}):           StepSchedule
+//!   1. Connectivity   basis N_i(x_p), ∇N_i at the step start; active nodes   (Hook::Basis, Hook::Connectivity)
+//!   2. Dofs           constrained components, then DOF numbers and the sparsity pattern (Hook::Constraints)
+//!   3. Loads          f_ext at λ_{n+1}; prescribed increments                (Hook::Loads)
+//!   4. Solve          Newton until ‖f_ext − f_int‖ is small:                NewtonSchedule
+//!        a. StressUpdate   Δf, F = Δf F^n, τ and its tangent per point     (Hook::StressUpdate: one system per material kind)
+//!        b. Assembly       f_int = Σ_p V0 τ g_i, consistent K              (Hook::BeforeAssembly, Hook::AfterAssembly)
+//!        c. Convergence    r = f_ext − f_int at the free DOFs
+//!        d. LinearSolve    K δ = r, Δu += δ
+//!   5. UpdatePoints   G2P: x_p, u_p, F_p, V_p (paper eq. 10): the step is committed (Hook::PointUpdate, Hook::AfterStep)
+//!   6. Output         VTK files of the converged state                   OutputSchedule (Hook::PointFields, Hook::GridOutput, Hook::Output)
+//!   7. ResetGrid      the grid forgets the step: back to its undeformed state
+//! ```
+//!
+//! When an attempt fails (Newton does not converge, an inverted point, a singular tangent) the
+//! driver runs [`RollbackSchedule`] (the grid is reset; points were not touched) and asks the
+//! load-step control policy (`control.rs`, step cutting) what to try next.
+//!
+//! This file holds only the fixed core: the stages (system sets) in order, the core systems in
+//! them, and where the [`Hook`]s sit. Every optional effect (loads, constraints, tractions,
+//! GIMP/CPDI/FEM connectivity, ghost penalty, stress recovery) and every material is a module
+//! that adds its systems at a hook (`effects/`, `material/`, through `plugin::Extension`), so
+//! the core never names them. Two stages have a default that a module may replace: the basis
+//! evaluation (point basis; replaced by GIMP/CPDI/domain-averaged B-splines or the FEM
+//! element basis) and the grid output (the background grid; replaced by the FEM mesh).
+//!
+//! Schedules are single-threaded and any ambiguity in system order is an error: the result
+//! must not depend on chance ordering. Every set after a failure is skipped (`no_failure`).
+
+use bevy_ecs::prelude::*;
+use bevy_ecs::schedule::{
+    InternedScheduleLabel, LogLevel, ScheduleBuildSettings, ScheduleLabel, SingleThreadedExecutor,
+};
+
+use crate::resources::{LoadStep, Newton, NewtonSettings, RunStatus, SolverError, no_failure};
+use crate::stages::output::writes_output;
+use crate::stages::{
+    assemble, check_convergence, evaluate_basis, number_dofs, reset_grid, solve_linear_system,
+    update_points, write_grid, write_nodes, write_particles,
+};
+
+/// The schedule of one load step (or one attempt at it, when the step is cut).
+#[derive(ScheduleLabel, Clone, Debug, PartialEq, Eq, Hash)]
+pub struct StepSchedule;
+
+/// The schedule of one Newton iteration, run repeatedly by [`solve_load_step`].
+#[derive(ScheduleLabel, Clone, Debug, PartialEq, Eq, Hash)]
+pub struct NewtonSchedule;
+
+/// The output schedule: run after a completed step, and by the driver for the initial state.
+#[derive(ScheduleLabel, Clone, Debug, PartialEq, Eq, Hash)]
+pub struct OutputSchedule;
+
+/// Run by the driver after a failed attempt, before the next one: undo what the attempt left.
+#[derive(ScheduleLabel, Clone, Debug, PartialEq, Eq, Hash)]
+pub struct RollbackSchedule;
+
+/// The stages of a load step, in order.
+#[derive(SystemSet, Clone, Debug, PartialEq, Eq, Hash)]
+pub enum StepSystems {
+    Connectivity,
+    Dofs,
+    Loads,
+    Solve,
+    UpdatePoints,
+    Output,
+    ResetGrid,
+}
+
+/// The stages of a Newton iteration, in order.
+#[derive(SystemSet, Clone, Debug, PartialEq, Eq, Hash)]
+pub enum NewtonSystems {
+    StressUpdate,
+    Assembly,
+    Convergence,
+    LinearSolve,
+}
+
+/// Where modules (built-in effects, materials, your plugins) add their systems.
+///
+/// | hook | schedule, place | built-in users |
+/// |------|-----------------|----------------|
+/// | `Basis` | step, connectivity: the one system that evaluates the basis at the points | point basis (default), point domains (GIMP, CPDI, domain-averaged B-splines), FEM elements |
+/// | `Connectivity` | step, connectivity, after the basis | ghost faces |
+/// | `Constraints` | step, before DOF numbering: constrained components, extra couplings | grid constraints (`fix`, `displace`) |
+/// | `Loads` | step, external forces and prescribed increments of the step | body force, point loads, tractions, prescribed displacements |
+/// | `StressUpdate` | Newton: trial stress and tangent of every point | one system per material kind |
+/// | `BeforeAssembly` | Newton, after the stress update | (plugins) |
+/// | `AfterAssembly` | Newton, after assembly: contributions to f_int and K | ghost penalty |
+/// | `PointUpdate` | step, after the G2P update: state that follows the material | traction points, FEM mesh, material history |
+/// | `AfterStep` | step, after the point update, before output | stress recovery |
+/// | `PointFields` | output, before the particle file: extra point fields | point loads, stress recovery |
+/// | `GridOutput` | output: the grid file | background grid (default), FEM mesh |
+/// | `Output` | output, after the built-in files | traction points |
+/// | `Rollback` | rollback, after a failed attempt | grid reset (core) |
+///
+/// Systems added to one hook run in the order they were added (each `add_systems` call after
+/// the previous one); systems added in one call must be ordered among themselves where they
+/// conflict, or the schedule does not build.
+#[derive(SystemSet, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Hook {
+    Basis,
+    Connectivity,
+    Constraints,
+    Loads,
+    StressUpdate,
+    BeforeAssembly,
+    AfterAssembly,
+    PointUpdate,
+    AfterStep,
+    PointFields,
+    GridOutput,
+    Output,
+    Rollback,
+}
+
+impl Hook {
+    pub const ALL: [Hook; 13] = [
+        Hook::Basis,
+        Hook::Connectivity,
+        Hook::Constraints,
+        Hook::Loads,
+        Hook::StressUpdate,
+        Hook::BeforeAssembly,
+        Hook::AfterAssembly,
+        Hook::PointUpdate,
+        Hook::AfterStep,
+        Hook::PointFields,
+        Hook::GridOutput,
+        Hook::Output,
+        Hook::Rollback,
+    ];
+
+    /// The schedule the hook belongs to.
+    pub fn schedule(self) -> InternedScheduleLabel {
+        match self {
+            Hook::Basis
+            | Hook::Connectivity
+            | Hook::Constraints
+            | Hook::Loads
+            | Hook::PointUpdate
+            | Hook::AfterStep => StepSchedule.intern(),
+            Hook::StressUpdate | Hook::BeforeAssembly | Hook::AfterAssembly => {
+                NewtonSchedule.intern()
+            }
+            Hook::PointFields | Hook::GridOutput | Hook::Output => OutputSchedule.intern(),
+            Hook::Rollback => RollbackSchedule.intern(),
+        }
+    }
+
+    /// Whether exactly one module provides this stage (the core adds its default when none
+    /// does): the basis evaluation and the grid file.
+    pub fn is_replaceable_default(self) -> bool {
+        matches!(self, Hook::Basis | Hook::GridOutput)
+    }
+}
+
+/// Adds the core schedules for dimension `D` to `world`: the stages in order, the core
+/// systems, and every hook set in its place (empty until modules add to it).
+pub fn add_core_schedules<const D: usize>(world: &mut World) {
+    world.add_schedule(step_schedule::<D>());
+    world.add_schedule(newton_schedule::<D>());
+    world.add_schedule(output_schedule::<D>());
+    world.add_schedule(rollback_schedule::<D>());
+}
+
+fn step_schedule<const D: usize>() -> Schedule {
+    use StepSystems::*;
+    let mut schedule = strict(StepSchedule);
+    schedule.configure_sets(
+        (
+            Connectivity,
+            Dofs,
+            Loads,
+            Solve,
+            UpdatePoints,
+            Output,
+            ResetGrid,
+        )
+            .chain()
+            .distributive_run_if(no_failure),
+    );
+    schedule.configure_sets(
+        (
+            (Hook::Basis, Hook::Connectivity)
+                .chain()
+                .in_set(Connectivity),
+            Hook::Constraints.in_set(Dofs).before(number_dofs::<D>),
+            Hook::Loads.in_set(Loads),
+            (Hook::PointUpdate, Hook::AfterStep)
+                .chain()
+                .in_set(UpdatePoints)
+                .after(update_points::<D>),
+        )
+            .distributive_run_if(no_failure),
+    );
+    schedule.add_systems((
+        number_dofs::<D>.in_set(Dofs),
+        solve_load_step.in_set(Solve),
+        update_points::<D>.in_set(UpdatePoints),
+        run_output.in_set(Output),
+        reset_grid::<D>.in_set(ResetGrid),
+    ));
+    schedule
+}
+
+fn newton_schedule<const D: usize>() -> Schedule {
+    use NewtonSystems::*;
+    let mut schedule = strict(NewtonSchedule);
+    schedule.configure_sets(
+        (StressUpdate, Assembly, Convergence, LinearSolve)
+            .chain()
+            .distributive_run_if(no_failure),
+    );
+    schedule.configure_sets(
+        (
+            Hook::StressUpdate.in_set(StressUpdate),
+            Hook::BeforeAssembly.after(StressUpdate).before(Assembly),
+            Hook::AfterAssembly.in_set(Assembly).after(assemble::<D>),
+        )
+            .distributive_run_if(no_failure),
+    );
+    schedule.add_systems((
+        assemble::<D>.in_set(Assembly),
+        check_convergence::<D>.in_set(Convergence),
+        solve_linear_system::<D>
+            .in_set(LinearSolve)
+            .run_if(not_converged),
+    ));
+    schedule
+}
+
+fn output_schedule<const D: usize>() -> Schedule {
+    let mut schedule = strict(OutputSchedule);
+    schedule.configure_sets(
+        (
+            Hook::PointFields,
+            BuiltInOutput,
+            Hook::GridOutput,
+            Hook::Output,
+        )
+            .chain()
+            .distributive_run_if(no_failure),
+    );
+    schedule.configure_sets(Hook::PointFields.run_if(writes_output));
+    schedule.add_systems(
+        (write_particles::<D>, write_nodes::<D>)
+            .chain()
+            .in_set(BuiltInOutput),
+    );
+    schedule
+}
+
+fn rollback_schedule<const D: usize>() -> Schedule {
+    let mut schedule = strict(RollbackSchedule);
+    schedule.add_systems(reset_grid::<D>.before(Hook::Rollback));
+    schedule
+}
+
+/// The modules that provide a replaceable stage (`Hook::is_replaceable_default`), by hook.
+#[derive(Resource, Default, Debug)]
+pub struct Providers(pub Vec<(Hook, &'static str)>);
+
+/// Adds the core's default for every replaceable stage no module provided (`Hook::Basis`: the
+/// point basis of linear and B-spline MPM; `Hook::GridOutput`: the background grid file).
+pub fn add_default_providers<const D: usize>(world: &mut World) {
+    let provided = |world: &World, hook: Hook| {
+        world
+            .get_resource::<Providers>()
+            .is_some_and(|p| p.0.iter().any(|(h, _)| *h == hook))
+    };
+    let basis = !provided(world, Hook::Basis);
+    let grid_file = !provided(world, Hook::GridOutput);
+    let mut schedules = world.resource_mut::<Schedules>();
+    if basis {
+        schedules
+            .entry(StepSchedule)
+            .add_systems(evaluate_basis::<D>.in_set(Hook::Basis));
+    }
+    if grid_file {
+        schedules
+            .entry(OutputSchedule)
+            .add_systems(write_grid::<D>.in_set(Hook::GridOutput));
+    }
+}
+
+/// The core's own output files (points and grid nodes).
+#[derive(SystemSet, Clone, Debug, PartialEq, Eq, Hash)]
+pub struct BuiltInOutput;
+
+/// Schedule settings shared by all solver schedules: single-threaded, and any ambiguity in
+/// system order is an error.
+fn strict(label: impl ScheduleLabel) -> Schedule {
+    let mut schedule = Schedule::new(label);
+    schedule.set_build_settings(ScheduleBuildSettings {
+        ambiguity_detection: LogLevel::Error,
+        ..Default::default()
+    });
+    schedule.set_executor(SingleThreadedExecutor::new());
+    schedule
+}
+
+/// Stage 4: runs Newton iterations until converged, failed, or out of iterations
+/// (exclusive, so that it can run the Newton schedule).
+pub fn solve_load_step(world: &mut World) {
+    world.resource_mut::<Newton>().begin_step();
+    loop {
+        let before = world.resource::<Newton>().iterations;
+        world.run_schedule(NewtonSchedule);
+        if world.resource::<RunStatus>().0.is_some() {
+            return;
+        }
+        let newton = world.resource::<Newton>();
+        if newton.converged {
+            return;
+        }
+        if newton.iterations == before {
+            // No solve happened: out of iterations.
+            let error = SolverError::NotConverged {
+                step: world.resource::<LoadStep>().number,
+                residuals: newton.residuals.clone(),
+                tolerance: world.resource::<NewtonSettings>().tolerance,
+            };
+            world.resource_mut::<RunStatus>().fail(error);
+            return;
+        }
+    }
+}
+
+/// Stage 6: runs the output schedule (exclusive, so that output systems see the whole world).
+pub fn run_output(world: &mut World) {
+    world.run_schedule(OutputSchedule);
+}
+
+fn not_converged(newton: Res<Newton>, settings: Res<NewtonSettings>) -> bool {
+    !newton.converged && newton.iterations < settings.max_iterations
+}

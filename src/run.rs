@@ -1,0 +1,437 @@
+//! Running a scene: the world is built from the scene and the modules it uses, then the driver
+//! runs its load steps with the load-step control policy and keeps the records.
+//!
+//! ```text
+//! build world: grid nodes, material points, core resources, the method's schedules   Simulation::new
+//!              + every module the scene uses (materials, loads, constraints...)
+//! write the initial state                                                           write_initial_state
+//! for each load step: attempts as the control policy says (control.rs),             step
+//!     each attempt runs the step schedule (method.rs); a failed one is rolled back
+//!     records: iterations, residuals, cuts, stage times, eq. 15 error, measures   -> summary.json
+//! ```
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use bevy_ecs::prelude::*;
+use nalgebra::{SMatrix, SVector};
+
+use crate::basis::GridBasis;
+use crate::components::*;
+use crate::control::{Attempt, LoadStepControl, StepCutting};
+use crate::effects;
+use crate::mechanics::TrialState;
+use crate::method::{
+    OutputSchedule, RollbackSchedule, StepSchedule, add_core_schedules, add_default_providers,
+};
+use crate::plugin::{Module, ModuleSet, Plugin};
+use crate::records::{StepMeasures, StepRecord, Summary};
+use crate::resources::*;
+use crate::scene::SceneSpec;
+use crate::stages::output::{OutputPlan, PointFields};
+
+/// Why a simulation could not be built from a scene.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BuildError(pub String);
+
+impl std::fmt::Display for BuildError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for BuildError {}
+
+/// A simulation of dimension `D`: the world and its schedules.
+pub struct Simulation<const D: usize> {
+    pub world: World,
+    pub spec: SceneSpec,
+    pub summary: Summary,
+    steps_done: usize,
+    control: Box<dyn LoadStepControl>,
+}
+
+impl<const D: usize> Simulation<D> {
+    /// Builds the world for `spec` with the built-in modules, writing results to `out_dir`.
+    pub fn new(spec: &SceneSpec, out_dir: &Path) -> Result<Self, BuildError> {
+        Self::with_modules(spec, out_dir, &effects::built_in())
+    }
+
+    /// Builds the world for `spec` with the modules of `modules` that the scene uses.
+    pub fn with_modules(
+        spec: &SceneSpec,
+        out_dir: &Path,
+        modules: &ModuleSet,
+    ) -> Result<Self, BuildError> {
+        Self::with_modules_where(spec, out_dir, modules, &|module| module.used_by(spec))
+    }
+
+    /// Builds the world for `spec` with the modules for which `include` holds (`impm check
+    /// --explain` and the effects benchmark also build modules a scene does not use).
+    pub fn with_modules_where(
+        spec: &SceneSpec,
+        out_dir: &Path,
+        modules: &ModuleSet,
+        include: &dyn Fn(&dyn Module) -> bool,
+    ) -> Result<Self, BuildError> {
+        let mut world = core_world::<D>(spec, out_dir)?;
+        modules.check_materials(spec)?;
+        std::fs::create_dir_all(out_dir).map_err(|e| {
+            BuildError(format!(
+                "cannot create the output folder {}: {e}",
+                out_dir.display()
+            ))
+        })?;
+        for module in modules.iter().filter(|&m| include(m)) {
+            module.build_into(&mut world, spec)?;
+        }
+        add_default_providers::<D>(&mut world);
+        let points = spec.point_count();
+        let active = world.resource::<GridFields<D>>().active.len();
+        Ok(Self {
+            world,
+            spec: spec.clone(),
+            summary: Summary::new(spec, points, active, out_dir),
+            steps_done: 0,
+            control: Box::new(StepCutting::new(spec.solver.max_step_cuts)),
+        })
+    }
+
+    /// Number of load steps done.
+    pub fn steps_done(&self) -> usize {
+        self.steps_done
+    }
+
+    /// Writes the initial state (step 0) and the summary.
+    pub fn write_initial_state(&mut self) -> Result<(), SolverError> {
+        *self.world.resource_mut::<LoadStep>() = LoadStep::default();
+        self.world.run_schedule(OutputSchedule);
+        self.take_failure()?;
+        self.summary
+            .write()
+            .map_err(|e| SolverError::Output { step: 0, why: e })
+    }
+
+    /// Solves the next load step with the attempts the control policy asks for (see
+    /// `control.rs`); on failure the error is also recorded in the summary.
+    pub fn step(&mut self) -> Result<&StepRecord, SolverError> {
+        let number = self.steps_done + 1;
+        let target = self.spec.load_factors[number - 1];
+        let start = match number {
+            1 => 0.0,
+            n => self.spec.load_factors[n - 2],
+        };
+        *self.world.resource_mut::<StageClock>() = StageClock::default();
+        let clock = Instant::now();
+        let mut record = StepRecord::new(number, target);
+        let mut attempt = self.control.begin(start, target);
+        loop {
+            match self.attempt(number, attempt, &mut record) {
+                Ok(()) => match self.control.succeeded(attempt) {
+                    Some(next) => attempt = next,
+                    None => break,
+                },
+                Err(e) => match self.control.failed(attempt, e.is_recoverable_by_cutting()) {
+                    Some(next) => {
+                        self.world.run_schedule(RollbackSchedule);
+                        attempt = next;
+                    }
+                    None => return Err(self.fail_step(record, e, clock)),
+                },
+            }
+        }
+        record.cuts = self.control.cuts();
+        record.seconds = self.world.resource::<StageClock>().clone();
+        record.wall_seconds = clock.elapsed().as_secs_f64();
+        record.error = self.analytic_error(target);
+        record.measures = self.measures(target);
+        self.steps_done = number;
+        self.summary.push(record);
+        self.summary.write().map_err(|e| SolverError::Output {
+            step: number,
+            why: e,
+        })?;
+        Ok(self.summary.steps.last().expect("just pushed"))
+    }
+
+    /// Records a step that could not be solved, and the error to report.
+    fn fail_step(
+        &mut self,
+        mut record: StepRecord,
+        last: SolverError,
+        clock: Instant,
+    ) -> SolverError {
+        record.cuts = self.control.cuts();
+        let error = if record.cuts > 0 && last.is_recoverable_by_cutting() {
+            SolverError::CuttingFailed {
+                step: record.step,
+                cuts: record.cuts,
+                last: Box::new(last),
+            }
+        } else {
+            last
+        };
+        record.seconds = self.world.resource::<StageClock>().clone();
+        record.wall_seconds = clock.elapsed().as_secs_f64();
+        self.summary.fail(record, &error);
+        let _ = self.summary.write();
+        error
+    }
+
+    /// One attempt: the step schedule from `attempt.from` to `attempt.to`, recorded.
+    fn attempt(
+        &mut self,
+        number: usize,
+        attempt: Attempt,
+        record: &mut StepRecord,
+    ) -> Result<(), SolverError> {
+        *self.world.resource_mut::<LoadStep>() = LoadStep {
+            number,
+            factor: attempt.to,
+            previous_factor: attempt.from,
+            completes_step: attempt.completes_step,
+        };
+        self.world.run_schedule(StepSchedule);
+        let outcome = self.take_failure();
+        let newton = self.world.resource::<Newton>();
+        record.dofs = newton.system.size();
+        let failure = outcome.as_ref().err().map(|e| e.to_string());
+        record.add_attempt(&attempt, newton.iterations, &newton.residuals, failure);
+        outcome
+    }
+
+    /// Runs all remaining load steps, calling `on_step` after each.
+    pub fn run(&mut self, mut on_step: impl FnMut(&StepRecord)) -> Result<(), SolverError> {
+        while self.steps_done < self.spec.load_factors.len() {
+            let record = self.step()?;
+            on_step(record);
+        }
+        self.summary.finish();
+        self.summary.write().map_err(|e| SolverError::Output {
+            step: self.steps_done,
+            why: e,
+        })
+    }
+
+    fn take_failure(&mut self) -> Result<(), SolverError> {
+        match self.world.resource_mut::<RunStatus>().0.take() {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
+    }
+
+    /// The scene's analytic error measure (paper eq. 15) at load factor `factor`, if declared.
+    pub fn analytic_error(&mut self, factor: f64) -> Option<f64> {
+        let (column, axis) = self.spec.analytic.as_ref()?.column_at(factor);
+        let mut query = self
+            .world
+            .query::<(&ReferencePosition<D>, &ReferenceVolume, &Trial<D>)>();
+        let points: Vec<(f64, f64, f64)> = query
+            .iter(&self.world)
+            .map(|(x, v, t)| (x.0[axis], v.0, t.0.cauchy()[(axis, axis)]))
+            .collect();
+        Some(column.error(points))
+    }
+
+    /// The modules' measures at load factor `factor`.
+    fn measures(&mut self, factor: f64) -> Vec<(&'static str, f64)> {
+        let Some(measures) = self.world.remove_resource::<StepMeasures>() else {
+            return Vec::new();
+        };
+        let values = measures
+            .0
+            .iter()
+            .filter_map(|(name, measure)| Some((*name, measure(&mut self.world, factor)?)))
+            .collect();
+        self.world.insert_resource(measures);
+        values
+    }
+
+    /// Points' (reference coordinate, Cauchy stress component) along `axis`, sorted by the
+    /// reference coordinate. For tests and studies.
+    pub fn stress_profile(&mut self, axis: usize) -> Vec<(f64, f64)> {
+        let mut query = self.world.query::<(&ReferencePosition<D>, &Trial<D>)>();
+        let mut out: Vec<(f64, f64)> = query
+            .iter(&self.world)
+            .map(|(x, t)| (x.0[axis], t.0.cauchy()[(axis, axis)]))
+            .collect();
+        out.sort_by(|a, b| a.0.total_cmp(&b.0));
+        out
+    }
+}
+
+/// The world of the fixed core: grid nodes, material points with their kinematic state, the
+/// core resources and the method's schedules (no module yet).
+fn core_world<const D: usize>(spec: &SceneSpec, out_dir: &Path) -> Result<World, BuildError> {
+    if spec.dim() != D {
+        return Err(BuildError(format!(
+            "scene is {}D, simulation is {D}D",
+            spec.dim()
+        )));
+    }
+    let grid = &spec.grid;
+    let basis = GridBasis::<D>::new(&grid.lower, &grid.upper, &grid.cells, grid.basis)
+        .map_err(BuildError)?;
+    let mut world = World::new();
+    world.spawn_batch(
+        (0..basis.num_nodes())
+            .map(|index| GridNode {
+                index,
+                position: basis.node_position(index),
+            })
+            .collect::<Vec<_>>(),
+    );
+    spawn_points::<D>(&mut world, spec)?;
+    world.insert_resource(GridFields::<D>::new(basis.num_nodes()));
+    world.insert_resource(Grid(basis));
+    world.insert_resource(LoadStep::default());
+    world.insert_resource(NewtonSettings {
+        tolerance: spec.solver.tolerance,
+        max_iterations: spec.solver.max_iterations,
+    });
+    world.insert_resource(Newton::default());
+    world.insert_resource(RunStatus::default());
+    world.insert_resource(StageClock::default());
+    world.insert_resource(PointFields::default());
+    world.insert_resource(StepMeasures::default());
+    world.insert_resource(OutputPlan::from_spec(
+        out_dir.to_path_buf(),
+        &spec.output,
+        spec.load_factors.len(),
+    ));
+    add_core_schedules::<D>(&mut world);
+    Ok(world)
+}
+
+/// Every body's points with the core's components, numbered body after body (`PointId`).
+fn spawn_points<const D: usize>(world: &mut World, spec: &SceneSpec) -> Result<(), BuildError> {
+    let mut id = 0u32;
+    for (body_index, body) in spec.bodies.iter().enumerate() {
+        let density = spec
+            .materials
+            .get(body.material)
+            .ok_or_else(|| BuildError(format!("body '{}' names no material", body.name)))?
+            .density;
+        let mut batch = Vec::with_capacity(body.points.len());
+        for seed in &body.points {
+            if seed.position.len() != D {
+                return Err(BuildError(format!(
+                    "body '{}': point of dimension {}",
+                    body.name,
+                    seed.position.len()
+                )));
+            }
+            let x = SVector::<f64, D>::from_fn(|a, _| seed.position[a]);
+            batch.push((
+                (
+                    PointId(id),
+                    Position(x),
+                    ReferencePosition(x),
+                    Displacement(SVector::<f64, D>::zeros()),
+                ),
+                (
+                    DeformationGradient(SMatrix::<f64, D, D>::identity()),
+                    Mass(density * seed.volume),
+                ),
+                (
+                    ReferenceVolume(seed.volume),
+                    Volume(seed.volume),
+                    BodyIndex(body_index as u32),
+                ),
+                (
+                    Support::<D>::default(),
+                    Trial(TrialState::<D>::unstressed()),
+                ),
+            ));
+            id += 1;
+        }
+        world.spawn_batch(batch);
+    }
+    if id == 0 {
+        return Err(BuildError("the scene has no material points".into()));
+    }
+    Ok(())
+}
+
+/// Runs a whole scene in dimension `spec.dim()`, writing to `out_dir` (with a plugin:
+/// [`crate::plugin::run_scene_with`]).
+pub fn run_scene(
+    spec: &SceneSpec,
+    out_dir: &Path,
+    on_step: impl FnMut(&StepRecord),
+) -> Result<Summary, RunError> {
+    crate::plugin::run_scene_with(spec, out_dir, &(), on_step)
+}
+
+/// Like [`run_scene`], but also returns the summary of a run that failed after it was built
+/// (its completed steps and the failed one), as studies record failed runs.
+pub fn run_scene_keeping_summary(
+    spec: &SceneSpec,
+    out_dir: &Path,
+    on_step: impl FnMut(&StepRecord),
+) -> (Option<Summary>, Result<(), RunError>) {
+    run_scene_keeping_summary_with(spec, out_dir, &(), on_step)
+}
+
+/// [`run_scene_keeping_summary`] with a plugin (see [`crate::plugin`]).
+pub fn run_scene_keeping_summary_with(
+    spec: &SceneSpec,
+    out_dir: &Path,
+    plugin: &impl Plugin,
+    on_step: impl FnMut(&StepRecord),
+) -> (Option<Summary>, Result<(), RunError>) {
+    match spec.dim() {
+        1 => run_in::<1>(spec, out_dir, plugin, on_step),
+        2 => run_in::<2>(spec, out_dir, plugin, on_step),
+        3 => run_in::<3>(spec, out_dir, plugin, on_step),
+        d => (
+            None,
+            Err(RunError::Build(BuildError(format!(
+                "dimension {d} is not supported (1, 2 or 3)"
+            )))),
+        ),
+    }
+}
+
+fn run_in<const D: usize>(
+    spec: &SceneSpec,
+    out_dir: &Path,
+    plugin: &impl Plugin,
+    on_step: impl FnMut(&StepRecord),
+) -> (Option<Summary>, Result<(), RunError>) {
+    let mut sim = match Simulation::<D>::new(spec, out_dir) {
+        Ok(sim) => sim,
+        Err(e) => return (None, Err(RunError::Build(e))),
+    };
+    if let Err(e) = sim.add_plugin(plugin) {
+        return (None, Err(RunError::Build(e)));
+    }
+    let result = sim
+        .write_initial_state()
+        .and_then(|()| sim.run(on_step))
+        .map_err(RunError::Solve);
+    (Some(sim.summary), result)
+}
+
+/// A failed run.
+#[derive(Debug)]
+pub enum RunError {
+    Build(BuildError),
+    Solve(SolverError),
+}
+
+impl std::fmt::Display for RunError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            RunError::Build(e) => write!(f, "cannot set up the simulation: {e}"),
+            RunError::Solve(e) => write!(f, "{e}"),
+        }
+    }
+}
+
+impl std::error::Error for RunError {}
+
+/// The default output folder of a scene: `out/<scene name>/`.
+pub fn default_output_dir(spec: &SceneSpec) -> PathBuf {
+    Path::new("out").join(&spec.name)
+}
