@@ -10,8 +10,8 @@
 use std::path::Path;
 
 use impm::resources::Stage;
+use impm::run::load_scene;
 use impm::run::run_scene;
-use impm::scene::load_scene;
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();

@@ -19,8 +19,9 @@ use std::path::PathBuf;
 use bevy_ecs::prelude::*;
 
 use impm::components::{PointId, Position, ReferencePosition, Trial};
-use impm::plugin::{Extension, Hook, Plugin, run_scene_with};
+use impm::plugin::{Extension, Hook, Plugin};
 use impm::resources::{LoadStep, RunStatus, SolverError};
+use impm::run::run_scene_with;
 use impm::stages::output::OutputPlan;
 
 /// The line: horizontal reference coordinates (all axes but the last).
@@ -119,7 +120,7 @@ fn run() -> Result<(), String> {
             _ => return Err(usage.into()),
         }
     }
-    let spec = impm::scene::load_scene(&scene, &overrides).map_err(|e| e.to_string())?;
+    let spec = impm::run::load_scene(&scene, &overrides).map_err(|e| e.to_string())?;
     if let Some(at) = &at
         && at.len() + 1 != spec.dim()
     {

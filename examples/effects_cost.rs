@@ -31,7 +31,8 @@ use impm::explain::explain_scene;
 use impm::plugin::Module;
 use impm::resources::Stage;
 use impm::run::Simulation;
-use impm::scene::{SceneSpec, load_scene};
+use impm::run::load_scene;
+use impm::scene::SceneSpec;
 use impm::stages::output::OutputPlan;
 use nalgebra::SVector;
 

@@ -26,6 +26,7 @@ use bevy_ecs::prelude::*;
 use nalgebra::SMatrix;
 
 use impm::components::{Displacement, Mass, ReferencePosition, Support};
+use impm::effects::body_force::BodyForceSpec;
 use impm::mechanics::interpolate;
 use impm::plugin::{Extension, Hook, Plugin};
 use impm::resources::{GridFields, Newton};
@@ -117,7 +118,7 @@ fn run() -> Result<(), String> {
             _ => return Err(usage.into()),
         }
     }
-    let spec = impm::scene::load_scene(&scene, &overrides).map_err(|e| e.to_string())?;
+    let spec = impm::run::load_scene(&scene, &overrides).map_err(|e| e.to_string())?;
     let plugin = SpringSupport { stiffness, base };
     match spec.dim() {
         1 => run_in::<1>(&spec, &out, &plugin),
@@ -148,7 +149,10 @@ fn run_in<const D: usize>(
     })
     .map_err(|e| e.to_string())?;
 
-    let gravity = spec.body_force.clone().unwrap_or_default();
+    let gravity = spec
+        .part::<BodyForceSpec>()
+        .map(|b| b.0.clone())
+        .unwrap_or_default();
     let factor = spec.load_factors.last().copied().unwrap_or(0.0);
     let vertical = D - 1;
     let weight: f64 = sim

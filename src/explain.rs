@@ -12,7 +12,7 @@ use bevy_ecs::schedule::{InternedScheduleLabel, InternedSystemSet, ScheduleLabel
 
 use crate::method::{
     Hook, NewtonSchedule, NewtonSystems, OutputSchedule, RollbackSchedule, StepSchedule,
-    StepSystems,
+    StepSystems, initialize_schedules,
 };
 use crate::plugin::ModuleSet;
 use crate::run::Simulation;
@@ -106,13 +106,10 @@ fn readable(name: &str) -> String {
 /// (step, Newton, output, rollback). Initialises the schedules; an error says why one does not
 /// build (e.g. a plugin's system is ambiguous with another).
 pub fn scheduled_systems(world: &mut World) -> Result<Vec<ScheduledSystem>, String> {
+    initialize_schedules(world)?;
     let mut out = Vec::new();
     for (label, stages) in schedules_and_stages() {
-        let listed = world.try_schedule_scope(label, |world, schedule| {
-            if let Err(error) = schedule.initialize(world) {
-                let why = error.to_string(schedule.graph(), world);
-                return Err(format!("the {label:?} schedule does not build: {why}"));
-            }
+        let listed = world.try_schedule_scope(label, |_, schedule| {
             let graph = schedule.graph();
             let members: Vec<_> = stages
                 .iter()

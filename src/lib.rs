@@ -11,7 +11,7 @@
 //!   [`effects`] (the built-in ones: materials, loads, constraints, GIMP/CPDI, FEM, ghost
 //!   penalty, stress recovery).
 //! * Pure kernels: [`basis`], [`material`], [`mechanics`], [`quadrature`], [`sparse`],
-//!   [`analytic`], [`recovery`], [`ghost`], [`fem`].
+//!   [`analytic`], [`recovery`], [`ghost`], [`fem`], [`parameter`].
 //! * Driver and I/O: [`run`] (build and drive a simulation), [`records`] (summary.json),
 //!   [`explain`] (what a scene runs), [`scene`] (Rhai), [`output`] (VTK), [`study`] (sweeps,
 //!   tables and charts).
@@ -28,6 +28,7 @@ pub mod material;
 pub mod mechanics;
 pub mod method;
 pub mod output;
+pub mod parameter;
 pub mod plugin;
 pub mod quadrature;
 pub mod records;

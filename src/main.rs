@@ -1,16 +1,17 @@
 //! The `impm` command line: run, study or check a Rhai scene.
 
 use std::io::{IsTerminal, Write};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
 use impm::effects;
 use impm::explain::explain_scene;
+use impm::plugin::{Module, ModuleSet};
 use impm::records::StepRecord;
 use impm::run::{default_output_dir, run_scene};
-use impm::scene::{load_scene, scene_parameters};
+use impm::scene::scene_parameters;
 use impm::study::{RunOutcome, StudyEvent, StudyPlan, Sweep, default_study_dir, run_study};
 
 #[derive(Parser)]
@@ -68,6 +69,9 @@ enum Command {
         #[arg(long)]
         explain: bool,
     },
+    /// Print the reference of the scene language (every call, its options, the bases, the
+    /// material models and point fields), as in docs/scene-api.md.
+    Api,
 }
 
 fn parse_overrides(set: &[String]) -> Result<Vec<(String, String)>, String> {
@@ -93,52 +97,9 @@ fn main() -> ExitCode {
 }
 
 fn run(cli: Cli) -> Result<(), String> {
+    let modules = effects::built_in();
     match cli.command {
-        Command::Run { scene, out, set } => {
-            let overrides = parse_overrides(&set)?;
-            let spec = load_scene(&scene, &overrides).map_err(|e| e.to_string())?;
-            let out_dir = out.unwrap_or_else(|| default_output_dir(&spec));
-            let steps = spec.load_factors.len();
-            let mut progress = Progress::new(steps);
-            eprintln!(
-                "{}: {}D, {} points, {} load steps -> {}",
-                spec.name,
-                spec.dim(),
-                spec.bodies.iter().map(|b| b.points.len()).sum::<usize>(),
-                steps,
-                out_dir.display()
-            );
-            let result = run_scene(&spec, &out_dir, |record| progress.step(record));
-            progress.finish();
-            match result {
-                Ok(summary) => {
-                    let (_, wall) = summary.total_seconds();
-                    let mut line = format!(
-                        "done: {} steps, {} Newton iterations, {:.2} s",
-                        summary.steps.len(),
-                        summary.total_iterations(),
-                        wall
-                    );
-                    let cuts: usize = summary.steps.iter().map(|s| s.cuts).sum();
-                    if cuts > 0 {
-                        line += &format!(", {cuts} step cuts");
-                    }
-                    if let Some(e) = summary.final_error() {
-                        line += &format!(", error (eq. 15) {e:.3e}");
-                    }
-                    eprintln!("{line}");
-                    eprintln!(
-                        "results: {}/particles.pvd (open in ParaView)",
-                        out_dir.display()
-                    );
-                    Ok(())
-                }
-                Err(e) => Err(format!(
-                    "{e}\nresults up to the last completed step are in {}",
-                    out_dir.display()
-                )),
-            }
-        }
+        Command::Run { scene, out, set } => run_command(&modules, &scene, out, &set),
         Command::Study {
             scene,
             sweep,
@@ -158,80 +119,147 @@ fn run(cli: Cli) -> Result<(), String> {
                 against,
                 profiles,
             };
-            let mut bar = Progress::new(0);
-            let records = run_study(&plan, |event| match event {
-                StudyEvent::Started {
-                    index,
-                    total,
-                    label,
-                } => {
-                    bar.total = total;
-                    bar.show(index, &format!("run {}/{total}: {label}", index + 1));
-                }
-                StudyEvent::Finished { .. } => {}
-            })?;
-            bar.finish();
-            let failed = records
-                .iter()
-                .filter(|r| r.outcome != RunOutcome::Completed)
-                .count();
-            eprintln!(
-                "{} runs ({failed} failed) -> {}/study.csv, study.md and charts",
-                records.len(),
-                plan.out_dir.display()
-            );
-            Ok(())
+            study_command(&plan)
         }
         Command::Check {
             scene,
             set,
             explain,
-        } => {
-            let overrides = parse_overrides(&set)?;
-            let parameters = scene_parameters(&scene).map_err(|e| e.to_string())?;
-            let spec = load_scene(&scene, &overrides).map_err(|e| e.to_string())?;
-            println!("scene {} is valid", spec.name);
-            println!("parameters (override with --set NAME=VALUE):");
-            for p in &parameters {
-                println!("  {:<14} = {:<30} (line {})", p.name, p.default, p.line);
-            }
-            println!(
-                "{}D grid {:?} cells, basis {}, {} bodies, {} points, {} constraints, {} load steps",
-                spec.dim(),
-                spec.grid.cells,
-                spec.grid.basis,
-                spec.bodies.len(),
-                spec.bodies.iter().map(|b| b.points.len()).sum::<usize>(),
-                spec.constraints.len(),
-                spec.load_factors.len()
-            );
-            println!(
-                "loads: {} loaded points, {} traction points; load factors {}",
-                spec.point_loads.len(),
-                spec.tractions.len(),
-                describe_factors(&spec.load_factors)
-            );
-            let modules = effects::built_in();
-            if explain {
-                print!("{}", explain_scene(&spec, &modules)?);
-            } else {
-                let used: Vec<&str> = modules
-                    .iter()
-                    .filter(|module| module.used_by(&spec))
-                    .map(|module| module.name())
-                    .collect();
-                println!(
-                    "modules: {} (--explain lists the systems)",
-                    if used.is_empty() {
-                        "none".to_string()
-                    } else {
-                        used.join(", ")
-                    }
-                );
-            }
+        } => check_command(&modules, &scene, &set, explain),
+        Command::Api => {
+            print!("{}", modules.scene_api().reference());
             Ok(())
         }
     }
+}
+
+/// `impm run`: solves the scene, with a progress line, and says where the results are.
+fn run_command(
+    modules: &ModuleSet,
+    scene: &Path,
+    out: Option<PathBuf>,
+    set: &[String],
+) -> Result<(), String> {
+    let overrides = parse_overrides(set)?;
+    let spec = modules
+        .load_scene(scene, &overrides)
+        .map_err(|e| e.to_string())?;
+    let out_dir = out.unwrap_or_else(|| default_output_dir(&spec));
+    let steps = spec.load_factors.len();
+    let mut progress = Progress::new(steps);
+    eprintln!(
+        "{}: {}D, {} points, {} load steps -> {}",
+        spec.name,
+        spec.dim(),
+        spec.point_count(),
+        steps,
+        out_dir.display()
+    );
+    let result = run_scene(&spec, &out_dir, |record| progress.step(record));
+    progress.finish();
+    let summary = result.map_err(|e| {
+        format!(
+            "{e}\nresults up to the last completed step are in {}",
+            out_dir.display()
+        )
+    })?;
+    let (_, wall) = summary.total_seconds();
+    let mut line = format!(
+        "done: {} steps, {} Newton iterations, {:.2} s",
+        summary.steps.len(),
+        summary.total_iterations(),
+        wall
+    );
+    let cuts: usize = summary.steps.iter().map(|s| s.cuts).sum();
+    if cuts > 0 {
+        line += &format!(", {cuts} step cuts");
+    }
+    if let Some(e) = summary.final_error() {
+        line += &format!(", error (eq. 15) {e:.3e}");
+    }
+    eprintln!("{line}");
+    eprintln!(
+        "results: {}/particles.pvd (open in ParaView)",
+        out_dir.display()
+    );
+    Ok(())
+}
+
+/// `impm study`: the runs of the sweep, with a progress line.
+fn study_command(plan: &StudyPlan) -> Result<(), String> {
+    let mut bar = Progress::new(0);
+    let records = run_study(plan, |event| match event {
+        StudyEvent::Started {
+            index,
+            total,
+            label,
+        } => {
+            bar.total = total;
+            bar.show(index, &format!("run {}/{total}: {label}", index + 1));
+        }
+        StudyEvent::Finished { .. } => {}
+    })?;
+    bar.finish();
+    let failed = records
+        .iter()
+        .filter(|r| r.outcome != RunOutcome::Completed)
+        .count();
+    eprintln!(
+        "{} runs ({failed} failed) -> {}/study.csv, study.md and charts",
+        records.len(),
+        plan.out_dir.display()
+    );
+    Ok(())
+}
+
+/// `impm check`: validates the scene and says what it declares (and, with `--explain`, what
+/// will run).
+fn check_command(
+    modules: &ModuleSet,
+    scene: &Path,
+    set: &[String],
+    explain: bool,
+) -> Result<(), String> {
+    let overrides = parse_overrides(set)?;
+    let parameters = scene_parameters(scene).map_err(|e| e.to_string())?;
+    let spec = modules
+        .load_scene(scene, &overrides)
+        .map_err(|e| e.to_string())?;
+    println!("scene {} is valid", spec.name);
+    println!("parameters (override with --set NAME=VALUE):");
+    for p in &parameters {
+        println!("  {:<14} = {:<30} (line {})", p.name, p.default, p.line);
+    }
+    println!(
+        "{}D grid {:?} cells, basis {}, {} bodies, {} points, {} load steps, load factors {}",
+        spec.dim(),
+        spec.grid.cells,
+        spec.grid.basis,
+        spec.bodies.len(),
+        spec.point_count(),
+        spec.load_factors.len(),
+        describe_factors(&spec.load_factors)
+    );
+    let used: Vec<&dyn Module> = modules.iter().filter(|m| m.used_by(&spec)).collect();
+    for module in &used {
+        if let Some(description) = module.describe(&spec) {
+            println!("  {}: {description}", module.name());
+        }
+    }
+    if explain {
+        print!("{}", explain_scene(&spec, modules)?);
+    } else {
+        let names: Vec<&str> = used.iter().map(|m| m.name()).collect();
+        println!(
+            "modules: {} (--explain lists the systems)",
+            if names.is_empty() {
+                "none".to_string()
+            } else {
+                names.join(", ")
+            }
+        );
+    }
+    Ok(())
 }
 
 /// The load factors in short: all of them if few, else first, last, extremes.

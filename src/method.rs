@@ -287,6 +287,30 @@ pub fn add_default_providers<const D: usize>(world: &mut World) {
     }
 }
 
+/// Initialises every schedule of the method in `world`: an error says why one does not build
+/// (e.g. two systems of a hook that write the same data, unordered).
+pub fn initialize_schedules(world: &mut World) -> Result<(), String> {
+    let labels = [
+        StepSchedule.intern(),
+        NewtonSchedule.intern(),
+        OutputSchedule.intern(),
+        RollbackSchedule.intern(),
+    ];
+    for label in labels {
+        let built = world.try_schedule_scope(label, |world, schedule| {
+            schedule.initialize(world).map_err(|error| {
+                let why = error.to_string(schedule.graph(), world);
+                format!("the {label:?} schedule does not build: {why}")
+            })
+        });
+        // a schedule the world does not have is not checked
+        if let Ok(result) = built {
+            result?;
+        }
+    }
+    Ok(())
+}
+
 /// The core's own output files (points and grid nodes).
 #[derive(SystemSet, Clone, Debug, PartialEq, Eq, Hash)]
 pub struct BuiltInOutput;

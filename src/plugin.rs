@@ -7,7 +7,8 @@
 //!
 //! ```no_run
 //! use bevy_ecs::prelude::*;
-//! use impm::plugin::{Extension, Hook, Plugin, run_scene_with};
+//! use impm::plugin::{Extension, Hook, Plugin};
+//! use impm::run::run_scene_with;
 //! use impm::resources::LoadStep;
 //!
 //! struct Announce;
@@ -22,7 +23,7 @@
 //!     }
 //! }
 //!
-//! let spec = impm::scene::load_scene("scripts/column_1d.rhai".as_ref(), &[]).unwrap();
+//! let spec = impm::run::load_scene("scripts/column_1d.rhai".as_ref(), &[]).unwrap();
 //! run_scene_with(&spec, "out/announce".as_ref(), &Announce, |_| {}).unwrap();
 //! ```
 //!
@@ -35,7 +36,6 @@
 //! themselves (`.chain()`), or the schedule does not build (a `BuildError` naming both).
 //! Hooks cost nothing when unused, and `()` is the plugin that adds nothing.
 
-use std::path::Path;
 use std::sync::Arc;
 
 use bevy_ecs::prelude::*;
@@ -43,13 +43,26 @@ use bevy_ecs::schedule::IntoScheduleConfigs;
 use bevy_ecs::system::ScheduleSystem;
 
 use crate::components::PointId;
-use crate::explain::scheduled_systems;
 pub use crate::method::Hook;
 use crate::method::Providers;
-use crate::records::{StepMeasures, StepRecord, Summary};
+use crate::records::StepMeasures;
 use crate::resources::no_failure;
-use crate::run::{BuildError, RunError, Simulation, run_scene_keeping_summary_with};
-use crate::scene::SceneSpec;
+use crate::scene::{
+    FieldSpec, Resolver, SceneApi, SceneError, SceneModule, SceneSpec, ScriptError,
+};
+use crate::stages::output::PARTICLE_FIELDS;
+
+/// Why a simulation could not be built from a scene (or a plugin could not be added).
+#[derive(Clone, Debug, PartialEq)]
+pub struct BuildError(pub String);
+
+impl std::fmt::Display for BuildError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for BuildError {}
 
 /// A set of systems, resources and components that extends a simulation.
 pub trait Plugin {
@@ -57,6 +70,21 @@ pub trait Plugin {
     fn name(&self) -> &'static str {
         let name = std::any::type_name::<Self>();
         name.rsplit("::").next().unwrap_or(name)
+    }
+
+    /// The scene words the plugin adds (calls, options of other calls, basis words, material
+    /// models, point fields), if any.
+    fn scene_api(&self, _api: &mut SceneApi) {}
+
+    /// Resolves what a script declared with the plugin's words into its part of the scene.
+    fn resolve(&self, _scene: &mut Resolver) -> Result<(), ScriptError> {
+        Ok(())
+    }
+
+    /// What the scene declared for this plugin, in a line for `impm check` (e.g. "4 loaded
+    /// points, total force [0, -0.8]"), if anything.
+    fn describe(&self, _spec: &SceneSpec) -> Option<String> {
+        None
     }
 
     /// Whether a scene uses the plugin; only then is it built. User plugins: always.
@@ -91,6 +119,15 @@ impl<P: Plugin> Plugin for &P {
     fn name(&self) -> &'static str {
         (*self).name()
     }
+    fn scene_api(&self, api: &mut SceneApi) {
+        (*self).scene_api(api)
+    }
+    fn resolve(&self, scene: &mut Resolver) -> Result<(), ScriptError> {
+        (*self).resolve(scene)
+    }
+    fn describe(&self, spec: &SceneSpec) -> Option<String> {
+        (*self).describe(spec)
+    }
     fn used_by(&self, spec: &SceneSpec) -> bool {
         (*self).used_by(spec)
     }
@@ -104,17 +141,30 @@ impl<P: Plugin> Plugin for &P {
 
 /// A plugin as an object, so that a list of different plugins can be kept and built for the
 /// dimension of a scene (implemented for every [`Plugin`]).
-pub trait Module: Send + Sync {
+pub trait Module: SceneModule + Send + Sync {
     fn name(&self) -> &'static str;
+    fn describe(&self, spec: &SceneSpec) -> Option<String>;
     fn used_by(&self, spec: &SceneSpec) -> bool;
     fn applies_to(&self, spec: &SceneSpec) -> bool;
     /// Builds the plugin into `world` for the scene's dimension.
     fn build_into(&self, world: &mut World, spec: &SceneSpec) -> Result<(), BuildError>;
 }
 
+impl<P: Plugin> SceneModule for P {
+    fn scene_api(&self, api: &mut SceneApi) {
+        Plugin::scene_api(self, api)
+    }
+    fn resolve(&self, scene: &mut Resolver) -> Result<(), ScriptError> {
+        Plugin::resolve(self, scene)
+    }
+}
+
 impl<P: Plugin + Send + Sync> Module for P {
     fn name(&self) -> &'static str {
         Plugin::name(self)
+    }
+    fn describe(&self, spec: &SceneSpec) -> Option<String> {
+        Plugin::describe(self, spec)
     }
     fn used_by(&self, spec: &SceneSpec) -> bool {
         Plugin::used_by(self, spec)
@@ -134,13 +184,35 @@ impl<P: Plugin + Send + Sync> Module for P {
     }
 }
 
+/// The scene words of the core's output: its point fields.
+struct CoreOutput;
+
+impl Plugin for CoreOutput {
+    fn name(&self) -> &'static str {
+        "output"
+    }
+
+    fn scene_api(&self, api: &mut SceneApi) {
+        for &(name, doc) in PARTICLE_FIELDS {
+            api.field(FieldSpec { name, doc });
+        }
+    }
+
+    fn used_by(&self, _spec: &SceneSpec) -> bool {
+        false
+    }
+
+    fn build<const D: usize>(&self, _: &mut Extension<'_, D>) {}
+}
+
 /// The modules a run can use, in build order (`effects::built_in()` and your own).
 #[derive(Clone, Default)]
 pub struct ModuleSet(Vec<Arc<dyn Module>>);
 
 impl ModuleSet {
+    /// The core's own words (its point fields) and no module yet.
     pub fn new() -> Self {
-        Self::default()
+        Self::default().with(CoreOutput)
     }
 
     /// Adds a module after the others.
@@ -151,6 +223,23 @@ impl ModuleSet {
 
     pub fn iter(&self) -> impl Iterator<Item = &dyn Module> {
         self.0.iter().map(|module| module.as_ref())
+    }
+
+    /// Runs a scene script in the scene language of the core and these modules (see
+    /// `scene::load_scene_with`).
+    pub fn load_scene(
+        &self,
+        path: &std::path::Path,
+        overrides: &[(String, String)],
+    ) -> Result<SceneSpec, SceneError> {
+        let modules: Vec<&dyn SceneModule> = self.iter().map(|m| m as &dyn SceneModule).collect();
+        crate::scene::load_scene_with(path, overrides, &modules)
+    }
+
+    /// The scene language of the core and these modules.
+    pub fn scene_api(&self) -> SceneApi {
+        let modules: Vec<&dyn SceneModule> = self.iter().map(|m| m as &dyn SceneModule).collect();
+        crate::scene::scene_api(&modules)
     }
 
     /// Every material model a body uses must have its module (a module named like the
@@ -204,7 +293,7 @@ struct HookSlots([u32; Hook::ALL.len()]);
 struct HookSlot(Hook, u32);
 
 impl<'w, const D: usize> Extension<'w, D> {
-    /// Wraps a simulation's world and scene (usually through [`Simulation::add_plugin`]).
+    /// Wraps a simulation's world and scene (usually through `run::Simulation::add_plugin`).
     pub fn new(world: &'w mut World, spec: &'w SceneSpec) -> Self {
         Self {
             world,
@@ -307,27 +396,4 @@ impl<'w, const D: usize> Extension<'w, D> {
         self.world.resource_mut::<Providers>().0.push((hook, name));
         self.add_systems(hook, systems)
     }
-}
-
-impl<const D: usize> Simulation<D> {
-    /// Adds a plugin's systems and resources, and checks that the schedules still build.
-    pub fn add_plugin(&mut self, plugin: &impl Plugin) -> Result<(), BuildError> {
-        build_plugin::<D>(plugin, &mut self.world, &self.spec)?;
-        scheduled_systems(&mut self.world)
-            .map(|_| ())
-            .map_err(|why| BuildError(format!("a plugin's systems do not fit: {why}")))
-    }
-}
-
-/// [`crate::run::run_scene`] with a plugin: builds the simulation for the scene's dimension,
-/// adds the plugin, writes the initial state and runs every load step.
-pub fn run_scene_with(
-    spec: &SceneSpec,
-    out_dir: &Path,
-    plugin: &impl Plugin,
-    on_step: impl FnMut(&StepRecord),
-) -> Result<Summary, RunError> {
-    let (summary, result) = run_scene_keeping_summary_with(spec, out_dir, plugin, on_step);
-    result?;
-    summary.ok_or_else(|| RunError::Build(BuildError("the run produced no summary".into())))
 }

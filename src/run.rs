@@ -23,24 +23,14 @@ use crate::effects;
 use crate::mechanics::TrialState;
 use crate::method::{
     OutputSchedule, RollbackSchedule, StepSchedule, add_core_schedules, add_default_providers,
+    initialize_schedules,
 };
-use crate::plugin::{Module, ModuleSet, Plugin};
+pub use crate::plugin::BuildError;
+use crate::plugin::{Module, ModuleSet, Plugin, build_plugin};
 use crate::records::{StepMeasures, StepRecord, Summary};
 use crate::resources::*;
 use crate::scene::SceneSpec;
 use crate::stages::output::{OutputPlan, PointFields};
-
-/// Why a simulation could not be built from a scene.
-#[derive(Clone, Debug, PartialEq)]
-pub struct BuildError(pub String);
-
-impl std::fmt::Display for BuildError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(&self.0)
-    }
-}
-
-impl std::error::Error for BuildError {}
 
 /// A simulation of dimension `D`: the world and its schedules.
 pub struct Simulation<const D: usize> {
@@ -95,6 +85,13 @@ impl<const D: usize> Simulation<D> {
             steps_done: 0,
             control: Box::new(StepCutting::new(spec.solver.max_step_cuts)),
         })
+    }
+
+    /// Adds a plugin's systems and resources, and checks that the schedules still build.
+    pub fn add_plugin(&mut self, plugin: &impl Plugin) -> Result<(), BuildError> {
+        build_plugin::<D>(plugin, &mut self.world, &self.spec)?;
+        initialize_schedules(&mut self.world)
+            .map_err(|why| BuildError(format!("a plugin's systems do not fit: {why}")))
     }
 
     /// Number of load steps done.
@@ -294,11 +291,13 @@ fn core_world<const D: usize>(spec: &SceneSpec, out_dir: &Path) -> Result<World,
     world.insert_resource(StageClock::default());
     world.insert_resource(PointFields::default());
     world.insert_resource(StepMeasures::default());
-    world.insert_resource(OutputPlan::from_spec(
-        out_dir.to_path_buf(),
-        &spec.output,
-        spec.load_factors.len(),
-    ));
+    let output = &spec.output;
+    world.insert_resource(OutputPlan {
+        steps: output.steps.clone(),
+        fields: output.fields.clone(),
+        grid_files: output.grid,
+        ..OutputPlan::new(out_dir.to_path_buf(), output.every, spec.load_factors.len())
+    });
     add_core_schedules::<D>(&mut world);
     Ok(world)
 }
@@ -353,14 +352,37 @@ fn spawn_points<const D: usize>(world: &mut World, spec: &SceneSpec) -> Result<(
     Ok(())
 }
 
+/// Runs the scene script at `path` with `--set` overrides, in the scene language of the
+/// built-in modules (`effects::built_in().load_scene(..)`; with modules of your own, use a
+/// `ModuleSet`).
+pub fn load_scene(
+    path: &Path,
+    overrides: &[(String, String)],
+) -> Result<SceneSpec, crate::scene::SceneError> {
+    effects::built_in().load_scene(path, overrides)
+}
+
 /// Runs a whole scene in dimension `spec.dim()`, writing to `out_dir` (with a plugin:
-/// [`crate::plugin::run_scene_with`]).
+/// [`run_scene_with`]).
 pub fn run_scene(
     spec: &SceneSpec,
     out_dir: &Path,
     on_step: impl FnMut(&StepRecord),
 ) -> Result<Summary, RunError> {
-    crate::plugin::run_scene_with(spec, out_dir, &(), on_step)
+    run_scene_with(spec, out_dir, &(), on_step)
+}
+
+/// [`run_scene`] with a plugin: builds the simulation for the scene's dimension, adds the
+/// plugin, writes the initial state and runs every load step.
+pub fn run_scene_with(
+    spec: &SceneSpec,
+    out_dir: &Path,
+    plugin: &impl Plugin,
+    on_step: impl FnMut(&StepRecord),
+) -> Result<Summary, RunError> {
+    let (summary, result) = run_scene_keeping_summary_with(spec, out_dir, plugin, on_step);
+    result?;
+    summary.ok_or_else(|| RunError::Build(BuildError("the run produced no summary".into())))
 }
 
 /// Like [`run_scene`], but also returns the summary of a run that failed after it was built

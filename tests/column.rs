@@ -7,7 +7,7 @@ use common::{overrides, run_shipped, shipped_scene, temp_dir};
 use impm::analytic::SelfWeightColumn;
 use impm::records::Summary;
 use impm::run::Simulation;
-use impm::scene::load_scene;
+use impm::run::load_scene;
 use impm::study::convergence_rates;
 
 /// Runs a column scene; returns the summary and the final (reference height, vertical stress)

@@ -15,12 +15,14 @@ use impm::components::{DeformationGradient, GridNode, ReferencePosition, Trial};
 use impm::effects::fem_mesh::{
     ElementPoint, FemMesh, evaluate_element_basis, move_reference_nodes,
 };
+use impm::effects::grid_constraints::{NodeConstraint, NodeConstraints};
 use impm::fem::{shape_function, tensor_gauss_rule};
 use impm::material::Hencky;
 use impm::mechanics::{embed, trial_state};
 use impm::resources::{GridFields, LoadStep};
 use impm::run::Simulation;
-use impm::scene::{NodeConstraint, SceneSpec, load_scene};
+use impm::run::load_scene;
+use impm::scene::SceneSpec;
 use impm::sparse::NO_DOF;
 use impm::stages::number_dofs;
 
@@ -275,17 +277,19 @@ fn patch_test<const D: usize>() {
     let centre = vertices / 2;
     let position =
         |node: usize| SVector::<f64, D>::from_fn(|k, _| ((node / 3usize.pow(k as u32)) % 3) as f64);
-    spec.constraints = (0..vertices)
-        .filter(|&node| node != centre)
-        .flat_map(|node| {
-            let u = (f - SMatrix::<f64, D, D>::identity()) * position(node);
-            (0..D).map(move |component| NodeConstraint {
-                node,
-                component,
-                value: u[component],
+    spec.set_part(NodeConstraints(
+        (0..vertices)
+            .filter(|&node| node != centre)
+            .flat_map(|node| {
+                let u = (f - SMatrix::<f64, D, D>::identity()) * position(node);
+                (0..D).map(move |component| NodeConstraint {
+                    node,
+                    component,
+                    value: u[component],
+                })
             })
-        })
-        .collect();
+            .collect(),
+    ));
     let dir = temp_dir(&format!("patch{D}"));
     let mut sim = Simulation::<D>::new(&spec, &dir).unwrap();
     let distortion = SVector::<f64, D>::from_fn(|k, _| [0.15, -0.1, 0.07][k]);

@@ -7,7 +7,7 @@ use common::{run_shipped, shipped_scene, temp_dir};
 use impm::components::Trial;
 use impm::records::Summary;
 use impm::run::Simulation;
-use impm::scene::load_scene;
+use impm::run::load_scene;
 
 /// Runs a scene to the end; checks convergence and finiteness of every point's stress.
 fn run<const D: usize>(script: &str, set: &[(&str, &str)]) -> (Summary, Simulation<D>) {

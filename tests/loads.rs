@@ -4,9 +4,12 @@
 use std::path::{Path, PathBuf};
 
 use impm::components::Position;
+use impm::effects::point_loads::PointLoads;
+use impm::effects::tractions::Tractions;
 use impm::output::read_vtu;
 use impm::run::Simulation;
-use impm::scene::{SceneSpec, load_scene};
+use impm::run::load_scene;
+use impm::scene::SceneSpec;
 
 fn temp_dir(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("impm-loads-{name}-{}", std::process::id()));
@@ -64,8 +67,8 @@ point_load(|x| x[0] > 9.7, [100.0]);
 load_steps(2);
 "#,
     );
-    assert_eq!(spec.point_loads.len(), 1);
-    assert_eq!(spec.point_loads[0].point, 19);
+    assert_eq!(spec.part::<PointLoads>().unwrap().0.len(), 1);
+    assert_eq!(spec.part::<PointLoads>().unwrap().0[0].point, 19);
     let mut sim = Simulation::<1>::new(&spec, &dir.join("out")).unwrap();
     let force = 100.0;
     for (step, lambda) in [(1, 0.5), (2, 1.0)] {
@@ -119,8 +122,8 @@ load_factors([0.25, 1.0, 0.5]);
 "#,
     );
     // the top row of points: 2 cells x 2 points across
-    assert_eq!(spec.point_loads.len(), 4);
-    for load in &spec.point_loads {
+    assert_eq!(spec.part::<PointLoads>().unwrap().0.len(), 4);
+    for load in &spec.part::<PointLoads>().unwrap().0 {
         assert_eq!(load.force, [7.5, -12.5]);
     }
     let out = dir.join("out");
@@ -200,8 +203,8 @@ traction(#{ on: [[10.0]], traction: [200.0] });
 load_factors([0.25, 0.75, 1.0]);
 "#,
     );
-    assert_eq!(spec.tractions.len(), 1);
-    assert_eq!(spec.tractions[0].area, 1.0);
+    assert_eq!(spec.part::<Tractions>().unwrap().0.len(), 1);
+    assert_eq!(spec.part::<Tractions>().unwrap().0[0].area, 1.0);
     let mut sim = Simulation::<1>::new(&spec, &dir.join("out")).unwrap();
     for (step, lambda) in [(1, 0.25), (2, 0.75), (3, 1.0)] {
         // each point's cell at the start of the step, and the volume every cell holds
@@ -267,8 +270,14 @@ traction(#{ on: [[0.0, 3.5], [3.0, 3.5]], traction: [10.0, 200.0], per_cell: 3 }
 load_steps(2);
 "#,
     );
-    assert_eq!(spec.tractions.len(), 9);
-    let length: f64 = spec.tractions.iter().map(|t| t.area).sum();
+    assert_eq!(spec.part::<Tractions>().unwrap().0.len(), 9);
+    let length: f64 = spec
+        .part::<Tractions>()
+        .unwrap()
+        .0
+        .iter()
+        .map(|t| t.area)
+        .sum();
     assert!((length - 3.0).abs() < 1e-12);
     let out = dir.join("out");
     let mut sim = Simulation::<2>::new(&spec, &out).unwrap();

@@ -8,8 +8,8 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+use impm::run::load_scene;
 use impm::run::run_scene;
-use impm::scene::load_scene;
 
 fn available(program: &str) -> bool {
     Command::new(program)

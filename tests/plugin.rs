@@ -10,7 +10,7 @@ use impm::explain::scheduled_systems;
 use impm::plugin::{Extension, Hook, Plugin};
 use impm::resources::{GridFields, LoadStep, Newton};
 use impm::run::Simulation;
-use impm::scene::load_scene;
+use impm::run::load_scene;
 use impm::stages::output::OutputPlan;
 
 fn temp_dir(name: &str) -> PathBuf {

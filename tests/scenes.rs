@@ -4,10 +4,12 @@
 use std::path::{Path, PathBuf};
 
 use impm::effects;
+use impm::effects::tractions::Tractions;
 use impm::explain::{ScheduledSystem, explain_scene, scheduled_systems};
 use impm::output::read_vtu;
 use impm::run::Simulation;
-use impm::scene::{SceneSpec, load_scene};
+use impm::run::load_scene;
+use impm::scene::SceneSpec;
 
 fn scripts() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts")
@@ -176,8 +178,14 @@ fn embankment_keeps_two_bodies_apart() {
 #[test]
 fn block_3d_traction_runs() {
     let spec = load("block_3d_traction.rhai", &[("cells", "2")]);
-    assert_eq!(spec.tractions.len(), 4 * 4);
-    let area: f64 = spec.tractions.iter().map(|t| t.area).sum();
+    assert_eq!(spec.part::<Tractions>().unwrap().0.len(), 4 * 4);
+    let area: f64 = spec
+        .part::<Tractions>()
+        .unwrap()
+        .0
+        .iter()
+        .map(|t| t.area)
+        .sum();
     assert!((area - 1.0).abs() < 1e-12);
     let mut sim = Simulation::<3>::new(&spec, &temp_dir("block3d")).unwrap();
     sim.run(|_| {}).unwrap();

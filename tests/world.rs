@@ -10,6 +10,9 @@ use nalgebra::SVector;
 
 use impm::basis::{BasisKind, GimpDomain};
 use impm::components::{DeformationGradient, Position, Support, Trial};
+use impm::effects::body_force::BodyForceSpec;
+use impm::effects::ghost_penalty::GhostPenaltySpec;
+use impm::effects::grid_constraints::{NodeConstraint, NodeConstraints};
 use impm::effects::point_domains::evaluate_domain_basis;
 use impm::material::Hencky;
 use impm::resources::{GridFields, LoadStep};
@@ -55,7 +58,7 @@ fn block_2d(cells: [usize; 2], body_cells: [usize; 2], basis: BasisKind) -> Scen
             })
         })
         .collect();
-    SceneSpec {
+    let mut spec = SceneSpec {
         name: "block".into(),
         grid: GridSpec {
             lower: vec![0.0, 0.0],
@@ -69,16 +72,15 @@ fn block_2d(cells: [usize; 2], body_cells: [usize; 2], basis: BasisKind) -> Scen
             material: 0,
             points,
         }],
-        body_force: Some(vec![0.0, -10.0]),
-        constraints,
-        point_loads: vec![],
-        tractions: vec![],
         load_factors: vec![0.5, 1.0],
         solver: SolverSpec::default(),
         output: OutputSpec::default(),
         analytic: None,
-        recovery: None,
-    }
+        parts: Parts::default(),
+    };
+    spec.set_part(BodyForceSpec(vec![0.0, -10.0]));
+    spec.set_part(NodeConstraints(constraints));
+    spec
 }
 
 fn start_step(sim: &mut Simulation<2>) {
@@ -227,7 +229,9 @@ fn schedules_have_no_ambiguities() {
     }
     check::<2>(&block_2d([4, 4], [2, 2], BasisKind::Linear));
     let mut with_prescribed = block_2d([4, 4], [2, 2], BasisKind::Linear);
-    with_prescribed.constraints[0].value = 0.1;
+    let mut constraints = with_prescribed.part::<NodeConstraints>().unwrap().clone();
+    constraints.0[0].value = 0.1;
+    with_prescribed.set_part(constraints);
     check::<2>(&with_prescribed);
     // the connectivity of particle-domain methods, alone and with the ghost penalty after it
     for basis in [
@@ -237,7 +241,7 @@ fn schedules_have_no_ambiguities() {
     ] {
         let mut spec = block_2d([4, 4], [2, 2], basis);
         check::<2>(&spec);
-        spec.solver.ghost_penalty = 0.1;
+        spec.set_part(GhostPenaltySpec { gamma: 0.1 });
         check::<2>(&spec);
     }
 }

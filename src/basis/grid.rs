@@ -95,17 +95,88 @@ fn flat_index<const D: usize>(sizes: [usize; D], multi: [usize; D]) -> usize {
 }
 
 #[inline]
-fn multi_index<const D: usize>(sizes: [usize; D], mut index: usize) -> [usize; D] {
+fn multi_index<const D: usize>(sizes: [usize; D], index: usize) -> [usize; D] {
     let mut multi = [0; D];
+    split_index(&sizes, index, &mut multi);
+    multi
+}
+
+/// The multi-index of flat `index` (axis 0 fastest) into `multi`, one entry per size.
+#[inline]
+fn split_index(sizes: &[usize], mut index: usize, multi: &mut [usize]) {
     for (m, n) in multi.iter_mut().zip(sizes) {
         *m = index % n;
         index /= n;
     }
     debug_assert_eq!(index, 0, "flat index out of range {sizes:?}");
-    multi
+}
+
+/// A grid as a scene declares it, in any dimension: an axis-aligned box split into uniform
+/// cells, and the family of its basis. Owns the node numbering for code that does not know the
+/// dimension at compile time (the scene selecting nodes by predicate); [`GridBasis`] numbers
+/// the same way.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GridSpec {
+    pub lower: Vec<f64>,
+    pub upper: Vec<f64>,
+    pub cells: Vec<usize>,
+    pub basis: BasisKind,
+}
+
+impl GridSpec {
+    pub fn dim(&self) -> usize {
+        self.cells.len()
+    }
+
+    /// The axes, validated.
+    pub fn axes(&self) -> Result<Vec<Axis>, String> {
+        if self.lower.len() != self.dim() || self.upper.len() != self.dim() {
+            return Err("grid bounds and cells differ in length".to_string());
+        }
+        (0..self.dim())
+            .map(|k| {
+                Axis::new(self.lower[k], self.upper[k], self.cells[k], self.basis)
+                    .map_err(|e| format!("grid axis {k}: {e}"))
+            })
+            .collect()
+    }
+
+    /// Number of nodes (`prod_k (cells_k + q)`), or `None` if it exceeds `limit` (or overflows).
+    pub fn node_count(&self, limit: usize) -> Option<usize> {
+        let order = self.basis.order();
+        self.cells
+            .iter()
+            .try_fold(1usize, |count, &cells| {
+                count.checked_mul(cells.checked_add(order)?)
+            })
+            .filter(|&count| count <= limit)
+    }
+
+    /// Every node's position in node order (the Greville abscissae; the first and last node
+    /// of each axis exactly on the grid bounds).
+    pub fn node_positions(&self) -> Result<Vec<Vec<f64>>, String> {
+        let axes = self.axes()?;
+        let sizes: Vec<usize> = axes.iter().map(Axis::num_functions).collect();
+        let count: usize = sizes.iter().product();
+        let mut multi = vec![0; sizes.len()];
+        Ok((0..count)
+            .map(|index| {
+                split_index(&sizes, index, &mut multi);
+                axes.iter()
+                    .zip(&multi)
+                    .map(|(axis, &i)| axis.control_point(i))
+                    .collect()
+            })
+            .collect())
+    }
 }
 
 impl<const D: usize> GridBasis<D> {
+    /// The basis of a scene's grid (of dimension `D`).
+    pub fn from_spec(grid: &GridSpec) -> Result<Self, String> {
+        Self::new(&grid.lower, &grid.upper, &grid.cells, grid.basis)
+    }
+
     /// A validated grid: `lower`, `upper`, `cells` must each have `D` entries, bounds finite
     /// with `upper > lower`, `cells >= 1` per axis and order >= 1. The same `kind` is used on
     /// every axis.

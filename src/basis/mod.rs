@@ -76,7 +76,7 @@ pub use axis::{Axis, OutsideGrid};
 pub use bspline::control_points_1d;
 pub use domain::{DomainScratch, eval_point_domain};
 pub use error::DomainError;
-pub use grid::{BasisScratch, GridBasis, NodeWeight};
+pub use grid::{BasisScratch, GridBasis, GridSpec, NodeWeight};
 
 /// Which family of grid functions maps between points and grid.
 #[derive(Clone, Copy, Debug, PartialEq)]

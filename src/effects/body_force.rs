@@ -9,12 +9,17 @@
 
 use bevy_ecs::prelude::*;
 use nalgebra::SVector;
+use rhai::Dynamic;
 
 use crate::components::{Mass, Support};
 use crate::mechanics::spread_force;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{GridFields, LoadStep, Stage, StageClock};
-use crate::scene::SceneSpec;
+use crate::scene::{CallSpec, Located, Resolver, SceneApi, SceneSpec, ScriptError, numbers};
+
+/// The scene's body force per unit mass at load factor 1 (one entry per axis).
+#[derive(Clone, Debug, PartialEq)]
+pub struct BodyForceSpec(pub Vec<f64>);
 
 /// Body force per unit mass at load factor 1.
 #[derive(Resource, Clone, Copy, Debug, PartialEq)]
@@ -29,19 +34,64 @@ impl Plugin for BodyForceModule {
         "body force"
     }
 
+    fn scene_api(&self, api: &mut SceneApi) {
+        api.call(CallSpec::args(
+            "body_force",
+            "body_force([b0, ..])",
+            "body force per unit mass at load factor 1, one entry per axis (call once)",
+            1,
+            |builder, args, at| {
+                if let Some(previous) = builder.declared::<BodyForceSpec>().first() {
+                    return Err(format!(
+                        "body_force(...) was already called{}; call it once",
+                        previous.line_note()
+                    ));
+                }
+                let force = numbers(&args[0], "body_force(...): the force per unit mass")?;
+                if force.is_empty() {
+                    return Err("body_force(...) needs one component per axis, got []".to_string());
+                }
+                builder.declare(Located::new(BodyForceSpec(force), at));
+                Ok(Dynamic::UNIT)
+            },
+        ));
+    }
+
+    fn resolve(&self, scene: &mut Resolver) -> Result<(), ScriptError> {
+        let Some(declared) = scene.declarations::<BodyForceSpec>().first().cloned() else {
+            return Ok(());
+        };
+        if declared.value.0.len() != scene.spec.dim() {
+            return Err(ScriptError::at(
+                declared.at,
+                format!(
+                    "body_force(...) has {} components but {}",
+                    declared.value.0.len(),
+                    scene.grid_note()
+                ),
+            ));
+        }
+        scene.spec.set_part(declared.value);
+        Ok(())
+    }
+
+    fn describe(&self, spec: &SceneSpec) -> Option<String> {
+        spec.part::<BodyForceSpec>()
+            .map(|b| format!("{:?} per unit mass at load factor 1", b.0))
+    }
+
     fn used_by(&self, spec: &SceneSpec) -> bool {
-        spec.body_force
-            .as_ref()
-            .is_some_and(|b| b.iter().any(|&c| c != 0.0))
+        spec.part::<BodyForceSpec>()
+            .is_some_and(|b| b.0.iter().any(|&c| c != 0.0))
     }
 
     fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
-        if let Some(b) = &simulation.spec().body_force {
-            if b.len() != D {
-                simulation.fail(format!("body force has {} components in {D}D", b.len()));
+        if let Some(b) = simulation.spec().part::<BodyForceSpec>() {
+            if b.0.len() != D {
+                simulation.fail(format!("body force has {} components in {D}D", b.0.len()));
                 return;
             }
-            let force = SVector::<f64, D>::from_fn(|a, _| b[a]);
+            let force = SVector::<f64, D>::from_fn(|a, _| b.0[a]);
             simulation.world().insert_resource(BodyForce(force));
         }
         simulation.add_systems(Hook::Loads, apply_body_force::<D>);

@@ -13,7 +13,7 @@ use crate::components::{Position, Volume};
 use crate::ghost::{FacePenalty, face_penalty, ghost_faces};
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{Grid, GridFields, Newton, Stage, StageClock};
-use crate::scene::SceneSpec;
+use crate::scene::{Kind, OptionSpec, Range, Resolver, SceneApi, SceneSpec, ScriptError};
 use crate::sparse::NO_DOF;
 
 /// The ghost penalty of the current load step.
@@ -25,6 +25,15 @@ pub struct GhostPenalty {
     pub faces: Vec<FacePenalty>,
 }
 
+/// The scene's dimensionless penalty factor γ (`solver(#{ ghost_penalty: γ })`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GhostPenaltySpec {
+    pub gamma: f64,
+}
+
+/// Why the ghost penalty does not apply to linear FEM.
+const NOT_WITH_FEM: &str = "ghost_penalty stabilises nearly empty MPM cells; basis \"fem\" has a body-fitted mesh without such cells (remove ghost_penalty)";
+
 /// The module.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct GhostPenaltyModule;
@@ -34,8 +43,41 @@ impl Plugin for GhostPenaltyModule {
         "ghost penalty"
     }
 
+    fn scene_api(&self, api: &mut SceneApi) {
+        api.extend(
+            "solver",
+            OptionSpec::new(
+                "ghost_penalty",
+                Kind::Number(Range::NonNegative),
+                "dimensionless ghost-penalty factor γ for nearly empty cells (0 = off, the default; 0.01 is a good start; MPM bases only)",
+            ),
+        );
+    }
+
+    fn resolve(&self, scene: &mut Resolver) -> Result<(), ScriptError> {
+        let Some(options) = scene.call_options("solver") else {
+            return Ok(());
+        };
+        let gamma = options.value.number("ghost_penalty").unwrap_or(0.0);
+        if gamma > 0.0 && !self.applies_to(scene.spec) {
+            return Err(ScriptError::at(
+                options.at,
+                format!("solver(...): {NOT_WITH_FEM}"),
+            ));
+        }
+        if gamma > 0.0 {
+            scene.spec.set_part(GhostPenaltySpec { gamma });
+        }
+        Ok(())
+    }
+
+    fn describe(&self, spec: &SceneSpec) -> Option<String> {
+        spec.part::<GhostPenaltySpec>()
+            .map(|g| format!("γ = {}", g.gamma))
+    }
+
     fn used_by(&self, spec: &SceneSpec) -> bool {
-        spec.solver.ghost_penalty > 0.0
+        spec.part::<GhostPenaltySpec>().is_some()
     }
 
     fn applies_to(&self, spec: &SceneSpec) -> bool {
@@ -45,18 +87,17 @@ impl Plugin for GhostPenaltyModule {
     fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
         let spec = simulation.spec();
         if !self.applies_to(spec) && self.used_by(spec) {
-            simulation.fail(
-                "the ghost penalty stabilises nearly empty MPM cells; a finite-element mesh (basis fem) has none",
-            );
+            simulation.fail(NOT_WITH_FEM);
             return;
         }
+        let gamma = spec.part::<GhostPenaltySpec>().map_or(0.0, |g| g.gamma);
         let modulus = spec
             .materials
             .iter()
             .map(|m| m.stiffness)
             .fold(0.0, f64::max);
         simulation.world().insert_resource(GhostPenalty {
-            gamma_modulus: spec.solver.ghost_penalty * modulus,
+            gamma_modulus: gamma * modulus,
             faces: Vec::new(),
         });
         simulation

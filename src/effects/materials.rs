@@ -16,7 +16,7 @@ use bevy_ecs::prelude::*;
 use crate::components::{BodyIndex, PointId};
 use crate::material::Material;
 use crate::plugin::{Extension, Hook, Plugin};
-use crate::scene::SceneSpec;
+use crate::scene::{FieldSpec, ModelSpec, OptionSpec, SceneApi, SceneSpec};
 use crate::stages::output::PointFields;
 use crate::stages::{PointHistory, PointMaterial, commit_history, update_stress};
 
@@ -32,6 +32,31 @@ impl<M> Default for MaterialModule<M> {
 impl<M: Material> Plugin for MaterialModule<M> {
     fn name(&self) -> &'static str {
         M::MODEL
+    }
+
+    fn scene_api(&self, api: &mut SceneApi) {
+        api.model(ModelSpec {
+            model: M::MODEL,
+            doc: M::describe(),
+            parameters: M::parameters().iter().map(OptionSpec::from).collect(),
+            check: |parameters| M::from_parameters(parameters).map(|m| m.stiffness_scale()),
+        });
+        for &(name, _) in M::output_fields() {
+            api.field(FieldSpec {
+                name,
+                doc: "a history field of a material model (zero on points of other models)",
+            });
+        }
+    }
+
+    fn describe(&self, spec: &SceneSpec) -> Option<String> {
+        let names: Vec<&str> = spec
+            .materials
+            .iter()
+            .filter(|m| m.model == M::MODEL)
+            .map(|m| m.name.as_str())
+            .collect();
+        Some(format!("materials {}", names.join(", ")))
     }
 
     fn used_by(&self, spec: &SceneSpec) -> bool {

@@ -11,11 +11,11 @@
 use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 
-use crate::basis::{DomainError, DomainScratch, eval_point_domain};
+use crate::basis::{BasisKind, DomainError, DomainScratch, GimpDomain, eval_point_domain};
 use crate::components::{DeformationGradient, PointId, Position, Support};
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{Grid, GridFields, LoadStep, RunStatus, SolverError, Stage, StageClock};
-use crate::scene::SceneSpec;
+use crate::scene::{BasisWord, Choice, Kind, OptionSpec, Options, SceneApi, SceneSpec};
 
 /// The initial domain of a material point: the half-lengths `lp0_k` of the box the point owns
 /// at seeding (`h_k / (2 ppc_k)` on the lattice; its share of the overlap where a box region
@@ -32,6 +32,54 @@ pub struct PointDomainsModule;
 impl Plugin for PointDomainsModule {
     fn name(&self) -> &'static str {
         "basis averaged over domains"
+    }
+
+    fn scene_api(&self, api: &mut SceneApi) {
+        let choice = |word, meaning| Choice {
+            word,
+            meaning: Some(meaning),
+        };
+        api.extend(
+            "grid",
+            OptionSpec::new(
+                "gimp",
+                Kind::Choice(vec![
+                    choice("stretched", "domains follow the deformation, cpGIMP"),
+                    choice("fixed", "domains keep their initial size, uGIMP"),
+                ]),
+                "GIMP only (default \"stretched\"): how the domains follow the deformation",
+            ),
+        )
+        .extend(
+            "grid",
+            OptionSpec::new(
+                "integration",
+                Kind::Choice(vec![
+                    choice("points", "the basis at the material points"),
+                    choice("domain", "B-splines averaged over the points' domains"),
+                ]),
+                "B-splines only (default \"points\"): `\"domain\"` averages the basis over each point's box domain, stretched like cpGIMP's",
+            ),
+        )
+        .basis(BasisWord {
+            word: "gimp",
+            doc: "GIMP (Bardenhagen & Kober 2004): hat functions averaged over each point's box domain; `gimp: \"stretched\"` follows the diagonal of F (cpGIMP), `\"fixed\"` keeps the initial size (uGIMP). Domains are clipped to the grid. Use >= 2 points per cell",
+            kind: |options| {
+                let domain = match options.text("gimp") {
+                    Some("fixed") => GimpDomain::Fixed,
+                    _ => GimpDomain::Stretched,
+                };
+                Ok(BasisKind::Gimp { domain })
+            },
+            seeder: None,
+        })
+        .basis(BasisWord {
+            word: "cpdi",
+            doc: "CPDI1 (Sadeghirad et al. 2011): hat functions averaged from the corners of each point's domain carried by F; a corner leaving the grid is an error naming the point",
+            kind: |_| Ok(BasisKind::Cpdi),
+            seeder: None,
+        })
+        .refine_basis(domain_integration);
     }
 
     fn used_by(&self, spec: &SceneSpec) -> bool {
@@ -70,6 +118,20 @@ impl Plugin for PointDomainsModule {
         }
         simulation.world().insert_batch(batch);
         simulation.provide(Hook::Basis, self.name(), evaluate_domain_basis::<D>);
+    }
+}
+
+/// `integration: "domain"`: B-splines averaged over the points' domains.
+fn domain_integration(kind: BasisKind, options: &Options) -> Result<BasisKind, String> {
+    if options.text("integration") != Some("domain") {
+        return Ok(kind);
+    }
+    match kind {
+        BasisKind::BSpline { order } => Ok(BasisKind::BSplineDomain { order }),
+        _ => Err(format!(
+            "grid(...): integration \"domain\" is an option of basis \"bspline\" (for the hat functions it is basis \"gimp\"), got basis {:?}",
+            options.text("basis").unwrap_or_default()
+        )),
     }
 }
 

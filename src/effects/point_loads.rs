@@ -11,12 +11,51 @@
 use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 
+use std::collections::BTreeMap;
+
+use rhai::{Dynamic, FnPtr};
+
 use crate::components::{PointId, Support};
 use crate::mechanics::spread_force;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{GridFields, LoadStep, Stage, StageClock};
-use crate::scene::SceneSpec;
+use crate::scene::{
+    CallSpec, FieldSpec, Located, Resolver, SceneApi, SceneSpec, ScriptError, function, numbers,
+};
 use crate::stages::output::{PointFields, pad};
+
+/// A force on one material point at load factor 1 (paper eq. 9, a concentrated term of the
+/// external force): it adds λ P N_i(x_p) to the external force of the point's support nodes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PointLoadSpec {
+    /// Global point index: points are numbered body after body, in seeding order (`PointId`).
+    pub point: usize,
+    /// The force P (length = dimension).
+    pub force: Vec<f64>,
+}
+
+/// The scene's point loads (summed per point).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PointLoads(pub Vec<PointLoadSpec>);
+
+/// How a point load's force is given to the points its selector picks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Share {
+    /// Every selected point carries the whole force (`point_load`).
+    Each,
+    /// The force is the total, shared in proportion to reference volume (`point_load_total`).
+    Total,
+}
+
+/// `point_load` / `point_load_total`: a force on the material points whose reference position
+/// the selector accepts.
+#[derive(Clone, Debug)]
+struct PointLoadDeclaration {
+    function: &'static str,
+    selector: FnPtr,
+    force: Vec<f64>,
+    share: Share,
+}
 
 /// A force on the material point at load factor 1; only points that carry one have it.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
@@ -31,15 +70,83 @@ impl Plugin for PointLoadsModule {
         "point loads"
     }
 
+    fn scene_api(&self, api: &mut SceneApi) {
+        for (name, share, signature, doc) in [
+            (
+                "point_load",
+                Share::Each,
+                "point_load(|x| predicate, [force components])",
+                "a force (at load factor 1) on every material point whose reference position satisfies the predicate",
+            ),
+            (
+                "point_load_total",
+                Share::Total,
+                "point_load_total(|x| predicate, [total force components])",
+                "a total force (at load factor 1) shared by the selected points in proportion to their volume",
+            ),
+        ] {
+            api.call(CallSpec::args(
+                name,
+                signature,
+                doc,
+                2,
+                move |builder, args, at| {
+                    let selector = function(&args[0], &format!("{name}(...): the first argument"))?;
+                    let force = numbers(&args[1], &format!("{name}(...): the force"))?;
+                    builder.declare(Located::new(
+                        PointLoadDeclaration {
+                            function: name,
+                            selector,
+                            force,
+                            share,
+                        },
+                        at,
+                    ));
+                    Ok(Dynamic::UNIT)
+                },
+            ));
+        }
+        api.field(FieldSpec {
+            name: "point_load",
+            doc: "λ P: the point load at the step's load factor (zero on unloaded points); written when the scene has point loads",
+        });
+    }
+
+    fn resolve(&self, scene: &mut Resolver) -> Result<(), ScriptError> {
+        let loads = resolve_point_loads(scene)?;
+        if !loads.is_empty() {
+            scene.spec.set_part(PointLoads(loads));
+        }
+        Ok(())
+    }
+
+    fn describe(&self, spec: &SceneSpec) -> Option<String> {
+        let loads = &spec.part::<PointLoads>()?.0;
+        let mut total = vec![0.0; spec.dim()];
+        for load in loads {
+            for (sum, c) in total.iter_mut().zip(&load.force) {
+                *sum += c;
+            }
+        }
+        Some(format!(
+            "{} loaded points, total force {total:?} at load factor 1",
+            loads.len()
+        ))
+    }
+
     fn used_by(&self, spec: &SceneSpec) -> bool {
-        spec.point_loads
-            .iter()
-            .any(|load| load.force.iter().any(|&c| c != 0.0))
+        spec.part::<PointLoads>().is_some_and(|loads| {
+            loads
+                .0
+                .iter()
+                .any(|load| load.force.iter().any(|&c| c != 0.0))
+        })
     }
 
     fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
         let entities = simulation.point_entities();
-        for load in &simulation.spec().point_loads {
+        let loads = simulation.spec().part::<PointLoads>();
+        for load in loads.iter().flat_map(|loads| &loads.0) {
             let Some(&entity) = entities.get(load.point) else {
                 simulation.fail(format!(
                     "point load on point {} which does not exist",
@@ -97,4 +204,59 @@ fn point_load_field<const D: usize>(
             .iter()
             .map(|(id, load)| (id.0, pad(&(load.0 * step.factor)))),
     );
+}
+
+/// Point loads on the seeded points: each declaration's selector is called with the reference
+/// position of every point (body after body, seeding order, which is the global point index);
+/// several loads on one point add up.
+fn resolve_point_loads(scene: &Resolver) -> Result<Vec<PointLoadSpec>, ScriptError> {
+    let dim = scene.spec.dim();
+    let mut forces: BTreeMap<usize, Vec<f64>> = BTreeMap::new();
+    for declaration in scene.declarations::<PointLoadDeclaration>() {
+        let load = &declaration.value;
+        let function = load.function;
+        if load.force.len() != dim {
+            return Err(ScriptError::at(
+                declaration.at,
+                format!(
+                    "{function}(...): the force has {} components but the grid is {dim}-dimensional",
+                    load.force.len()
+                ),
+            ));
+        }
+        let context = format!(
+            "point selector of {function}(...){}",
+            declaration.line_note()
+        );
+        let mut selected = Vec::new();
+        let points = scene.spec.bodies.iter().flat_map(|body| &body.points);
+        for (index, point) in points.enumerate() {
+            if scene.call_predicate(&load.selector, &point.position, declaration.at, &context)? {
+                selected.push((index, point.volume));
+            }
+        }
+        if selected.is_empty() {
+            return Err(ScriptError::at(
+                declaration.at,
+                format!(
+                    "{function}(...): the predicate selects no material point (it is called with the reference position of every point; points sit inside their cells, not on cell faces)"
+                ),
+            ));
+        }
+        let total_volume: f64 = selected.iter().map(|(_, volume)| volume).sum();
+        for (index, volume) in selected {
+            let scale = match load.share {
+                Share::Each => 1.0,
+                Share::Total => volume / total_volume,
+            };
+            let force = forces.entry(index).or_insert_with(|| vec![0.0; dim]);
+            for (sum, component) in force.iter_mut().zip(&load.force) {
+                *sum += scale * component;
+            }
+        }
+    }
+    Ok(forces
+        .into_iter()
+        .map(|(point, force)| PointLoadSpec { point, force })
+        .collect())
 }

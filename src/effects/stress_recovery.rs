@@ -15,7 +15,12 @@ use crate::components::{PointId, Position, ReferencePosition, ReferenceVolume, T
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::recovery::{MlsSettings, mls_recover};
 use crate::resources::{Grid, LoadStep, RunStatus, SolverError, Stage, StageClock};
-use crate::scene::SceneSpec;
+use rhai::Dynamic;
+
+use crate::scene::{
+    CallSpec, FieldSpec, Kind, Located, OptionSpec, Range, Resolver, SceneApi, SceneSpec,
+    ScriptError, ensure_unset,
+};
 use crate::stages::output::{PointFields, row_major};
 
 /// Stress recovered from the neighbouring points' Cauchy stresses (3x3, as
@@ -32,6 +37,24 @@ pub struct StressRecovery {
     pub radius_in_cells: f64,
 }
 
+/// The scene's stress recovery (`stress_recovery(#{ .. })`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RecoverySpec {
+    /// Total degree of the fitted polynomial (0, 1, 2, ...).
+    pub order: usize,
+    /// Support radius as a multiple of the largest cell size.
+    pub radius_in_cells: f64,
+}
+
+impl Default for RecoverySpec {
+    fn default() -> Self {
+        Self {
+            order: 2,
+            radius_in_cells: 2.5,
+        }
+    }
+}
+
 /// The module.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct StressRecoveryModule;
@@ -41,13 +64,64 @@ impl Plugin for StressRecoveryModule {
         "stress recovery"
     }
 
+    fn scene_api(&self, api: &mut SceneApi) {
+        api.call(CallSpec::options(
+            "stress_recovery",
+            "moving-least-squares stress recovery after every step (optional): writes `recovered_stress` beside `cauchy_stress` and reports `error_recovered` with an analytic column; call once",
+            vec![
+                OptionSpec::new(
+                    "order",
+                    Kind::Whole {
+                        min: 0,
+                        max: Some(4),
+                    },
+                    "total degree of the fitted polynomial (default 2)",
+                ),
+                OptionSpec::new(
+                    "radius",
+                    Kind::Number(Range::Positive),
+                    "support radius in cell sizes (default 2.5)",
+                ),
+            ],
+            |builder, options, at| {
+                let previous = builder.declared::<RecoverySpec>().first().cloned();
+                ensure_unset(&previous, "stress_recovery")?;
+                let default = RecoverySpec::default();
+                builder.declare(Located::new(
+                    RecoverySpec {
+                        order: options.whole("order").unwrap_or(default.order),
+                        radius_in_cells: options.number("radius").unwrap_or(default.radius_in_cells),
+                    },
+                    at,
+                ));
+                Ok(Dynamic::UNIT)
+            },
+        ))
+        .field(FieldSpec {
+            name: "recovered_stress",
+            doc: "the MLS-recovered Cauchy stress (3x3, row-major); with stress_recovery(..)",
+        });
+    }
+
+    fn resolve(&self, scene: &mut Resolver) -> Result<(), ScriptError> {
+        if let Some(recovery) = scene.declarations::<RecoverySpec>().first().cloned() {
+            scene.spec.set_part(recovery.value);
+        }
+        Ok(())
+    }
+
+    fn describe(&self, spec: &SceneSpec) -> Option<String> {
+        spec.part::<RecoverySpec>()
+            .map(|r| format!("order {}, radius {} cell sizes", r.order, r.radius_in_cells))
+    }
+
     fn used_by(&self, spec: &SceneSpec) -> bool {
-        spec.recovery.is_some()
+        spec.part::<RecoverySpec>().is_some()
     }
 
     fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
         let spec = simulation.spec();
-        let settings = spec.recovery.unwrap_or_default();
+        let settings = spec.part::<RecoverySpec>().copied().unwrap_or_default();
         let analytic = spec.analytic.clone();
         let world = simulation.world();
         world.insert_resource(StressRecovery {

@@ -33,13 +33,18 @@
 use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 
+use rhai::Dynamic;
+
 use crate::basis::{BasisKind, BasisScratch, NodeWeight};
 use crate::components::{DeformationGradient, Position, ReferencePosition};
 use crate::mechanics::spread_over_active;
 use crate::output::{Field, PvdSeries, vertex_cells, write_vtu};
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{Grid, GridFields, LoadStep, RunStatus, SolverError, Stage, StageClock};
-use crate::scene::SceneSpec;
+use crate::scene::{
+    CallSpec, Kind, Located, MAX_SEED_CANDIDATES, OptionSpec, Options, Resolver, SceneApi,
+    SceneSpec, ScriptError, nearest_points, seed_boundary,
+};
 use crate::stages::output::{OutputPlan, pad};
 
 /// A traction point: a quadrature point of the surface term ∫_ΓN h N_i dΓ of paper eq. (9),
@@ -64,6 +69,34 @@ pub struct TractionPoint<const D: usize> {
     pub support: Vec<NodeWeight<D>>,
 }
 
+/// A quadrature point of a surface traction (paper eqs. 1 and 9: the Neumann term
+/// ∫_ΓN h N_i dΓ): a piece of boundary of reference area (length in 2D, 1 in 1D) `area` at
+/// `position`, carrying the traction `traction` (force per unit reference area at load factor
+/// 1). It adds λ h A N_i(x_s) to the external force and moves with the material: with the
+/// deformation of its host, the nearest material point (`host`, a global point index).
+#[derive(Clone, Debug, PartialEq)]
+pub struct TractionPointSpec {
+    pub position: Vec<f64>,
+    pub area: f64,
+    pub traction: Vec<f64>,
+    pub host: usize,
+}
+
+/// The traction points of every `traction(...)` of the scene.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Tractions(pub Vec<TractionPointSpec>);
+
+/// `traction(...)`: a traction on a flat piece of boundary given by its corners.
+#[derive(Clone, Debug)]
+struct TractionDeclaration {
+    corners: Vec<Vec<f64>>,
+    traction: Vec<f64>,
+    per_cell: usize,
+}
+
+/// Why tractions do not apply to linear FEM.
+const NOT_WITH_FEM: &str = "tractions are applied through the background grid's basis; basis \"fem\" has a body-fitted mesh instead (use point_load_total on the boundary points)";
+
 /// The `tractions.pvd` series.
 #[derive(Resource)]
 pub struct TractionSeries(pub PvdSeries);
@@ -77,10 +110,72 @@ impl Plugin for TractionsModule {
         "tractions"
     }
 
+    fn scene_api(&self, api: &mut SceneApi) {
+        api.call(CallSpec::options(
+            "traction",
+            "surface traction h (force per unit reference area at load factor 1, a dead load) on a flat piece of boundary that need not follow the grid; carried by traction points that move with the material",
+            vec![
+                OptionSpec::required(
+                    "on",
+                    Kind::Points,
+                    "the piece of boundary: 1D `[[x]]`, 2D a segment `[[x0, y0], [x1, y1]]`, 3D a parallelogram `[c0, c1, c2]` (edges c1 − c0, c2 − c0)",
+                ),
+                OptionSpec::required("traction", Kind::Numbers, "the traction h, one entry per axis"),
+                OptionSpec::new(
+                    "per_cell",
+                    Kind::Whole {
+                        min: 1,
+                        max: Some(1000),
+                    },
+                    "traction points per cell crossed (default 2)",
+                ),
+            ],
+            |builder, options: &Options, at| {
+                builder.declare(Located::new(
+                    TractionDeclaration {
+                        corners: options.points("on").unwrap_or_default().to_vec(),
+                        traction: options.numbers("traction").unwrap_or_default().to_vec(),
+                        per_cell: options.whole("per_cell").unwrap_or(2),
+                    },
+                    at,
+                ));
+                Ok(Dynamic::UNIT)
+            },
+        ));
+    }
+
+    fn resolve(&self, scene: &mut Resolver) -> Result<(), ScriptError> {
+        if let Some(first) = scene.declarations::<TractionDeclaration>().first()
+            && !self.applies_to(scene.spec)
+        {
+            return Err(ScriptError::at(
+                first.at,
+                format!("traction(...): {NOT_WITH_FEM}"),
+            ));
+        }
+        let points = resolve_tractions(scene)?;
+        if !points.is_empty() {
+            scene.spec.set_part(Tractions(points));
+        }
+        Ok(())
+    }
+
+    fn describe(&self, spec: &SceneSpec) -> Option<String> {
+        let points = &spec.part::<Tractions>()?.0;
+        let area: f64 = points.iter().map(|p| p.area).sum();
+        Some(format!(
+            "{} traction points on a boundary of reference area (length) {area}",
+            points.len()
+        ))
+    }
+
     fn used_by(&self, spec: &SceneSpec) -> bool {
-        spec.tractions
-            .iter()
-            .any(|point| point.traction.iter().any(|&c| c != 0.0))
+        spec.part::<Tractions>().is_some_and(|points| {
+            points
+                .0
+                .iter()
+                .any(|point| point.traction.iter().any(|&c| c != 0.0))
+        })
     }
 
     fn applies_to(&self, spec: &SceneSpec) -> bool {
@@ -89,9 +184,7 @@ impl Plugin for TractionsModule {
 
     fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
         if !self.applies_to(simulation.spec()) && self.used_by(simulation.spec()) {
-            simulation.fail(
-                "tractions act through the background grid's basis; a finite-element mesh (basis fem) has none",
-            );
+            simulation.fail(NOT_WITH_FEM);
             return;
         }
         if let Err(why) = spawn_traction_points(simulation) {
@@ -123,8 +216,9 @@ fn spawn_traction_points<const D: usize>(simulation: &mut Extension<'_, D>) -> R
     let entities = simulation.point_entities();
     let spec = simulation.spec();
     let world = simulation.world();
-    let mut batch = Vec::with_capacity(spec.tractions.len());
-    for (id, point) in spec.tractions.iter().enumerate() {
+    let points = spec.part::<Tractions>().map_or(&[][..], |t| &t.0);
+    let mut batch = Vec::with_capacity(points.len());
+    for (id, point) in points.iter().enumerate() {
         let position = vector(&point.position, "position")?;
         let host = *entities
             .get(point.host)
@@ -253,4 +347,104 @@ pub fn write_tractions<const D: usize>(
             why: format!("{name}: {e}"),
         });
     }
+}
+
+/// Traction points of every `traction(...)`: the corners must match the grid's dimension and
+/// lie in the grid (so every point does).
+fn resolve_tractions(scene: &Resolver) -> Result<Vec<TractionPointSpec>, ScriptError> {
+    let grid = &scene.spec.grid;
+    let dim = grid.dim();
+    let material_points: Vec<&[f64]> = scene
+        .spec
+        .bodies
+        .iter()
+        .flat_map(|body| &body.points)
+        .map(|point| point.position.as_slice())
+        .collect();
+    let mut points = Vec::new();
+    for declaration in scene.declarations::<TractionDeclaration>() {
+        let traction = &declaration.value;
+        let fail = |message: String| {
+            Err(ScriptError::at(
+                declaration.at,
+                format!("traction(...): {message}"),
+            ))
+        };
+        let shape = [
+            "the end point of the bar",
+            "the two ends of a segment",
+            "three corners of a parallelogram (corner, corner + edge 1, corner + edge 2)",
+        ];
+        if traction.corners.len() != dim {
+            return fail(format!(
+                "option 'on' has {} points but the grid is {dim}-dimensional: give {dim}, {}",
+                traction.corners.len(),
+                shape[dim - 1]
+            ));
+        }
+        if let Some(corner) = traction.corners.iter().find(|corner| corner.len() != dim) {
+            return fail(format!(
+                "the point {corner:?} of option 'on' has {} coordinates, the grid is {dim}-dimensional",
+                corner.len()
+            ));
+        }
+        if traction.traction.len() != dim {
+            return fail(format!(
+                "option 'traction' has {} components but the grid is {dim}-dimensional",
+                traction.traction.len()
+            ));
+        }
+        let (lower, upper) = (&grid.lower, &grid.upper);
+        if let Some(corner) = traction.corners.iter().find(|corner| {
+            (0..dim).any(|axis| corner[axis] < lower[axis] || corner[axis] > upper[axis])
+        }) {
+            return fail(format!(
+                "the point {corner:?} is outside the grid [{lower:?} .. {upper:?}]"
+            ));
+        }
+        if dim == 3 {
+            // the fourth corner (corner 1 + corner 2 − corner 0) must be in the grid too
+            let c = &traction.corners;
+            let fourth: Vec<f64> = (0..3).map(|a| c[1][a] + c[2][a] - c[0][a]).collect();
+            if (0..dim).any(|axis| fourth[axis] < lower[axis] || fourth[axis] > upper[axis]) {
+                return fail(format!(
+                    "the parallelogram's fourth corner {fourth:?} is outside the grid [{lower:?} .. {upper:?}]"
+                ));
+            }
+        }
+        let seeded = match seed_boundary(
+            grid,
+            &traction.corners,
+            traction.per_cell,
+            MAX_SEED_CANDIDATES,
+        ) {
+            Ok(seeded) => seeded,
+            Err(count) => {
+                return fail(format!(
+                    "{count} traction points exceed the limit of {MAX_SEED_CANDIDATES}; lower per_cell"
+                ));
+            }
+        };
+        if seeded.iter().all(|(_, area)| *area == 0.0) {
+            return fail(
+                "the boundary piece has zero length or area (repeated or collinear points)"
+                    .to_string(),
+            );
+        }
+        let positions: Vec<Vec<f64>> = seeded
+            .iter()
+            .map(|(position, _)| position.clone())
+            .collect();
+        let hosts = nearest_points(grid, &material_points, &positions);
+        for ((position, area), host) in seeded.into_iter().zip(hosts) {
+            points.push(TractionPointSpec {
+                position,
+                area,
+                traction: traction.traction.clone(),
+                // bodies are resolved first and have points
+                host: host.unwrap_or_default(),
+            });
+        }
+    }
+    Ok(points)
 }

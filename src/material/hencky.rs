@@ -52,7 +52,7 @@
 
 use nalgebra::{Matrix3, SMatrix, SymmetricEigen, Vector3};
 
-use super::{Material, MaterialParameters, Response};
+use super::{Material, MaterialParameters, ParameterKind, ParameterSpec, Range, Response};
 
 /// Spatial tangent `c[a][b][k][d] = 2 d tau_ab / d b_kd` for indices below the dimension `D`.
 pub type Tangent<const D: usize> = [[[[f64; D]; D]; D]; D];
@@ -133,6 +133,29 @@ fn log_divided_difference(x: f64, y: f64) -> f64 {
 impl Material for Hencky {
     type History = ();
     const MODEL: &'static str = "hencky";
+
+    fn parameters() -> Vec<ParameterSpec> {
+        vec![
+            ParameterSpec {
+                name: "E",
+                meaning: "Young's modulus",
+                label: Some("Young's modulus E"),
+                kind: ParameterKind::Number(Range::Positive),
+                required: true,
+            },
+            ParameterSpec {
+                name: "nu",
+                meaning: "Poisson's ratio",
+                label: Some("Poisson's ratio nu"),
+                kind: ParameterKind::Number(Range::Open(-1.0, 0.5)),
+                required: true,
+            },
+        ]
+    }
+
+    fn describe() -> &'static str {
+        "Hencky elasticity: Kirchhoff stress linear in the logarithmic strain (the paper's model)"
+    }
 
     /// Parameters `E` (Young's modulus) and `nu` (Poisson's ratio).
     fn from_parameters(parameters: &MaterialParameters) -> Result<Self, String> {

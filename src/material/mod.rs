@@ -37,6 +37,8 @@ use std::fmt::Debug;
 
 use nalgebra::{Matrix3, SMatrix};
 
+pub use crate::parameter::{ParameterKind, ParameterSpec, Range};
+
 /// What a model returns for a trial deformation.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Response<const D: usize, H> {
@@ -62,8 +64,15 @@ pub trait Material: Clone + Debug + PartialEq + Send + Sync + 'static {
     /// Whether the model carries history (points then get a history component).
     const HAS_HISTORY: bool = std::mem::size_of::<Self::History>() > 0;
 
-    /// Builds the model from its scene parameters, checking them (ranges, combinations).
+    /// The model's parameters (names, meanings, ranges): the scene reads and documents
+    /// `material(#{ model: .., .. })` by them.
+    fn parameters() -> Vec<ParameterSpec>;
+
+    /// Builds the model from its parameters, checking them (ranges, combinations).
     fn from_parameters(parameters: &MaterialParameters) -> Result<Self, String>;
+
+    /// One line on what the model is (the reference of material models).
+    fn describe() -> &'static str;
 
     /// The point fields the model adds to the output: `(name, components)`, e.g.
     /// `("plastic_strain", 1)`. None by default.

@@ -1,38 +1,34 @@
 //! The scene under construction: what the script's API calls declared (each with the position
-//! of its call), and `resolve`, which turns the declarations into a `SceneSpec` once the whole
-//! script has run: it checks what needs the grid (dimensions, component indices), evaluates
-//! region and node predicates, seeds points and selects constrained nodes.
+//! of its call), and its resolution into a `SceneSpec` once the whole script has run: the core
+//! parts here (grid, materials, bodies, load schedule, solver, output, analytic solution), then
+//! every module's part through a [`Resolver`] (its declarations, predicate calls, the grid and
+//! the bodies resolved so far).
 //!
 //! Resolving after the script lets declarations come in any order (`body` before `grid` is
 //! fine); every error still points at the call that declared the offending item.
 
+use std::any::{Any, TypeId};
 use std::collections::BTreeMap;
+use std::sync::Arc;
 
 use rhai::{AST, Dynamic, Engine, FnPtr, Position};
 
 use super::error::ScriptError;
-use super::fem_seeding::{PartialCell, seed_element_points};
 use super::geometry::point_in_polygon;
-use super::options::{describe, number};
-use super::seeding::{
-    Placement, first_point_outside_grid, nearest_points, seed_boundary, seed_box,
-    seed_points_placed,
-};
-use super::{
-    AnalyticSpec, BodySpec, GridSpec, MaterialSpec, NodeConstraint, OutputSpec, PointLoadSpec,
-    PointSeed, RecoverySpec, SceneSpec, SolverSpec, TractionPointSpec,
-};
-use crate::basis::{BasisKind, control_points_1d};
+use super::options::{Options, describe, number};
+use super::seeding::{Placement, first_point_outside_grid, seed_box, seed_points_placed};
+use super::words::{Seeder, Words};
+use super::{AnalyticSpec, BodySpec, GridSpec, MaterialSpec, OutputSpec, SceneSpec, SolverSpec};
 use crate::material::{Hencky, Material};
 
 /// Largest number of grid nodes accepted (node predicates are called once per node).
-pub(crate) const MAX_NODES: usize = 100_000_000;
+pub const MAX_NODES: usize = 100_000_000;
 /// Largest number of seeding candidates (grid cells times points per cell) accepted per body.
-pub(crate) const MAX_SEED_CANDIDATES: usize = 100_000_000;
+pub const MAX_SEED_CANDIDATES: usize = 100_000_000;
 
 /// A declaration and the position of the API call that made it.
 #[derive(Clone, Debug)]
-pub(crate) struct Located<T> {
+pub struct Located<T> {
     pub value: T,
     pub at: Position,
 }
@@ -53,7 +49,7 @@ impl<T> Located<T> {
 
 /// A handle on a material, returned to the script by `material(...)`.
 #[derive(Clone, Debug, PartialEq)]
-pub(crate) struct MaterialHandle {
+pub struct MaterialHandle {
     pub index: usize,
     pub name: String,
 }
@@ -61,7 +57,7 @@ pub(crate) struct MaterialHandle {
 /// Where a body is: returned to the script by `box(...)` or `polygon(...)`, or a script
 /// predicate on positions.
 #[derive(Clone, Debug)]
-pub(crate) enum Region {
+pub enum Region {
     /// Axis-aligned box, bounds included.
     Box { lower: Vec<f64>, upper: Vec<f64> },
     /// A 2D polygon (even-odd rule, see `geometry::point_in_polygon`).
@@ -113,13 +109,13 @@ impl Region {
 
 /// Points per cell: the same along every axis, or one count per axis.
 #[derive(Clone, Debug, PartialEq)]
-pub(crate) enum PointsPerCell {
+pub enum PointsPerCell {
     Uniform(usize),
     PerAxis(Vec<usize>),
 }
 
 #[derive(Clone, Debug)]
-pub(crate) struct BodyDeclaration {
+pub struct BodyDeclaration {
     pub name: String,
     pub material: usize,
     pub region: Region,
@@ -127,80 +123,83 @@ pub(crate) struct BodyDeclaration {
     pub placement: Placement,
 }
 
-/// `fix` (values all zero) or `displace`: components of every node the selector accepts.
-#[derive(Clone, Debug)]
-pub(crate) struct ConstraintDeclaration {
-    /// The API function that declared it, for messages.
-    pub function: &'static str,
-    pub selector: FnPtr,
-    /// The constrained components; empty = all of them (full fixity, `fix(|x| ..)`).
-    pub components: Vec<usize>,
-    /// One prescribed displacement (at load factor 1) per component.
-    pub values: Vec<f64>,
-}
-
-/// How a point load's force is given to the points its selector picks.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) enum PointLoadShare {
-    /// Every selected point carries the whole force (`point_load`).
-    Each,
-    /// The force is the total, shared in proportion to reference volume (`point_load_total`).
-    Total,
-}
-
-/// `point_load` / `point_load_total`: a force on the material points whose reference position
-/// the selector accepts.
-#[derive(Clone, Debug)]
-pub(crate) struct PointLoadDeclaration {
-    pub function: &'static str,
-    pub selector: FnPtr,
-    pub force: Vec<f64>,
-    pub share: PointLoadShare,
-}
-
 /// The load factors of the steps: given (`load_steps`, `load_factors([..])`, `load_phases`) or
 /// computed by a script function of the step number (`load_factors(n, |k| ..)`).
 #[derive(Clone, Debug)]
-pub(crate) enum LoadSchedule {
+pub enum LoadSchedule {
     Factors(Vec<f64>),
     Function { steps: usize, function: FnPtr },
 }
 
-/// `traction(...)`: a traction on a flat piece of boundary given by its corners.
 #[derive(Clone, Debug)]
-pub(crate) struct TractionDeclaration {
-    pub corners: Vec<Vec<f64>>,
-    pub traction: Vec<f64>,
-    pub per_cell: usize,
-}
-
-#[derive(Clone, Debug)]
-pub(crate) struct ColumnDeclaration {
+pub struct ColumnDeclaration {
     pub axis: usize,
     pub height: f64,
     pub material: usize,
     pub body_force: f64,
 }
 
+/// `grid(...)`: the grid and, for a basis with a body-fitted mesh, how bodies are seeded.
+#[derive(Clone)]
+pub struct GridDeclaration {
+    pub spec: GridSpec,
+    pub seeder: Option<Seeder>,
+}
+
 /// Everything the script declared so far.
-#[derive(Debug, Default)]
-pub(crate) struct SceneBuilder {
-    pub grid: Option<Located<GridSpec>>,
+pub struct SceneBuilder {
+    /// The basis words, material models and point fields calls read.
+    pub words: Arc<Words>,
+    pub grid: Option<Located<GridDeclaration>>,
     pub materials: Vec<Located<MaterialSpec>>,
     pub bodies: Vec<Located<BodyDeclaration>>,
-    pub body_force: Option<Located<Vec<f64>>>,
-    pub constraints: Vec<Located<ConstraintDeclaration>>,
-    pub point_loads: Vec<Located<PointLoadDeclaration>>,
-    pub tractions: Vec<Located<TractionDeclaration>>,
     pub load_schedule: Option<Located<LoadSchedule>>,
     pub solver: Option<Located<SolverSpec>>,
     pub output: Option<Located<OutputSpec>>,
     pub analytic: Option<Located<ColumnDeclaration>>,
-    pub recovery: Option<Located<RecoverySpec>>,
+    /// The options of every map call, in call order (modules read the options they added).
+    pub call_options: Vec<(&'static str, Located<Options>)>,
+    /// The modules' declarations, by type.
+    store: BTreeMap<TypeId, Box<dyn Any + Send + Sync>>,
+}
+
+impl SceneBuilder {
+    pub fn new(words: Arc<Words>) -> Self {
+        Self {
+            words,
+            grid: None,
+            materials: Vec::new(),
+            bodies: Vec::new(),
+            load_schedule: None,
+            solver: None,
+            output: None,
+            analytic: None,
+            call_options: Vec::new(),
+            store: BTreeMap::new(),
+        }
+    }
+
+    /// Keeps a module's declaration (see [`Resolver::declarations`]).
+    pub fn declare<T: Send + Sync + 'static>(&mut self, declaration: Located<T>) {
+        self.store
+            .entry(TypeId::of::<T>())
+            .or_insert_with(|| Box::new(Vec::<Located<T>>::new()))
+            .downcast_mut::<Vec<Located<T>>>()
+            .expect("the store is keyed by type")
+            .push(declaration);
+    }
+
+    /// The declarations of type `T` so far.
+    pub fn declared<T: Send + Sync + 'static>(&self) -> &[Located<T>] {
+        self.store
+            .get(&TypeId::of::<T>())
+            .and_then(|list| list.downcast_ref::<Vec<Located<T>>>())
+            .map_or(&[], Vec::as_slice)
+    }
 }
 
 /// Error unless `slot` is still empty ("grid(...) was already called at line 3").
-pub(crate) fn ensure_unset<T>(slot: &Option<Located<T>>, function: &str) -> Result<(), String> {
+pub fn ensure_unset<T>(slot: &Option<Located<T>>, function: &str) -> Result<(), String> {
     match slot {
         Some(previous) => Err(format!(
             "{function}(...) was already called{}; call it once",
@@ -210,33 +209,99 @@ pub(crate) fn ensure_unset<T>(slot: &Option<Located<T>>, function: &str) -> Resu
     }
 }
 
+/// What a module sees when it resolves its part of the scene.
+pub struct Resolver<'a> {
+    /// The scene resolved so far (grid, materials, bodies, load factors, core options, and the
+    /// parts of the modules resolved before).
+    pub spec: &'a mut SceneSpec,
+    builder: &'a SceneBuilder,
+    engine: &'a Engine,
+    ast: &'a AST,
+    grid_at: Position,
+}
+
+impl Resolver<'_> {
+    /// The module's declarations of type `T`, in call order.
+    pub fn declarations<T: Send + Sync + 'static>(&self) -> &[Located<T>] {
+        self.builder.declared::<T>()
+    }
+
+    /// The options of the last call of `name` (e.g. `solver`), if it was called.
+    pub fn call_options(&self, name: &str) -> Option<&Located<Options>> {
+        self.builder
+            .call_options
+            .iter()
+            .rev()
+            .find(|(call, _)| *call == name)
+            .map(|(_, options)| options)
+    }
+
+    /// "the grid is 2-dimensional (declared at line 3)".
+    pub fn grid_note(&self) -> String {
+        let line = self
+            .grid_at
+            .line()
+            .map(|line| format!(" at line {line}"))
+            .unwrap_or_default();
+        format!(
+            "the grid is {}-dimensional (declared{line})",
+            self.spec.dim()
+        )
+    }
+
+    /// Calls a script predicate on a position (`context` names it in messages).
+    pub fn call_predicate(
+        &self,
+        predicate: &FnPtr,
+        position: &[f64],
+        declared_at: Position,
+        context: &str,
+    ) -> Result<bool, ScriptError> {
+        call_predicate(
+            predicate,
+            position,
+            self.engine,
+            self.ast,
+            declared_at,
+            context,
+        )
+    }
+
+    /// Every grid node's position, in node order, or an error at the grid's declaration when
+    /// the grid has too many nodes to select from.
+    pub fn node_positions(&self) -> Result<Vec<Vec<f64>>, ScriptError> {
+        let grid = &self.spec.grid;
+        if grid.node_count(MAX_NODES).is_none() {
+            return Err(ScriptError::at(
+                self.grid_at,
+                format!("grid(...): the grid has more than {MAX_NODES} nodes"),
+            ));
+        }
+        grid.node_positions()
+            .map_err(|why| ScriptError::at(self.grid_at, format!("grid(...): {why}")))
+    }
+}
+
 impl SceneBuilder {
     /// The finished scene. `engine` and `ast` are the ones that ran the script (predicates are
-    /// script closures).
-    pub fn resolve(self, name: &str, engine: &Engine, ast: &AST) -> Result<SceneSpec, ScriptError> {
-        let grid = self.grid.ok_or_else(|| {
+    /// script closures); `modules` resolve their parts after the core.
+    pub fn resolve(
+        self,
+        name: &str,
+        engine: &Engine,
+        ast: &AST,
+        modules: &[&dyn super::SceneModule],
+    ) -> Result<SceneSpec, ScriptError> {
+        let grid = self.grid.clone().ok_or_else(|| {
             ScriptError::unlocated(
                 "the scene has no grid: call grid(#{ lower: [..], upper: [..], cells: [..], basis: \"bspline\", order: 2 }) once",
             )
         })?;
-        let dim = grid.value.dim();
+        let dim = grid.value.spec.dim();
         let grid_note = format!(
             "the grid is {dim}-dimensional (declared{})",
             grid.line_note()
         );
-
-        if let Some(body_force) = &self.body_force
-            && body_force.value.len() != dim
-        {
-            return Err(ScriptError::at(
-                body_force.at,
-                format!(
-                    "body_force(...) has {} components but {grid_note}",
-                    body_force.value.len()
-                ),
-            ));
-        }
-
         if self.bodies.is_empty() {
             return Err(ScriptError::unlocated(
                 "the scene has no body: declare at least one with body(#{ name: .., material: .., region: .., ppc: .. })",
@@ -247,133 +312,83 @@ impl SceneBuilder {
             .iter()
             .map(|body| resolve_body(body, &grid, engine, ast))
             .collect::<Result<Vec<_>, _>>()?;
-
-        let constraints = resolve_constraints(&self.constraints, &grid, engine, ast)?;
-        let point_loads = resolve_point_loads(&self.point_loads, &bodies, dim, engine, ast)?;
-        if let Some(solver) = &self.solver
-            && solver.value.ghost_penalty > 0.0
-            && grid.value.basis == BasisKind::Fem
-        {
-            return Err(ScriptError::at(
-                solver.at,
-                "solver(...): ghost_penalty stabilises nearly empty MPM cells; basis \"fem\" has a body-fitted mesh without such cells (remove ghost_penalty)",
-            ));
-        }
-        if let Some(traction) = self.tractions.first()
-            && grid.value.basis == BasisKind::Fem
-        {
-            return Err(ScriptError::at(
-                traction.at,
-                "traction(...): tractions are applied through the background grid's basis; basis \"fem\" has a body-fitted mesh instead (use point_load_total on the boundary points)",
-            ));
-        }
-        let tractions = resolve_tractions(&self.tractions, &grid, &bodies)?;
-
-        let load_schedule = self.load_schedule.ok_or_else(|| {
+        let load_schedule = self.load_schedule.as_ref().ok_or_else(|| {
             ScriptError::unlocated(
                 "the scene has no load steps: call load_steps(n), load_factors([..]), load_factors(n, |k| ..) or load_phases([..])",
             )
         })?;
-        let load_factors = resolve_load_schedule(&load_schedule, engine, ast)?;
-
+        let load_factors = resolve_load_schedule(load_schedule, engine, ast)?;
         let analytic = match &self.analytic {
             None => None,
-            Some(column) => {
-                if column.value.axis >= dim {
-                    return Err(ScriptError::at(
-                        column.at,
-                        format!(
-                            "analytic_column(...): axis {} does not exist, {grid_note} (axes 0..{})",
-                            column.value.axis,
-                            dim - 1
-                        ),
-                    ));
-                }
-                let material = &self.materials[column.value.material].value;
-                Some(AnalyticSpec::Column {
-                    axis: column.value.axis,
-                    height: column.value.height,
-                    density: material.density,
-                    body_force: column.value.body_force,
-                    modulus: Hencky::from_parameters(&material.parameters)
-                        .map_err(|why| {
-                            ScriptError::at(
-                                column.at,
-                                format!(
-                                    "analytic_column(...): the column solution is for Hencky materials; material '{}': {why}",
-                                    material.name
-                                ),
-                            )
-                        })?
-                        .constrained_modulus(),
-                })
-            }
+            Some(column) => Some(resolve_column(column, &self.materials, dim, &grid_note)?),
         };
-
-        Ok(SceneSpec {
+        let mut spec = SceneSpec {
             name: name.to_string(),
-            grid: grid.value,
-            materials: self
-                .materials
-                .into_iter()
-                .map(|material| material.value)
-                .collect(),
+            grid: grid.value.spec.clone(),
+            materials: self.materials.iter().map(|m| m.value.clone()).collect(),
             bodies,
-            body_force: self.body_force.map(|body_force| body_force.value),
-            constraints,
-            point_loads,
-            tractions,
             load_factors,
-            solver: self.solver.map(|solver| solver.value).unwrap_or_default(),
-            output: self.output.map(|output| output.value).unwrap_or_default(),
+            solver: self
+                .solver
+                .as_ref()
+                .map(|solver| solver.value.clone())
+                .unwrap_or_default(),
+            output: self
+                .output
+                .as_ref()
+                .map(|output| output.value.clone())
+                .unwrap_or_default(),
             analytic,
-            recovery: self.recovery.map(|recovery| recovery.value),
-        })
+            parts: Default::default(),
+        };
+        let mut resolver = Resolver {
+            spec: &mut spec,
+            builder: &self,
+            engine,
+            ast,
+            grid_at: grid.at,
+        };
+        for module in modules {
+            module.resolve(&mut resolver)?;
+        }
+        Ok(spec)
     }
 }
 
-/// Grid node (control point) positions, global index with axis 0 fastest. The end nodes of
-/// every axis are set exactly to the grid bounds, so predicates like `x[0] == 0.0` or
-/// `x[1] == height` are reliable there.
-pub(crate) fn node_positions(grid: &GridSpec) -> Vec<Vec<f64>> {
-    let order = grid.basis.order();
-    let axes: Vec<Vec<f64>> = (0..grid.dim())
-        .map(|axis| {
-            let (lower, upper) = (grid.lower[axis], grid.upper[axis]);
-            let mut points = control_points_1d(lower, upper, grid.cells[axis], order);
-            if let Some(first) = points.first_mut() {
-                *first = lower;
-            }
-            if let Some(last) = points.last_mut() {
-                *last = upper;
-            }
-            points
-        })
-        .collect();
-    let count: usize = axes.iter().map(Vec::len).product();
-    (0..count)
-        .map(|node| {
-            let mut rest = node;
-            axes.iter()
-                .map(|points| {
-                    let coordinate = points[rest % points.len()];
-                    rest /= points.len();
-                    coordinate
-                })
-                .collect()
-        })
-        .collect()
-}
-
-/// Number of nodes of the grid, if it is at most `MAX_NODES`.
-pub(crate) fn checked_node_count(grid: &GridSpec) -> Option<usize> {
-    let order = grid.basis.order();
-    grid.cells
-        .iter()
-        .try_fold(1usize, |count, &cells| {
-            count.checked_mul(cells.checked_add(order)?)
-        })
-        .filter(|&count| count <= MAX_NODES)
+/// The self-weight column of `analytic_column(...)`, for a Hencky material.
+fn resolve_column(
+    column: &Located<ColumnDeclaration>,
+    materials: &[Located<MaterialSpec>],
+    dim: usize,
+    grid_note: &str,
+) -> Result<AnalyticSpec, ScriptError> {
+    if column.value.axis >= dim {
+        return Err(ScriptError::at(
+            column.at,
+            format!(
+                "analytic_column(...): axis {} does not exist, {grid_note} (axes 0..{})",
+                column.value.axis,
+                dim - 1
+            ),
+        ));
+    }
+    let material = &materials[column.value.material].value;
+    let hencky = Hencky::from_parameters(&material.parameters).map_err(|why| {
+        ScriptError::at(
+            column.at,
+            format!(
+                "analytic_column(...): the column solution is for Hencky materials; material '{}': {why}",
+                material.name
+            ),
+        )
+    })?;
+    Ok(AnalyticSpec::Column {
+        axis: column.value.axis,
+        height: column.value.height,
+        density: material.density,
+        body_force: column.value.body_force,
+        modulus: hencky.constrained_modulus(),
+    })
 }
 
 /// The load factors of a schedule; a function is called for k = 1..=steps and must return a
@@ -412,7 +427,7 @@ fn resolve_load_schedule(
 }
 
 /// Calls a script predicate on a position; it must return a boolean.
-fn call_predicate(
+pub fn call_predicate(
     predicate: &FnPtr,
     position: &[f64],
     engine: &Engine,
@@ -443,11 +458,13 @@ fn call_predicate(
 
 fn resolve_body(
     body: &Located<BodyDeclaration>,
-    grid: &Located<GridSpec>,
+    grid: &Located<GridDeclaration>,
     engine: &Engine,
     ast: &AST,
 ) -> Result<BodySpec, ScriptError> {
     let declaration = &body.value;
+    let seeder = grid.value.seeder;
+    let grid = Located::new(grid.value.spec.clone(), grid.at);
     let dim = grid.value.dim();
     let fail = |message: String| {
         Err(ScriptError::at(
@@ -502,12 +519,24 @@ fn resolve_body(
             }
             match shape {
                 Region::Polygon(_) => {
-                    let inside = |x: &[f64]| Ok::<_, ScriptError>(shape.contains(x));
-                    seed_body(&grid.value, &points_per_cell, declaration.placement, inside)?
+                    let mut inside = |x: &[f64]| Ok::<_, ScriptError>(shape.contains(x));
+                    seed_body(
+                        &grid.value,
+                        seeder,
+                        &points_per_cell,
+                        declaration.placement,
+                        &mut inside,
+                    )?
                 }
-                _ if grid.value.basis == BasisKind::Fem => {
-                    let inside = |x: &[f64]| Ok::<_, ScriptError>(shape.contains(x));
-                    seed_element_points(&grid.value, &points_per_cell, inside)?
+                _ if seeder.is_some() => {
+                    let mut inside = |x: &[f64]| Ok::<_, ScriptError>(shape.contains(x));
+                    seed_body(
+                        &grid.value,
+                        seeder,
+                        &points_per_cell,
+                        declaration.placement,
+                        &mut inside,
+                    )?
                 }
                 _ => Ok(seed_box(
                     &grid.value,
@@ -524,19 +553,27 @@ fn resolve_body(
                 declaration.name,
                 body.line_note()
             );
-            let inside = |x: &[f64]| call_predicate(predicate, x, engine, ast, body.at, &context);
-            if let Some(position) = first_point_outside_grid(&grid.value, &points_per_cell, inside)?
+            let mut inside =
+                |x: &[f64]| call_predicate(predicate, x, engine, ast, body.at, &context);
+            if let Some(position) =
+                first_point_outside_grid(&grid.value, &points_per_cell, &mut inside)?
             {
                 return fail(format!(
                     "the region contains x = {position:?}, outside the grid {grid_bounds}; material points must lie in the grid (bound the region)"
                 ));
             }
-            seed_body(&grid.value, &points_per_cell, declaration.placement, inside)?
+            seed_body(
+                &grid.value,
+                seeder,
+                &points_per_cell,
+                declaration.placement,
+                &mut inside,
+            )?
         }
     };
     let points = match points {
         Ok(points) => points,
-        Err(partial) => return fail(partial.message()),
+        Err(why) => return fail(why),
     };
     if points.is_empty() {
         return fail(format!(
@@ -551,305 +588,17 @@ fn resolve_body(
     })
 }
 
-/// The body's points: the seeding lattice for MPM, the integration points of the covered cells
-/// for FEM (`Err` for a cell the region covers only partly).
+/// The body's points: the seeding lattice, or the basis's own seeding (the integration points
+/// of a body-fitted mesh: `Err` with the reason when the region does not fit it).
 fn seed_body(
     grid: &GridSpec,
+    seeder: Option<Seeder>,
     points_per_cell: &[usize],
     placement: Placement,
-    inside: impl FnMut(&[f64]) -> Result<bool, ScriptError>,
-) -> Result<Result<Vec<PointSeed>, PartialCell>, ScriptError> {
-    if grid.basis == BasisKind::Fem {
-        seed_element_points(grid, points_per_cell, inside)
-    } else {
-        seed_points_placed(grid, points_per_cell, placement, inside).map(Ok)
-    }
-}
-
-fn resolve_constraints(
-    declarations: &[Located<ConstraintDeclaration>],
-    grid: &Located<GridSpec>,
-    engine: &Engine,
-    ast: &AST,
-) -> Result<Vec<NodeConstraint>, ScriptError> {
-    if declarations.is_empty() {
-        return Ok(Vec::new());
-    }
-    let dim = grid.value.dim();
-    if checked_node_count(&grid.value).is_none() {
-        return Err(ScriptError::at(
-            grid.at,
-            format!("grid(...): the grid has more than {MAX_NODES} nodes"),
-        ));
-    }
-    let nodes = node_positions(&grid.value);
-    // (node, component) -> (value, line of the declaring call)
-    let mut prescribed: BTreeMap<(usize, usize), (f64, Position)> = BTreeMap::new();
-    for declaration in declarations {
-        let mut constraint = declaration.value.clone();
-        if constraint.components.is_empty() {
-            constraint.components = (0..dim).collect();
-            constraint.values = vec![0.0; dim];
-        }
-        let function = constraint.function;
-        if let Some(&component) = constraint.components.iter().find(|&&c| c >= dim) {
-            return Err(ScriptError::at(
-                declaration.at,
-                format!(
-                    "{function}(...): component {component} does not exist, the grid is {dim}-dimensional (components 0..{})",
-                    dim - 1
-                ),
-            ));
-        }
-        let context = format!(
-            "node predicate of {function}(...){}",
-            declaration.line_note()
-        );
-        let mut selected = 0usize;
-        for (node, position) in nodes.iter().enumerate() {
-            if !call_predicate(
-                &constraint.selector,
-                position,
-                engine,
-                ast,
-                declaration.at,
-                &context,
-            )? {
-                continue;
-            }
-            selected += 1;
-            for (&component, &value) in constraint.components.iter().zip(&constraint.values) {
-                if let Some(&(previous, previous_at)) = prescribed.get(&(node, component))
-                    && previous != value
-                {
-                    let previous_line = previous_at
-                        .line()
-                        .map(|line| format!(" at line {line}"))
-                        .unwrap_or_default();
-                    return Err(ScriptError::at(
-                        declaration.at,
-                        format!(
-                            "{function}(...): component {component} of the node at {position:?} is already prescribed to {previous}{previous_line}, not {value}"
-                        ),
-                    ));
-                }
-                prescribed.insert((node, component), (value, declaration.at));
-            }
-        }
-        if selected == 0 {
-            let ranges: Vec<String> = (0..dim)
-                .map(|axis| {
-                    format!(
-                        "x[{axis}] in [{}, {}]",
-                        grid.value.lower[axis], grid.value.upper[axis]
-                    )
-                })
-                .collect();
-            return Err(ScriptError::at(
-                declaration.at,
-                format!(
-                    "{function}(...): the predicate selects no grid node (nodes have {}; compare with a tolerance if needed)",
-                    ranges.join(", ")
-                ),
-            ));
-        }
-    }
-    Ok(prescribed
-        .into_iter()
-        .map(|((node, component), (value, _))| NodeConstraint {
-            node,
-            component,
-            value,
-        })
-        .collect())
-}
-
-/// Point loads on the seeded points: each declaration's selector is called with the reference
-/// position of every point (body after body, seeding order, which is the global point index);
-/// several loads on one point add up.
-fn resolve_point_loads(
-    declarations: &[Located<PointLoadDeclaration>],
-    bodies: &[BodySpec],
-    dim: usize,
-    engine: &Engine,
-    ast: &AST,
-) -> Result<Vec<PointLoadSpec>, ScriptError> {
-    let mut forces: BTreeMap<usize, Vec<f64>> = BTreeMap::new();
-    for declaration in declarations {
-        let load = &declaration.value;
-        let function = load.function;
-        if load.force.len() != dim {
-            return Err(ScriptError::at(
-                declaration.at,
-                format!(
-                    "{function}(...): the force has {} components but the grid is {dim}-dimensional",
-                    load.force.len()
-                ),
-            ));
-        }
-        let context = format!(
-            "point selector of {function}(...){}",
-            declaration.line_note()
-        );
-        let mut selected = Vec::new();
-        let points = bodies.iter().flat_map(|body| &body.points).enumerate();
-        for (index, point) in points {
-            if call_predicate(
-                &load.selector,
-                &point.position,
-                engine,
-                ast,
-                declaration.at,
-                &context,
-            )? {
-                selected.push((index, point.volume));
-            }
-        }
-        if selected.is_empty() {
-            return Err(ScriptError::at(
-                declaration.at,
-                format!(
-                    "{function}(...): the predicate selects no material point (it is called with the reference position of every point; points sit inside their cells, not on cell faces)"
-                ),
-            ));
-        }
-        let total_volume: f64 = selected.iter().map(|(_, volume)| volume).sum();
-        for (index, volume) in selected {
-            let scale = match load.share {
-                PointLoadShare::Each => 1.0,
-                PointLoadShare::Total => volume / total_volume,
-            };
-            let force = forces.entry(index).or_insert_with(|| vec![0.0; dim]);
-            for (sum, component) in force.iter_mut().zip(&load.force) {
-                *sum += scale * component;
-            }
-        }
-    }
-    Ok(forces
-        .into_iter()
-        .map(|(point, force)| PointLoadSpec { point, force })
-        .collect())
-}
-
-/// Traction points of every `traction(...)`: the corners must match the grid's dimension and
-/// lie in the grid (so every point does).
-fn resolve_tractions(
-    declarations: &[Located<TractionDeclaration>],
-    grid: &Located<GridSpec>,
-    bodies: &[BodySpec],
-) -> Result<Vec<TractionPointSpec>, ScriptError> {
-    let dim = grid.value.dim();
-    let material_points: Vec<&[f64]> = bodies
-        .iter()
-        .flat_map(|body| &body.points)
-        .map(|point| point.position.as_slice())
-        .collect();
-    let mut points = Vec::new();
-    for declaration in declarations {
-        let traction = &declaration.value;
-        let fail = |message: String| {
-            Err(ScriptError::at(
-                declaration.at,
-                format!("traction(...): {message}"),
-            ))
-        };
-        let shape = [
-            "the end point of the bar",
-            "the two ends of a segment",
-            "three corners of a parallelogram (corner, corner + edge 1, corner + edge 2)",
-        ];
-        if traction.corners.len() != dim {
-            return fail(format!(
-                "option 'on' has {} points but the grid is {dim}-dimensional: give {dim}, {}",
-                traction.corners.len(),
-                shape[dim - 1]
-            ));
-        }
-        if let Some(corner) = traction.corners.iter().find(|corner| corner.len() != dim) {
-            return fail(format!(
-                "the point {corner:?} of option 'on' has {} coordinates, the grid is {dim}-dimensional",
-                corner.len()
-            ));
-        }
-        if traction.traction.len() != dim {
-            return fail(format!(
-                "option 'traction' has {} components but the grid is {dim}-dimensional",
-                traction.traction.len()
-            ));
-        }
-        let (lower, upper) = (&grid.value.lower, &grid.value.upper);
-        if let Some(corner) = traction.corners.iter().find(|corner| {
-            (0..dim).any(|axis| corner[axis] < lower[axis] || corner[axis] > upper[axis])
-        }) {
-            return fail(format!(
-                "the point {corner:?} is outside the grid [{lower:?} .. {upper:?}]"
-            ));
-        }
-        if dim == 3 {
-            // the fourth corner (corner 1 + corner 2 − corner 0) must be in the grid too
-            let c = &traction.corners;
-            let fourth: Vec<f64> = (0..3).map(|a| c[1][a] + c[2][a] - c[0][a]).collect();
-            if (0..dim).any(|axis| fourth[axis] < lower[axis] || fourth[axis] > upper[axis]) {
-                return fail(format!(
-                    "the parallelogram's fourth corner {fourth:?} is outside the grid [{lower:?} .. {upper:?}]"
-                ));
-            }
-        }
-        let seeded = match seed_boundary(
-            &grid.value,
-            &traction.corners,
-            traction.per_cell,
-            MAX_SEED_CANDIDATES,
-        ) {
-            Ok(seeded) => seeded,
-            Err(count) => {
-                return fail(format!(
-                    "{count} traction points exceed the limit of {MAX_SEED_CANDIDATES}; lower per_cell"
-                ));
-            }
-        };
-        if seeded.iter().all(|(_, area)| *area == 0.0) {
-            return fail(
-                "the boundary piece has zero length or area (repeated or collinear points)"
-                    .to_string(),
-            );
-        }
-        let positions: Vec<Vec<f64>> = seeded
-            .iter()
-            .map(|(position, _)| position.clone())
-            .collect();
-        let hosts = nearest_points(&grid.value, &material_points, &positions);
-        for ((position, area), host) in seeded.into_iter().zip(hosts) {
-            points.push(TractionPointSpec {
-                position,
-                area,
-                traction: traction.traction.clone(),
-                // bodies are resolved first and have points
-                host: host.unwrap_or_default(),
-            });
-        }
-    }
-    Ok(points)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn node_positions_axis_zero_fastest_with_exact_ends() {
-        let grid = GridSpec {
-            lower: vec![0.0, 0.0],
-            upper: vec![0.1, 1.0],
-            cells: vec![1, 3],
-            basis: BasisKind::BSpline { order: 3 },
-        };
-        let nodes = node_positions(&grid);
-        assert_eq!(nodes.len(), 4 * 6);
-        assert_eq!(nodes[0], [0.0, 0.0]);
-        assert_eq!(nodes[3], [0.1, 0.0]);
-        assert_eq!(nodes[4][1], nodes[5][1]);
-        assert_eq!(nodes[23], [0.1, 1.0]);
-        assert_eq!(checked_node_count(&grid), Some(24));
+    inside: &mut dyn FnMut(&[f64]) -> Result<bool, ScriptError>,
+) -> Result<Result<Vec<super::PointSeed>, String>, ScriptError> {
+    match seeder {
+        Some(seed) => seed(grid, points_per_cell, inside),
+        None => seed_points_placed(grid, points_per_cell, placement, inside).map(Ok),
     }
 }

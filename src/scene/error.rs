@@ -19,7 +19,7 @@ pub struct SceneError {
 
 impl SceneError {
     /// An error about the script as a whole (no position).
-    pub(crate) fn whole_file(file: &str, message: impl Into<String>) -> Self {
+    pub fn whole_file(file: &str, message: impl Into<String>) -> Self {
         Self {
             file: file.to_string(),
             line: None,
@@ -46,7 +46,7 @@ impl std::error::Error for SceneError {}
 
 /// An error at a position of the script, before the file name is attached.
 #[derive(Clone, Debug, PartialEq)]
-pub(crate) struct ScriptError {
+pub struct ScriptError {
     pub position: Position,
     pub message: String,
 }
@@ -79,6 +79,15 @@ impl ScriptError {
     /// wrapped (`ErrorInFunctionCall`) with the position of the *call*; this walks to the
     /// innermost error so the message points at the line that actually failed.
     pub fn from_eval(error: Box<EvalAltResult>) -> Self {
+        Self::from_eval_with(error, &|_| None)
+    }
+
+    /// [`ScriptError::from_eval`] that says how a scene call is called when it was called with
+    /// the wrong arguments (`expected(name)`: its signatures).
+    pub fn from_eval_with(
+        error: Box<EvalAltResult>,
+        expected: &dyn Fn(&str) -> Option<String>,
+    ) -> Self {
         let mut outer_position = Position::NONE;
         let mut called_functions = Vec::new();
         let mut error = error;
@@ -110,7 +119,7 @@ impl ScriptError {
         let mut message = match *innermost {
             EvalAltResult::ErrorRuntime(ref value, _) if value.is_string() => value.to_string(),
             EvalAltResult::ErrorFunctionNotFound(ref signature, _) => {
-                function_not_found_message(signature)
+                function_not_found_message(signature, expected)
             }
             ref other => other.to_string(),
         };
@@ -142,15 +151,13 @@ impl ScriptError {
 }
 
 /// "Function not found" with the expected call form when the name is one of the scene API's.
-fn function_not_found_message(signature: &str) -> String {
+fn function_not_found_message(
+    signature: &str,
+    expected: &dyn Fn(&str) -> Option<String>,
+) -> String {
     let name = signature.split([' ', '(']).next().unwrap_or_default();
-    match super::rhai_api::API_SIGNATURES
-        .iter()
-        .find(|(api_name, _)| *api_name == name)
-    {
-        Some((_, expected)) => {
-            format!("wrong arguments in call {signature}; expected {expected}")
-        }
+    match expected(name) {
+        Some(expected) => format!("wrong arguments in call {signature}; expected {expected}"),
         None => format!("function not found: {signature}"),
     }
 }

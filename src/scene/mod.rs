@@ -1,12 +1,12 @@
-//! Scenes: what a simulation is made of, as plain resolved data (`SceneSpec`), and the Rhai
-//! front end that builds one from a script (`rhai_api`).
+//! Scenes: what a simulation is made of, as plain resolved data ([`SceneSpec`]), and the Rhai
+//! front end that builds one from a script.
 //!
 //! A `SceneSpec` holds no script state: predicates on position have already been evaluated
 //! (points seeded, constrained nodes selected) and the load schedule is a list of factors, so
-//! the solver never calls back into Rhai.
-//!
-//! Entry points: [`load_scene`] (script + `--set` overrides -> `SceneSpec`), [`scene_parameters`]
-//! (the overridable top-level `let`s) and [`SceneError`] (`file:line:column: message`).
+//! the solver never calls back into Rhai. Its core parts (grid, materials, bodies, load
+//! factors, solver and output controls, analytic solution) are fields; what modules declare
+//! (point loads, tractions, constraints, ...) is in [`SceneSpec::parts`], each part a type
+//! the module owns.
 //!
 //! A scene script, e.g. `scripts/column_1d.rhai`:
 //!
@@ -21,47 +21,56 @@
 //! load_steps(20);
 //! ```
 //!
-//! Modules: `rhai_api` (the functions a script can call; their reference is in its docs),
-//! `params` (parameters and overrides), `builder` (declarations and their resolution),
-//! `seeding` (material-point seeding), `fem_seeding` (integration points of the body-fitted
-//! mesh for `basis: "fem"`), `options` (argument checking), `error`.
+//! Files: `engine.rs` (runs a script: [`load_scene_with`], [`scene_parameters`]),
+//! `registry.rs` (the description of every scene call: [`SceneApi`]), `calls.rs` (the core's
+//! calls), `options.rs` (the table-driven reader of options maps), `builder.rs` (declarations
+//! and their resolution), `schedule.rs` (load-step schedules), `params.rs` (parameters and
+//! overrides), `seeding.rs` and `fem_seeding.rs` (material points and integration points),
+//! `geometry.rs`, `error.rs` (`file:line:column: message`). The reference of the scene
+//! language is generated from the registry into `docs/scene-api.md`.
 
 mod builder;
+mod calls;
+mod engine;
 mod error;
 mod fem_seeding;
 mod geometry;
 mod options;
 mod params;
-mod rhai_api;
+mod registry;
+mod schedule;
 mod seeding;
+mod words;
 
-pub use error::SceneError;
+use std::any::Any;
+use std::collections::BTreeMap;
+use std::fmt::Debug;
+use std::sync::Arc;
+
+pub use builder::{
+    BodyDeclaration, LoadSchedule, Located, MAX_NODES, MAX_SEED_CANDIDATES, MaterialHandle,
+    PointsPerCell, Region, Resolver, SceneBuilder, ensure_unset,
+};
+pub use engine::{SceneModule, load_scene_with, scene_api, scene_parameters};
+pub use error::{SceneError, ScriptError};
+pub use fem_seeding::{PartialCell, seed_element_points};
 pub use geometry::{point_in_polygon, polygon_double_area};
+pub use options::{
+    Choice, Kind, OptionSpec, OptionValue, Options, Range, array_of, describe, function, number,
+    numbers, string, whole_number, whole_numbers,
+};
 pub use params::Parameter;
-pub use rhai_api::{load_scene, scene_parameters};
+pub use registry::{CallSpec, Declare, SceneApi};
+pub use schedule::{MAX_STEPS, phase_factors};
 pub use seeding::{
     Placement, first_point_outside_grid, nearest_points, seed_boundary, seed_box, seed_points,
     seed_points_placed,
 };
+pub use words::{BasisRefinement, BasisWord, FieldSpec, ModelSpec, Seeder, Words};
 
 use crate::analytic::SelfWeightColumn;
-use crate::basis::BasisKind;
+pub use crate::basis::GridSpec;
 use crate::material::MaterialParameters;
-
-/// The background grid: an axis-aligned box split into uniform cells.
-#[derive(Clone, Debug, PartialEq)]
-pub struct GridSpec {
-    pub lower: Vec<f64>,
-    pub upper: Vec<f64>,
-    pub cells: Vec<usize>,
-    pub basis: BasisKind,
-}
-
-impl GridSpec {
-    pub fn dim(&self) -> usize {
-        self.cells.len()
-    }
-}
 
 /// A material: its model (`"hencky"`, ...), the model's parameters and the density.
 #[derive(Clone, Debug, PartialEq)]
@@ -112,39 +121,6 @@ pub struct BodySpec {
     pub points: Vec<PointSeed>,
 }
 
-/// One constrained component of one grid node (control point). The prescribed displacement
-/// `value` is the total at load factor 1; it is ramped with the load factor (0 = fixed).
-#[derive(Clone, Debug, PartialEq)]
-pub struct NodeConstraint {
-    /// Global node index (axis 0 fastest, see `basis::GridBasis::node_index`).
-    pub node: usize,
-    pub component: usize,
-    pub value: f64,
-}
-
-/// A force on one material point at load factor 1 (paper eq. 9, a concentrated term of the
-/// external force): it adds λ P N_i(x_p) to the external force of the point's support nodes.
-#[derive(Clone, Debug, PartialEq)]
-pub struct PointLoadSpec {
-    /// Global point index: points are numbered body after body, in seeding order (`PointId`).
-    pub point: usize,
-    /// The force P (length = dimension).
-    pub force: Vec<f64>,
-}
-
-/// A quadrature point of a surface traction (paper eqs. 1 and 9: the Neumann term
-/// ∫_ΓN h N_i dΓ): a piece of boundary of reference area (length in 2D, 1 in 1D) `area` at
-/// `position`, carrying the traction `traction` (force per unit reference area at load factor
-/// 1). It adds λ h A N_i(x_s) to the external force and moves with the material: with the
-/// deformation of its host, the nearest material point (`host`, a global point index).
-#[derive(Clone, Debug, PartialEq)]
-pub struct TractionPointSpec {
-    pub position: Vec<f64>,
-    pub area: f64,
-    pub traction: Vec<f64>,
-    pub host: usize,
-}
-
 /// Newton solver controls.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SolverSpec {
@@ -153,8 +129,6 @@ pub struct SolverSpec {
     pub max_iterations: usize,
     /// How many times a load step may be halved when Newton fails (0 = never cut).
     pub max_step_cuts: usize,
-    /// Dimensionless ghost-penalty factor γ for nearly empty cells (0 = off; see `ghost`).
-    pub ghost_penalty: f64,
 }
 
 impl Default for SolverSpec {
@@ -163,7 +137,6 @@ impl Default for SolverSpec {
             tolerance: 1e-9,
             max_iterations: 30,
             max_step_cuts: 8,
-            ghost_penalty: 0.0,
         }
     }
 }
@@ -175,7 +148,7 @@ pub struct OutputSpec {
     pub every: usize,
     /// If set, write exactly these load steps (and the initial state) instead.
     pub steps: Option<Vec<usize>>,
-    /// If set, the particle fields written (names from `stages::output::PARTICLE_FIELDS`).
+    /// If set, the particle fields written (the core's and the modules' point fields).
     pub fields: Option<Vec<String>>,
     /// Write the grid and node files (`grid_*.vtu`, `nodes_*.vtu`).
     pub grid: bool,
@@ -226,24 +199,6 @@ impl AnalyticSpec {
     }
 }
 
-/// Moving-least-squares recovery of the point stresses (see `crate::recovery`).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct RecoverySpec {
-    /// Total degree of the fitted polynomial (0, 1, 2, ...).
-    pub order: usize,
-    /// Support radius as a multiple of the largest cell size.
-    pub radius_in_cells: f64,
-}
-
-impl Default for RecoverySpec {
-    fn default() -> Self {
-        Self {
-            order: 2,
-            radius_in_cells: 2.5,
-        }
-    }
-}
-
 /// Everything a run needs, fully resolved.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SceneSpec {
@@ -252,20 +207,13 @@ pub struct SceneSpec {
     pub grid: GridSpec,
     pub materials: Vec<MaterialSpec>,
     pub bodies: Vec<BodySpec>,
-    /// Body force per unit mass (length = dimension) at load factor 1, if any.
-    pub body_force: Option<Vec<f64>>,
-    pub constraints: Vec<NodeConstraint>,
-    /// Forces on single material points (summed per point), at load factor 1.
-    pub point_loads: Vec<PointLoadSpec>,
-    /// Traction points of all `traction(...)` declarations.
-    pub tractions: Vec<TractionPointSpec>,
     /// Load factor at the end of each load step, in order (`len()` = number of steps).
     pub load_factors: Vec<f64>,
     pub solver: SolverSpec,
     pub output: OutputSpec,
     pub analytic: Option<AnalyticSpec>,
-    /// Stress recovery written beside the raw point stress, if asked for.
-    pub recovery: Option<RecoverySpec>,
+    /// What modules declared (point loads, tractions, constraints...), by type.
+    pub parts: Parts,
 }
 
 impl SceneSpec {
@@ -276,5 +224,62 @@ impl SceneSpec {
     /// Number of material points of all bodies.
     pub fn point_count(&self) -> usize {
         self.bodies.iter().map(|body| body.points.len()).sum()
+    }
+
+    /// A module's part, if the scene declared it.
+    pub fn part<T: ScenePart>(&self) -> Option<&T> {
+        self.parts.get::<T>()
+    }
+
+    /// Sets a module's part (replacing one of the same type).
+    pub fn set_part<T: ScenePart>(&mut self, part: T) {
+        self.parts.insert(part);
+    }
+}
+
+/// A module's part of a scene: plain data, comparable and printable.
+pub trait ScenePart: Any + Debug + Send + Sync {
+    fn as_any(&self) -> &dyn Any;
+    fn equals(&self, other: &dyn ScenePart) -> bool;
+}
+
+impl<T: Any + Debug + PartialEq + Send + Sync> ScenePart for T {
+    fn as_any(&self) -> &dyn Any {
+        self
+    }
+
+    fn equals(&self, other: &dyn ScenePart) -> bool {
+        other
+            .as_any()
+            .downcast_ref::<T>()
+            .is_some_and(|other| other == self)
+    }
+}
+
+/// The modules' parts of a scene, one per type.
+#[derive(Clone, Debug, Default)]
+pub struct Parts(BTreeMap<&'static str, Arc<dyn ScenePart>>);
+
+impl Parts {
+    pub fn get<T: ScenePart>(&self) -> Option<&T> {
+        self.0
+            .get(std::any::type_name::<T>())
+            .and_then(|part| part.as_any().downcast_ref::<T>())
+    }
+
+    pub fn insert<T: ScenePart>(&mut self, part: T) {
+        self.0.insert(std::any::type_name::<T>(), Arc::new(part));
+    }
+}
+
+impl PartialEq for Parts {
+    fn eq(&self, other: &Self) -> bool {
+        self.0.len() == other.0.len()
+            && self.0.iter().all(|(name, part)| {
+                other
+                    .0
+                    .get(name)
+                    .is_some_and(|theirs| part.equals(theirs.as_ref()))
+            })
     }
 }

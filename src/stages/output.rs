@@ -30,16 +30,23 @@ use crate::mechanics::{embed, interpolate};
 use crate::output::{Field, PvdSeries, lattice_cells, vertex_cells, write_vtu};
 use crate::resources::{Grid, GridFields, LoadStep, RunStatus, SolverError, Stage, StageClock};
 
-/// The core's particle fields, in file order (`output(#{ fields: [..] })` picks some).
-pub const PARTICLE_FIELDS: &[&str] = &[
-    "reference_position",
-    "reference_volume",
-    "volume",
-    "mass",
-    "displacement",
-    "cauchy_stress",
-    "deformation_gradient",
-    "body",
+/// The core's particle fields, in file order, with their meaning (`output(#{ fields: [..] })`
+/// picks some; the scene language learns them through the module machinery).
+pub const PARTICLE_FIELDS: &[(&str, &str)] = &[
+    ("reference_position", "X, the reference position"),
+    ("reference_volume", "V0, the reference volume"),
+    ("volume", "V = J V0, the current volume"),
+    ("mass", "m = ρ0 V0"),
+    ("displacement", "u = x − X"),
+    (
+        "cauchy_stress",
+        "σ = τ / J (3x3, row-major: σ_yy is component 4, σ_zz component 8)",
+    ),
+    ("deformation_gradient", "F (3x3, row-major)"),
+    (
+        "body",
+        "the index of the point's body, in declaration order",
+    ),
 ];
 
 /// Extra point fields of the output step, added by modules at `Hook::PointFields` and written
@@ -114,16 +121,6 @@ impl OutputPlan {
             steps: None,
             fields: None,
             grid_files: true,
-        }
-    }
-
-    /// The plan of a scene's `output(...)` declaration.
-    pub fn from_spec(dir: PathBuf, spec: &crate::scene::OutputSpec, last_step: usize) -> Self {
-        Self {
-            steps: spec.steps.clone(),
-            fields: spec.fields.clone(),
-            grid_files: spec.grid,
-            ..Self::new(dir, spec.every, last_step)
         }
     }
 
@@ -207,48 +204,26 @@ pub fn write_particles<const D: usize>(
         deformation.extend(row_major(&embed(&f.0)));
         body.push(b.0 as f64);
     }
-    let mut fields = vec![
-        Field {
-            name: "reference_position",
-            components: 3,
-            values: &reference,
-        },
-        Field {
-            name: "reference_volume",
-            components: 1,
-            values: &reference_volume,
-        },
-        Field {
-            name: "volume",
-            components: 1,
-            values: &volume,
-        },
-        Field {
-            name: "mass",
-            components: 1,
-            values: &mass,
-        },
-        Field {
-            name: "displacement",
-            components: 3,
-            values: &displacement,
-        },
-        Field {
-            name: "cauchy_stress",
-            components: 9,
-            values: &stress,
-        },
-        Field {
-            name: "deformation_gradient",
-            components: 9,
-            values: &deformation,
-        },
-        Field {
-            name: "body",
-            components: 1,
-            values: &body,
-        },
+    // in the order of PARTICLE_FIELDS
+    let columns: [(usize, &[f64]); 8] = [
+        (3, &reference),
+        (1, &reference_volume),
+        (1, &volume),
+        (1, &mass),
+        (3, &displacement),
+        (9, &stress),
+        (9, &deformation),
+        (1, &body),
     ];
+    let mut fields: Vec<Field> = PARTICLE_FIELDS
+        .iter()
+        .zip(columns)
+        .map(|(&(name, _), (components, values))| Field {
+            name,
+            components,
+            values,
+        })
+        .collect();
     let extra = std::mem::take(&mut extra.0);
     fields.extend(extra.iter().map(|field| Field {
         name: field.name,

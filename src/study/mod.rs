@@ -50,8 +50,9 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use crate::resources::Stage;
+use crate::run::load_scene;
 use crate::run::run_scene_keeping_summary;
-use crate::scene::{AnalyticSpec, load_scene, scene_parameters};
+use crate::scene::{AnalyticSpec, scene_parameters};
 
 /// One `--sweep`: parameter names moved together and their value tuples.
 #[derive(Clone, Debug, PartialEq)]

@@ -12,7 +12,7 @@ use impm::material::Hencky;
 use impm::method::{NewtonSchedule, OutputSchedule, RollbackSchedule, StepSchedule};
 use impm::resources::{GridFields, Newton};
 use impm::run::Simulation;
-use impm::scene::load_scene;
+use impm::run::load_scene;
 use impm::sparse::NO_DOF;
 use impm::stages::{assemble, update_stress};
 

@@ -35,7 +35,7 @@ use crate::fem::{Mesh, element_weights};
 use crate::output::{Cells, Field, write_vtu};
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{GridFields, LoadStep, RunStatus, SolverError, Stage, StageClock};
-use crate::scene::SceneSpec;
+use crate::scene::{BasisWord, SceneApi, SceneSpec, seed_element_points};
 use crate::stages::output::{OutputPlan, pad};
 
 /// The body-fitted mesh (element topology, reference node positions). The current node
@@ -58,6 +58,18 @@ pub struct FemMeshModule;
 impl Plugin for FemMeshModule {
     fn name(&self) -> &'static str {
         "finite-element mesh"
+    }
+
+    fn scene_api(&self, api: &mut SceneApi) {
+        api.basis(BasisWord {
+            word: "fem",
+            doc: "updated-Lagrangian linear finite elements (bars, quads, hexahedra) on the body-fitted mesh of grid cells: a body must be made of whole cells, and its `ppc` is the number of Gauss points per direction (`order` is ignored)",
+            kind: |_| Ok(BasisKind::Fem),
+            seeder: Some(|grid, gauss_points, inside| {
+                seed_element_points(grid, gauss_points, inside)
+                    .map(|seeded| seeded.map_err(|partial| partial.message()))
+            }),
+        });
     }
 
     fn used_by(&self, spec: &SceneSpec) -> bool {
