@@ -77,7 +77,7 @@ fn add_springs<const D: usize>(
                 let block =
                     SMatrix::<f64, D, D>::identity() * (spring.stiffness * wi.value * wj.value);
                 newton
-                    .system
+                    .matrix
                     .add_block(&fields.dofs[wi.node], &fields.dofs[wj.node], &block);
             }
         }

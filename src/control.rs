@@ -1,9 +1,11 @@
-//! Load-step control: which load factors the driver attempts within one load step.
+//! Control policies of the solve, pure (no world, no solver): which load factors the driver
+//! attempts within a load step ([`LoadStepControl`]), and when a Newton iterate has converged
+//! ([`ConvergenceCriterion`]).
 //!
-//! A policy is a small state machine, pure (no world, no solver): the driver asks it for the
-//! first attempt of a step, tells it how each attempt ended, and gets the next attempt or the
-//! end of the step. The built-in policy is [`StepCutting`]; other policies (arc-length control,
-//! which also moves the load factor inside the Newton solve) implement [`LoadStepControl`].
+//! A load-step policy is a small state machine: the driver asks it for the first attempt of a
+//! step, tells it how each attempt ended, and gets the next attempt or the end of the step. The
+//! built-in policy is [`StepCutting`]; other policies (arc-length control, which also moves the
+//! load factor inside the Newton solve) implement [`LoadStepControl`].
 //!
 //! # Step cutting
 //!
@@ -107,6 +109,44 @@ impl LoadStepControl for StepCutting {
     }
 }
 
+/// The norms of one Newton iterate's forces (over the active nodes): the out-of-balance force
+/// at the free DOFs, the external and the internal force.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ResidualNorms {
+    pub free: f64,
+    pub external: f64,
+    pub internal: f64,
+}
+
+/// When a Newton iterate has converged.
+pub trait ConvergenceCriterion: Send + Sync {
+    /// The measure of an iterate that the tolerance bounds (recorded as its residual).
+    fn measure(&self, norms: &ResidualNorms) -> f64;
+
+    /// Whether the iterate with `measure` has converged; `history` holds the step's earlier
+    /// measures.
+    fn converged(&self, measure: f64, _history: &[f64], tolerance: f64) -> bool {
+        measure <= tolerance
+    }
+}
+
+/// The default criterion: the out-of-balance force at the free DOFs relative to the larger of
+/// the external and internal force norms, `‖f_ext − f_int‖_free / max(‖f_ext‖, ‖f_int‖)`
+/// (absolute when both are zero).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct NormalisedResidual;
+
+impl ConvergenceCriterion for NormalisedResidual {
+    fn measure(&self, norms: &ResidualNorms) -> f64 {
+        let scale = norms.external.max(norms.internal);
+        if scale > 0.0 {
+            norms.free / scale
+        } else {
+            norms.free
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -184,5 +224,22 @@ mod tests {
         let (attempts, done) = run(&mut control, 1.0, 0.0, 0.5);
         assert!(done);
         assert_eq!(attempts, [(1.0, 0.0), (1.0, 0.5), (0.5, 0.0)]);
+    }
+
+    #[test]
+    fn the_residual_is_normalised_by_the_larger_force() {
+        let norms = ResidualNorms {
+            free: 1e-3,
+            external: 10.0,
+            internal: 20.0,
+        };
+        assert_eq!(NormalisedResidual.measure(&norms), 5e-5);
+        assert!(NormalisedResidual.converged(5e-5, &[], 1e-4));
+        let unloaded = ResidualNorms {
+            free: 1e-12,
+            external: 0.0,
+            internal: 0.0,
+        };
+        assert_eq!(NormalisedResidual.measure(&unloaded), 1e-12);
     }
 }

@@ -10,14 +10,16 @@
 //! * Modules: [`plugin`] (the trait every effect, material and user extension implements),
 //!   [`effects`] (the built-in ones: materials, loads, constraints, GIMP/CPDI, FEM, ghost
 //!   penalty, stress recovery).
-//! * Pure kernels: [`basis`], [`material`], [`mechanics`], [`quadrature`], [`sparse`],
+//! * Pure kernels: [`basis`], [`material`], [`mechanics`], [`quadrature`], [`solver`],
 //!   [`analytic`], [`recovery`], [`ghost`], [`fem`], [`parameter`].
 //! * Driver and I/O: [`run`] (build and drive a simulation), [`records`] (summary.json),
+//!   [`checkpoint`] (saved states, part by part),
 //!   [`explain`] (what a scene runs), [`scene`] (Rhai), [`output`] (VTK), [`study`] (sweeps,
 //!   tables and charts).
 
 pub mod analytic;
 pub mod basis;
+pub mod checkpoint;
 pub mod components;
 pub mod control;
 pub mod effects;
@@ -36,6 +38,6 @@ pub mod recovery;
 pub mod resources;
 pub mod run;
 pub mod scene;
-pub mod sparse;
+pub mod solver;
 pub mod stages;
 pub mod study;

@@ -42,11 +42,12 @@ use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::IntoScheduleConfigs;
 use bevy_ecs::system::ScheduleSystem;
 
+use crate::checkpoint::{CheckpointPart, CheckpointParts};
 use crate::components::PointId;
 pub use crate::method::Hook;
 use crate::method::Providers;
 use crate::records::StepMeasures;
-use crate::resources::no_failure;
+use crate::resources::{Newton, no_failure};
 use crate::scene::{
     FieldSpec, Resolver, SceneApi, SceneError, SceneModule, SceneSpec, ScriptError,
 };
@@ -342,6 +343,24 @@ impl<'w, const D: usize> Extension<'w, D> {
             .get_resource_or_init::<StepMeasures>()
             .0
             .push((name, Box::new(measure)));
+        self
+    }
+
+    /// Registers a part of the simulation's saved state (see `checkpoint`): what the plugin
+    /// keeps from one load step to the next, so that a restored run continues exactly.
+    pub fn checkpoint(&mut self, part: CheckpointPart) -> &mut Self {
+        self.world
+            .get_resource_or_init::<CheckpointParts>()
+            .0
+            .push(part);
+        self
+    }
+
+    /// Declares that the plugin's contributions make the tangent non-symmetric (a follower
+    /// load, non-associated flow, arc-length...): the linear solve then uses no symmetric
+    /// method. Symmetric contributions need not say anything.
+    pub fn nonsymmetric_tangent(&mut self) -> &mut Self {
+        self.world.resource_mut::<Newton>().symmetric = false;
         self
     }
 

@@ -7,7 +7,8 @@ use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 
 use crate::basis::GridBasis;
-use crate::sparse::{LinearSystem, NO_DOF};
+use crate::control::{ConvergenceCriterion, NormalisedResidual};
+use crate::solver::{DirectSolver, LinearSolver, NO_DOF, SolverKind, SparseMatrix};
 
 /// The background grid and its basis.
 #[derive(Resource, Clone, Debug)]
@@ -83,10 +84,28 @@ pub struct NewtonSettings {
     pub max_iterations: usize,
 }
 
+/// When a Newton iterate has converged (`control::NormalisedResidual` by default).
+#[derive(Resource)]
+pub struct Convergence(pub Box<dyn ConvergenceCriterion>);
+
+impl Default for Convergence {
+    fn default() -> Self {
+        Self(Box::new(NormalisedResidual))
+    }
+}
+
 /// The state of the Newton loop of the current step.
-#[derive(Resource, Default)]
+#[derive(Resource)]
 pub struct Newton {
-    pub system: LinearSystem,
+    /// The tangent K of the current iterate.
+    pub matrix: SparseMatrix,
+    /// Solves K δ = r (the faer direct solver by default).
+    pub solver: Box<dyn LinearSolver>,
+    /// Whether K is symmetric: true unless a module or material says otherwise (then no
+    /// symmetric method such as Cholesky is used).
+    pub symmetric: bool,
+    /// How the last system was solved.
+    pub last_solver: SolverKind,
     /// Out-of-balance force f_ext - f_int at the free DOFs; overwritten by the correction.
     pub residual: Vec<f64>,
     /// Normalised residual norm of each iterate (the first is before any solve).
@@ -94,6 +113,21 @@ pub struct Newton {
     pub converged: bool,
     /// Linear solves done in this step.
     pub iterations: usize,
+}
+
+impl Default for Newton {
+    fn default() -> Self {
+        Self {
+            matrix: SparseMatrix::default(),
+            solver: Box::new(DirectSolver::default()),
+            symmetric: true,
+            last_solver: SolverKind::None,
+            residual: Vec::new(),
+            residuals: Vec::new(),
+            converged: false,
+            iterations: 0,
+        }
+    }
 }
 
 impl Newton {

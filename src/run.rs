@@ -17,6 +17,7 @@ use bevy_ecs::prelude::*;
 use nalgebra::{SMatrix, SVector};
 
 use crate::basis::GridBasis;
+use crate::checkpoint::{self, CheckpointPart, CheckpointParts, SavedState};
 use crate::components::*;
 use crate::control::{Attempt, LoadStepControl, StepCutting};
 use crate::effects;
@@ -92,6 +93,30 @@ impl<const D: usize> Simulation<D> {
         build_plugin::<D>(plugin, &mut self.world, &self.spec)?;
         initialize_schedules(&mut self.world)
             .map_err(|why| BuildError(format!("a plugin's systems do not fit: {why}")))
+    }
+
+    /// The state after the last completed step: enough to continue the run exactly in a new
+    /// simulation of the same scene ([`Simulation::restore_state`]).
+    pub fn save_state(&mut self) -> SavedState {
+        SavedState {
+            steps_done: self.steps_done,
+            parts: checkpoint::save_parts(&mut self.world),
+        }
+    }
+
+    /// Restores a state saved from a simulation of the same scene (with the same modules):
+    /// the next step is the one after `saved.steps_done`.
+    pub fn restore_state(&mut self, saved: &SavedState) -> Result<(), String> {
+        if saved.steps_done > self.spec.load_factors.len() {
+            return Err(format!(
+                "the saved state is after step {} but the scene has {} steps",
+                saved.steps_done,
+                self.spec.load_factors.len()
+            ));
+        }
+        checkpoint::restore_parts(&mut self.world, &saved.parts)?;
+        self.steps_done = saved.steps_done;
+        Ok(())
     }
 
     /// Number of load steps done.
@@ -191,7 +216,7 @@ impl<const D: usize> Simulation<D> {
         self.world.run_schedule(StepSchedule);
         let outcome = self.take_failure();
         let newton = self.world.resource::<Newton>();
-        record.dofs = newton.system.size();
+        record.dofs = newton.matrix.size();
         let failure = outcome.as_ref().err().map(|e| e.to_string());
         record.add_attempt(&attempt, newton.iterations, &newton.residuals, failure);
         outcome
@@ -287,6 +312,7 @@ fn core_world<const D: usize>(spec: &SceneSpec, out_dir: &Path) -> Result<World,
         max_iterations: spec.solver.max_iterations,
     });
     world.insert_resource(Newton::default());
+    world.insert_resource(Convergence::default());
     world.insert_resource(RunStatus::default());
     world.insert_resource(StageClock::default());
     world.insert_resource(PointFields::default());
@@ -299,7 +325,58 @@ fn core_world<const D: usize>(spec: &SceneSpec, out_dir: &Path) -> Result<World,
         ..OutputPlan::new(out_dir.to_path_buf(), output.every, spec.load_factors.len())
     });
     add_core_schedules::<D>(&mut world);
+    world.insert_resource(CheckpointParts(vec![CheckpointPart {
+        name: "points",
+        save: save_points::<D>,
+        restore: restore_points::<D>,
+    }]));
     Ok(world)
+}
+
+/// The numbers of a point's state: x, u, F (row by row), V.
+const fn point_record(dim: usize) -> usize {
+    2 * dim + dim * dim + 1
+}
+
+/// The converged state of every point, in `PointId` order.
+fn save_points<const D: usize>(world: &mut World) -> Vec<f64> {
+    let mut query = world.query::<(
+        &PointId,
+        &Position<D>,
+        &Displacement<D>,
+        &DeformationGradient<D>,
+        &Volume,
+    )>();
+    let mut rows: Vec<_> = query.iter(world).collect();
+    rows.sort_by_key(|row| row.0.0);
+    let mut values = Vec::with_capacity(rows.len() * point_record(D));
+    for (_, x, u, f, v) in rows {
+        values.extend(x.0.iter());
+        values.extend(u.0.iter());
+        values.extend(f.0.transpose().iter());
+        values.push(v.0);
+    }
+    values
+}
+
+fn restore_points<const D: usize>(world: &mut World, values: &[f64]) -> Result<(), String> {
+    let mut query = world.query::<(
+        &PointId,
+        &mut Position<D>,
+        &mut Displacement<D>,
+        &mut DeformationGradient<D>,
+        &mut Volume,
+    )>();
+    let count = query.iter(world).len();
+    let records: Vec<&[f64]> = checkpoint::records(values, point_record(D), count)?.collect();
+    for (id, mut x, mut u, mut f, mut v) in query.iter_mut(world) {
+        let record = records[id.0 as usize];
+        x.0 = SVector::from_column_slice(&record[..D]);
+        u.0 = SVector::from_column_slice(&record[D..2 * D]);
+        f.0 = SMatrix::from_row_slice(&record[2 * D..2 * D + D * D]);
+        v.0 = record[2 * D + D * D];
+    }
+    Ok(())
 }
 
 /// Every body's points with the core's components, numbered body after body (`PointId`).
@@ -402,10 +479,33 @@ pub fn run_scene_keeping_summary_with(
     plugin: &impl Plugin,
     on_step: impl FnMut(&StepRecord),
 ) -> (Option<Summary>, Result<(), RunError>) {
+    run_with(spec, out_dir, &effects::built_in(), plugin, on_step)
+}
+
+/// [`run_scene`] with the modules of `modules` (the built-in ones and your own, e.g. a
+/// material model: `effects::built_in().with(MaterialModule::<YourModel>::default())`).
+pub fn run_scene_with_modules(
+    spec: &SceneSpec,
+    out_dir: &Path,
+    modules: &ModuleSet,
+    on_step: impl FnMut(&StepRecord),
+) -> Result<Summary, RunError> {
+    let (summary, result) = run_with(spec, out_dir, modules, &(), on_step);
+    result?;
+    summary.ok_or_else(|| RunError::Build(BuildError("the run produced no summary".into())))
+}
+
+fn run_with(
+    spec: &SceneSpec,
+    out_dir: &Path,
+    modules: &ModuleSet,
+    plugin: &impl Plugin,
+    on_step: impl FnMut(&StepRecord),
+) -> (Option<Summary>, Result<(), RunError>) {
     match spec.dim() {
-        1 => run_in::<1>(spec, out_dir, plugin, on_step),
-        2 => run_in::<2>(spec, out_dir, plugin, on_step),
-        3 => run_in::<3>(spec, out_dir, plugin, on_step),
+        1 => run_in::<1>(spec, out_dir, modules, plugin, on_step),
+        2 => run_in::<2>(spec, out_dir, modules, plugin, on_step),
+        3 => run_in::<3>(spec, out_dir, modules, plugin, on_step),
         d => (
             None,
             Err(RunError::Build(BuildError(format!(
@@ -418,10 +518,11 @@ pub fn run_scene_keeping_summary_with(
 fn run_in<const D: usize>(
     spec: &SceneSpec,
     out_dir: &Path,
+    modules: &ModuleSet,
     plugin: &impl Plugin,
     on_step: impl FnMut(&StepRecord),
 ) -> (Option<Summary>, Result<(), RunError>) {
-    let mut sim = match Simulation::<D>::new(spec, out_dir) {
+    let mut sim = match Simulation::<D>::with_modules(spec, out_dir, modules) {
         Ok(sim) => sim,
         Err(e) => return (None, Err(RunError::Build(e))),
     };

@@ -23,7 +23,7 @@ use impm::resources::{GridFields, LoadStep};
 use impm::run::Simulation;
 use impm::run::load_scene;
 use impm::scene::SceneSpec;
-use impm::sparse::NO_DOF;
+use impm::solver::NO_DOF;
 use impm::stages::number_dofs;
 
 fn temp_dir(tag: &str) -> PathBuf {

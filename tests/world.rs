@@ -18,7 +18,7 @@ use impm::material::Hencky;
 use impm::resources::{GridFields, LoadStep};
 use impm::run::Simulation;
 use impm::scene::*;
-use impm::sparse::NO_DOF;
+use impm::solver::NO_DOF;
 use impm::stages::{evaluate_basis, number_dofs, reset_grid, update_points, update_stress};
 
 fn temp_dir(name: &str) -> PathBuf {

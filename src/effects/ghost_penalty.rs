@@ -14,7 +14,7 @@ use crate::ghost::{FacePenalty, face_penalty, ghost_faces};
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{Grid, GridFields, Newton, Stage, StageClock};
 use crate::scene::{Kind, OptionSpec, Range, Resolver, SceneApi, SceneSpec, ScriptError};
-use crate::sparse::NO_DOF;
+use crate::solver::NO_DOF;
 
 /// The ghost penalty of the current load step.
 #[derive(Resource, Clone, Debug, Default)]
@@ -151,7 +151,7 @@ pub fn assemble_ghost_penalty<const D: usize>(
                     fields.internal_force[row_node][k] += g * fields.increment[col_node][k];
                     let (row, col) = (fields.dofs[row_node][k], fields.dofs[col_node][k]);
                     if row != NO_DOF && col != NO_DOF {
-                        newton.system.add(row, col, g);
+                        newton.matrix.add(row, col, g);
                     }
                 }
             }

@@ -13,7 +13,9 @@ use std::marker::PhantomData;
 
 use bevy_ecs::prelude::*;
 
+use crate::checkpoint::{self, CheckpointPart};
 use crate::components::{BodyIndex, PointId};
+use crate::material::HistoryValues;
 use crate::material::Material;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::scene::{FieldSpec, ModelSpec, OptionSpec, SceneApi, SceneSpec};
@@ -88,6 +90,13 @@ impl<M: Material> Plugin for MaterialModule<M> {
                 }
             }
         }
+        if models
+            .iter()
+            .flatten()
+            .any(|model| !model.tangent_is_symmetric())
+        {
+            simulation.nonsymmetric_tangent();
+        }
         let world = simulation.world();
         let points: Vec<(Entity, M)> = world
             .query::<(Entity, &BodyIndex)>()
@@ -110,12 +119,52 @@ impl<M: Material> Plugin for MaterialModule<M> {
         }
         simulation.add_systems(Hook::StressUpdate, update_stress::<D, M>);
         if M::HAS_HISTORY {
-            simulation.add_systems(Hook::PointUpdate, commit_history::<M>);
+            simulation
+                .add_systems(Hook::PointUpdate, commit_history::<M>)
+                .checkpoint(CheckpointPart {
+                    name: M::MODEL,
+                    save: save_history::<M>,
+                    restore: restore_history::<M>,
+                });
         }
         if !M::output_fields().is_empty() {
             simulation.add_systems(Hook::PointFields, history_fields::<M>);
         }
     }
+}
+
+/// The committed history of the model's points: (point id, values) records in id order.
+fn save_history<M: Material>(world: &mut World) -> Vec<f64> {
+    let mut rows: Vec<(u32, M::History)> = world
+        .query::<(&PointId, &PointHistory<M>)>()
+        .iter(world)
+        .map(|(id, h)| (id.0, h.committed.clone()))
+        .collect();
+    rows.sort_by_key(|(id, _)| *id);
+    let mut values = Vec::with_capacity(rows.len() * (1 + M::History::LEN));
+    for (id, history) in rows {
+        values.push(id as f64);
+        history.write(&mut values);
+    }
+    values
+}
+
+fn restore_history<M: Material>(world: &mut World, values: &[f64]) -> Result<(), String> {
+    let mut query = world.query::<(&PointId, &mut PointHistory<M>)>();
+    let count = query.iter(world).len();
+    let mut saved = std::collections::HashMap::with_capacity(count);
+    for record in checkpoint::records(values, 1 + M::History::LEN, count)? {
+        let history = M::History::read(&record[1..]).ok_or("a saved history is not valid")?;
+        saved.insert(record[0] as u32, history);
+    }
+    for (id, mut history) in query.iter_mut(world) {
+        let committed = saved
+            .remove(&id.0)
+            .ok_or_else(|| format!("no saved history for point {}", id.0))?;
+        history.trial = committed.clone();
+        history.committed = committed;
+    }
+    Ok(())
 }
 
 /// The model's output fields from the committed history (zeros on points of other models).

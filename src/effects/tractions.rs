@@ -36,6 +36,7 @@ use nalgebra::SVector;
 use rhai::Dynamic;
 
 use crate::basis::{BasisKind, BasisScratch, NodeWeight};
+use crate::checkpoint::{self, CheckpointPart};
 use crate::components::{DeformationGradient, Position, ReferencePosition};
 use crate::mechanics::spread_over_active;
 use crate::output::{Field, PvdSeries, vertex_cells, write_vtu};
@@ -196,6 +197,11 @@ impl Plugin for TractionsModule {
             .world()
             .insert_resource(TractionSeries(PvdSeries::new(dir.join("tractions.pvd"))));
         simulation
+            .checkpoint(CheckpointPart {
+                name: "traction points",
+                save: save_traction_points::<D>,
+                restore: restore_traction_points::<D>,
+            })
             .add_systems(Hook::Loads, apply_tractions::<D>)
             .add_systems(Hook::PointUpdate, update_traction_points::<D>)
             .add_systems(Hook::Output, write_tractions::<D>);
@@ -239,6 +245,30 @@ fn spawn_traction_points<const D: usize>(simulation: &mut Extension<'_, D>) -> R
         });
     }
     world.spawn_batch(batch);
+    Ok(())
+}
+
+/// The traction points' positions, in id order.
+fn save_traction_points<const D: usize>(world: &mut World) -> Vec<f64> {
+    let mut points: Vec<_> = world
+        .query::<&TractionPoint<D>>()
+        .iter(world)
+        .map(|p| (p.id, p.position))
+        .collect();
+    points.sort_by_key(|(id, _)| *id);
+    points.iter().flat_map(|(_, x)| x.iter().copied()).collect()
+}
+
+fn restore_traction_points<const D: usize>(
+    world: &mut World,
+    values: &[f64],
+) -> Result<(), String> {
+    let mut query = world.query::<&mut TractionPoint<D>>();
+    let count = query.iter(world).len();
+    let records: Vec<&[f64]> = checkpoint::records(values, D, count)?.collect();
+    for mut point in query.iter_mut(world) {
+        point.position = SVector::from_column_slice(records[point.id as usize]);
+    }
     Ok(())
 }
 

@@ -56,7 +56,7 @@ pub struct Response<const D: usize, H> {
 /// A constitutive model (see the module docs).
 pub trait Material: Clone + Debug + PartialEq + Send + Sync + 'static {
     /// The state a point carries from one converged load step to the next (`()` if none).
-    type History: Clone + Debug + Default + PartialEq + Send + Sync + 'static;
+    type History: Clone + Debug + Default + PartialEq + Send + Sync + HistoryValues + 'static;
 
     /// The model's word in scenes: `material(#{ model: "hencky", .. })`.
     const MODEL: &'static str;
@@ -100,6 +100,25 @@ pub trait Material: Clone + Debug + PartialEq + Send + Sync + 'static {
     /// plastic models are; the linear solve must not use Cholesky otherwise).
     fn tangent_is_symmetric(&self) -> bool {
         true
+    }
+}
+
+/// A point's history as a fixed number of values, for saved states (`checkpoint`).
+pub trait HistoryValues: Sized {
+    /// How many values one history takes.
+    const LEN: usize;
+    /// Appends the [`HistoryValues::LEN`] values.
+    fn write(&self, out: &mut Vec<f64>);
+    /// The history of `values` (exactly `LEN` of them), if they make one.
+    fn read(values: &[f64]) -> Option<Self>;
+}
+
+/// No history.
+impl HistoryValues for () {
+    const LEN: usize = 0;
+    fn write(&self, _out: &mut Vec<f64>) {}
+    fn read(values: &[f64]) -> Option<Self> {
+        values.is_empty().then_some(())
     }
 }
 

@@ -14,7 +14,7 @@ use nalgebra::{SMatrix, SVector};
 use crate::components::{ReferenceVolume, Support, Trial};
 use crate::mechanics::StiffnessFactor;
 use crate::resources::{GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock};
-use crate::sparse::LinearSystem;
+use crate::solver::SparseMatrix;
 
 /// Scratch memory of the assembly, kept between iterations.
 #[derive(Default)]
@@ -34,7 +34,7 @@ impl<const D: usize> AssemblyScratch<D> {
         &mut self,
         nodes: impl Iterator<Item = usize>,
         dofs: &[[u32; D]],
-        system: &LinearSystem,
+        system: &SparseMatrix,
     ) {
         self.cached_nodes.clear();
         self.cached_nodes.extend(nodes);
@@ -56,7 +56,7 @@ impl<const D: usize> AssemblyScratch<D> {
 
     /// Adds the group's summed blocks (and their transposes for j != i) to the sparse values
     /// and clears them.
-    fn flush(&mut self, dofs: &[[u32; D]], system: &mut LinearSystem) {
+    fn flush(&mut self, dofs: &[[u32; D]], system: &mut SparseMatrix) {
         let m = self.cached_nodes.len();
         let mut pair = 0;
         for i in 0..m {
@@ -88,7 +88,7 @@ pub fn assemble<const D: usize>(
     let fields = &mut *fields;
     let scratch = &mut *scratch;
     fields.internal_force.fill(SVector::zeros());
-    let system = &mut newton.system;
+    let system = &mut newton.matrix;
     system.clear_values();
     scratch.cached_nodes.clear();
     for (support, trial, volume) in points.iter() {

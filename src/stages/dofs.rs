@@ -10,7 +10,7 @@ use bevy_ecs::prelude::*;
 
 use crate::components::Support;
 use crate::resources::{GridFields, Newton, Stage, StageClock};
-use crate::sparse::NO_DOF;
+use crate::solver::NO_DOF;
 
 pub fn number_dofs<const D: usize>(
     mut fields: ResMut<GridFields<D>>,
@@ -54,7 +54,7 @@ pub fn number_dofs<const D: usize>(
     }
     let supports = offsets.windows(2).map(|w| &flat[w[0]..w[1]]);
     newton
-        .system
+        .matrix
         .rebuild_pattern(fields.dof_count, &fields.dofs, supports);
     newton.residual.clear();
     newton.residual.resize(fields.dof_count, 0.0);

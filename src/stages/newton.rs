@@ -1,29 +1,34 @@
 //! Newton stages 3 and 4: the convergence check and the linear solve. The loop that runs them,
-//! `method::solve_load_step`, repeats the Newton schedule until the normalised out-of-balance
-//! force
+//! `method::solve_load_step`, repeats the Newton schedule until the convergence criterion
+//! (`control::ConvergenceCriterion`; by default the normalised out-of-balance force
 //!
 //! ```text
 //!   ‖f_ext − f_int‖_free / max(‖f_ext‖, ‖f_int‖)      (norms over all active components)
 //! ```
 //!
-//! falls below the tolerance, or fails after `max_iterations` linear solves. The first residual
+//! ) falls below the tolerance, or fails after `max_iterations` linear solves. The solve is the
+//! linear-solver layer's (`solver`), told whether the tangent is symmetric. The first residual
 //! of a step is the load increment; the residual history is kept for the summary.
 
 use bevy_ecs::prelude::*;
 
+use crate::control::ResidualNorms;
 use crate::resources::{
-    GridFields, LoadStep, Newton, NewtonSettings, RunStatus, SolverError, Stage, StageClock,
+    Convergence, GridFields, LoadStep, Newton, NewtonSettings, RunStatus, SolverError, Stage,
+    StageClock,
 };
-use crate::sparse::NO_DOF;
+use crate::solver::NO_DOF;
 
 /// Growth of the out-of-balance force over the step's first residual (or over 1, if smaller)
 /// that is taken as divergence.
 pub const DIVERGENCE_GROWTH: f64 = 1e6;
 
-/// Newton stage 3: out-of-balance force at the free DOFs and the convergence test.
+/// Newton stage 3: out-of-balance force at the free DOFs and the convergence test (by the
+/// criterion in [`Convergence`]).
 pub fn check_convergence<const D: usize>(
     fields: Res<GridFields<D>>,
     settings: Res<NewtonSettings>,
+    criterion: Res<Convergence>,
     step: Res<LoadStep>,
     mut newton: ResMut<Newton>,
     mut status: ResMut<RunStatus>,
@@ -45,12 +50,11 @@ pub fn check_convergence<const D: usize>(
             }
         }
     }
-    let scale = external.max(internal).sqrt();
-    let norm = if scale > 0.0 {
-        free.sqrt() / scale
-    } else {
-        free.sqrt()
-    };
+    let norm = criterion.0.measure(&ResidualNorms {
+        free: free.sqrt(),
+        external: external.sqrt(),
+        internal: internal.sqrt(),
+    });
     newton.residuals.push(norm);
     if !norm.is_finite() {
         status.fail(SolverError::NotFinite {
@@ -60,7 +64,8 @@ pub fn check_convergence<const D: usize>(
         });
         return;
     }
-    newton.converged = norm <= settings.tolerance;
+    let (earlier, _) = newton.residuals.split_at(newton.residuals.len() - 1);
+    newton.converged = criterion.0.converged(norm, earlier, settings.tolerance);
     // Diverging: the residual has grown by orders of magnitude over the step's first one.
     let first = newton.residuals[0].max(1.0);
     if !newton.converged && newton.residuals.len() > 2 && norm > DIVERGENCE_GROWTH * first {
@@ -82,13 +87,19 @@ pub fn solve_linear_system<const D: usize>(
     let _timer = clock.time(Stage::LinearSolve);
     let newton = &mut *newton;
     newton.iterations += 1;
-    if let Err(why) = newton.system.solve_in_place(&mut newton.residual) {
-        status.fail(SolverError::LinearSolve {
-            step: step.number,
-            iteration: newton.iterations,
-            why: why.to_string(),
-        });
-        return;
+    match newton
+        .solver
+        .solve(&newton.matrix, newton.symmetric, &mut newton.residual)
+    {
+        Ok(kind) => newton.last_solver = kind,
+        Err(why) => {
+            status.fail(SolverError::LinearSolve {
+                step: step.number,
+                iteration: newton.iterations,
+                why: why.to_string(),
+            });
+            return;
+        }
     }
     let fields = &mut *fields;
     for (node, dofs) in fields.dofs.iter().enumerate() {

@@ -13,7 +13,7 @@ use impm::method::{NewtonSchedule, OutputSchedule, RollbackSchedule, StepSchedul
 use impm::resources::{GridFields, Newton};
 use impm::run::Simulation;
 use impm::run::load_scene;
-use impm::sparse::NO_DOF;
+use impm::solver::NO_DOF;
 use impm::stages::{assemble, update_stress};
 
 /// A scene shipped under `scripts/`.
@@ -103,7 +103,7 @@ pub fn assert_tangent_matches_finite_differences(sim: &mut Simulation<2>) -> (f6
     let k: Vec<Vec<f64>> = {
         let newton = sim.world.resource::<Newton>();
         (0..n)
-            .map(|r| (0..n).map(|c| newton.system.get(r, c)).collect())
+            .map(|r| (0..n).map(|c| newton.matrix.get(r, c)).collect())
             .collect()
     };
     let scale = k.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));

@@ -30,6 +30,7 @@ use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 
 use crate::basis::BasisKind;
+use crate::checkpoint::{self, CheckpointPart};
 use crate::components::{GridNode, PointId, Support};
 use crate::fem::{Mesh, element_weights};
 use crate::output::{Cells, Field, write_vtu};
@@ -86,10 +87,36 @@ impl Plugin for FemMeshModule {
             return;
         }
         simulation
+            .checkpoint(CheckpointPart {
+                name: "mesh nodes",
+                save: save_mesh_nodes::<D>,
+                restore: restore_mesh_nodes::<D>,
+            })
             .provide(Hook::Basis, self.name(), evaluate_element_basis::<D>)
             .add_systems(Hook::PointUpdate, advance_mesh::<D>)
             .provide(Hook::GridOutput, self.name(), write_mesh::<D>);
     }
+}
+
+/// The current node positions, in node order.
+fn save_mesh_nodes<const D: usize>(world: &mut World) -> Vec<f64> {
+    let mut nodes: Vec<_> = world
+        .query::<&GridNode<D>>()
+        .iter(world)
+        .map(|n| (n.index, n.position))
+        .collect();
+    nodes.sort_by_key(|(index, _)| *index);
+    nodes.iter().flat_map(|(_, x)| x.iter().copied()).collect()
+}
+
+fn restore_mesh_nodes<const D: usize>(world: &mut World, values: &[f64]) -> Result<(), String> {
+    let mut query = world.query::<&mut GridNode<D>>();
+    let count = query.iter(world).len();
+    let records: Vec<&[f64]> = checkpoint::records(values, D, count)?.collect();
+    for mut node in query.iter_mut(world) {
+        node.position = SVector::from_column_slice(records[node.index]);
+    }
+    Ok(())
 }
 
 /// Scratch memory: the current node positions by node index, and one element's corners.

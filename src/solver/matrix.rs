@@ -1,0 +1,223 @@
+//! The sparse tangent of one load step: pattern once, values every Newton iteration.
+//!
+//! Degrees of freedom (DOFs) are numbered node-major: the free components of an active node get
+//! consecutive numbers, nodes in increasing index order. Two DOFs couple when their nodes share
+//! a material point's support (or a module's coupling group), so the pattern is built from the
+//! supports at the start of the load step and stays fixed through the step's Newton iterations;
+//! only the values are refilled (`clear_values` then `add_block`). Both triangles are stored, so
+//! a non-symmetric tangent is represented as it is.
+
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
+
+/// Marker for a node component that has no DOF (fixed, or node inactive).
+pub const NO_DOF: u32 = u32::MAX;
+
+/// Marker for a block position that is not stored (see [`SparseMatrix::block_starts`]).
+pub const NO_ENTRY: usize = usize::MAX;
+
+/// Compressed-sparse-column pattern and values of the tangent.
+#[derive(Default, Clone, Debug)]
+pub struct SparseMatrix {
+    size: usize,
+    col_ptr: Vec<usize>,
+    row_idx: Vec<usize>,
+    values: Vec<f64>,
+    /// Counts pattern rebuilds, so that solvers know when their analysis is stale.
+    generation: u64,
+}
+
+impl SparseMatrix {
+    /// Number of DOFs.
+    pub fn size(&self) -> usize {
+        self.size
+    }
+
+    /// Number of stored entries.
+    pub fn nonzeros(&self) -> usize {
+        self.row_idx.len()
+    }
+
+    /// Builds the pattern for `size` DOFs from node adjacency.
+    ///
+    /// `node_dofs[i]` are the DOF numbers of node `i`'s components (`NO_DOF` where none);
+    /// `supports` yields, for every material point, the nodes of its support. All pairs of
+    /// nodes in one support couple. Previous symbolic factorisations are dropped.
+    pub fn rebuild_pattern<'a, const D: usize>(
+        &mut self,
+        size: usize,
+        node_dofs: &[[u32; D]],
+        supports: impl Iterator<Item = &'a [usize]>,
+    ) {
+        let mut adjacency: Vec<Vec<u32>> = vec![Vec::new(); node_dofs.len()];
+        let mut previous: &[usize] = &[];
+        for support in supports {
+            // Points of one cell share their support (B-splines, linear): skip repeats.
+            if support == previous {
+                continue;
+            }
+            for &j in support {
+                if node_dofs[j].iter().all(|&d| d == NO_DOF) {
+                    continue;
+                }
+                let list = &mut adjacency[j];
+                list.extend(support.iter().map(|&i| i as u32));
+            }
+            previous = support;
+        }
+        for list in adjacency.iter_mut() {
+            list.sort_unstable();
+            list.dedup();
+        }
+
+        self.size = size;
+        self.col_ptr.clear();
+        self.row_idx.clear();
+        self.col_ptr.push(0);
+        // Columns in DOF order: nodes in index order, components in order (node-major numbering).
+        for (j, dofs_j) in node_dofs.iter().enumerate() {
+            for &col in dofs_j.iter() {
+                if col == NO_DOF {
+                    continue;
+                }
+                debug_assert_eq!(col as usize, self.col_ptr.len() - 1);
+                for &i in &adjacency[j] {
+                    for &row in node_dofs[i as usize].iter() {
+                        if row != NO_DOF {
+                            self.row_idx.push(row as usize);
+                        }
+                    }
+                }
+                self.col_ptr.push(self.row_idx.len());
+            }
+        }
+        self.values.clear();
+        self.values.resize(self.row_idx.len(), 0.0);
+        self.generation += 1;
+    }
+
+    /// Sets every stored value to zero, keeping the pattern.
+    pub fn clear_values(&mut self) {
+        self.values.fill(0.0);
+    }
+
+    /// Adds `value` to entry (`row`, `col`); both must be in the pattern.
+    ///
+    /// Rows of a column are sorted, so the entry is found by binary search.
+    #[inline]
+    pub fn add(&mut self, row: u32, col: u32, value: f64) {
+        let (start, end) = (self.col_ptr[col as usize], self.col_ptr[col as usize + 1]);
+        let rows = &self.row_idx[start..end];
+        match rows.binary_search(&(row as usize)) {
+            Ok(k) => self.values[start + k] += value,
+            Err(_) => panic!("entry ({row}, {col}) is not in the sparsity pattern"),
+        }
+    }
+
+    /// Adds the D x D block coupling node components `rows` (of node i) and `cols` (of node j):
+    /// `K[rows[a], cols[b]] += block[(a, b)]`, skipping components without a DOF.
+    #[inline]
+    pub fn add_block<const D: usize>(
+        &mut self,
+        rows: &[u32; D],
+        cols: &[u32; D],
+        block: &nalgebra::SMatrix<f64, D, D>,
+    ) {
+        let starts = self.block_starts(rows, cols);
+        self.add_block_at(&starts, rows, block);
+    }
+
+    /// Where the block of `rows` begins in each column of `cols` (an index into the values),
+    /// `NO_ENTRY` for a column without a DOF or a row node without any.
+    ///
+    /// The free components of a node are consecutive in a column, so one binary search per
+    /// column finds the block. Points with the same support share these positions, which is
+    /// what lets assembly cache them (`stages/assembly.rs`).
+    #[inline]
+    pub fn block_starts<const D: usize>(&self, rows: &[u32; D], cols: &[u32; D]) -> [usize; D] {
+        let first_row = rows.iter().copied().find(|&r| r != NO_DOF);
+        std::array::from_fn(|b| {
+            let (Some(first_row), col) = (first_row, cols[b]) else {
+                return NO_ENTRY;
+            };
+            if col == NO_DOF {
+                return NO_ENTRY;
+            }
+            let (start, end) = (self.col_ptr[col as usize], self.col_ptr[col as usize + 1]);
+            match self.row_idx[start..end].binary_search(&(first_row as usize)) {
+                Ok(k) => start + k,
+                Err(_) => panic!("block ({first_row}, {col}) is not in the sparsity pattern"),
+            }
+        })
+    }
+
+    /// Adds `block` at positions from [`SparseMatrix::block_starts`].
+    #[inline]
+    pub fn add_block_at<const D: usize>(
+        &mut self,
+        starts: &[usize; D],
+        rows: &[u32; D],
+        block: &nalgebra::SMatrix<f64, D, D>,
+    ) {
+        for (b, &start) in starts.iter().enumerate() {
+            if start == NO_ENTRY {
+                continue;
+            }
+            let mut k = start;
+            for (a, &row) in rows.iter().enumerate() {
+                if row != NO_DOF {
+                    debug_assert_eq!(self.row_idx[k], row as usize);
+                    self.values[k] += block[(a, b)];
+                    k += 1;
+                }
+            }
+        }
+    }
+
+    /// The matrix as a faer view.
+    pub fn matrix(&self) -> SparseColMatRef<'_, usize, f64> {
+        let symbolic = SymbolicSparseColMatRef::new_checked(
+            self.size,
+            self.size,
+            &self.col_ptr,
+            None,
+            &self.row_idx,
+        );
+        SparseColMatRef::new(symbolic, &self.values)
+    }
+
+    /// Entry (`row`, `col`), zero where not stored. For tests and diagnostics.
+    pub fn get(&self, row: usize, col: usize) -> f64 {
+        let (start, end) = (self.col_ptr[col], self.col_ptr[col + 1]);
+        match self.row_idx[start..end].binary_search(&row) {
+            Ok(k) => self.values[start + k],
+            Err(_) => 0.0,
+        }
+    }
+
+    /// How many times the pattern was built (solvers redo their analysis when it changes).
+    pub fn generation(&self) -> u64 {
+        self.generation
+    }
+
+    /// The pattern: column pointers and row indices (CSC).
+    pub fn pattern(&self) -> (&[usize], &[usize]) {
+        (&self.col_ptr, &self.row_idx)
+    }
+
+    /// The stored values, in pattern order.
+    pub fn values(&self) -> &[f64] {
+        &self.values
+    }
+
+    /// Whether `K = Kᵀ` to within `tolerance` times the largest entry (the pattern is
+    /// symmetric by construction).
+    pub fn is_symmetric(&self, tolerance: f64) -> bool {
+        let scale = self.values.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        (0..self.size).all(|col| {
+            (self.col_ptr[col]..self.col_ptr[col + 1]).all(|k| {
+                let row = self.row_idx[k];
+                (self.values[k] - self.get(col, row)).abs() <= tolerance * scale
+            })
+        })
+    }
+}

@@ -1,0 +1,238 @@
+//! The linear-solver layer: the sparse tangent ([`SparseMatrix`]) and the solvers of
+//! `K δ = r` behind one interface ([`LinearSolver`]), so that a backend (the faer direct solve
+//! today, iterative and distributed ones later) is chosen without touching the stages.
+//!
+//! The Newton state says whether the tangent is symmetric (hyperelastic materials under dead
+//! loads and symmetric penalties keep it so; non-associated plasticity, follower loads,
+//! arc-length and F-bar do not): a solver may use a symmetric method (Cholesky, CG) only then.
+//! Arc-length control adds one unknown, the load factor: [`LinearSolver::solve_bordered`] solves
+//! the bordered system with two solves of `K` by default.
+
+mod direct;
+mod matrix;
+
+pub use direct::DirectSolver;
+pub use matrix::{NO_DOF, NO_ENTRY, SparseMatrix};
+
+/// Which factorisation solved a system.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum SolverKind {
+    #[default]
+    None,
+    Cholesky,
+    Lu,
+}
+
+/// A failure of the linear solve.
+#[derive(Clone, Debug, PartialEq)]
+pub enum LinearSolveError {
+    /// Every factorisation failed: the tangent is singular (for example a node with no
+    /// stiffness, or a mechanism in the constraints).
+    Singular(String),
+}
+
+impl std::fmt::Display for LinearSolveError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            LinearSolveError::Singular(why) => {
+                write!(f, "the tangent stiffness is singular ({why})")
+            }
+        }
+    }
+}
+
+/// Solves `K x = r` for the tangent of a Newton iteration.
+pub trait LinearSolver: Send + Sync {
+    /// Solves `matrix x = rhs` in place; `symmetric` says whether `matrix` is symmetric (a
+    /// symmetric method may be used only then). Returns how it was solved.
+    fn solve(
+        &mut self,
+        matrix: &SparseMatrix,
+        symmetric: bool,
+        rhs: &mut [f64],
+    ) -> Result<SolverKind, LinearSolveError>;
+
+    /// Solves the bordered system of arc-length control,
+    ///
+    /// ```text
+    ///   [ K   b ] [ x ]   [ r ]
+    ///   [ cᵀ  d ] [ y ] = [ s ],
+    /// ```
+    ///
+    /// in place (`r` becomes `x`), returning `y`: with `K x_r = r` and `K x_b = b`,
+    /// `y = (s − c·x_r) / (d − c·x_b)` and `x = x_r − y x_b` (two solves with one
+    /// factorisation for a direct solver). A backend may do better.
+    fn solve_bordered(
+        &mut self,
+        matrix: &SparseMatrix,
+        symmetric: bool,
+        border: (&[f64], &[f64], f64),
+        r: &mut [f64],
+        s: f64,
+    ) -> Result<f64, LinearSolveError> {
+        let (b, c, d) = border;
+        let mut x_b = b.to_vec();
+        self.solve(matrix, symmetric, r)?;
+        self.solve(matrix, symmetric, &mut x_b)?;
+        let dot = |u: &[f64], v: &[f64]| u.iter().zip(v).map(|(a, b)| a * b).sum::<f64>();
+        let denominator = d - dot(c, &x_b);
+        if denominator == 0.0 || !denominator.is_finite() {
+            return Err(LinearSolveError::Singular(
+                "the bordered (arc-length) system is singular".to_string(),
+            ));
+        }
+        let y = (s - dot(c, r)) / denominator;
+        for (x, xb) in r.iter_mut().zip(&x_b) {
+            *x -= y * xb;
+        }
+        Ok(y)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 1D chain of `n` nodes with node 0 fixed: the Laplacian-like pattern of linear elements.
+    fn chain(n: usize) -> (SparseMatrix, Vec<[u32; 1]>) {
+        let mut dofs = vec![[NO_DOF]; n];
+        for (i, d) in dofs.iter_mut().enumerate().skip(1) {
+            d[0] = (i - 1) as u32;
+        }
+        let supports: Vec<Vec<usize>> = (0..n - 1).map(|e| vec![e, e + 1]).collect();
+        let mut sys = SparseMatrix::default();
+        sys.rebuild_pattern(n - 1, &dofs, supports.iter().map(|s| s.as_slice()));
+        (sys, dofs)
+    }
+
+    #[test]
+    fn pattern_of_a_chain_is_tridiagonal() {
+        let (sys, _) = chain(5);
+        assert_eq!(sys.size(), 4);
+        // 4 diagonal + 2 * 3 off-diagonal
+        assert_eq!(sys.nonzeros(), 10);
+    }
+
+    #[test]
+    fn cholesky_solves_a_spring_chain_and_reuses_the_analysis() {
+        let n = 6;
+        let (mut sys, dofs) = chain(n);
+        let mut solver = DirectSolver::default();
+        for pass in 0..2 {
+            let k = 1.0 + pass as f64;
+            sys.clear_values();
+            for e in 0..n - 1 {
+                let block = |v: f64| nalgebra::SMatrix::<f64, 1, 1>::new(v);
+                sys.add_block(&dofs[e], &dofs[e], &block(k));
+                sys.add_block(&dofs[e + 1], &dofs[e + 1], &block(k));
+                sys.add_block(&dofs[e], &dofs[e + 1], &block(-k));
+                sys.add_block(&dofs[e + 1], &dofs[e], &block(-k));
+            }
+            // unit load at the free end: displacement grows linearly, u_i = i / k
+            let mut rhs = vec![0.0; n - 1];
+            rhs[n - 2] = 1.0;
+            let kind = solver.solve(&sys, true, &mut rhs).unwrap();
+            assert_eq!(kind, SolverKind::Cholesky);
+            for (i, u) in rhs.iter().enumerate() {
+                assert!((u - (i + 1) as f64 / k).abs() < 1e-12, "u[{i}] = {u}");
+            }
+        }
+    }
+
+    #[test]
+    fn indefinite_matrix_falls_back_to_lu() {
+        let dofs = vec![[0u32, 1u32]];
+        let mut sys = SparseMatrix::default();
+        sys.rebuild_pattern(2, &dofs, std::iter::once(&[0usize][..]));
+        // [[1, 2], [2, 1]] is symmetric indefinite
+        sys.add_block(
+            &dofs[0],
+            &dofs[0],
+            &nalgebra::Matrix2::new(1.0, 2.0, 2.0, 1.0),
+        );
+        let mut rhs = vec![3.0, 3.0];
+        let kind = DirectSolver::default().solve(&sys, true, &mut rhs).unwrap();
+        assert_eq!(kind, SolverKind::Lu);
+        assert!((rhs[0] - 1.0).abs() < 1e-12 && (rhs[1] - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn singular_matrix_is_an_error_not_a_panic() {
+        let dofs = vec![[0u32, 1u32]];
+        let mut sys = SparseMatrix::default();
+        sys.rebuild_pattern(2, &dofs, std::iter::once(&[0usize][..]));
+        sys.add_block(
+            &dofs[0],
+            &dofs[0],
+            &nalgebra::Matrix2::new(1.0, 1.0, 1.0, 1.0),
+        );
+        let mut rhs = vec![1.0, 0.0];
+        assert!(DirectSolver::default().solve(&sys, true, &mut rhs).is_err());
+    }
+
+    /// A non-symmetric matrix whose lower triangle is symmetric positive definite: Cholesky
+    /// (which reads one triangle) would succeed and solve the wrong system. Declared
+    /// non-symmetric it is solved by LU, correctly; the matrix knows it is not symmetric.
+    #[test]
+    fn a_non_symmetric_tangent_is_never_solved_by_cholesky() {
+        let dofs = vec![[0u32, 1u32]];
+        let mut sys = SparseMatrix::default();
+        sys.rebuild_pattern(2, &dofs, std::iter::once(&[0usize][..]));
+        // [[4, 3], [1, 2]]: lower triangle [[4, .], [1, 2]] is SPD as a symmetric matrix
+        sys.add_block(
+            &dofs[0],
+            &dofs[0],
+            &nalgebra::Matrix2::new(4.0, 3.0, 1.0, 2.0),
+        );
+        assert!(!sys.is_symmetric(1e-12));
+        let exact = nalgebra::Matrix2::new(4.0, 3.0, 1.0, 2.0)
+            .lu()
+            .solve(&nalgebra::Vector2::new(1.0, 1.0))
+            .unwrap();
+        let mut rhs = vec![1.0, 1.0];
+        let kind = DirectSolver::default()
+            .solve(&sys, false, &mut rhs)
+            .unwrap();
+        assert_eq!(kind, SolverKind::Lu);
+        assert!((rhs[0] - exact[0]).abs() < 1e-12 && (rhs[1] - exact[1]).abs() < 1e-12);
+    }
+
+    /// The bordered solve against a dense solve of the whole system.
+    #[test]
+    fn the_bordered_system_of_arc_length_is_solved_exactly() {
+        let n = 5;
+        let (mut sys, dofs) = chain(n + 1);
+        for e in 0..n {
+            let block = |v: f64| nalgebra::SMatrix::<f64, 1, 1>::new(v);
+            let k = 1.0 + e as f64;
+            sys.add_block(&dofs[e], &dofs[e], &block(k));
+            sys.add_block(&dofs[e + 1], &dofs[e + 1], &block(k));
+            sys.add_block(&dofs[e], &dofs[e + 1], &block(-k));
+            sys.add_block(&dofs[e + 1], &dofs[e], &block(-k));
+        }
+        let b: Vec<f64> = (0..n).map(|i| 0.3 + i as f64).collect();
+        let c: Vec<f64> = (0..n).map(|i| 1.0 - 0.2 * i as f64).collect();
+        let (d, s) = (0.7, 2.0);
+        let r: Vec<f64> = (0..n).map(|i| (i as f64).sin()).collect();
+        let mut dense = nalgebra::DMatrix::<f64>::zeros(n + 1, n + 1);
+        for i in 0..n {
+            for j in 0..n {
+                dense[(i, j)] = sys.get(i, j);
+            }
+            dense[(i, n)] = b[i];
+            dense[(n, i)] = c[i];
+        }
+        dense[(n, n)] = d;
+        let mut rhs = nalgebra::DVector::from_vec(r.clone());
+        rhs = rhs.push(s);
+        let exact = dense.lu().solve(&rhs).unwrap();
+        let mut x = r;
+        let y = DirectSolver::default()
+            .solve_bordered(&sys, true, (&b, &c, d), &mut x, s)
+            .unwrap();
+        for i in 0..n {
+            assert!((x[i] - exact[i]).abs() < 1e-10, "x[{i}]");
+        }
+        assert!((y - exact[n]).abs() < 1e-10);
+    }
+}
