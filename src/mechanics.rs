@@ -125,6 +125,64 @@ pub fn spread_over_active<const D: usize>(
     true
 }
 
+/// Checks a material's consistent tangent at one point: the stiffness blocks `K_ij` of
+/// [`TrialState::stiffness`] against central finite differences (step `h`) of the point's
+/// internal force `V0 τ g_i` with respect to the increments `u_j` of nodes with reference
+/// gradients `grads`, from the committed state (`previous`, `committed`). Returns the largest
+/// absolute difference and the largest finite-difference entry (the scale to compare with).
+/// Every material's tests use it (the built-in ones, the plastic ones at points of each return
+/// region, and yours).
+pub fn tangent_against_finite_differences<const D: usize, M: Material>(
+    material: &M,
+    committed: &M::History,
+    previous: &SMatrix<f64, D, D>,
+    grads: &[SVector<f64, D>],
+    increments: &[SVector<f64, D>],
+    h: f64,
+) -> Result<(f64, f64), KinematicsError> {
+    let support: Vec<NodeWeight<D>> = grads
+        .iter()
+        .enumerate()
+        .map(|(node, g)| NodeWeight {
+            node,
+            value: 0.0,
+            gradient: *g,
+        })
+        .collect();
+    let force = |u: &[SVector<f64, D>]| -> Result<Vec<SVector<f64, D>>, KinematicsError> {
+        let df = increment_gradient(&support, |n| u[n]);
+        let (state, _) = trial_state_with_history(material, committed, previous, &df)?;
+        Ok(grads
+            .iter()
+            .map(|g| state.internal_force(0.7, &state.spatial_gradient(g)))
+            .collect())
+    };
+    let df = increment_gradient(&support, |n| increments[n]);
+    let (state, _) = trial_state_with_history(material, committed, previous, &df)?;
+    let (mut worst, mut scale) = (0.0f64, 0.0f64);
+    for j in 0..grads.len() {
+        for k in 0..D {
+            let (mut up, mut down) = (increments.to_vec(), increments.to_vec());
+            up[j][k] += h;
+            down[j][k] -= h;
+            let (fp, fm) = (force(&up)?, force(&down)?);
+            for (i, g_i) in grads.iter().enumerate() {
+                let analytic = state.stiffness(
+                    0.7,
+                    &state.spatial_gradient(g_i),
+                    &state.spatial_gradient(&grads[j]),
+                );
+                for a in 0..D {
+                    let fd = (fp[i][a] - fm[i][a]) / (2.0 * h);
+                    worst = worst.max((fd - analytic[(a, k)]).abs());
+                    scale = scale.max(fd.abs());
+                }
+            }
+        }
+    }
+    Ok((worst, scale))
+}
+
 /// Why a point's trial state could not be evaluated.
 #[derive(Clone, Debug, PartialEq)]
 pub enum KinematicsError {
@@ -313,30 +371,8 @@ mod tests {
         Hencky::new(1e6, 0.3).unwrap()
     }
 
-    /// Internal force of one point for nodal increments `u` (one vector per node in `grads`).
-    fn point_force<const D: usize>(
-        f_prev: &SMatrix<f64, D, D>,
-        grads: &[SVector<f64, D>],
-        u: &[SVector<f64, D>],
-    ) -> Vec<SVector<f64, D>> {
-        let support: Vec<NodeWeight<D>> = grads
-            .iter()
-            .enumerate()
-            .map(|(node, g)| NodeWeight {
-                node,
-                value: 0.0,
-                gradient: *g,
-            })
-            .collect();
-        let df = increment_gradient(&support, |n| u[n]);
-        let state = trial_state(&material(), f_prev, &df).unwrap();
-        grads
-            .iter()
-            .map(|g| state.internal_force(0.7, &state.spatial_gradient(g)))
-            .collect()
-    }
-
-    /// The point tangent against central finite differences of the point internal force.
+    /// The Hencky point tangent against central finite differences, at a stretched, sheared
+    /// state with three support functions.
     fn check_tangent<const D: usize>() {
         let grads: Vec<SVector<f64, D>> = (0..3)
             .map(|n| SVector::from_fn(|a, _| 0.3 * (n as f64 + 1.0) - 0.2 * a as f64 + 0.05))
@@ -346,50 +382,62 @@ mod tests {
             .collect();
         let f_prev =
             SMatrix::<f64, D, D>::from_fn(|a, b| if a == b { 0.9 + 0.05 * a as f64 } else { 0.03 });
-        let support: Vec<NodeWeight<D>> = grads
-            .iter()
-            .enumerate()
-            .map(|(node, g)| NodeWeight {
-                node,
-                value: 0.0,
-                gradient: *g,
-            })
-            .collect();
-        let state = trial_state(
-            &material(),
-            &f_prev,
-            &increment_gradient(&support, |n| u[n]),
-        )
-        .unwrap();
-        let h = 1e-7;
-        let mut worst: f64 = 0.0;
-        let mut scale: f64 = 0.0;
-        for j in 0..grads.len() {
-            for k in 0..D {
-                let mut up = u.clone();
-                let mut um = u.clone();
-                up[j][k] += h;
-                um[j][k] -= h;
-                let fp = point_force(&f_prev, &grads, &up);
-                let fm = point_force(&f_prev, &grads, &um);
-                for i in 0..grads.len() {
-                    let analytic = state.stiffness(
-                        0.7,
-                        &state.spatial_gradient(&grads[i]),
-                        &state.spatial_gradient(&grads[j]),
-                    );
-                    for a in 0..D {
-                        let fd = (fp[i][a] - fm[i][a]) / (2.0 * h);
-                        worst = worst.max((fd - analytic[(a, k)]).abs());
-                        scale = scale.max(fd.abs());
-                    }
-                }
-            }
-        }
+        let (worst, scale) =
+            tangent_against_finite_differences(&material(), &(), &f_prev, &grads, &u, 1e-7)
+                .unwrap();
         assert!(
             worst < 1e-6 * scale,
             "D = {D}: tangent error {worst:e} vs scale {scale:e}"
         );
+    }
+
+    /// The check can fail: a tangent whose material part is 10 % off is caught.
+    #[test]
+    fn a_wrong_tangent_is_caught_by_the_finite_difference_check() {
+        #[derive(Clone, Debug, PartialEq)]
+        struct OffTangent(Hencky);
+        impl Material for OffTangent {
+            type History = ();
+            const MODEL: &'static str = "off_tangent";
+            fn parameters() -> Vec<crate::material::ParameterSpec> {
+                Vec::new()
+            }
+            fn describe() -> &'static str {
+                ""
+            }
+            fn from_parameters(_: &crate::material::MaterialParameters) -> Result<Self, String> {
+                Err(String::new())
+            }
+            fn respond<const D: usize>(
+                &self,
+                f: &SMatrix<f64, D, D>,
+                df: &SMatrix<f64, D, D>,
+                h: &(),
+            ) -> Result<crate::material::Response<D, ()>, String> {
+                let mut response = self.0.respond(f, df, h)?;
+                // a tangent that is off by 10 % in its material part
+                for a in response.tangent.iter_mut().flatten().flatten().flatten() {
+                    *a *= 1.1;
+                }
+                Ok(response)
+            }
+            fn stiffness_scale(&self) -> f64 {
+                1.0
+            }
+        }
+        let v = nalgebra::Vector2::new;
+        let grads = [v(0.3, -0.1), v(-0.2, 0.5)];
+        let u = [v(0.02, -0.01), v(0.01, 0.03)];
+        let (worst, scale) = tangent_against_finite_differences(
+            &OffTangent(material()),
+            &(),
+            &SMatrix::identity(),
+            &grads,
+            &u,
+            1e-7,
+        )
+        .unwrap();
+        assert!(worst > 1e-3 * scale, "{worst:e} vs {scale:e}");
     }
 
     #[test]

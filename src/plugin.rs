@@ -195,7 +195,7 @@ impl Plugin for CoreOutput {
 
     fn scene_api(&self, api: &mut SceneApi) {
         for &(name, doc) in PARTICLE_FIELDS {
-            api.field(FieldSpec { name, doc });
+            api.word(FieldSpec { name, doc });
         }
     }
 

@@ -457,7 +457,15 @@ pub fn run_scene_with(
     plugin: &impl Plugin,
     on_step: impl FnMut(&StepRecord),
 ) -> Result<Summary, RunError> {
-    let (summary, result) = run_scene_keeping_summary_with(spec, out_dir, plugin, on_step);
+    completed(run_scene_keeping_summary_with(
+        spec, out_dir, plugin, on_step,
+    ))
+}
+
+/// The summary of a completed run, or why it did not complete.
+fn completed(
+    (summary, result): (Option<Summary>, Result<(), RunError>),
+) -> Result<Summary, RunError> {
     result?;
     summary.ok_or_else(|| RunError::Build(BuildError("the run produced no summary".into())))
 }
@@ -490,9 +498,7 @@ pub fn run_scene_with_modules(
     modules: &ModuleSet,
     on_step: impl FnMut(&StepRecord),
 ) -> Result<Summary, RunError> {
-    let (summary, result) = run_with(spec, out_dir, modules, &(), on_step);
-    result?;
-    summary.ok_or_else(|| RunError::Build(BuildError("the run produced no summary".into())))
+    completed(run_with(spec, out_dir, modules, &(), on_step))
 }
 
 fn run_with(

@@ -9,11 +9,10 @@ mod common;
 
 use nalgebra::{SMatrix, SVector};
 
-use impm::basis::NodeWeight;
 use impm::effects::{self, materials::MaterialModule};
 use impm::explain::explain_scene;
 use impm::material::Hencky;
-use impm::mechanics::{increment_gradient, trial_state};
+use impm::mechanics::tangent_against_finite_differences;
 use impm::plugin::ModuleSet;
 use impm::run::Simulation;
 use neo_hookean::NeoHookean;
@@ -29,53 +28,13 @@ fn check_tangent<const D: usize>() {
     let grads: Vec<SVector<f64, D>> = (0..3)
         .map(|n| SVector::from_fn(|a, _| 0.3 * (n as f64 + 1.0) - 0.2 * a as f64 + 0.05))
         .collect();
-    let support = |_: ()| -> Vec<NodeWeight<D>> {
-        grads
-            .iter()
-            .enumerate()
-            .map(|(node, g)| NodeWeight {
-                node,
-                value: 0.0,
-                gradient: *g,
-            })
-            .collect()
-    };
     let u: Vec<SVector<f64, D>> = (0..3)
         .map(|n| SVector::from_fn(|a, _| 0.05 * ((n * 3 + a) as f64).sin()))
         .collect();
     let f_prev =
         SMatrix::<f64, D, D>::from_fn(|a, b| if a == b { 0.9 + 0.05 * a as f64 } else { 0.04 });
-    let force = |u: &[SVector<f64, D>]| -> Vec<SVector<f64, D>> {
-        let df = increment_gradient(&support(()), |n| u[n]);
-        let state = trial_state(&model, &f_prev, &df).unwrap();
-        grads
-            .iter()
-            .map(|g| state.internal_force(0.7, &state.spatial_gradient(g)))
-            .collect()
-    };
-    let state = trial_state(&model, &f_prev, &increment_gradient(&support(()), |n| u[n])).unwrap();
-    let h = 1e-7;
-    let (mut worst, mut scale) = (0.0f64, 0.0f64);
-    for j in 0..3 {
-        for k in 0..D {
-            let (mut up, mut down) = (u.clone(), u.clone());
-            up[j][k] += h;
-            down[j][k] -= h;
-            let (fp, fm) = (force(&up), force(&down));
-            for i in 0..3 {
-                let analytic = state.stiffness(
-                    0.7,
-                    &state.spatial_gradient(&grads[i]),
-                    &state.spatial_gradient(&grads[j]),
-                );
-                for a in 0..D {
-                    let fd = (fp[i][a] - fm[i][a]) / (2.0 * h);
-                    worst = worst.max((fd - analytic[(a, k)]).abs());
-                    scale = scale.max(fd.abs());
-                }
-            }
-        }
-    }
+    let (worst, scale) =
+        tangent_against_finite_differences(&model, &(), &f_prev, &grads, &u, 1e-7).unwrap();
     assert!(
         worst < 1e-6 * scale,
         "D = {D}: tangent error {worst:e}, scale {scale:e}"

@@ -37,14 +37,14 @@ impl<M: Material> Plugin for MaterialModule<M> {
     }
 
     fn scene_api(&self, api: &mut SceneApi) {
-        api.model(ModelSpec {
+        api.word(ModelSpec {
             model: M::MODEL,
             doc: M::describe(),
             parameters: M::parameters().iter().map(OptionSpec::from).collect(),
             check: |parameters| M::from_parameters(parameters).map(|m| m.stiffness_scale()),
         });
         for &(name, _) in M::output_fields() {
-            api.field(FieldSpec {
+            api.word(FieldSpec {
                 name,
                 doc: "a history field of a material model (zero on points of other models)",
             });

@@ -15,7 +15,9 @@ use crate::basis::{BasisKind, DomainError, DomainScratch, GimpDomain, eval_point
 use crate::components::{DeformationGradient, PointId, Position, Support};
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{Grid, GridFields, LoadStep, RunStatus, SolverError, Stage, StageClock};
-use crate::scene::{BasisWord, Choice, Kind, OptionSpec, Options, SceneApi, SceneSpec};
+use crate::scene::{
+    BasisRefinement, BasisWord, Choice, Kind, OptionSpec, Options, SceneApi, SceneSpec,
+};
 
 /// The initial domain of a material point: the half-lengths `lp0_k` of the box the point owns
 /// at seeding (`h_k / (2 ppc_k)` on the lattice; its share of the overlap where a box region
@@ -61,7 +63,7 @@ impl Plugin for PointDomainsModule {
                 "B-splines only (default \"points\"): `\"domain\"` averages the basis over each point's box domain, stretched like cpGIMP's",
             ),
         )
-        .basis(BasisWord {
+        .word(BasisWord {
             word: "gimp",
             doc: "GIMP (Bardenhagen & Kober 2004): hat functions averaged over each point's box domain; `gimp: \"stretched\"` follows the diagonal of F (cpGIMP), `\"fixed\"` keeps the initial size (uGIMP). Domains are clipped to the grid. Use >= 2 points per cell",
             kind: |options| {
@@ -73,13 +75,13 @@ impl Plugin for PointDomainsModule {
             },
             seeder: None,
         })
-        .basis(BasisWord {
+        .word(BasisWord {
             word: "cpdi",
             doc: "CPDI1 (Sadeghirad et al. 2011): hat functions averaged from the corners of each point's domain carried by F; a corner leaving the grid is an error naming the point",
             kind: |_| Ok(BasisKind::Cpdi),
             seeder: None,
         })
-        .refine_basis(domain_integration);
+        .word(domain_integration as BasisRefinement);
     }
 
     fn used_by(&self, spec: &SceneSpec) -> bool {

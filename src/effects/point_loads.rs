@@ -106,7 +106,7 @@ impl Plugin for PointLoadsModule {
                 },
             ));
         }
-        api.field(FieldSpec {
+        api.word(FieldSpec {
             name: "point_load",
             doc: "λ P: the point load at the step's load factor (zero on unloaded points); written when the scene has point loads",
         });

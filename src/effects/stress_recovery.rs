@@ -97,7 +97,7 @@ impl Plugin for StressRecoveryModule {
                 Ok(Dynamic::UNIT)
             },
         ))
-        .field(FieldSpec {
+        .word(FieldSpec {
             name: "recovered_stress",
             doc: "the MLS-recovered Cauchy stress (3x3, row-major); with stress_recovery(..)",
         });

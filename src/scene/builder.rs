@@ -496,6 +496,15 @@ fn resolve_body(
         ));
     }
     let grid_bounds = format!("[{:?} .. {:?}]", grid.value.lower, grid.value.upper);
+    let seed = |inside: &mut dyn FnMut(&[f64]) -> Result<bool, ScriptError>| {
+        seed_body(
+            &grid.value,
+            seeder,
+            &points_per_cell,
+            declaration.placement,
+            inside,
+        )
+    };
     let points = match &declaration.region {
         shape @ (Region::Box { .. } | Region::Polygon(_)) => {
             let (lower, upper) = shape.bounds().unwrap_or_default();
@@ -518,33 +527,16 @@ fn resolve_body(
                 ));
             }
             match shape {
-                Region::Polygon(_) => {
-                    let mut inside = |x: &[f64]| Ok::<_, ScriptError>(shape.contains(x));
-                    seed_body(
-                        &grid.value,
-                        seeder,
-                        &points_per_cell,
-                        declaration.placement,
-                        &mut inside,
-                    )?
-                }
-                _ if seeder.is_some() => {
-                    let mut inside = |x: &[f64]| Ok::<_, ScriptError>(shape.contains(x));
-                    seed_body(
-                        &grid.value,
-                        seeder,
-                        &points_per_cell,
-                        declaration.placement,
-                        &mut inside,
-                    )?
-                }
-                _ => Ok(seed_box(
+                // a box is seeded exactly on the lattice; a polygon, or a box for a basis with
+                // its own seeding, through the region's predicate
+                Region::Box { .. } if seeder.is_none() => Ok(seed_box(
                     &grid.value,
                     &points_per_cell,
                     declaration.placement,
                     &lower,
                     &upper,
                 )),
+                _ => seed(&mut |x: &[f64]| Ok(shape.contains(x)))?,
             }
         }
         Region::Predicate(predicate) => {
@@ -562,13 +554,7 @@ fn resolve_body(
                     "the region contains x = {position:?}, outside the grid {grid_bounds}; material points must lie in the grid (bound the region)"
                 ));
             }
-            seed_body(
-                &grid.value,
-                seeder,
-                &points_per_cell,
-                declaration.placement,
-                &mut inside,
-            )?
+            seed(&mut inside)?
         }
     };
     let points = match points {

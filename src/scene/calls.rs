@@ -70,13 +70,13 @@ pub fn register(api: &mut SceneApi) {
         .call(solver_call())
         .call(output_call())
         .call(analytic_column_call());
-    api.basis(BasisWord {
+    api.word(BasisWord {
         word: "linear",
         doc: "standard MPM: linear hat functions on the grid vertices (`order` is ignored)",
         kind: |_| Ok(BasisKind::Linear),
         seeder: None,
     })
-    .basis(BasisWord {
+    .word(BasisWord {
         word: "bspline",
         doc: "B-spline MPM of order q >= 1 (`order`, required): the paper's method",
         kind: bspline_kind,

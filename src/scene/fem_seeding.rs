@@ -137,12 +137,7 @@ mod tests {
     use std::convert::Infallible;
 
     fn grid(lower: &[f64], upper: &[f64], cells: &[usize]) -> GridSpec {
-        GridSpec {
-            lower: lower.to_vec(),
-            upper: upper.to_vec(),
-            cells: cells.to_vec(),
-            basis: BasisKind::Fem,
-        }
+        crate::scene::seeding::tests::grid_of(lower, upper, cells, BasisKind::Fem)
     }
 
     fn in_box(lower: &[f64], upper: &[f64]) -> impl Fn(&[f64]) -> Result<bool, Infallible> {

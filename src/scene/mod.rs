@@ -66,7 +66,7 @@ pub use seeding::{
     Placement, first_point_outside_grid, nearest_points, seed_boundary, seed_box, seed_points,
     seed_points_placed,
 };
-pub use words::{BasisRefinement, BasisWord, FieldSpec, ModelSpec, Seeder, Words};
+pub use words::{BasisRefinement, BasisWord, FieldSpec, ModelSpec, Seeder, Word, Words};
 
 use crate::analytic::SelfWeightColumn;
 pub use crate::basis::GridSpec;

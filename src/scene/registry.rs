@@ -21,7 +21,7 @@ use rhai::{Dynamic, Position};
 
 use super::builder::SceneBuilder;
 use super::options::{Choice, Kind, OptionSpec, Options};
-use super::words::{BasisRefinement, BasisWord, FieldSpec, ModelSpec, Words};
+use super::words::{Word, Words};
 
 /// What a call does with its arguments.
 #[derive(Clone)]
@@ -140,27 +140,10 @@ impl SceneApi {
         self
     }
 
-    /// Adds a word of the grid's `basis` option.
-    pub fn basis(&mut self, word: BasisWord) -> &mut Self {
-        self.words.basis.push(word);
-        self
-    }
-
-    /// Adds a refinement of the basis from the grid's options.
-    pub fn refine_basis(&mut self, refinement: BasisRefinement) -> &mut Self {
-        self.words.refinements.push(refinement);
-        self
-    }
-
-    /// Adds a material model.
-    pub fn model(&mut self, model: ModelSpec) -> &mut Self {
-        self.words.models.push(model);
-        self
-    }
-
-    /// Adds a point field of the output.
-    pub fn field(&mut self, field: FieldSpec) -> &mut Self {
-        self.words.fields.push(field);
+    /// Adds a word: a basis (`BasisWord`), a refinement of the basis (`BasisRefinement`), a
+    /// material model (`ModelSpec`) or a point field (`FieldSpec`).
+    pub fn word(&mut self, word: impl Word) -> &mut Self {
+        word.add_to(&mut self.words);
         self
     }
 

@@ -437,18 +437,28 @@ pub(super) fn for_each_index<E>(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::basis::BasisKind;
     use std::convert::Infallible;
 
-    fn grid(lower: &[f64], upper: &[f64], cells: &[usize]) -> GridSpec {
+    /// A grid of `basis` (for the seeding tests here and in `fem_seeding`).
+    pub(crate) fn grid_of(
+        lower: &[f64],
+        upper: &[f64],
+        cells: &[usize],
+        basis: BasisKind,
+    ) -> GridSpec {
         GridSpec {
             lower: lower.to_vec(),
             upper: upper.to_vec(),
             cells: cells.to_vec(),
-            basis: BasisKind::Linear,
+            basis,
         }
+    }
+
+    fn grid(lower: &[f64], upper: &[f64], cells: &[usize]) -> GridSpec {
+        grid_of(lower, upper, cells, BasisKind::Linear)
     }
 
     fn everywhere(_: &[f64]) -> Result<bool, Infallible> {

@@ -35,6 +35,35 @@ pub type Seeder = fn(
     &mut dyn FnMut(&[f64]) -> Result<bool, ScriptError>,
 ) -> Result<Result<Vec<PointSeed>, String>, ScriptError>;
 
+/// Something [`Words`] holds (`SceneApi::word` adds it).
+pub trait Word {
+    fn add_to(self, words: &mut Words);
+}
+
+impl Word for BasisWord {
+    fn add_to(self, words: &mut Words) {
+        words.basis.push(self);
+    }
+}
+
+impl Word for BasisRefinement {
+    fn add_to(self, words: &mut Words) {
+        words.refinements.push(self);
+    }
+}
+
+impl Word for ModelSpec {
+    fn add_to(self, words: &mut Words) {
+        words.models.push(self);
+    }
+}
+
+impl Word for FieldSpec {
+    fn add_to(self, words: &mut Words) {
+        words.fields.push(self);
+    }
+}
+
 /// Changes the basis a word made from the grid's other options (`integration: "domain"`
 /// turns B-splines into domain-averaged ones), or rejects the combination.
 pub type BasisRefinement = fn(BasisKind, &Options) -> Result<BasisKind, String>;

@@ -105,6 +105,18 @@ mod tests {
         (sys, dofs)
     }
 
+    /// Springs of stiffness `k(e)` between the nodes of the chain.
+    fn fill_chain(sys: &mut SparseMatrix, dofs: &[[u32; 1]], k: impl Fn(usize) -> f64) {
+        sys.clear_values();
+        for e in 0..dofs.len() - 1 {
+            let block = |v: f64| nalgebra::SMatrix::<f64, 1, 1>::new(v);
+            sys.add_block(&dofs[e], &dofs[e], &block(k(e)));
+            sys.add_block(&dofs[e + 1], &dofs[e + 1], &block(k(e)));
+            sys.add_block(&dofs[e], &dofs[e + 1], &block(-k(e)));
+            sys.add_block(&dofs[e + 1], &dofs[e], &block(-k(e)));
+        }
+    }
+
     #[test]
     fn pattern_of_a_chain_is_tridiagonal() {
         let (sys, _) = chain(5);
@@ -120,14 +132,7 @@ mod tests {
         let mut solver = DirectSolver::default();
         for pass in 0..2 {
             let k = 1.0 + pass as f64;
-            sys.clear_values();
-            for e in 0..n - 1 {
-                let block = |v: f64| nalgebra::SMatrix::<f64, 1, 1>::new(v);
-                sys.add_block(&dofs[e], &dofs[e], &block(k));
-                sys.add_block(&dofs[e + 1], &dofs[e + 1], &block(k));
-                sys.add_block(&dofs[e], &dofs[e + 1], &block(-k));
-                sys.add_block(&dofs[e + 1], &dofs[e], &block(-k));
-            }
+            fill_chain(&mut sys, &dofs, |_| k);
             // unit load at the free end: displacement grows linearly, u_i = i / k
             let mut rhs = vec![0.0; n - 1];
             rhs[n - 2] = 1.0;
@@ -139,17 +144,19 @@ mod tests {
         }
     }
 
-    #[test]
-    fn indefinite_matrix_falls_back_to_lu() {
-        let dofs = vec![[0u32, 1u32]];
+    /// A 2x2 matrix as the tangent of one node with two components.
+    fn two_by_two(m: nalgebra::Matrix2<f64>) -> SparseMatrix {
+        let dofs = [[0u32, 1u32]];
         let mut sys = SparseMatrix::default();
         sys.rebuild_pattern(2, &dofs, std::iter::once(&[0usize][..]));
+        sys.add_block(&dofs[0], &dofs[0], &m);
+        sys
+    }
+
+    #[test]
+    fn indefinite_matrix_falls_back_to_lu() {
         // [[1, 2], [2, 1]] is symmetric indefinite
-        sys.add_block(
-            &dofs[0],
-            &dofs[0],
-            &nalgebra::Matrix2::new(1.0, 2.0, 2.0, 1.0),
-        );
+        let sys = two_by_two(nalgebra::Matrix2::new(1.0, 2.0, 2.0, 1.0));
         let mut rhs = vec![3.0, 3.0];
         let kind = DirectSolver::default().solve(&sys, true, &mut rhs).unwrap();
         assert_eq!(kind, SolverKind::Lu);
@@ -158,14 +165,7 @@ mod tests {
 
     #[test]
     fn singular_matrix_is_an_error_not_a_panic() {
-        let dofs = vec![[0u32, 1u32]];
-        let mut sys = SparseMatrix::default();
-        sys.rebuild_pattern(2, &dofs, std::iter::once(&[0usize][..]));
-        sys.add_block(
-            &dofs[0],
-            &dofs[0],
-            &nalgebra::Matrix2::new(1.0, 1.0, 1.0, 1.0),
-        );
+        let sys = two_by_two(nalgebra::Matrix2::new(1.0, 1.0, 1.0, 1.0));
         let mut rhs = vec![1.0, 0.0];
         assert!(DirectSolver::default().solve(&sys, true, &mut rhs).is_err());
     }
@@ -175,15 +175,8 @@ mod tests {
     /// non-symmetric it is solved by LU, correctly; the matrix knows it is not symmetric.
     #[test]
     fn a_non_symmetric_tangent_is_never_solved_by_cholesky() {
-        let dofs = vec![[0u32, 1u32]];
-        let mut sys = SparseMatrix::default();
-        sys.rebuild_pattern(2, &dofs, std::iter::once(&[0usize][..]));
         // [[4, 3], [1, 2]]: lower triangle [[4, .], [1, 2]] is SPD as a symmetric matrix
-        sys.add_block(
-            &dofs[0],
-            &dofs[0],
-            &nalgebra::Matrix2::new(4.0, 3.0, 1.0, 2.0),
-        );
+        let sys = two_by_two(nalgebra::Matrix2::new(4.0, 3.0, 1.0, 2.0));
         assert!(!sys.is_symmetric(1e-12));
         let exact = nalgebra::Matrix2::new(4.0, 3.0, 1.0, 2.0)
             .lu()
@@ -202,14 +195,7 @@ mod tests {
     fn the_bordered_system_of_arc_length_is_solved_exactly() {
         let n = 5;
         let (mut sys, dofs) = chain(n + 1);
-        for e in 0..n {
-            let block = |v: f64| nalgebra::SMatrix::<f64, 1, 1>::new(v);
-            let k = 1.0 + e as f64;
-            sys.add_block(&dofs[e], &dofs[e], &block(k));
-            sys.add_block(&dofs[e + 1], &dofs[e + 1], &block(k));
-            sys.add_block(&dofs[e], &dofs[e + 1], &block(-k));
-            sys.add_block(&dofs[e + 1], &dofs[e], &block(-k));
-        }
+        fill_chain(&mut sys, &dofs, |e| 1.0 + e as f64);
         let b: Vec<f64> = (0..n).map(|i| 0.3 + i as f64).collect();
         let c: Vec<f64> = (0..n).map(|i| 1.0 - 0.2 * i as f64).collect();
         let (d, s) = (0.7, 2.0);

@@ -62,7 +62,7 @@ impl Plugin for FemMeshModule {
     }
 
     fn scene_api(&self, api: &mut SceneApi) {
-        api.basis(BasisWord {
+        api.word(BasisWord {
             word: "fem",
             doc: "updated-Lagrangian linear finite elements (bars, quads, hexahedra) on the body-fitted mesh of grid cells: a body must be made of whole cells, and its `ppc` is the number of Gauss points per direction (`order` is ignored)",
             kind: |_| Ok(BasisKind::Fem),
