@@ -11,8 +11,8 @@ use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::{InternedScheduleLabel, InternedSystemSet, ScheduleLabel, SystemSet};
 
 use crate::method::{
-    Hook, NewtonSchedule, NewtonSystems, OutputSchedule, RollbackSchedule, StepSchedule,
-    StepSystems, initialize_schedules,
+    BuiltInOutput, Hook, NewtonSchedule, NewtonSystems, OutputSchedule, RollbackSchedule,
+    StepSchedule, StepSystems, initialize_schedules,
 };
 use crate::plugin::ModuleSet;
 use crate::run::Simulation;
@@ -74,7 +74,10 @@ fn schedules_and_stages() -> Vec<(InternedScheduleLabel, Vec<(String, InternedSy
                 ("LinearSolve", N::LinearSolve.intern()),
             ]),
         ),
-        with_hooks(OutputSchedule.intern(), Vec::new()),
+        with_hooks(
+            OutputSchedule.intern(),
+            named(vec![("Output", BuiltInOutput.intern())]),
+        ),
         with_hooks(RollbackSchedule.intern(), Vec::new()),
     ]
 }

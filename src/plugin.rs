@@ -203,6 +203,10 @@ impl Plugin for CoreOutput {
         false
     }
 
+    fn applies_to(&self, _spec: &SceneSpec) -> bool {
+        false
+    }
+
     fn build<const D: usize>(&self, _: &mut Extension<'_, D>) {}
 }
 

@@ -165,8 +165,9 @@ impl Plugin for TractionsModule {
         let points = &spec.part::<Tractions>()?.0;
         let area: f64 = points.iter().map(|p| p.area).sum();
         Some(format!(
-            "{} traction points on a boundary of reference area (length) {area}",
-            points.len()
+            "{} traction points on a boundary of reference area (length) {}",
+            points.len(),
+            (area * 1e9).round() / 1e9
         ))
     }
 
