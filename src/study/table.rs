@@ -197,6 +197,19 @@ pub fn markdown(
     against: Option<&str>,
     charts: &[(String, String)],
 ) -> String {
+    let mut md = intro(plan, records);
+    md.push_str(&runs_table(names, records));
+    if let Some(against) = against {
+        md.push_str(&rates_section(records, against));
+    }
+    for (title, stem) in charts {
+        let _ = writeln!(md, "\n## {title}\n\n![{title}]({stem}.svg)");
+    }
+    md
+}
+
+/// The title, sweeps, fixed overrides and what the columns mean.
+fn intro(plan: &StudyPlan, records: &[RunRecord]) -> String {
     let mut md = String::new();
     let _ = writeln!(md, "# Study of `{}`\n", plan.scene.display());
     let sweeps: Vec<String> = plan
@@ -232,14 +245,14 @@ pub fn markdown(
             " (NOT reset per run on this system: the process's peak so far)"
         }
     );
-    let assembly = Stage::ALL
-        .iter()
-        .position(|s| *s == Stage::Assembly)
-        .unwrap_or(0);
-    let solve = Stage::ALL
-        .iter()
-        .position(|s| *s == Stage::LinearSolve)
-        .unwrap_or(0);
+    md
+}
+
+/// One row per run: its parameters, outcome, errors, sizes and times.
+fn runs_table(names: &[String], records: &[RunRecord]) -> String {
+    let mut md = String::new();
+    let stage = |wanted: Stage| Stage::ALL.iter().position(|s| *s == wanted).unwrap_or(0);
+    let (assembly, solve) = (stage(Stage::Assembly), stage(Stage::LinearSolve));
     let mut header: Vec<String> = names.to_vec();
     header.extend(
         [
@@ -285,31 +298,32 @@ pub fn markdown(
         ]);
         let _ = writeln!(md, "| {} |", row.join(" | "));
     }
-    if let Some(against) = against {
-        let _ = writeln!(
-            md,
-            "\n## Observed convergence rates against `{against}`\n\n\
-             Rate between neighbouring runs `−ln(e₂/e₁)/ln({against}₂/{against}₁)`, and the \
-             least-squares rate over the series.\n"
-        );
-        let _ = writeln!(
-            md,
-            "| series | stress | rates between neighbours | least-squares rate |"
-        );
-        let _ = writeln!(md, "|---|---|---|---|");
-        for (label, raw, recovered) in series_by(records, against) {
-            let label = if label.is_empty() { "all" } else { &label };
-            for (kind, points) in [("raw", &raw), ("recovered", &recovered)] {
-                if points.is_empty() {
-                    continue;
-                }
-                let (pairwise, overall) = rates_text(points);
-                let _ = writeln!(md, "| {label} | {kind} | {pairwise} | {overall} |");
+    md
+}
+
+/// The observed convergence rates of each series against the swept parameter `against`.
+fn rates_section(records: &[RunRecord], against: &str) -> String {
+    let mut md = String::new();
+    let _ = writeln!(
+        md,
+        "\n## Observed convergence rates against `{against}`\n\n\
+         Rate between neighbouring runs `−ln(e₂/e₁)/ln({against}₂/{against}₁)`, and the \
+         least-squares rate over the series.\n"
+    );
+    let _ = writeln!(
+        md,
+        "| series | stress | rates between neighbours | least-squares rate |"
+    );
+    let _ = writeln!(md, "|---|---|---|---|");
+    for (label, raw, recovered) in series_by(records, against) {
+        let label = if label.is_empty() { "all" } else { &label };
+        for (kind, points) in [("raw", &raw), ("recovered", &recovered)] {
+            if points.is_empty() {
+                continue;
             }
+            let (pairwise, overall) = rates_text(points);
+            let _ = writeln!(md, "| {label} | {kind} | {pairwise} | {overall} |");
         }
-    }
-    for (title, stem) in charts {
-        let _ = writeln!(md, "\n## {title}\n\n![{title}]({stem}.svg)");
     }
     md
 }
