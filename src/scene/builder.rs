@@ -472,29 +472,10 @@ fn resolve_body(
             format!("body '{}': {message}", declaration.name),
         ))
     };
-    let points_per_cell = match &declaration.points_per_cell {
-        PointsPerCell::Uniform(count) => vec![*count; dim],
-        PointsPerCell::PerAxis(counts) if counts.len() == dim => counts.clone(),
-        PointsPerCell::PerAxis(counts) => {
-            return fail(format!(
-                "ppc has {} entries but the grid is {dim}-dimensional",
-                counts.len()
-            ));
-        }
+    let points_per_cell = match points_per_axis(&declaration.points_per_cell, &grid.value) {
+        Ok(counts) => counts,
+        Err(why) => return fail(why),
     };
-    let candidates = grid
-        .value
-        .cells
-        .iter()
-        .zip(&points_per_cell)
-        .try_fold(1usize, |count, (&cells, &ppc)| {
-            count.checked_mul(cells.checked_mul(ppc)?)
-        });
-    if candidates.is_none_or(|count| count > MAX_SEED_CANDIDATES) {
-        return fail(format!(
-            "too many seeding positions (grid cells x ppc^D exceeds {MAX_SEED_CANDIDATES})"
-        ));
-    }
     let grid_bounds = format!("[{:?} .. {:?}]", grid.value.lower, grid.value.upper);
     let seed = |inside: &mut dyn FnMut(&[f64]) -> Result<bool, ScriptError>| {
         seed_body(
@@ -572,6 +553,35 @@ fn resolve_body(
         material: declaration.material,
         points,
     })
+}
+
+/// Points per cell along every axis of `grid`, checked: one count per axis, and not more
+/// seeding positions than `MAX_SEED_CANDIDATES`.
+fn points_per_axis(points_per_cell: &PointsPerCell, grid: &GridSpec) -> Result<Vec<usize>, String> {
+    let dim = grid.dim();
+    let counts = match points_per_cell {
+        PointsPerCell::Uniform(count) => vec![*count; dim],
+        PointsPerCell::PerAxis(counts) if counts.len() == dim => counts.clone(),
+        PointsPerCell::PerAxis(counts) => {
+            return Err(format!(
+                "ppc has {} entries but the grid is {dim}-dimensional",
+                counts.len()
+            ));
+        }
+    };
+    let candidates = grid
+        .cells
+        .iter()
+        .zip(&counts)
+        .try_fold(1usize, |count, (&cells, &ppc)| {
+            count.checked_mul(cells.checked_mul(ppc)?)
+        });
+    if candidates.is_none_or(|count| count > MAX_SEED_CANDIDATES) {
+        return Err(format!(
+            "too many seeding positions (grid cells x ppc^D exceeds {MAX_SEED_CANDIDATES})"
+        ));
+    }
+    Ok(counts)
 }
 
 /// The body's points: the seeding lattice, or the basis's own seeding (the integration points
