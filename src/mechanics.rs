@@ -47,22 +47,7 @@ use nalgebra::{Matrix3, SMatrix, SVector};
 
 use crate::basis::NodeWeight;
 use crate::material::{Material, Tangent};
-
-/// A D x D matrix embedded in 3x3 with the identity in the remaining diagonal.
-pub fn embed<const D: usize>(m: &SMatrix<f64, D, D>) -> Matrix3<f64> {
-    let mut out = Matrix3::identity();
-    for a in 0..D {
-        for b in 0..D {
-            out[(a, b)] = m[(a, b)];
-        }
-    }
-    out
-}
-
-/// The top-left D x D block of a 3x3 matrix.
-pub fn block<const D: usize>(m: &Matrix3<f64>) -> SMatrix<f64, D, D> {
-    SMatrix::from_fn(|a, b| m[(a, b)])
-}
+pub use crate::material::{block, embed};
 
 /// Δf = I + Σ_i Δu_i ⊗ ∇_n N_i over a point's support; `increment(node)` gives Δu of a node.
 pub fn increment_gradient<const D: usize>(

@@ -12,6 +12,8 @@ pub enum Range {
     Open(f64, f64),
     /// `lower <= x <= upper`.
     Closed(f64, f64),
+    /// `lower <= x < upper` (an angle from 0 up to, not including, 90 degrees).
+    ClosedOpen(f64, f64),
 }
 
 impl Range {
@@ -22,6 +24,7 @@ impl Range {
             Range::NonNegative => x >= 0.0,
             Range::Open(lo, hi) => lo < x && x < hi,
             Range::Closed(lo, hi) => lo <= x && x <= hi,
+            Range::ClosedOpen(lo, hi) => lo <= x && x < hi,
         }
     }
 
@@ -33,6 +36,7 @@ impl Range {
             Range::NonNegative => "be zero or positive".to_string(),
             Range::Open(lo, hi) => format!("satisfy {lo} < {key} < {hi}"),
             Range::Closed(lo, hi) => format!("satisfy {lo} <= {key} <= {hi}"),
+            Range::ClosedOpen(lo, hi) => format!("satisfy {lo} <= {key} < {hi}"),
         }
     }
 
@@ -44,6 +48,7 @@ impl Range {
             Range::NonNegative => "number >= 0".to_string(),
             Range::Open(lo, hi) => format!("{lo} < number < {hi}"),
             Range::Closed(lo, hi) => format!("{lo} <= number <= {hi}"),
+            Range::ClosedOpen(lo, hi) => format!("{lo} <= number < {hi}"),
         }
     }
 }
@@ -79,6 +84,12 @@ mod tests {
         assert!(Range::NonNegative.contains(0.0) && !Range::NonNegative.contains(-1e-300));
         assert!(Range::Open(-1.0, 0.5).contains(0.49) && !Range::Open(-1.0, 0.5).contains(0.5));
         assert!(Range::Closed(0.0, 90.0).contains(90.0));
+        assert!(Range::ClosedOpen(0.0, 90.0).contains(0.0));
+        assert!(!Range::ClosedOpen(0.0, 90.0).contains(90.0));
+        assert_eq!(
+            Range::ClosedOpen(0.0, 90.0).rule("phi"),
+            "satisfy 0 <= phi < 90"
+        );
         assert_eq!(Range::Open(-1.0, 0.5).rule("nu"), "satisfy -1 < nu < 0.5");
         assert_eq!(Range::Positive.describe(), "number > 0");
     }

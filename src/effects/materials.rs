@@ -44,6 +44,10 @@ impl<M: Material> Plugin for MaterialModule<M> {
             check: |parameters| M::from_parameters(parameters).map(|m| m.stiffness_scale()),
         });
         for &(name, _) in M::output_fields() {
+            // several models write the same field (`plastic_strain`): one word, one array
+            if api.words().fields.iter().any(|field| field.name == name) {
+                continue;
+            }
             api.word(FieldSpec {
                 name,
                 doc: "a history field of a material model (zero on points of other models)",
@@ -167,7 +171,9 @@ fn restore_history<M: Material>(world: &mut World, values: &[f64]) -> Result<(),
     Ok(())
 }
 
-/// The model's output fields from the committed history (zeros on points of other models).
+/// The model's output fields from the committed history. Points of other models get zeros, or
+/// keep what another model with a field of the same name wrote: all models' values of one
+/// field name end up in one array (`plastic_strain` of a von Mises and a Mohr–Coulomb body).
 fn history_fields<M: Material>(
     mut out: ResMut<PointFields>,
     all: Query<&PointId>,
@@ -177,7 +183,22 @@ fn history_fields<M: Material>(
     let mut values = Vec::new();
     let mut offset = 0;
     for &(name, components) in M::output_fields() {
-        let mut field = vec![0.0; components * count];
+        let index = match out
+            .0
+            .iter()
+            .position(|field| field.name == name && field.components == components)
+        {
+            Some(index) => index,
+            None => {
+                out.0.push(crate::stages::output::PointField {
+                    name,
+                    components,
+                    values: vec![0.0; components * count],
+                });
+                out.0.len() - 1
+            }
+        };
+        let field = &mut out.0[index].values;
         for (id, history) in points.iter() {
             values.clear();
             M::output_values(&history.committed, &mut values);
@@ -189,11 +210,6 @@ fn history_fields<M: Material>(
                 slot.copy_from_slice(value);
             }
         }
-        out.0.push(crate::stages::output::PointField {
-            name,
-            components,
-            values: field,
-        });
         offset += components;
     }
 }

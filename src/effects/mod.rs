@@ -5,7 +5,7 @@
 //!
 //! | module | what |
 //! |---|---|
-//! | `materials.rs` | a material model per body (Hencky elasticity built in) |
+//! | `materials.rs` | a material model per body (Hencky elasticity; von Mises, Drucker–Prager and Mohr–Coulomb plasticity) |
 //! | `point_domains.rs` | GIMP, CPDI and domain-averaged B-splines: weights over point domains |
 //! | `fem_mesh/` | linear FEM on the body-fitted mesh of grid cells |
 //! | `body_force.rs` | body force per unit mass |
@@ -25,7 +25,7 @@ pub mod point_loads;
 pub mod stress_recovery;
 pub mod tractions;
 
-use crate::material::Hencky;
+use crate::material::{DruckerPrager, Hencky, MohrCoulomb, VonMises};
 use crate::plugin::ModuleSet;
 
 /// The modules every run has, in the order they are built (which is also the order of their
@@ -33,6 +33,9 @@ use crate::plugin::ModuleSet;
 pub fn built_in() -> ModuleSet {
     ModuleSet::new()
         .with(materials::MaterialModule::<Hencky>::default())
+        .with(materials::MaterialModule::<VonMises>::default())
+        .with(materials::MaterialModule::<DruckerPrager>::default())
+        .with(materials::MaterialModule::<MohrCoulomb>::default())
         .with(point_domains::PointDomainsModule)
         .with(fem_mesh::FemMeshModule)
         .with(body_force::BodyForceModule)

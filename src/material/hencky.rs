@@ -50,9 +50,10 @@
 //! functions ([`Hencky::try_kirchhoff`], [`Hencky::try_kirchhoff_and_tangent`]) return `Err` with
 //! a message, and the unchecked ones return stresses and tangents filled with NaN. Nothing panics.
 
-use nalgebra::{Matrix3, SMatrix, SymmetricEigen, Vector3};
+use nalgebra::{Matrix3, SMatrix};
 
-use super::{Material, MaterialParameters, ParameterKind, ParameterSpec, Range, Response};
+use super::spectral::{Spectral, log_divided_difference};
+use super::{Material, MaterialParameters, ParameterKind, ParameterSpec, Range, Response, embed};
 
 /// Spatial tangent `c[a][b][k][d] = 2 d tau_ab / d b_kd` for indices below the dimension `D`.
 pub type Tangent<const D: usize> = [[[[f64; D]; D]; D]; D];
@@ -64,69 +65,6 @@ pub struct Hencky {
     pub youngs_modulus: f64,
     /// Poisson's ratio `nu` (-1 < nu < 0.5).
     pub poisson_ratio: f64,
-}
-
-/// Eigen-decomposition `b = sum_A values[A] vectors.column(A) vectors.column(A)^T` of a symmetric
-/// positive definite `b`.
-struct Spectral {
-    values: Vector3<f64>,
-    vectors: Matrix3<f64>,
-}
-
-impl Spectral {
-    /// Decomposes the symmetric part of `b`, or explains why it is not a valid `F F^T`.
-    fn try_new(b: &Matrix3<f64>) -> Result<Self, String> {
-        if b.iter().any(|v| !v.is_finite()) {
-            return Err(format!(
-                "left Cauchy-Green tensor b has a non-finite entry: {b:?}"
-            ));
-        }
-        let symmetric = (b + b.transpose()) * 0.5;
-        // A finite symmetric 3x3 matrix converges in a few sweeps; the cap only guards the loop.
-        let eigen = SymmetricEigen::try_new(symmetric, f64::EPSILON, 1000)
-            .ok_or_else(|| format!("eigen-decomposition of b did not converge: {symmetric:?}"))?;
-        if let Some(bad) = eigen
-            .eigenvalues
-            .iter()
-            .find(|&&v| v <= 0.0 || !v.is_finite())
-        {
-            return Err(format!(
-                "left Cauchy-Green tensor b must be positive definite (det F > 0), \
-                 but it has eigenvalue {bad:e}: {symmetric:?}"
-            ));
-        }
-        Ok(Self {
-            values: eigen.eigenvalues,
-            vectors: eigen.eigenvectors,
-        })
-    }
-
-    /// `sum_A f(values[A]) n_A n_A^T`.
-    fn map(&self, f: impl Fn(f64) -> f64) -> Matrix3<f64> {
-        let mut out = Matrix3::zeros();
-        for (value, n) in self.values.iter().zip(self.vectors.column_iter()) {
-            out += n * n.transpose() * f(*value);
-        }
-        out
-    }
-}
-
-/// Divided difference of the logarithm, `(ln x - ln y) / (x - y)` for `x, y > 0`, with its limit
-/// `1 / x` at `x = y`; accurate to a few ulps for all positive arguments and symmetric in them.
-fn log_divided_difference(x: f64, y: f64) -> f64 {
-    let (small, large) = if x <= y { (x, y) } else { (y, x) };
-    let difference = small - large; // exact when small >= large / 2 (Sterbenz)
-    let r = difference / large; // small / large - 1, in (-1, 0]
-    if r > -1e-3 {
-        // ln(1 + r) / r = sum_k (-r)^k / (k + 1); the first omitted term is below 1.5e-19.
-        let series =
-            1.0 + r * (-1.0 / 2.0 + r * (1.0 / 3.0 + r * (-1.0 / 4.0 + r * (1.0 / 5.0 - r / 6.0))));
-        series / large
-    } else if small >= 0.5 * large {
-        r.ln_1p() / difference
-    } else {
-        (small / large).ln() / difference
-    }
 }
 
 /// Hyperelastic: no history, `b = F Fᵀ` (padded to 3x3 in 1D and 2D).
@@ -169,13 +107,7 @@ impl Material for Hencky {
         _committed: &(),
     ) -> Result<Response<D, ()>, String> {
         let b = deformation_gradient * deformation_gradient.transpose();
-        let mut padded = Matrix3::identity();
-        for i in 0..D {
-            for j in 0..D {
-                padded[(i, j)] = b[(i, j)];
-            }
-        }
-        let (kirchhoff, tangent) = self.try_kirchhoff_and_tangent::<D>(&padded)?;
+        let (kirchhoff, tangent) = self.try_kirchhoff_and_tangent::<D>(&embed(&b))?;
         Ok(Response {
             kirchhoff,
             tangent,
@@ -622,44 +554,6 @@ mod tests {
             // The tangent is Lipschitz in b: the change is of the order of the gap.
             assert!(worst < 1e-9 * material.youngs_modulus + 10.0 * gap * material.youngs_modulus);
         }
-    }
-
-    #[test]
-    fn log_divided_difference_is_accurate_and_symmetric() {
-        for (x, y) in [
-            (2.0, 3.0),
-            (1.0, 1.0 + 1e-4),
-            (1.0, 1.0 + 1e-2),
-            (1e-3, 7.0),
-            (5.0, 5.0),
-        ] {
-            let value = log_divided_difference(x, y);
-            assert_eq!(value, log_divided_difference(y, x));
-            let reference = if x == y {
-                1.0 / x
-            } else if (x - y).abs() > 0.1 * y {
-                (x.ln() - y.ln()) / (x - y)
-            } else {
-                // Cancellation-free reference for close arguments: the mean of 1/t over [x, y]
-                // by 2000-panel Simpson.
-                let panels = 2000;
-                let h = (y - x) / panels as f64;
-                let mut sum = 1.0 / x + 1.0 / y;
-                for i in 1..panels {
-                    let t = x + h * i as f64;
-                    sum += if i % 2 == 1 { 4.0 } else { 2.0 } / t;
-                }
-                sum * h / 3.0 / (y - x)
-            };
-            assert!(
-                (value - reference).abs() < 1e-9 * reference,
-                "{x}, {y}: {value} vs {reference}"
-            );
-        }
-        // Continuity at the series switch (r = -1e-3) to rounding.
-        let below = log_divided_difference(1.0 - 1e-3 * (1.0 + 1e-12), 1.0);
-        let above = log_divided_difference(1.0 - 1e-3 * (1.0 - 1e-12), 1.0);
-        assert!((below - above).abs() < 1e-14);
     }
 
     #[test]

@@ -25,17 +25,54 @@
 //! model serves 1D, 2D and 3D. The tangent is returned only for the `D` in-plane indices, as a
 //! [`Tangent<D>`]. Kernels take plain `nalgebra` arguments and never panic.
 //!
+//! # Models
+//!
+//! | file | model |
+//! |---|---|
+//! | [`hencky`] | Hencky elasticity (the paper's model) |
+//! | [`elastoplastic`] | the finite-strain elasto-plastic framework shared by the plastic models: `F = F_e F_p`, Hencky in the elastic logarithmic strain, the return map in principal strain space (exponential map), history, output |
+//! | [`von_mises`] | von Mises (J2) plasticity, perfect or with linear isotropic hardening; Tresca's undrained soil in plane strain |
+//! | [`drucker_prager`] | Drucker–Prager with cone and apex returns, matched to Mohr–Coulomb |
+//! | [`mohr_coulomb`] | Mohr–Coulomb with plane, edge and apex returns, optional tension cut-off |
+//! | [`spectral`] | eigen-decomposition and the tangent of isotropic functions of `b`, shared |
+//!
 //! Adding a model: implement [`Material`] (and its parameters' scene description, see
 //! `effects::materials`), then register `MaterialModule::<YourModel>` with the other modules;
 //! `examples/custom_material.rs` does it for a compressible neo-Hookean solid outside the crate.
 
+pub mod drucker_prager;
+pub mod elastoplastic;
 pub mod hencky;
+pub mod mohr_coulomb;
+pub mod spectral;
+pub mod von_mises;
 
+pub use drucker_prager::DruckerPrager;
+pub use elastoplastic::PlasticHistory;
 pub use hencky::{Hencky, Tangent};
+pub use mohr_coulomb::MohrCoulomb;
+pub use von_mises::VonMises;
 
 use std::fmt::Debug;
 
 use nalgebra::{Matrix3, SMatrix};
+
+/// A D x D matrix embedded in 3x3 with the identity in the remaining diagonal (the plane-strain
+/// and uniaxial-strain padding of `F`, `Δf` and `b`).
+pub fn embed<const D: usize>(m: &SMatrix<f64, D, D>) -> Matrix3<f64> {
+    let mut out = Matrix3::identity();
+    for a in 0..D {
+        for b in 0..D {
+            out[(a, b)] = m[(a, b)];
+        }
+    }
+    out
+}
+
+/// The top-left D x D block of a 3x3 matrix.
+pub fn block<const D: usize>(m: &Matrix3<f64>) -> SMatrix<f64, D, D> {
+    SMatrix::from_fn(|a, b| m[(a, b)])
+}
 
 pub use crate::parameter::{ParameterKind, ParameterSpec, Range};
 

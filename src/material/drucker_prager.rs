@@ -1,0 +1,308 @@
+//! Drucker–Prager plasticity at finite strain (perfect plasticity), matched to Mohr–Coulomb.
+//!
+//! Tension positive, `p = ⅓ tr τ`, `J2 = ½ ‖s‖²`; yield function and plastic potential
+//!
+//! ```text
+//! Φ = √J2 + η p − ξ c,      Ψ = √J2 + η̄ p
+//! ```
+//!
+//! with `η, ξ` from the friction angle φ and `η̄` from the dilation angle ψ by one of the usual
+//! matchings to Mohr–Coulomb (de Souza Neto et al., sec. 6.4.2):
+//!
+//! | `match` | η (η̄ with ψ) | ξ |
+//! |---|---|---|
+//! | `outer` (compressive meridians) | 6 sin φ / (√3 (3 − sin φ)) | 6 cos φ / (√3 (3 − sin φ)) |
+//! | `inner` (tensile meridians) | 6 sin φ / (√3 (3 + sin φ)) | 6 cos φ / (√3 (3 + sin φ)) |
+//! | `plane_strain` (same collapse loads in plane strain) | 3 tan φ / √(9 + 12 tan² φ) | 3 / √(9 + 12 tan² φ) |
+//!
+//! Return in principal logarithmic strain space (`elastoplastic.rs`; de Souza Neto et al.,
+//! box 8.9, without hardening). With `e = dev ε^tr`, `N = e/‖e‖`, `√J2^tr = √2 G ‖e‖`,
+//! `p^tr = K tr ε^tr`, `A = 1/(G + K η η̄)`:
+//!
+//! ```text
+//! cone    Δγ = A Φ^tr,   s = (1 − Δγ/(√2 ‖e‖)) 2G e,   p = p^tr − K η̄ Δγ      (if √J2^tr ≥ G Δγ)
+//!         D = 2G β I_d + 2G (1 − β) N⊗N − A (√2 G N + K η̄ 1) ⊗ (√2 G N + K η 1) + K 1⊗1
+//! apex    τ = (ξ c / η) 1,   D = 0                                              (otherwise)
+//! ```
+//!
+//! (`β = 1 − Δγ/(√2 ‖e‖)`, `I_d = I − ⅓ 1⊗1`). `D` is symmetric only for associated flow
+//! (`ψ = φ`).
+
+use nalgebra::{Matrix3, SMatrix, Vector3};
+
+use super::elastoplastic::{
+    self, PlasticHistory, PrincipalReturn, bulk_and_shear, deviator, deviatoric_projector,
+};
+use super::{
+    Hencky, Material, MaterialParameters, ParameterKind, ParameterSpec, ParameterValue, Range,
+    Response,
+};
+
+/// How the cone is matched to Mohr–Coulomb (module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Matching {
+    Outer,
+    Inner,
+    PlaneStrain,
+}
+
+impl Matching {
+    pub const WORDS: &'static [&'static str] = &["outer", "inner", "plane_strain"];
+
+    /// `(η, ξ)` of the angle `angle` (radians).
+    pub fn coefficients(self, angle: f64) -> (f64, f64) {
+        let root3 = 3.0f64.sqrt();
+        match self {
+            Matching::Outer => {
+                let d = root3 * (3.0 - angle.sin());
+                (6.0 * angle.sin() / d, 6.0 * angle.cos() / d)
+            }
+            Matching::Inner => {
+                let d = root3 * (3.0 + angle.sin());
+                (6.0 * angle.sin() / d, 6.0 * angle.cos() / d)
+            }
+            Matching::PlaneStrain => {
+                let d = (9.0 + 12.0 * angle.tan().powi(2)).sqrt();
+                (3.0 * angle.tan() / d, 3.0 / d)
+            }
+        }
+    }
+}
+
+/// Drucker–Prager perfect plasticity (module docs).
+#[derive(Clone, Debug, PartialEq)]
+pub struct DruckerPrager {
+    pub elastic: Hencky,
+    /// Cohesion `c`.
+    pub cohesion: f64,
+    /// Friction angle φ in radians.
+    pub friction: f64,
+    /// Dilation angle ψ in radians.
+    pub dilation: f64,
+    pub matching: Matching,
+    /// `η` of the yield function.
+    pub eta: f64,
+    /// `ξ` of the yield function.
+    pub xi: f64,
+    /// `η̄` of the plastic potential.
+    pub eta_bar: f64,
+}
+
+impl DruckerPrager {
+    /// A Drucker–Prager material (angles in degrees), or why the parameters make none.
+    pub fn new(
+        elastic: Hencky,
+        cohesion: f64,
+        friction_degrees: f64,
+        dilation_degrees: f64,
+        matching: Matching,
+    ) -> Result<Self, String> {
+        check_strength(cohesion, friction_degrees, dilation_degrees)?;
+        let (friction, dilation) = (friction_degrees.to_radians(), dilation_degrees.to_radians());
+        let (eta, xi) = matching.coefficients(friction);
+        let (eta_bar, _) = matching.coefficients(dilation);
+        Ok(Self {
+            elastic,
+            cohesion,
+            friction,
+            dilation,
+            matching,
+            eta,
+            xi,
+            eta_bar,
+        })
+    }
+
+    /// The principal-space return (module docs).
+    pub fn return_map(
+        &self,
+        strain: &Vector3<f64>,
+        trial_stress: &Vector3<f64>,
+    ) -> PrincipalReturn {
+        let (bulk, shear) = bulk_and_shear(&self.elastic);
+        let e = deviator(strain);
+        let norm = e.norm();
+        let root2 = 2.0f64.sqrt();
+        let j2_trial = root2 * shear * norm;
+        let p_trial = bulk * strain.sum();
+        let strength = self.xi * self.cohesion;
+        let excess = j2_trial + self.eta * p_trial - strength;
+        let scale = strength + j2_trial + self.eta * p_trial.abs();
+        if excess <= 1e-12 * scale {
+            return PrincipalReturn::elastic(&self.elastic, *trial_stress);
+        }
+        let a = 1.0 / (shear + bulk * self.eta * self.eta_bar);
+        let increment = a * excess;
+        if j2_trial - shear * increment >= 0.0 && norm > 0.0 {
+            let beta = 1.0 - increment / (root2 * norm);
+            let n = e / norm;
+            let one = Vector3::repeat(1.0);
+            let flow = n * (root2 * shear) + one * (bulk * self.eta_bar);
+            let normal = n * (root2 * shear) + one * (bulk * self.eta);
+            let tangent = deviatoric_projector() * (2.0 * shear * beta)
+                + n * n.transpose() * (2.0 * shear * (1.0 - beta))
+                - flow * normal.transpose() * a
+                + Matrix3::from_element(bulk);
+            let mean = p_trial - bulk * self.eta_bar * increment;
+            PrincipalReturn {
+                stress: e.map(|x| mean + 2.0 * shear * beta * x),
+                tangent,
+                pair_modulus: Some(2.0 * shear * beta),
+                yielding: true,
+            }
+        } else {
+            // the apex: only reachable with friction (η > 0), since √J2 − G Δγ = ξ c > 0 at η = 0
+            PrincipalReturn {
+                stress: Vector3::repeat(strength / self.eta),
+                tangent: Matrix3::zeros(),
+                pair_modulus: Some(0.0),
+                yielding: true,
+            }
+        }
+    }
+}
+
+/// The checks shared by the frictional models: `c ≥ 0`, `0 ≤ ψ ≤ φ < 90°`, and some strength.
+pub fn check_strength(cohesion: f64, friction: f64, dilation: f64) -> Result<(), String> {
+    if !(cohesion >= 0.0 && cohesion.is_finite()) {
+        return Err(format!(
+            "cohesion c must be zero or positive, got {cohesion}"
+        ));
+    }
+    if !((0.0..90.0).contains(&friction)) {
+        return Err(format!(
+            "friction angle phi must satisfy 0 <= phi < 90 (degrees), got {friction}"
+        ));
+    }
+    if !((0.0..90.0).contains(&dilation)) {
+        return Err(format!(
+            "dilation angle psi must satisfy 0 <= psi < 90 (degrees), got {dilation}"
+        ));
+    }
+    if dilation > friction {
+        return Err(format!(
+            "dilation angle psi = {dilation} must not exceed the friction angle phi = {friction}"
+        ));
+    }
+    if cohesion == 0.0 && friction == 0.0 {
+        return Err("c = 0 and phi = 0 leave the material without strength".into());
+    }
+    Ok(())
+}
+
+/// The parameters shared by the frictional models (after `E`, `nu`).
+pub fn strength_parameters() -> Vec<ParameterSpec> {
+    vec![
+        ParameterSpec {
+            name: "E",
+            meaning: "Young's modulus",
+            label: Some("Young's modulus E"),
+            kind: ParameterKind::Number(Range::Positive),
+            required: true,
+        },
+        ParameterSpec {
+            name: "nu",
+            meaning: "Poisson's ratio",
+            label: Some("Poisson's ratio nu"),
+            kind: ParameterKind::Number(Range::Open(-1.0, 0.5)),
+            required: true,
+        },
+        ParameterSpec {
+            name: "c",
+            meaning: "cohesion",
+            label: Some("cohesion c"),
+            kind: ParameterKind::Number(Range::NonNegative),
+            required: true,
+        },
+        ParameterSpec {
+            name: "phi",
+            meaning: "friction angle in degrees",
+            label: Some("friction angle phi"),
+            kind: ParameterKind::Number(Range::ClosedOpen(0.0, 90.0)),
+            required: true,
+        },
+        ParameterSpec {
+            name: "psi",
+            meaning: "dilation angle in degrees, at most phi (default phi: associated flow)",
+            label: Some("dilation angle psi"),
+            kind: ParameterKind::Number(Range::ClosedOpen(0.0, 90.0)),
+            required: false,
+        },
+    ]
+}
+
+/// `(E, nu)` elasticity and `(c, φ, ψ)` in degrees from the shared parameters.
+pub fn read_strength(parameters: &MaterialParameters) -> Result<(Hencky, f64, f64, f64), String> {
+    let elastic = Hencky::new(parameters.number("E")?, parameters.number("nu")?)?;
+    let friction = parameters.number("phi")?;
+    let dilation = parameters.optional_number("psi")?.unwrap_or(friction);
+    Ok((elastic, parameters.number("c")?, friction, dilation))
+}
+
+impl Material for DruckerPrager {
+    type History = PlasticHistory;
+    const MODEL: &'static str = "drucker_prager";
+
+    fn parameters() -> Vec<ParameterSpec> {
+        let mut parameters = strength_parameters();
+        parameters.push(ParameterSpec {
+            name: "match",
+            meaning: "matching to Mohr-Coulomb: outer (compressive meridians, default), inner (tensile meridians) or plane_strain (same plane-strain collapse loads)",
+            label: Some("matching to Mohr-Coulomb"),
+            kind: ParameterKind::Word(Matching::WORDS),
+            required: false,
+        });
+        parameters
+    }
+
+    fn from_parameters(parameters: &MaterialParameters) -> Result<Self, String> {
+        let (elastic, cohesion, friction, dilation) = read_strength(parameters)?;
+        let matching = match parameters.get("match") {
+            None => Matching::Outer,
+            Some(ParameterValue::Text(word)) => match word.as_str() {
+                "outer" => Matching::Outer,
+                "inner" => Matching::Inner,
+                "plane_strain" => Matching::PlaneStrain,
+                other => {
+                    return Err(format!(
+                        "match must be one of {:?}, got '{other}'",
+                        Matching::WORDS
+                    ));
+                }
+            },
+            Some(other) => return Err(format!("match must be a word, got {other:?}")),
+        };
+        Self::new(elastic, cohesion, friction, dilation, matching)
+    }
+
+    fn describe() -> &'static str {
+        "Drucker-Prager elasto-plasticity at finite strain (perfect plasticity, cone and apex returns, associated or not), matched to Mohr-Coulomb"
+    }
+
+    fn output_fields() -> &'static [(&'static str, usize)] {
+        elastoplastic::OUTPUT_FIELDS
+    }
+
+    fn output_values(history: &PlasticHistory, out: &mut Vec<f64>) {
+        elastoplastic::output_values(history, out);
+    }
+
+    fn respond<const D: usize>(
+        &self,
+        _deformation_gradient: &SMatrix<f64, D, D>,
+        increment: &SMatrix<f64, D, D>,
+        committed: &PlasticHistory,
+    ) -> Result<Response<D, PlasticHistory>, String> {
+        elastoplastic::respond(&self.elastic, increment, committed, |strain, stress, _| {
+            Ok(self.return_map(strain, stress))
+        })
+    }
+
+    fn stiffness_scale(&self) -> f64 {
+        self.elastic.youngs_modulus
+    }
+
+    fn tangent_is_symmetric(&self) -> bool {
+        self.eta == self.eta_bar
+    }
+}

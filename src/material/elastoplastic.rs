@@ -1,0 +1,266 @@
+//! The finite-strain elasto-plastic framework shared by the plastic models.
+//!
+//! # Formulation (de Souza Neto, Perić & Owen, *Computational Methods for Plasticity*, ch. 14)
+//!
+//! The deformation gradient splits multiplicatively, `F = F_e F_p`; the elastic part is Hencky's:
+//! the Kirchhoff stress is linear in the elastic logarithmic strain `ε_e = ½ ln b_e`,
+//! `b_e = F_e F_eᵀ`, with the bulk modulus `K` and the shear modulus `G`. A point carries the
+//! elastic left Cauchy–Green tensor `b_e^n` of the last converged load step and the accumulated
+//! equivalent plastic strain `ε̄_p^n` ([`PlasticHistory`]). In a load step with increment `Δf`:
+//!
+//! ```text
+//! elastic predictor   b_e^tr = Δf b_e^n Δfᵀ = Σ_A λ_A n_A n_Aᵀ,   ε^tr_A = ½ ln λ_A
+//! trial stress        τ^tr_A = K tr ε^tr + 2G (ε^tr_A − ⅓ tr ε^tr)
+//! return map          (τ_A, D_AB = ∂τ_A/∂ε^tr_B) = the small-strain return map of the model
+//!                     in principal space, from τ^tr and ε̄_p^n
+//! update              τ = Σ_A τ_A n_A n_Aᵀ,   ε_e = D_e⁻¹ τ,   b_e^{n+1} = Σ_A e^{2 ε_e,A} n_A n_Aᵀ
+//!                     ε̄_p^{n+1} = ε̄_p^n + √(2/3) ‖ε^tr − ε_e‖
+//! ```
+//!
+//! The exponential map integrates the plastic flow `−½ L_v b_e = Δγ ∂Ψ/∂τ b_e` exactly in
+//! direction for isotropic yield functions, so the principal-space return map is the small-strain
+//! one, word for word: the eigenvectors of `b_e^tr` are those of `τ` and `b_e^{n+1}`. The
+//! response's tangent is `c = 2 ∂τ/∂b_e^tr`, built from the algorithmic principal tangent `D` by
+//! [`isotropic_tangent`] (the eigenprojections' derivative is in `spectral.rs`), and it is taken at
+//! `b = b_e^tr`. Since `∂b_e^tr/∂Δu_j = e_k ⊗ (b_e^tr g_j) + (b_e^tr g_j) ⊗ e_k`, the same form
+//! as for `b = F Fᵀ`, `mechanics` assembles the consistent tangent of the plastic step exactly as
+//! for Hencky (`K_ij = V0 (g_i · c · b_e^tr g_j − (τ g_j) ⊗ g_i)`), which the finite-difference
+//! tests check at every return region.
+//!
+//! When `D` is symmetric (associated flow) the stress derives from an incremental potential of
+//! `ε^tr` and the assembled tangent is symmetric; non-associated flow makes `D`, and with it the
+//! assembled tangent, non-symmetric (`Material::tangent_is_symmetric`).
+//!
+//! In plane strain (`D = 2`) and uniaxial strain (`D = 1`) `Δf` is padded with ones, and the
+//! out-of-plane component of `b_e` evolves with the plastic flow (it is kept in the history).
+//!
+//! # What a model provides
+//!
+//! A model is its elastic part ([`Hencky`]) and a principal-space return map: a function of the
+//! trial principal strains and stresses and the committed `ε̄_p^n` returning a
+//! [`PrincipalReturn`]. [`respond`] does everything else.
+
+use nalgebra::{Matrix3, SMatrix, Vector3};
+
+use super::spectral::{Spectral, isotropic_tangent};
+use super::{Hencky, HistoryValues, Response, block, embed};
+
+/// The history of an elasto-plastic point.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlasticHistory {
+    /// The elastic left Cauchy–Green tensor `b_e` (3x3, symmetric).
+    pub elastic_left_cauchy_green: Matrix3<f64>,
+    /// The accumulated equivalent plastic strain `ε̄_p = Σ √(2/3) ‖Δε_p‖`.
+    pub plastic_strain: f64,
+    /// Whether the point flowed plastically in the step that produced this history.
+    pub yielding: bool,
+}
+
+impl Default for PlasticHistory {
+    /// The undeformed, virgin state: `b_e = I`, no plastic strain.
+    fn default() -> Self {
+        Self {
+            elastic_left_cauchy_green: Matrix3::identity(),
+            plastic_strain: 0.0,
+            yielding: false,
+        }
+    }
+}
+
+/// `b_e` (6 values: xx, yy, zz, xy, yz, xz), `ε̄_p`, yielding (0 or 1).
+impl HistoryValues for PlasticHistory {
+    const LEN: usize = 8;
+
+    fn write(&self, out: &mut Vec<f64>) {
+        let b = &self.elastic_left_cauchy_green;
+        out.extend_from_slice(&[
+            b[(0, 0)],
+            b[(1, 1)],
+            b[(2, 2)],
+            b[(0, 1)],
+            b[(1, 2)],
+            b[(0, 2)],
+            self.plastic_strain,
+            if self.yielding { 1.0 } else { 0.0 },
+        ]);
+    }
+
+    fn read(values: &[f64]) -> Option<Self> {
+        let &[xx, yy, zz, xy, yz, xz, plastic_strain, yielding] = values else {
+            return None;
+        };
+        if values.iter().any(|v| !v.is_finite()) || plastic_strain < 0.0 {
+            return None;
+        }
+        let b = Matrix3::new(xx, xy, xz, xy, yy, yz, xz, yz, zz);
+        Spectral::try_new(&b).ok()?;
+        Some(Self {
+            elastic_left_cauchy_green: b,
+            plastic_strain,
+            yielding: yielding != 0.0,
+        })
+    }
+}
+
+/// The output fields every plastic model writes: the accumulated equivalent plastic strain and
+/// whether the point yielded in the step.
+pub const OUTPUT_FIELDS: &[(&str, usize)] = &[("plastic_strain", 1), ("yielding", 1)];
+
+/// The values of [`OUTPUT_FIELDS`] for a history.
+pub fn output_values(history: &PlasticHistory, out: &mut Vec<f64>) {
+    out.push(history.plastic_strain);
+    out.push(if history.yielding { 1.0 } else { 0.0 });
+}
+
+/// What a principal-space return map gives.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PrincipalReturn {
+    /// The principal Kirchhoff stresses `τ_A`.
+    pub stress: Vector3<f64>,
+    /// The algorithmic tangent `∂τ_A/∂ε^tr_B`.
+    pub tangent: Matrix3<f64>,
+    /// `(τ_A − τ_B)/(ε^tr_A − ε^tr_B)` if it is the same for every pair (radial returns), which
+    /// the tangent then uses instead of the difference quotient.
+    pub pair_modulus: Option<f64>,
+    /// Whether the return was plastic.
+    pub yielding: bool,
+}
+
+impl PrincipalReturn {
+    /// The elastic answer: `τ^tr` with the elasticity tangent.
+    pub fn elastic(elastic: &Hencky, trial_stress: Vector3<f64>) -> Self {
+        let (_, shear) = elastic.lame();
+        Self {
+            stress: trial_stress,
+            tangent: elasticity(elastic),
+            pair_modulus: Some(2.0 * shear),
+            yielding: false,
+        }
+    }
+}
+
+/// The principal elasticity matrix `D_e = λ 1⊗1 + 2G I`.
+pub fn elasticity(elastic: &Hencky) -> Matrix3<f64> {
+    let (lambda, shear) = elastic.lame();
+    Matrix3::from_element(lambda) + Matrix3::identity() * (2.0 * shear)
+}
+
+/// The bulk and shear moduli `(K, G)`.
+pub fn bulk_and_shear(elastic: &Hencky) -> (f64, f64) {
+    let (lambda, shear) = elastic.lame();
+    (lambda + 2.0 / 3.0 * shear, shear)
+}
+
+/// The principal strains of principal stresses, `D_e⁻¹ τ`.
+pub fn elastic_strain(elastic: &Hencky, stress: &Vector3<f64>) -> Vector3<f64> {
+    let (bulk, shear) = bulk_and_shear(elastic);
+    let mean = stress.sum() / 3.0;
+    stress.map(|s| (s - mean) / (2.0 * shear) + mean / (3.0 * bulk))
+}
+
+/// The elasto-plastic response (module docs) of a model with elastic part `elastic` and
+/// principal-space return map `return_map(trial strains, trial stresses, committed ε̄_p)`.
+pub fn respond<const D: usize>(
+    elastic: &Hencky,
+    increment: &SMatrix<f64, D, D>,
+    committed: &PlasticHistory,
+    return_map: impl FnOnce(&Vector3<f64>, &Vector3<f64>, f64) -> Result<PrincipalReturn, String>,
+) -> Result<Response<D, PlasticHistory>, String> {
+    let df = embed(increment);
+    let trial = df * committed.elastic_left_cauchy_green * df.transpose();
+    let spectral = Spectral::try_new(&trial)?;
+    let strain = spectral.log_strains();
+    let trial_stress = elasticity(elastic) * strain;
+    let returned = return_map(&strain, &trial_stress, committed.plastic_strain)?;
+    if returned.stress.iter().any(|s| !s.is_finite()) {
+        return Err(format!(
+            "the return map gave a non-finite stress {:?} from the trial strains {:?}",
+            returned.stress, strain
+        ));
+    }
+    let elastic_strain = elastic_strain(elastic, &returned.stress);
+    let plastic_increment = strain - elastic_strain;
+    let history = PlasticHistory {
+        elastic_left_cauchy_green: spectral.compose(&elastic_strain.map(|e| (2.0 * e).exp())),
+        plastic_strain: committed.plastic_strain
+            + if returned.yielding {
+                (2.0 / 3.0f64).sqrt() * plastic_increment.norm()
+            } else {
+                0.0
+            },
+        yielding: returned.yielding,
+    };
+    let tangent = isotropic_tangent::<D>(
+        &spectral,
+        &strain,
+        &returned.stress,
+        &returned.tangent,
+        returned.pair_modulus,
+    );
+    Ok(Response {
+        kirchhoff: spectral.compose(&returned.stress),
+        tangent,
+        left_cauchy_green: block::<D>(&trial),
+        history,
+    })
+}
+
+/// The deviatoric part `e = ε − ⅓ tr ε` of a principal vector.
+pub fn deviator(v: &Vector3<f64>) -> Vector3<f64> {
+    let mean = v.sum() / 3.0;
+    v.map(|x| x - mean)
+}
+
+/// The deviatoric projector `I − ⅓ 1⊗1` on principal vectors.
+pub fn deviatoric_projector() -> Matrix3<f64> {
+    Matrix3::identity() - Matrix3::from_element(1.0 / 3.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn history_values_round_trip_and_reject_nonsense() {
+        let history = PlasticHistory {
+            elastic_left_cauchy_green: Matrix3::new(
+                1.1, 0.05, 0.0, 0.05, 0.9, 0.01, 0.0, 0.01, 1.0,
+            ),
+            plastic_strain: 0.03,
+            yielding: true,
+        };
+        let mut values = Vec::new();
+        history.write(&mut values);
+        assert_eq!(values.len(), PlasticHistory::LEN);
+        assert_eq!(PlasticHistory::read(&values), Some(history));
+        assert_eq!(PlasticHistory::read(&values[..7]), None);
+        let mut negative = values.clone();
+        negative[0] = -1.0; // b_e not positive definite
+        assert_eq!(PlasticHistory::read(&negative), None);
+    }
+
+    /// An elastic return gives Hencky's stress and tangent (the framework adds nothing).
+    #[test]
+    fn an_elastic_return_is_hencky_elasticity() {
+        let elastic = Hencky::new(1000.0, 0.25).unwrap();
+        let df = SMatrix::<f64, 3, 3>::new(1.1, 0.05, 0.0, -0.02, 0.95, 0.03, 0.01, 0.0, 1.02);
+        let response = respond::<3>(&elastic, &df, &PlasticHistory::default(), |_, stress, _| {
+            Ok(PrincipalReturn::elastic(&elastic, *stress))
+        })
+        .unwrap();
+        let b = df * df.transpose();
+        let (tau, tangent) = elastic.kirchhoff_and_tangent::<3>(&b);
+        assert!((response.kirchhoff - tau).amax() < 1e-10 * 1000.0);
+        let worst = response
+            .tangent
+            .as_flattened()
+            .as_flattened()
+            .iter()
+            .flatten()
+            .zip(tangent.as_flattened().as_flattened().iter().flatten())
+            .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
+        assert!(worst < 1e-8 * 1000.0, "{worst:e}");
+        assert!((response.history.elastic_left_cauchy_green - b).amax() < 1e-12);
+        assert_eq!(response.history.plastic_strain, 0.0);
+    }
+}

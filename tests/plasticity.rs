@@ -1,0 +1,852 @@
+//! Elasto-plastic models at finite strain (von Mises, Drucker–Prager, Mohr–Coulomb): the
+//! consistent tangent of every model and return region against finite differences of the point
+//! force, in 2D and 3D; single-point homogeneous deformations against closed forms; committed
+//! versus trial history; the symmetry flag.
+
+use nalgebra::{Matrix3, Rotation3, SMatrix, SVector, SymmetricEigen, Unit, Vector3};
+
+use impm::material::drucker_prager::Matching;
+use impm::material::{
+    DruckerPrager, Hencky, Material, MohrCoulomb, PlasticHistory, Response, VonMises,
+};
+use impm::mechanics::tangent_against_finite_differences;
+use impm::resources::Newton;
+use impm::run::Simulation;
+use impm::solver::SolverKind;
+
+mod common;
+
+fn elastic() -> Hencky {
+    Hencky::new(1000.0, 0.3).unwrap()
+}
+
+fn von_mises(hardening: f64) -> VonMises {
+    VonMises::new(elastic(), 2.0, hardening).unwrap()
+}
+
+fn drucker_prager(dilation: f64) -> DruckerPrager {
+    DruckerPrager::new(elastic(), 1.0, 30.0, dilation, Matching::Outer).unwrap()
+}
+
+fn mohr_coulomb(dilation: f64, cutoff: Option<f64>) -> MohrCoulomb {
+    MohrCoulomb::new(elastic(), 1.0, 30.0, dilation, cutoff).unwrap()
+}
+
+/// The increment `Δf = R diag(e^ε) Rᵀ` with principal logarithmic strains `strains` along
+/// rotated axes: about an oblique axis in 3D, in the plane in 2D (`strains[2]` unused), and
+/// `e^ε_0` in 1D.
+fn stretch<const D: usize>(strains: [f64; 3]) -> SMatrix<f64, D, D> {
+    let rotation = match D {
+        3 => Rotation3::from_axis_angle(&Unit::new_normalize(Vector3::new(1.0, -2.0, 0.5)), 0.7),
+        _ => Rotation3::from_axis_angle(&Vector3::z_axis(), 0.4),
+    }
+    .into_inner();
+    let mut diagonal = Vector3::from(strains).map(f64::exp);
+    if D < 3 {
+        diagonal[2] = 1.0;
+    }
+    let full = rotation * Matrix3::from_diagonal(&diagonal) * rotation.transpose();
+    SMatrix::from_fn(|a, b| full[(a, b)])
+}
+
+/// Principal values of a symmetric 3x3 matrix, descending.
+fn principal(m: &Matrix3<f64>) -> Vector3<f64> {
+    let mut values: Vec<f64> = SymmetricEigen::new(*m)
+        .eigenvalues
+        .iter()
+        .copied()
+        .collect();
+    values.sort_by(|a, b| b.total_cmp(a));
+    Vector3::from_vec(values)
+}
+
+/// Where a return ended.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Region {
+    Elastic,
+    /// A smooth surface (von Mises, the Drucker–Prager cone) or the Mohr–Coulomb plane.
+    Plane,
+    /// A Mohr–Coulomb edge: two principal stresses equal after the return.
+    Edge,
+    /// The apex: all principal stresses equal.
+    Apex,
+}
+
+fn region_of<const D: usize, M: Material<History = PlasticHistory>>(
+    response: &Response<D, PlasticHistory>,
+) -> Region {
+    if !response.history.yielding {
+        return Region::Elastic;
+    }
+    let s = principal(&response.kirchhoff);
+    let scale = s.amax().max(1.0);
+    let equal = |a: f64, b: f64| (a - b).abs() < 1e-9 * scale;
+    match (equal(s[0], s[1]), equal(s[1], s[2])) {
+        (true, true) => Region::Apex,
+        (false, false) => Region::Plane,
+        _ if M::MODEL == "mohr_coulomb" => Region::Edge,
+        _ => Region::Plane,
+    }
+}
+
+/// The point tangent of `material` at the trial increment `stretch(strains)` from `committed`
+/// (reached with `previous`) against central finite differences, after checking that the trial
+/// state returns to `expected`. The support has D nodes with unit gradients (which carry the
+/// increment) and one oblique node without increment.
+fn check_tangent<const D: usize, M: Material<History = PlasticHistory>>(
+    material: &M,
+    committed: &PlasticHistory,
+    previous: &SMatrix<f64, D, D>,
+    strains: [f64; 3],
+    expected: Region,
+) {
+    let df = stretch::<D>(strains);
+    let response = material.respond(&(df * previous), &df, committed).unwrap();
+    assert_eq!(
+        region_of::<D, M>(&response),
+        expected,
+        "{} D = {D} at {strains:?}: principal τ {:?}",
+        M::MODEL,
+        principal(&response.kirchhoff)
+    );
+    let mut grads: Vec<SVector<f64, D>> = (0..D)
+        .map(|a| SVector::from_fn(|k, _| if k == a { 1.0 } else { 0.0 }))
+        .collect();
+    grads.push(SVector::from_fn(|k, _| 0.3 - 0.25 * k as f64));
+    let mut increments: Vec<SVector<f64, D>> = (0..D)
+        .map(|a| (df - SMatrix::identity()).column(a).into())
+        .collect();
+    increments.push(SVector::zeros());
+    let (worst, scale) = tangent_against_finite_differences(
+        material,
+        committed,
+        previous,
+        &grads,
+        &increments,
+        1e-6,
+    )
+    .unwrap();
+    assert!(
+        worst < 1e-6 * scale,
+        "{} D = {D} {expected:?} at {strains:?}: tangent error {worst:e}, scale {scale:e}",
+        M::MODEL
+    );
+}
+
+/// A committed plastic state: the history after one plastic step `stretch(strains)` from the
+/// virgin state, with its deformation gradient.
+fn plastic_state<const D: usize, M: Material<History = PlasticHistory>>(
+    material: &M,
+    strains: [f64; 3],
+) -> (PlasticHistory, SMatrix<f64, D, D>) {
+    let df = stretch::<D>(strains);
+    let response = material
+        .respond(&df, &df, &PlasticHistory::default())
+        .unwrap();
+    assert!(response.history.yielding && response.history.plastic_strain > 0.0);
+    (response.history, df)
+}
+
+fn virgin<const D: usize>() -> (PlasticHistory, SMatrix<f64, D, D>) {
+    (PlasticHistory::default(), SMatrix::identity())
+}
+
+fn von_mises_tangents<const D: usize>() {
+    for hardening in [0.0, 300.0] {
+        let model = von_mises(hardening);
+        let (h, f) = virgin::<D>();
+        check_tangent(&model, &h, &f, [0.001, -0.0005, 0.0002], Region::Elastic);
+        check_tangent(&model, &h, &f, [0.02, -0.011, 0.003], Region::Plane);
+        // from a committed plastic state (with hardening: a larger yield stress)
+        let (h, f) = plastic_state::<D, _>(&model, [0.015, -0.01, 0.0]);
+        check_tangent(&model, &h, &f, [0.01, -0.004, 0.001], Region::Plane);
+        check_tangent(&model, &h, &f, [-0.0005, 0.0003, 0.0], Region::Elastic);
+    }
+}
+
+#[test]
+fn von_mises_tangent_matches_finite_differences_2d() {
+    von_mises_tangents::<2>();
+}
+
+#[test]
+fn von_mises_tangent_matches_finite_differences_3d() {
+    von_mises_tangents::<3>();
+}
+
+#[test]
+fn von_mises_tangent_matches_finite_differences_1d() {
+    let model = von_mises(300.0);
+    let (h, f) = virgin::<1>();
+    check_tangent(&model, &h, &f, [-0.02, 0.0, 0.0], Region::Plane);
+}
+
+fn drucker_prager_tangents<const D: usize>() {
+    for dilation in [30.0, 10.0, 0.0] {
+        let model = drucker_prager(dilation);
+        let (h, f) = virgin::<D>();
+        check_tangent(&model, &h, &f, [0.0005, -0.001, 0.0002], Region::Elastic);
+        check_tangent(&model, &h, &f, [-0.02, 0.006, -0.001], Region::Plane);
+        check_tangent(&model, &h, &f, [0.01, 0.012, 0.011], Region::Apex);
+        let (h, f) = plastic_state::<D, _>(&model, [-0.02, 0.006, -0.001]);
+        check_tangent(&model, &h, &f, [-0.01, 0.004, 0.0], Region::Plane);
+    }
+}
+
+#[test]
+fn drucker_prager_tangent_matches_finite_differences_2d() {
+    drucker_prager_tangents::<2>();
+}
+
+#[test]
+fn drucker_prager_tangent_matches_finite_differences_3d() {
+    drucker_prager_tangents::<3>();
+}
+
+fn mohr_coulomb_tangents_3d(model: &MohrCoulomb) {
+    let (h, f) = virgin::<3>();
+    check_tangent(model, &h, &f, [0.0005, -0.001, 0.0002], Region::Elastic);
+    check_tangent(model, &h, &f, [0.01, -0.002, -0.02], Region::Plane);
+    // triaxial compression: the two larger principal strains close: the compressive edge
+    check_tangent(model, &h, &f, [0.004, 0.0035, -0.02], Region::Edge);
+    // triaxial extension: the two smaller ones close: the tensile edge
+    check_tangent(model, &h, &f, [0.02, -0.0195, -0.02], Region::Edge);
+    check_tangent(model, &h, &f, [0.01, 0.012, 0.011], Region::Apex);
+    let (h, f) = plastic_state::<3, _>(model, [0.01, -0.002, -0.02]);
+    check_tangent(model, &h, &f, [0.006, 0.0, -0.008], Region::Plane);
+}
+
+fn mohr_coulomb_tangents_2d(model: &MohrCoulomb) {
+    let (h, f) = virgin::<2>();
+    check_tangent(model, &h, &f, [0.0005, -0.001, 0.0], Region::Elastic);
+    check_tangent(model, &h, &f, [0.012, -0.02, 0.0], Region::Plane);
+    // the out-of-plane and one in-plane stress close: an edge
+    check_tangent(model, &h, &f, [0.00004, 0.002, 0.0], Region::Edge);
+    check_tangent(model, &h, &f, [0.02, 0.021, 0.0], Region::Apex);
+    let (h, f) = plastic_state::<2, _>(model, [0.012, -0.02, 0.0]);
+    check_tangent(model, &h, &f, [0.008, -0.01, 0.0], Region::Plane);
+}
+
+#[test]
+fn mohr_coulomb_tangent_matches_finite_differences_3d() {
+    for dilation in [30.0, 10.0, 0.0] {
+        mohr_coulomb_tangents_3d(&mohr_coulomb(dilation, None));
+    }
+}
+
+#[test]
+fn mohr_coulomb_tangent_matches_finite_differences_2d() {
+    for dilation in [30.0, 10.0, 0.0] {
+        mohr_coulomb_tangents_2d(&mohr_coulomb(dilation, None));
+    }
+}
+
+/// The tension cut-off: its plane, its edge with the Mohr–Coulomb plane, and its corner.
+#[test]
+fn mohr_coulomb_with_tension_cutoff_tangent_matches_finite_differences() {
+    let model = mohr_coulomb(30.0, Some(0.5));
+    let (h, f) = virgin::<3>();
+    // a tensile principal stress beyond the cut-off, the others moderate
+    check_tangent(&model, &h, &f, [0.004, -0.001, -0.0015], Region::Plane);
+    check_tangent(&model, &h, &f, [0.01, 0.012, 0.011], Region::Apex);
+    let (h, f) = virgin::<2>();
+    check_tangent(&model, &h, &f, [0.004, -0.001, 0.0], Region::Plane);
+}
+
+/// Associated flow gives a symmetric assembled point tangent (the stress derives from an
+/// incremental potential of the trial elastic strain), non-associated flow a non-symmetric one;
+/// `tangent_is_symmetric` says which.
+#[test]
+fn the_tangent_is_symmetric_exactly_for_associated_flow() {
+    fn asymmetry<M: Material<History = PlasticHistory>>(model: &M, strains: [f64; 3]) -> f64 {
+        let df = stretch::<3>(strains);
+        let (state, history) = impm::mechanics::trial_state_with_history(
+            model,
+            &PlasticHistory::default(),
+            &SMatrix::identity(),
+            &df,
+        )
+        .unwrap();
+        assert!(history.yielding);
+        let grads = [Vector3::new(0.3, -0.1, 0.2), Vector3::new(-0.2, 0.5, 0.1)];
+        let g: Vec<_> = grads.iter().map(|g| state.spatial_gradient(g)).collect();
+        let k01 = state.stiffness(1.0, &g[0], &g[1]);
+        let k10 = state.stiffness(1.0, &g[1], &g[0]);
+        (k01 - k10.transpose()).norm() / k01.norm()
+    }
+    let plane = [0.01, -0.002, -0.02];
+    for (symmetric, value) in [
+        (
+            von_mises(0.0).tangent_is_symmetric(),
+            asymmetry(&von_mises(0.0), plane),
+        ),
+        (
+            von_mises(300.0).tangent_is_symmetric(),
+            asymmetry(&von_mises(300.0), plane),
+        ),
+        (
+            drucker_prager(30.0).tangent_is_symmetric(),
+            asymmetry(&drucker_prager(30.0), plane),
+        ),
+        (
+            drucker_prager(10.0).tangent_is_symmetric(),
+            asymmetry(&drucker_prager(10.0), plane),
+        ),
+        (
+            mohr_coulomb(30.0, None).tangent_is_symmetric(),
+            asymmetry(&mohr_coulomb(30.0, None), plane),
+        ),
+        (
+            mohr_coulomb(0.0, None).tangent_is_symmetric(),
+            asymmetry(&mohr_coulomb(0.0, None), plane),
+        ),
+    ] {
+        if symmetric {
+            assert!(value < 1e-10, "declared symmetric, asymmetry {value:e}");
+        } else {
+            assert!(
+                value > 1e-3,
+                "declared non-symmetric, asymmetry only {value:e}"
+            );
+        }
+    }
+    assert!(!drucker_prager(10.0).tangent_is_symmetric());
+    assert!(!mohr_coulomb(0.0, None).tangent_is_symmetric());
+}
+
+/// A point driven through homogeneous increments, committing after each.
+struct Driven<M: Material<History = PlasticHistory>> {
+    model: M,
+    deformation: Matrix3<f64>,
+    history: PlasticHistory,
+    kirchhoff: Matrix3<f64>,
+}
+
+impl<M: Material<History = PlasticHistory>> Driven<M> {
+    fn new(model: M) -> Self {
+        Self {
+            model,
+            deformation: Matrix3::identity(),
+            history: PlasticHistory::default(),
+            kirchhoff: Matrix3::zeros(),
+        }
+    }
+
+    /// The response to `df` from the committed state, not committed.
+    fn trial(&self, df: &Matrix3<f64>) -> Response<3, PlasticHistory> {
+        self.model
+            .respond(&(df * self.deformation), df, &self.history)
+            .unwrap()
+    }
+
+    fn step(&mut self, df: &Matrix3<f64>) {
+        let response = self.trial(df);
+        self.deformation = df * self.deformation;
+        self.history = response.history;
+        self.kirchhoff = response.kirchhoff;
+    }
+}
+
+/// Uniaxial logarithmic strain ε (3D, fixed axes, 25 steps to ε = ∓0.1) of von Mises with and
+/// without hardening against the closed form, exact for any step size on this proportional
+/// path: `τ_xx = K ε + ⅔ q sign ε`, `q = 2G|ε|` until `q = σ_y`, then
+/// `ε̄_p = (2G|ε| − σ_y)/(3G + H)` and `q = σ_y + H ε̄_p`.
+#[test]
+fn von_mises_under_uniaxial_strain_follows_the_closed_form() {
+    for hardening in [0.0, 300.0] {
+        for sign in [-1.0, 1.0] {
+            let model = von_mises(hardening);
+            let (bulk, shear) = impm::material::elastoplastic::bulk_and_shear(&model.elastic);
+            let mut point = Driven::new(model);
+            let steps = 25;
+            let increment = sign * 0.1 / steps as f64;
+            let mut worst = 0.0f64;
+            for n in 1..=steps {
+                point.step(&Matrix3::from_diagonal(&Vector3::new(
+                    increment.exp(),
+                    1.0,
+                    1.0,
+                )));
+                let strain = increment * n as f64;
+                let plastic =
+                    ((2.0 * shear * strain.abs() - 2.0) / (3.0 * shear + hardening)).max(0.0);
+                let q = if plastic > 0.0 {
+                    2.0 + hardening * plastic
+                } else {
+                    2.0 * shear * strain.abs()
+                };
+                let expected = bulk * strain + 2.0 / 3.0 * q * sign;
+                worst = worst.max((point.kirchhoff[(0, 0)] - expected).abs());
+                assert!((point.history.plastic_strain - plastic).abs() < 1e-12);
+                assert_eq!(point.history.yielding, plastic > 0.0);
+            }
+            assert!(worst < 1e-9 * bulk * 0.1, "H = {hardening}: {worst:e}");
+        }
+    }
+}
+
+/// Simple shear to γ = 1 (plane strain, 50 steps) of perfectly plastic von Mises: J = 1 and the
+/// plastic flow is isochoric, so τ is deviatoric; at yield `q(τ) = σ_y` exactly, and with
+/// σ_y/G = 5e-3 the normal stresses are small, so `τ_xy` is within 1 % of `σ_y/√3`.
+#[test]
+fn von_mises_in_simple_shear_saturates_at_the_shear_yield_stress() {
+    let model = von_mises(0.0);
+    let mut point = Driven::new(model);
+    let steps = 50;
+    for n in 1..=steps {
+        point.step(
+            &(Matrix3::identity()
+                + Matrix3::new(0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0) * (1.0 / steps as f64)),
+        );
+        let tau = point.kirchhoff;
+        assert!(
+            tau.trace().abs() < 1e-9,
+            "step {n}: p = {}",
+            tau.trace() / 3.0
+        );
+        if point.history.yielding {
+            let s = tau - Matrix3::identity() * (tau.trace() / 3.0);
+            let q = (1.5 * s.norm_squared()).sqrt();
+            assert!((q - 2.0).abs() < 1e-9, "step {n}: q = {q}");
+        }
+    }
+    let shear = point.kirchhoff[(0, 1)];
+    let limit = 2.0 / 3.0f64.sqrt();
+    assert!(
+        shear <= limit * (1.0 + 1e-12) && shear > 0.99 * limit,
+        "{shear} vs {limit}"
+    );
+}
+
+/// `(F, τ)` after an isotropic compression to Kirchhoff pressure `pressure` and axial
+/// compression in `steps` steps of axial logarithmic strain `increment`, the lateral Kirchhoff
+/// stress held at `−pressure` (a drained triaxial test), for each step.
+fn triaxial<M: Material<History = PlasticHistory>>(
+    model: M,
+    bulk: f64,
+    pressure: f64,
+    increment: f64,
+    steps: usize,
+) -> Vec<(PlasticHistory, Matrix3<f64>)> {
+    let mut point = Driven::new(model);
+    point.step(&(Matrix3::identity() * (-pressure / (3.0 * bulk)).exp()));
+    assert!((point.kirchhoff + Matrix3::identity() * pressure).amax() < 1e-10 * pressure);
+    let mut out = Vec::new();
+    for _ in 0..steps {
+        // the lateral stretch holding τ_yy = −pressure: secant iterations
+        let lateral_stress = |stretch: f64| {
+            let df = Matrix3::from_diagonal(&Vector3::new(increment.exp(), stretch, stretch));
+            point.trial(&df).kirchhoff[(1, 1)] + pressure
+        };
+        let (mut a, mut b) = (1.0, 1.0 + 1e-4);
+        let (mut fa, mut fb) = (lateral_stress(a), lateral_stress(b));
+        for _ in 0..50 {
+            if fb.abs() < 1e-12 * pressure || fb == fa {
+                break;
+            }
+            let c = b - fb * (b - a) / (fb - fa);
+            (a, fa) = (b, fb);
+            b = c;
+            fb = lateral_stress(b);
+        }
+        assert!(
+            fb.abs() < 1e-9 * pressure,
+            "lateral stress not held: {fb:e}"
+        );
+        point.step(&Matrix3::from_diagonal(&Vector3::new(
+            increment.exp(),
+            b,
+            b,
+        )));
+        out.push((point.history.clone(), point.kirchhoff));
+    }
+    out
+}
+
+/// Drained triaxial compression of Mohr–Coulomb (the compressive edge) and of Drucker–Prager
+/// matched at the outer cone (which coincides with Mohr–Coulomb on the compressive meridian):
+/// once plastic, the axial Kirchhoff stress is the Mohr–Coulomb limit
+/// `τ_a = −(p (1 + sin φ) + 2 c cos φ)/(1 − sin φ)` for confining pressure p, associated or not.
+#[test]
+fn triaxial_compression_reaches_the_mohr_coulomb_limit() {
+    let (bulk, _) = impm::material::elastoplastic::bulk_and_shear(&elastic());
+    let pressure = 5.0;
+    let (s, c) = (30f64.to_radians().sin(), 30f64.to_radians().cos());
+    let limit = -(pressure * (1.0 + s) + 2.0 * 1.0 * c) / (1.0 - s);
+    for dilation in [30.0, 10.0] {
+        let mc = triaxial(mohr_coulomb(dilation, None), bulk, pressure, -0.002, 20);
+        let dp = triaxial(drucker_prager(dilation), bulk, pressure, -0.002, 20);
+        for states in [&mc, &dp] {
+            assert!(!states[0].0.yielding, "the first step is elastic");
+            let (history, tau) = states.last().unwrap();
+            assert!(history.yielding && history.plastic_strain > 0.0);
+            assert!(
+                (tau[(0, 0)] - limit).abs() < 1e-8 * limit.abs(),
+                "psi = {dilation}: {} vs {limit}",
+                tau[(0, 0)]
+            );
+        }
+        // the Mohr–Coulomb return is on its edge: the two lateral stresses equal
+        let (_, tau) = mc.last().unwrap();
+        assert!((tau[(1, 1)] - tau[(2, 2)]).abs() < 1e-9 * pressure);
+    }
+}
+
+/// Isotropic tension beyond the apex returns to it: `c cot φ` for Mohr–Coulomb, `ξ c/η` for
+/// Drucker–Prager, the cut-off `t` with a tension cut-off.
+#[test]
+fn isotropic_tension_returns_to_the_apex() {
+    let df = Matrix3::identity() * 1.01;
+    let apex = 1.0 / 30f64.to_radians().tan();
+    for (model_apex, tau) in [
+        (
+            apex,
+            Driven::new(mohr_coulomb(30.0, None)).trial(&df).kirchhoff,
+        ),
+        (
+            apex,
+            Driven::new(mohr_coulomb(10.0, None)).trial(&df).kirchhoff,
+        ),
+        (
+            0.5,
+            Driven::new(mohr_coulomb(30.0, Some(0.5)))
+                .trial(&df)
+                .kirchhoff,
+        ),
+        (
+            drucker_prager(30.0).xi / drucker_prager(30.0).eta,
+            Driven::new(drucker_prager(30.0)).trial(&df).kirchhoff,
+        ),
+    ] {
+        assert!(
+            (tau - Matrix3::identity() * model_apex).amax() < 1e-10,
+            "{tau} vs {model_apex}"
+        );
+    }
+    // the outer cone's apex is Mohr–Coulomb's
+    assert!((drucker_prager(30.0).xi / drucker_prager(30.0).eta - apex).abs() < 1e-12);
+}
+
+/// On the Mohr–Coulomb plane the response to a proportional path with fixed axes is linear
+/// after first yield: `τ = D_e ε_y + D_p (ε − ε_y)` with the plane's perfectly plastic modulus
+/// `D_p = D_e − D_e b aᵀ D_e / (aᵀ D_e b)` (a, b the plane's yield and flow normals), the
+/// closed form here; the middle principal plastic strain is zero.
+#[test]
+fn mohr_coulomb_on_its_plane_follows_the_closed_form() {
+    for dilation in [30.0, 10.0, 0.0] {
+        let model = mohr_coulomb(dilation, None);
+        let de = impm::material::elastoplastic::elasticity(&model.elastic);
+        let (sin_phi, sin_psi) = (model.friction.sin(), model.dilation.sin());
+        let a = Vector3::new(1.0 + sin_phi, 0.0, -(1.0 - sin_phi));
+        let b = Vector3::new(1.0 + sin_psi, 0.0, -(1.0 - sin_psi));
+        let level = 2.0 * model.cohesion * model.friction.cos();
+        let direction = Vector3::new(0.5, -0.1, -1.0);
+        // first yield on the path ε = t direction: aᵀ D_e direction t = level
+        let first = level / a.dot(&(de * direction));
+        let plastic = de - de * b * a.transpose() * de / a.dot(&(de * b));
+        let mut point = Driven::new(model.clone());
+        let steps = 20;
+        let increment = 6.0 * first / steps as f64;
+        for n in 1..=steps {
+            let t = increment * n as f64;
+            point.step(&Matrix3::from_diagonal(
+                &(direction * increment).map(f64::exp),
+            ));
+            let expected = if t <= first {
+                de * direction * t
+            } else {
+                de * direction * first + plastic * direction * (t - first)
+            };
+            let tau = point.kirchhoff.diagonal();
+            assert!(
+                (tau - expected).amax() < 1e-9 * expected.amax(),
+                "psi = {dilation}, step {n}: {tau:?} vs {expected:?}"
+            );
+        }
+        assert!(point.history.yielding);
+        // the middle principal direction (y) has no plastic strain: b_e,yy = e^{2 ε_yy}
+        let elastic_yy = 0.5 * point.history.elastic_left_cauchy_green[(1, 1)].ln();
+        assert!((elastic_yy - direction[1] * increment * steps as f64).abs() < 1e-12);
+    }
+}
+
+/// The history is committed only by the caller: evaluating a larger trial step (a Newton
+/// iterate of an attempt that is then cut) leaves the committed state as it was, and the two
+/// halves taken from it give the same state as the two halves taken directly.
+#[test]
+fn a_cut_step_restarts_from_the_committed_history() {
+    let half = stretch::<3>([0.012, -0.002, -0.02]);
+    let mut direct = Driven::new(mohr_coulomb(10.0, None));
+    direct.step(&stretch::<3>([0.003, 0.0, -0.004]));
+    let mut cut = Driven::new(mohr_coulomb(10.0, None));
+    cut.step(&stretch::<3>([0.003, 0.0, -0.004]));
+    let committed = cut.history.clone();
+    for scale in [1.0, 0.7, 1.3] {
+        let attempt = cut.trial(&stretch::<3>([
+            0.024 * scale,
+            -0.004 * scale,
+            -0.04 * scale,
+        ]));
+        assert!(attempt.history.yielding);
+    }
+    assert_eq!(cut.history, committed);
+    for point in [&mut direct, &mut cut] {
+        point.step(&half);
+        point.step(&half);
+    }
+    assert_eq!(cut.history, direct.history);
+    assert_eq!(cut.kirchhoff, direct.kirchhoff);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Scenes
+
+/// Writes `text` to a scene file of its own and loads it with `set` overrides.
+fn scene(tag: &str, text: &str, set: &[(&str, &str)]) -> Result<impm::scene::SceneSpec, String> {
+    let dir = common::temp_dir("plasticity", tag);
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join(format!("{tag}.rhai"));
+    std::fs::write(&path, text).unwrap();
+    impm::run::load_scene(&path, &common::overrides(set)).map_err(|e| e.to_string())
+}
+
+/// Runs a scene to its end; returns the simulation.
+fn run<const D: usize>(tag: &str, text: &str, set: &[(&str, &str)]) -> Simulation<D> {
+    let spec = scene(tag, text, set).unwrap_or_else(|e| panic!("{e}"));
+    let dir = common::temp_dir("plasticity-run", tag);
+    let mut sim = Simulation::<D>::new(&spec, &dir).unwrap();
+    sim.run(|_| {}).unwrap_or_else(|e| panic!("{tag}: {e}"));
+    let _ = std::fs::remove_dir_all(&dir);
+    sim
+}
+
+/// Every point's Kirchhoff stress and reference position.
+fn point_stresses<const D: usize>(sim: &mut Simulation<D>) -> Vec<(Matrix3<f64>, f64)> {
+    let mut query = sim.world.query::<(
+        &impm::components::Trial<D>,
+        &impm::components::DeformationGradient<D>,
+        &impm::components::PointId,
+    )>();
+    let mut rows: Vec<_> = query
+        .iter(&sim.world)
+        .map(|(trial, _, id)| (id.0, trial.0.kirchhoff))
+        .collect();
+    rows.sort_by_key(|(id, _)| *id);
+    rows.into_iter().map(|(id, tau)| (tau, id as f64)).collect()
+}
+
+/// A block of von Mises material compressed in uniaxial (plane) strain by a prescribed
+/// displacement of its right face, on linear FEM whose nodes move with the body: the
+/// deformation is homogeneous and `displace` exact.
+const FEM_BLOCK: &str = r#"let steps = 10;
+let strain = -0.05;
+grid(#{ lower: [0.0, 0.0], upper: [1.0, 1.0], cells: [2, 2], basis: "fem" });
+const block = material(#{ name: "block", E: 1000.0, nu: 0.3, density: 1.0, model: "von_mises", sigma_y: 2.0, H: 300.0 });
+body(#{ name: "block", material: block, region: box([0.0, 0.0], [1.0, 1.0]), ppc: 2 });
+fix(|x| x[0] == 0.0, [0]);
+fix(|x| x[1] == 0.0, [1]);
+fix(|x| x[1] == 1.0, [1]);
+displace(|x| x[0] == 1.0, [0], [strain]);
+load_steps(steps);
+"#;
+
+/// Newton converges quadratically: from the second iterate of a step on (the first may still
+/// change the set of yielding points), where the residual is below 0.1 and the next one above
+/// round-off (1e-12), the observed order `ln r_{k+1} / ln r_k` is at least 1.8; at least
+/// `minimum` such iterates, and no step cut.
+fn assert_quadratic_convergence(summary: &impm::records::Summary, minimum: usize) {
+    let mut checked = 0;
+    for step in &summary.steps {
+        assert!(step.converged && step.cuts == 0);
+        for pair in step.residuals.windows(2).skip(1) {
+            if pair[0] < 0.1 && pair[1] > 1e-12 {
+                let order = pair[1].ln() / pair[0].ln();
+                assert!(order >= 1.8, "step {}: {:?}", step.step, step.residuals);
+                checked += 1;
+            }
+        }
+    }
+    assert!(
+        checked >= minimum,
+        "{checked} iterates in the asymptotic range"
+    );
+}
+
+/// The von Mises block: every point's stress is the closed form of uniaxial logarithmic strain
+/// (as at a single point), and Newton converges quadratically on the plastic steps.
+#[test]
+fn a_plastic_block_on_fem_follows_the_closed_form_with_quadratic_newton_convergence() {
+    let mut sim = run::<2>("fem_block", FEM_BLOCK, &[]);
+    let model = von_mises(300.0);
+    let (bulk, shear) = impm::material::elastoplastic::bulk_and_shear(&model.elastic);
+    let strain = (1.0f64 - 0.05).ln();
+    let plastic = (2.0 * shear * strain.abs() - 2.0) / (3.0 * shear + 300.0);
+    let q = 2.0 + 300.0 * plastic;
+    let (axial, lateral) = (bulk * strain - 2.0 / 3.0 * q, bulk * strain + q / 3.0);
+    let points = point_stresses(&mut sim);
+    assert_eq!(points.len(), 16);
+    for (tau, _) in &points {
+        assert!(
+            (tau[(0, 0)] - axial).abs() < 1e-8 * bulk,
+            "{} vs {axial}",
+            tau[(0, 0)]
+        );
+        assert!((tau[(1, 1)] - lateral).abs() < 1e-8 * bulk);
+        assert!((tau[(2, 2)] - lateral).abs() < 1e-8 * bulk);
+    }
+    assert_quadratic_convergence(&sim.summary, 10);
+    let newton = sim.world.resource::<Newton>();
+    assert!(newton.symmetric);
+}
+
+/// Non-associated Mohr–Coulomb (ψ = 0 < φ) declares its tangent non-symmetric and the
+/// solve uses LU; every plastic point is on the yield surface; associated flow keeps the
+/// symmetric solve.
+#[test]
+fn non_associated_flow_is_solved_by_lu() {
+    for (psi, symmetric) in [("0.0", false), ("30.0", true)] {
+        let text = FEM_BLOCK
+            .replace(
+                r#"model: "von_mises", sigma_y: 2.0, H: 300.0"#,
+                &format!(r#"model: "mohr_coulomb", c: 1.0, phi: 30.0, psi: {psi}"#),
+            )
+            // K0 = nu/(1 - nu) below the active ratio (1 - sin φ)/(1 + sin φ) = 1/3: it yields
+            .replace("nu: 0.3", "nu: 0.1");
+        let mut sim = run::<2>("mohr_coulomb_block", &text, &[]);
+        let newton = sim.world.resource::<Newton>();
+        assert_eq!(newton.symmetric, symmetric);
+        if !symmetric {
+            assert_eq!(newton.last_solver, SolverKind::Lu);
+        }
+        let (s, c) = (30f64.to_radians().sin(), 30f64.to_radians().cos());
+        let mut query = sim.world.query::<(
+            &impm::components::Trial<2>,
+            &impm::stages::PointHistory<MohrCoulomb>,
+        )>();
+        let mut plastic = 0;
+        for (trial, history) in query.iter(&sim.world) {
+            assert!(history.committed.yielding);
+            let p = principal(&trial.0.kirchhoff);
+            let yield_function = (p[0] - p[2]) + (p[0] + p[2]) * s - 2.0 * c;
+            assert!(
+                yield_function.abs() < 1e-9 * p.amax(),
+                "Φ = {yield_function:e}"
+            );
+            plastic += 1;
+        }
+        assert_eq!(plastic, 16);
+    }
+}
+
+/// A column whose lower half is von Mises and upper half Hencky under self-weight (1D,
+/// cubic B-splines): the stress is statically determinate whatever the material, so the points
+/// yield where the weight above them exceeds the uniaxial-strain yield stress
+/// `(K + 4G/3) σ_y / (2G)` and nowhere else; the elastic body has no plastic strain.
+#[test]
+fn elastic_and_plastic_bodies_share_a_scene() {
+    let text = r#"grid(#{ lower: [0.0], upper: [50.0], cells: [50], basis: "bspline", order: 3 });
+const steel = material(#{ name: "steel", model: "von_mises", E: 1.0e6, nu: 0.3, sigma_y: 40000.0, density: 1.0 });
+const soft = material(#{ name: "soft", E: 1.0e6, nu: 0.3, density: 1.0 });
+body(#{ name: "lower", material: steel, region: box([0.0], [25.0]), ppc: 4 });
+body(#{ name: "upper", material: soft, region: box([25.0], [50.0]), ppc: 4 });
+body_force([-2000.0]);
+fix(|x| x[0] == 0.0, [0]);
+load_steps(10);
+"#;
+    let spec = scene("mixed", text, &[]).unwrap();
+    let explanation = impm::explain::explain_scene(&spec, &impm::effects::built_in()).unwrap();
+    let updates = explanation
+        .systems
+        .iter()
+        .filter(|s| s.name.starts_with("stress::update_stress"))
+        .count();
+    assert_eq!(updates, 2, "one stress update per material kind");
+    let reference: Vec<f64> = spec
+        .bodies
+        .iter()
+        .flat_map(|b| b.points.iter().map(|p| p.position[0]))
+        .collect();
+    let mut sim = run::<1>("mixed", text, &[]);
+    let (bulk, shear) =
+        impm::material::elastoplastic::bulk_and_shear(&Hencky::new(1.0e6, 0.3).unwrap());
+    let yield_weight = (bulk + 4.0 / 3.0 * shear) * 40000.0 / (2.0 * shear);
+    let mut query = sim.world.query::<(
+        &impm::components::PointId,
+        &impm::stages::PointHistory<VonMises>,
+    )>();
+    let mut plastic = 0;
+    for (id, history) in query.iter(&sim.world) {
+        let weight = 2000.0 * (50.0 - reference[id.0 as usize]);
+        let committed = &history.committed;
+        if weight > 1.05 * yield_weight {
+            assert!(
+                committed.yielding && committed.plastic_strain > 0.0,
+                "X = {}",
+                reference[id.0 as usize]
+            );
+            plastic += 1;
+        } else if weight < 0.95 * yield_weight {
+            assert!(
+                !committed.yielding && committed.plastic_strain == 0.0,
+                "X = {}",
+                reference[id.0 as usize]
+            );
+        }
+    }
+    assert!(plastic > 20, "{plastic} plastic points");
+    // Newton converges quadratically on the steps in which the base yields
+    assert_quadratic_convergence(&sim.summary, 10);
+    // the Hencky points carry no plastic history
+    let mut hencky = sim.world.query::<(
+        &impm::components::PointId,
+        &impm::stages::PointMaterial<Hencky>,
+    )>();
+    assert!(
+        hencky
+            .iter(&sim.world)
+            .all(|(id, _)| reference[id.0 as usize] >= 25.0)
+    );
+}
+
+/// Bad strength parameters are rejected with the scene line of the material.
+#[test]
+fn bad_plastic_parameters_are_rejected_with_the_scene_line() {
+    let cases = [
+        ("model: \"mohr_coulomb\", c: 1.0, phi: 90.0", "phi"),
+        ("model: \"drucker_prager\", c: 1.0, phi: 95.0", "phi"),
+        ("model: \"mohr_coulomb\", c: -1.0, phi: 30.0", "cohesion"),
+        (
+            "model: \"drucker_prager\", c: 1.0, phi: 20.0, psi: 25.0",
+            "psi",
+        ),
+        (
+            "model: \"mohr_coulomb\", c: 1.0, phi: 20.0, psi: 25.0",
+            "psi",
+        ),
+        ("model: \"von_mises\", sigma_y: 0.0", "sigma_y"),
+        ("model: \"von_mises\", sigma_y: -2.0", "sigma_y"),
+        ("model: \"von_mises\"", "sigma_y"),
+        ("model: \"von_mises\", sigma_y: 2.0, s_u: 1.0", "s_u"),
+        (
+            "model: \"drucker_prager\", c: 1.0, phi: 20.0, match: \"sideways\"",
+            "match",
+        ),
+        (
+            "model: \"mohr_coulomb\", c: 1.0, phi: 30.0, tension_cutoff: 5.0",
+            "cut-off",
+        ),
+    ];
+    for (parameters, word) in cases {
+        let text = format!(
+            "grid(#{{ lower: [0.0], upper: [1.0], cells: [1], basis: \"linear\" }});\n\
+             const m = material(#{{ name: \"m\", E: 1000.0, nu: 0.3, density: 1.0, {parameters} }});\n\
+             body(#{{ name: \"b\", material: m, region: box([0.0], [1.0]), ppc: 1 }});\n"
+        );
+        let error = scene("bad", &text, &[]).unwrap_err();
+        assert!(error.contains(":2"), "{parameters}: no line 2 in '{error}'");
+        assert!(
+            error.contains(word),
+            "{parameters}: '{word}' not in '{error}'"
+        );
+    }
+}
