@@ -126,6 +126,11 @@ fn check_tangent<const D: usize, M: Material<History = PlasticHistory>>(
         1e-6,
     )
     .unwrap();
+    eprintln!(
+        "tangent {} D = {D} {expected:?}: relative error {:.1e}",
+        M::MODEL,
+        worst / scale
+    );
     assert!(
         worst < 1e-6 * scale,
         "{} D = {D} {expected:?} at {strains:?}: tangent error {worst:e}, scale {scale:e}",
@@ -380,6 +385,10 @@ fn von_mises_under_uniaxial_strain_follows_the_closed_form() {
                 assert!((point.history.plastic_strain - plastic).abs() < 1e-12);
                 assert_eq!(point.history.yielding, plastic > 0.0);
             }
+            eprintln!(
+                "uniaxial strain H = {hardening}, sign {sign}: max |τ_xx − closed form| / (K ε) = {:.1e}",
+                worst / (bulk * 0.1)
+            );
             assert!(worst < 1e-9 * bulk * 0.1, "H = {hardening}: {worst:e}");
         }
     }
@@ -412,6 +421,7 @@ fn von_mises_in_simple_shear_saturates_at_the_shear_yield_stress() {
     }
     let shear = point.kirchhoff[(0, 1)];
     let limit = 2.0 / 3.0f64.sqrt();
+    eprintln!("simple shear γ = 1: τ_xy / (σ_y/√3) = {:.6}", shear / limit);
     assert!(
         shear <= limit * (1.0 + 1e-12) && shear > 0.99 * limit,
         "{shear} vs {limit}"
@@ -479,6 +489,10 @@ fn triaxial_compression_reaches_the_mohr_coulomb_limit() {
         for states in [&mc, &dp] {
             assert!(!states[0].0.yielding, "the first step is elastic");
             let (history, tau) = states.last().unwrap();
+            eprintln!(
+                "triaxial psi = {dilation}: τ_a = {:.10} vs limit {limit:.10}",
+                tau[(0, 0)]
+            );
             assert!(history.yielding && history.plastic_strain > 0.0);
             assert!(
                 (tau[(0, 0)] - limit).abs() < 1e-8 * limit.abs(),
@@ -849,4 +863,63 @@ fn bad_plastic_parameters_are_rejected_with_the_scene_line() {
             "{parameters}: '{word}' not in '{error}'"
         );
     }
+}
+
+/// Two plastic kinds write `plastic_strain` and `yielding` into one array each (not one per
+/// kind), every point's value from its own kind's committed history, zeros on elastic points.
+#[test]
+fn plastic_fields_of_two_kinds_share_one_array() {
+    let text = r#"grid(#{ lower: [0.0], upper: [60.0], cells: [30], basis: "bspline", order: 2 });
+const steel = material(#{ name: "steel", model: "von_mises", E: 1.0e6, nu: 0.3, sigma_y: 40000.0, density: 1.0 });
+const sand = material(#{ name: "sand", model: "mohr_coulomb", E: 1.0e6, nu: 0.1, c: 1000.0, phi: 30.0, density: 1.0 });
+const soft = material(#{ name: "soft", E: 1.0e6, nu: 0.3, density: 1.0 });
+body(#{ name: "lower", material: steel, region: box([0.0], [20.0]), ppc: 2 });
+body(#{ name: "middle", material: sand, region: box([20.0], [40.0]), ppc: 2 });
+body(#{ name: "upper", material: soft, region: box([40.0], [60.0]), ppc: 2 });
+body_force([-2000.0]);
+fix(|x| x[0] == 0.0, [0]);
+load_steps(4);
+"#;
+    let spec = scene("fields", text, &[]).unwrap();
+    let dir = common::temp_dir("plasticity-run", "fields");
+    let mut sim = Simulation::<1>::new(&spec, &dir).unwrap();
+    sim.run(|_| {}).unwrap();
+    let vtu = impm::output::read_vtu(&dir.join("particles_0004.vtu")).unwrap();
+    let mut expected = vec![[0.0; 2]; vtu.points.len()];
+    let mut kinds = [0usize; 2];
+    let mut steel = sim.world.query::<(
+        &impm::components::PointId,
+        &impm::stages::PointHistory<VonMises>,
+    )>();
+    for (id, history) in steel.iter(&sim.world) {
+        let h = &history.committed;
+        expected[id.0 as usize] = [h.plastic_strain, if h.yielding { 1.0 } else { 0.0 }];
+        kinds[0] += usize::from(h.yielding);
+    }
+    let mut sand = sim.world.query::<(
+        &impm::components::PointId,
+        &impm::stages::PointHistory<MohrCoulomb>,
+    )>();
+    for (id, history) in sand.iter(&sim.world) {
+        let h = &history.committed;
+        expected[id.0 as usize] = [h.plastic_strain, if h.yielding { 1.0 } else { 0.0 }];
+        kinds[1] += usize::from(h.yielding);
+    }
+    assert!(
+        kinds[0] > 0 && kinds[1] > 0,
+        "both kinds yield somewhere: {kinds:?}"
+    );
+    for (k, name) in ["plastic_strain", "yielding"].into_iter().enumerate() {
+        assert_eq!(
+            vtu.point_data.iter().filter(|(n, _, _)| n == name).count(),
+            1,
+            "{name}"
+        );
+        let (components, values) = vtu.point_field(name).unwrap();
+        assert_eq!(components, 1);
+        for (value, want) in values.iter().zip(&expected) {
+            assert_eq!(*value, want[k], "{name}");
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }
