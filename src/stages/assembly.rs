@@ -1,8 +1,9 @@
 //! Newton stage 2: internal force and consistent tangent (see `mechanics` for the formulas).
 //!
 //! Every point adds V0 τ g_i to the internal force of its support nodes and the blocks K_ij to
-//! the tangent. K is symmetric, so only j >= i is computed and the transpose is added for the
-//! mirror block. The node-j factor of K_ij is computed once per node. Consecutive points with
+//! the tangent. When K is symmetric (`Newton::symmetric`: hyperelastic and associated plastic
+//! models) only j >= i is computed and the transpose is added for the mirror block; otherwise
+//! (non-associated plasticity) every block K_ij is computed. The node-j factor of K_ij is computed once per node. Consecutive points with
 //! the same support (the points of a cell) form a group: their blocks are summed in a dense
 //! buffer, and the group's sum is scattered into the sparse values once, at positions cached
 //! for the group; so the inner loop is D³ multiply-adds and D² additions per pair, and the
@@ -27,15 +28,24 @@ pub struct AssemblyScratch<const D: usize> {
     starts: Vec<([usize; D], [usize; D])>,
     /// The blocks K_ij (j >= i, loop order) summed over the points of the current group.
     blocks: Vec<SMatrix<f64, D, D>>,
+    /// Whether K is symmetric: only j >= i is computed and mirrored; otherwise every (i, j).
+    symmetric: bool,
 }
 
 impl<const D: usize> AssemblyScratch<D> {
+    /// The first node j of the blocks K_ij computed for node i.
+    fn first_partner(&self, i: usize) -> usize {
+        if self.symmetric { i } else { 0 }
+    }
+
     fn cache_block_positions(
         &mut self,
         nodes: impl Iterator<Item = usize>,
         dofs: &[[u32; D]],
         system: &SparseMatrix,
+        symmetric: bool,
     ) {
+        self.symmetric = symmetric;
         self.cached_nodes.clear();
         self.cached_nodes.extend(nodes);
         self.starts.clear();
@@ -43,7 +53,7 @@ impl<const D: usize> AssemblyScratch<D> {
         let m = self.cached_nodes.len();
         for i in 0..m {
             let dofs_i = &dofs[self.cached_nodes[i]];
-            for j in i..m {
+            for j in self.first_partner(i)..m {
                 let dofs_j = &dofs[self.cached_nodes[j]];
                 self.starts.push((
                     system.block_starts(dofs_i, dofs_j),
@@ -54,18 +64,18 @@ impl<const D: usize> AssemblyScratch<D> {
         }
     }
 
-    /// Adds the group's summed blocks (and their transposes for j != i) to the sparse values
-    /// and clears them.
+    /// Adds the group's summed blocks (and, if symmetric, their transposes for j != i) to the
+    /// sparse values and clears them.
     fn flush(&mut self, dofs: &[[u32; D]], system: &mut SparseMatrix) {
         let m = self.cached_nodes.len();
         let mut pair = 0;
         for i in 0..m {
             let dofs_i = &dofs[self.cached_nodes[i]];
-            for j in i..m {
+            for j in self.first_partner(i)..m {
                 let (starts_ij, starts_ji) = &self.starts[pair];
                 let k = &mut self.blocks[pair];
                 system.add_block_at(starts_ij, dofs_i, k);
-                if j != i {
+                if self.symmetric && j != i {
                     system.add_block_at(starts_ji, &dofs[self.cached_nodes[j]], &k.transpose());
                 }
                 *k = SMatrix::zeros();
@@ -87,6 +97,7 @@ pub fn assemble<const D: usize>(
     let _timer = clock.time(Stage::Assembly);
     let fields = &mut *fields;
     let scratch = &mut *scratch;
+    let symmetric = newton.symmetric;
     fields.internal_force.fill(SVector::zeros());
     let system = &mut newton.matrix;
     system.clear_values();
@@ -100,7 +111,12 @@ pub fn assemble<const D: usize>(
             .eq(support.iter().map(|w| w.node))
         {
             scratch.flush(&fields.dofs, system);
-            scratch.cache_block_positions(support.iter().map(|w| w.node), &fields.dofs, system);
+            scratch.cache_block_positions(
+                support.iter().map(|w| w.node),
+                &fields.dofs,
+                system,
+                symmetric,
+            );
         }
         scratch.gradients.clear();
         scratch
@@ -114,7 +130,7 @@ pub fn assemble<const D: usize>(
         for (i, wi) in support.iter().enumerate() {
             let g_i = &scratch.gradients[i];
             fields.internal_force[wi.node] += state.internal_force(v0, g_i);
-            for factor_j in &scratch.factors[i..] {
+            for factor_j in &scratch.factors[scratch.first_partner(i)..] {
                 scratch.blocks[pair] += state.stiffness_from(v0, g_i, factor_j);
                 pair += 1;
             }
