@@ -157,7 +157,7 @@ fn unknown_models_and_foreign_parameters_are_rejected_at_their_line() {
     assert!(
         error
             .message
-            .contains("option 'model' must be \"hencky\" or \"neo_hookean\", got \"mooney\""),
+            .contains("option 'model' must be \"hencky\", \"von_mises\", \"drucker_prager\", \"mohr_coulomb\" or \"neo_hookean\", got \"mooney\""),
         "{error}"
     );
     // without the module, the word is unknown

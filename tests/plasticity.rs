@@ -996,3 +996,97 @@ fn the_assembled_plastic_tangent_matches_finite_differences() {
         true,
     );
 }
+
+/// A scene without a plastic material builds nothing plastic: its systems name no plastic
+/// model, and the plastic modules are listed as left out.
+#[test]
+fn an_elastic_scene_schedules_nothing_plastic() {
+    let modules = impm::effects::built_in();
+    let spec = modules
+        .load_scene(&common::shipped_scene("column_1d.rhai"), &[])
+        .unwrap();
+    let explanation = impm::explain::explain_scene(&spec, &modules).unwrap();
+    for system in &explanation.systems {
+        for plastic in [
+            "von_mises",
+            "drucker_prager",
+            "mohr_coulomb",
+            "elastoplastic",
+        ] {
+            assert!(!system.name.contains(plastic), "{}", system.name);
+        }
+    }
+    assert!(
+        explanation
+            .systems
+            .iter()
+            .any(|s| s.name.contains("Hencky"))
+    );
+    for model in ["von_mises", "drucker_prager", "mohr_coulomb"] {
+        assert!(
+            explanation.modules.contains(&(model, false)),
+            "{model}: {:?}",
+            explanation.modules
+        );
+    }
+}
+
+/// Step cutting at scene level: the self-weight column with a von Mises base, loaded in one
+/// step with few Newton iterations allowed, fails and halves its step; the failed attempts'
+/// trial histories must not leak: the result equals a run that takes exactly the converged
+/// substeps as its load steps.
+#[test]
+fn a_cut_load_step_gives_the_result_of_its_substeps() {
+    let column = |schedule: &str| {
+        format!(
+            r#"grid(#{{ lower: [0.0], upper: [50.0], cells: [25], basis: "bspline", order: 2 }});
+const steel = material(#{{ name: "steel", model: "von_mises", E: 1.0e6, nu: 0.3, sigma_y: 40000.0, H: 1.0e5, density: 1.0 }});
+body(#{{ name: "column", material: steel, region: box([0.0], [50.0]), ppc: 2 }});
+body_force([-2000.0]);
+fix(|x| x[0] == 0.0, [0]);
+{schedule}
+"#
+        )
+    };
+    let mut cut = run::<1>(
+        "cut",
+        &column("load_steps(1);\nsolver(#{ max_iterations: 3 });"),
+        &[],
+    );
+    let step = &cut.summary.steps[0];
+    assert!(step.cuts >= 1, "the step was not cut: {:?}", step.residuals);
+    let factors: Vec<String> = step
+        .substeps
+        .iter()
+        .filter(|s| s.converged)
+        .map(|s| format!("{:?}", s.to))
+        .collect();
+    assert!(factors.len() >= 2, "{:?}", step.substeps);
+    assert!(step.substeps.iter().any(|s| !s.converged));
+    let mut reference = run::<1>(
+        "substeps",
+        &column(&format!("load_factors([{}]);", factors.join(", "))),
+        &[],
+    );
+    let histories = |sim: &mut Simulation<1>| {
+        let mut query = sim.world.query::<(
+            &impm::components::PointId,
+            &impm::stages::PointHistory<VonMises>,
+        )>();
+        let mut rows: Vec<_> = query
+            .iter(&sim.world)
+            .map(|(id, h)| (id.0, h.committed.clone()))
+            .collect();
+        rows.sort_by_key(|(id, _)| *id);
+        rows
+    };
+    let (a, b) = (histories(&mut cut), histories(&mut reference));
+    assert!(a.iter().any(|(_, h)| h.plastic_strain > 0.0));
+    for ((_, x), (_, y)) in a.iter().zip(&b) {
+        assert!(
+            (x.plastic_strain - y.plastic_strain).abs()
+                < 1e-9 * (1e-6 + y.plastic_strain.abs()) + 1e-12
+        );
+        assert!((x.elastic_left_cauchy_green - y.elastic_left_cauchy_green).amax() < 1e-10);
+    }
+}

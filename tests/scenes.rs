@@ -355,8 +355,19 @@ fn schedules_hold_only_the_effects_a_scene_uses() {
             "{system}: {left_out:?}"
         );
     }
-    // the optional systems above and the recovered-stress output field
-    assert_eq!(left_out.len(), OPTIONAL.len() + 5, "{left_out:?}");
+    // the three plastic models' stress update, history commit and history fields
+    for model in ["VonMises", "DruckerPrager", "MohrCoulomb"] {
+        for system in [
+            "stress::update_stress",
+            "stress::commit_history",
+            "materials::history_fields",
+        ] {
+            let name = format!("{system}<{model}>");
+            assert!(left_out.iter().any(|s| *s == name), "{name}: {left_out:?}");
+        }
+    }
+    // the optional systems above, the recovered-stress output field and the plastic systems
+    assert_eq!(left_out.len(), OPTIONAL.len() + 5 + 9, "{left_out:?}");
 }
 
 /// The complete scene of docs/scene-api.md, written from the documentation alone, runs.

@@ -190,23 +190,10 @@ pub fn check_strength(cohesion: f64, friction: f64, dilation: f64) -> Result<(),
     Ok(())
 }
 
-/// The parameters shared by the frictional models (after `E`, `nu`).
+/// The parameters shared by the frictional models: Hencky's `E`, `nu`, then `c`, `phi`, `psi`.
 pub fn strength_parameters() -> Vec<ParameterSpec> {
-    vec![
-        ParameterSpec {
-            name: "E",
-            meaning: "Young's modulus",
-            label: Some("Young's modulus E"),
-            kind: ParameterKind::Number(Range::Positive),
-            required: true,
-        },
-        ParameterSpec {
-            name: "nu",
-            meaning: "Poisson's ratio",
-            label: Some("Poisson's ratio nu"),
-            kind: ParameterKind::Number(Range::Open(-1.0, 0.5)),
-            required: true,
-        },
+    let mut parameters = Hencky::parameters();
+    parameters.extend([
         ParameterSpec {
             name: "c",
             meaning: "cohesion",
@@ -228,12 +215,13 @@ pub fn strength_parameters() -> Vec<ParameterSpec> {
             kind: ParameterKind::Number(Range::ClosedOpen(0.0, 90.0)),
             required: false,
         },
-    ]
+    ]);
+    parameters
 }
 
 /// `(E, nu)` elasticity and `(c, φ, ψ)` in degrees from the shared parameters.
 pub fn read_strength(parameters: &MaterialParameters) -> Result<(Hencky, f64, f64, f64), String> {
-    let elastic = Hencky::new(parameters.number("E")?, parameters.number("nu")?)?;
+    let elastic = Hencky::from_parameters(parameters)?;
     let friction = parameters.number("phi")?;
     let dilation = parameters.optional_number("psi")?.unwrap_or(friction);
     Ok((elastic, parameters.number("c")?, friction, dilation))

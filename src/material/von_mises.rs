@@ -95,21 +95,8 @@ impl Material for VonMises {
     const MODEL: &'static str = "von_mises";
 
     fn parameters() -> Vec<ParameterSpec> {
-        vec![
-            ParameterSpec {
-                name: "E",
-                meaning: "Young's modulus",
-                label: Some("Young's modulus E"),
-                kind: ParameterKind::Number(Range::Positive),
-                required: true,
-            },
-            ParameterSpec {
-                name: "nu",
-                meaning: "Poisson's ratio",
-                label: Some("Poisson's ratio nu"),
-                kind: ParameterKind::Number(Range::Open(-1.0, 0.5)),
-                required: true,
-            },
+        let mut parameters = Hencky::parameters();
+        parameters.extend([
             ParameterSpec {
                 name: "sigma_y",
                 meaning: "uniaxial yield stress (give it or s_u)",
@@ -131,11 +118,12 @@ impl Material for VonMises {
                 kind: ParameterKind::Number(Range::NonNegative),
                 required: false,
             },
-        ]
+        ]);
+        parameters
     }
 
     fn from_parameters(parameters: &MaterialParameters) -> Result<Self, String> {
-        let elastic = Hencky::new(parameters.number("E")?, parameters.number("nu")?)?;
+        let elastic = Hencky::from_parameters(parameters)?;
         let yield_stress = match (
             parameters.optional_number("sigma_y")?,
             parameters.optional_number("s_u")?,
