@@ -363,7 +363,7 @@ fn schedules_hold_only_the_effects_a_scene_uses() {
             "materials::history_fields",
         ] {
             let name = format!("{system}<{model}>");
-            assert!(left_out.iter().any(|s| *s == name), "{name}: {left_out:?}");
+            assert!(left_out.contains(&name), "{name}: {left_out:?}");
         }
     }
     // the optional systems above, the recovered-stress output field and the plastic systems
