@@ -116,7 +116,7 @@ pub struct Summary {
     pub nodes: usize,
     pub planned_steps: usize,
     pub steps: Vec<StepRecord>,
-    /// "running", "completed" or "failed".
+    /// "running", "completed", "failed", "interrupted" or "timed out".
     pub status: &'static str,
     pub failure: Option<String>,
     pub failed_step: Option<StepRecord>,
@@ -201,6 +201,11 @@ impl Summary {
         self.status = "failed";
         self.failure = Some(error.to_string());
         self.failed_step = Some(record);
+    }
+
+    /// Marks the run as stopped before its end (`"interrupted"`, `"timed out"`).
+    pub fn stop(&mut self, status: &'static str) {
+        self.status = status;
     }
 
     pub fn finish(&mut self) {

@@ -35,6 +35,7 @@ mod engine;
 mod error;
 mod fem_seeding;
 mod geometry;
+mod limits;
 mod options;
 mod params;
 mod registry;
@@ -51,10 +52,11 @@ pub use builder::{
     BodyDeclaration, LoadSchedule, Located, MAX_NODES, MAX_SEED_CANDIDATES, MaterialHandle,
     PointsPerCell, Region, Resolver, SceneBuilder, ensure_unset,
 };
-pub use engine::{SceneModule, load_scene_with, scene_api, scene_parameters};
+pub use engine::{SceneModule, load_scene_with, load_scene_within, scene_api, scene_parameters};
 pub use error::{SceneError, ScriptError};
 pub use fem_seeding::{PartialCell, seed_element_points};
 pub use geometry::{point_in_polygon, polygon_double_area};
+pub use limits::{SceneLimits, memory_estimate, support_size};
 pub use options::{
     Choice, Kind, OptionSpec, OptionValue, Options, Range, array_of, describe, function, number,
     numbers, string, whole_number, whole_numbers,
