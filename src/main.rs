@@ -12,6 +12,7 @@ use cli::progress::Progress;
 
 use impm::effects;
 use impm::explain::explain_scene;
+use impm::output::{FolderLock, clear_earlier_run};
 use impm::plugin::{Module, ModuleSet};
 use impm::run::{RunError, default_output_dir, run_scene_with_modules};
 use impm::scene::{SceneLimits, scene_parameters};
@@ -198,6 +199,7 @@ fn run_command(
         .load_scene_within(scene, &overrides, limits)
         .map_err(|e| e.to_string())?;
     let out_dir = out.unwrap_or_else(|| default_output_dir(&spec));
+    let _lock = lock_output_folder(&out_dir)?;
     let steps = spec.load_factors.len();
     let mut progress = Progress::new(steps);
     note(&format!(
@@ -234,6 +236,25 @@ fn run_command(
     ))
 }
 
+/// Locks the output folder for this run (a second run into it fails) and removes what an
+/// earlier run left there; says so if that run was killed.
+fn lock_output_folder(dir: &Path) -> Result<FolderLock, Failure> {
+    let lock = FolderLock::acquire(dir)?;
+    if let Some(pid) = lock.killed_run() {
+        note(&format!(
+            "warning: an earlier run into {} (process {pid}) was killed before it finished; its files are replaced",
+            dir.display()
+        ));
+    }
+    clear_earlier_run(dir).map_err(|e| {
+        format!(
+            "cannot remove the files of an earlier run from {}: {e}",
+            dir.display()
+        )
+    })?;
+    Ok(lock)
+}
+
 /// What a failed or stopped run tells the user: why, and where what was done is (only if it
 /// was written).
 fn run_failure(error: &RunError, out_dir: &Path) -> String {
@@ -251,6 +272,13 @@ fn run_failure(error: &RunError, out_dir: &Path) -> String {
 
 /// `impm study`: the runs of the sweep, with a progress display.
 fn study_command(plan: &StudyPlan) -> Result<(), Failure> {
+    let lock = FolderLock::acquire(&plan.out_dir)?;
+    if let Some(pid) = lock.killed_run() {
+        note(&format!(
+            "warning: an earlier study into {} (process {pid}) was killed before it finished",
+            plan.out_dir.display()
+        ));
+    }
     let mut bar: Option<Progress> = None;
     let records = run_study(plan, |event| match event {
         StudyEvent::Started {

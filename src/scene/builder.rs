@@ -329,6 +329,25 @@ impl SceneBuilder {
             )
         })?;
         let load_factors = resolve_load_schedule(load_schedule, engine, ast)?;
+        if let Some(output) = &self.output
+            && let Some(beyond) = output
+                .value
+                .steps
+                .iter()
+                .flatten()
+                .find(|&&step| step > load_factors.len())
+        {
+            return Err(ScriptError::at(
+                output.at,
+                format!(
+                    "output(...): step {beyond} is beyond the last load step {} (the schedule{} has {} steps); steps are 1..={}, and the last step is always written",
+                    load_factors.len(),
+                    load_schedule.line_note(),
+                    load_factors.len(),
+                    load_factors.len()
+                ),
+            ));
+        }
         let analytic = match &self.analytic {
             None => None,
             Some(column) => Some(resolve_column(column, &self.materials, dim, &grid_note)?),
