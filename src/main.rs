@@ -15,7 +15,7 @@ use impm::explain::explain_scene;
 use impm::output::{FolderLock, clear_earlier_run};
 use impm::plugin::{Module, ModuleSet};
 use impm::run::{RunError, default_output_dir, run_scene_with_modules};
-use impm::scene::{SceneLimits, scene_parameters};
+use impm::scene::{SceneLimits, rank_warnings, scene_parameters};
 use impm::study::{RunOutcome, StudyEvent, StudyPlan, Sweep, default_study_dir, run_study};
 
 #[derive(Parser)]
@@ -210,6 +210,9 @@ fn run_command(
         steps,
         out_dir.display()
     ));
+    for warning in rank_warnings(&spec) {
+        note(&format!("warning: {warning}"));
+    }
     let result = run_scene_with_modules(&spec, &out_dir, modules, |record| progress.step(record));
     progress.finish();
     let summary = match result {
@@ -332,6 +335,9 @@ fn check_command(
         .map_err(|e| e.to_string())?;
     let mut text = String::new();
     let _ = writeln!(text, "scene {} is valid", spec.name);
+    for warning in rank_warnings(&spec) {
+        let _ = writeln!(text, "warning: {warning}");
+    }
     let _ = writeln!(text, "parameters (override with --set NAME=VALUE):");
     for p in &parameters {
         let _ = writeln!(

@@ -120,6 +120,9 @@ pub struct Summary {
     pub status: &'static str,
     pub failure: Option<String>,
     pub failed_step: Option<StepRecord>,
+    /// What the scene cannot do right (e.g. too few points for the basis across a direction,
+    /// `scene::rank_warnings`), also printed when the run starts.
+    pub warnings: Vec<String>,
 }
 
 /// A JSON number, or null where not finite (JSON has no NaN).
@@ -190,6 +193,7 @@ impl Summary {
             status: "running",
             failure: None,
             failed_step: None,
+            warnings: crate::scene::rank_warnings(spec),
         }
     }
 
@@ -272,6 +276,9 @@ impl Summary {
         }
         if let Some(r) = &self.failed_step {
             v["failed_step"] = step_json(r);
+        }
+        if !self.warnings.is_empty() {
+            v["warnings"] = json!(self.warnings);
         }
         v
     }

@@ -38,6 +38,7 @@ mod geometry;
 mod limits;
 mod options;
 mod params;
+mod rank;
 mod registry;
 mod schedule;
 mod seeding;
@@ -62,6 +63,7 @@ pub use options::{
     numbers, string, whole_number, whole_numbers,
 };
 pub use params::Parameter;
+pub use rank::rank_warnings;
 pub use registry::{CallSpec, Declare, SceneApi};
 pub use schedule::{MAX_STEPS, phase_factors};
 pub use seeding::{
