@@ -41,8 +41,8 @@ enum Command {
         /// Override a scene parameter (a top-level `let`), e.g. --set cells=100.
         #[arg(long = "set", value_name = "NAME=VALUE")]
         set: Vec<String>,
-        /// Raise or lower a limit on the scene (operations, string, array, map, depth, order,
-        /// support, points, memory in MB), e.g. --limit operations=1000000000.
+        /// Raise or lower a limit on the scene (operations, string, array, map, depth, seconds,
+        /// order, support, points, memory in MB), e.g. --limit operations=1000000000.
         #[arg(long = "limit", value_name = "NAME=VALUE")]
         limit: Vec<String>,
     },
@@ -70,8 +70,8 @@ enum Command {
         /// it as "timed out" and go on with the next.
         #[arg(long, value_name = "SECONDS")]
         timeout: Option<f64>,
-        /// Raise or lower a limit on the scene (operations, string, array, map, depth, order,
-        /// support, points, memory in MB), e.g. --limit operations=1000000000.
+        /// Raise or lower a limit on the scene (operations, string, array, map, depth, seconds,
+        /// order, support, points, memory in MB), e.g. --limit operations=1000000000.
         #[arg(long = "limit", value_name = "NAME=VALUE")]
         limit: Vec<String>,
     },
@@ -84,8 +84,8 @@ enum Command {
         /// ones it leaves out), read from the built schedules.
         #[arg(long)]
         explain: bool,
-        /// Raise or lower a limit on the scene (operations, string, array, map, depth, order,
-        /// support, points, memory in MB), e.g. --limit operations=1000000000.
+        /// Raise or lower a limit on the scene (operations, string, array, map, depth, seconds,
+        /// order, support, points, memory in MB), e.g. --limit operations=1000000000.
         #[arg(long = "limit", value_name = "NAME=VALUE")]
         limit: Vec<String>,
     },

@@ -6,8 +6,9 @@
 //! | `operations` | 50 000 000 | Rhai operations per evaluation (the script's top level, and each call of a predicate or load function) |
 //! | `string` | 10 000 000 | bytes of one script string |
 //! | `array` | 1 000 000 | items of one script array |
-//! | `map` | 100 000 | entries of one script map |
+//! | `map` | 10 000 | entries of one script map |
 //! | `depth` | 64 | nested script function calls |
+//! | `seconds` | 60 | wall time of the whole scene evaluation (script, predicates, load functions) |
 //! | `order` | 20 | basis order of `grid(...)` |
 //! | `support` | 10 000 | grid functions nonzero at a point, `(order + 1)^D` |
 //! | `points` | 10 000 000 | seeding positions of one body (grid cells × ppc^D) |
@@ -15,12 +16,19 @@
 //!
 //! Every limit is raised (or lowered) from the command line with `--limit NAME=VALUE`; each
 //! message says which limit was hit, how big the scene would be and how to raise it. `import`
-//! is confined to the scene's own folder ([`ConfinedResolver`]).
+//! is confined to the scene's own folder ([`ConfinedResolver`]). The time limit backs up the
+//! others: Rhai checks the size of a map or array by walking it, so a loop growing one item at
+//! a time slows down quadratically long before the operation limit.
 
+use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
 use rhai::module_resolvers::FileModuleResolver;
-use rhai::{Engine, EvalAltResult, Module, ModuleResolver, Position, Shared};
+use rhai::{Dynamic, Engine, EvalAltResult, Module, ModuleResolver, Position, Shared};
+
+/// The value a script ends with when it runs out of time.
+pub const TIME_LIMIT: &str = "the time limit";
 
 /// The limits of one scene (see the module docs for their meaning and defaults).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -30,6 +38,7 @@ pub struct SceneLimits {
     pub array: usize,
     pub map: usize,
     pub depth: usize,
+    pub seconds: u64,
     pub order: usize,
     pub support: usize,
     pub points: usize,
@@ -43,8 +52,9 @@ impl Default for SceneLimits {
             operations: 50_000_000,
             string: 10_000_000,
             array: 1_000_000,
-            map: 100_000,
+            map: 10_000,
             depth: 64,
+            seconds: 60,
             order: 20,
             support: 10_000,
             points: 10_000_000,
@@ -55,12 +65,13 @@ impl Default for SceneLimits {
 
 impl SceneLimits {
     /// The names `--limit` accepts.
-    pub const NAMES: [&'static str; 9] = [
+    pub const NAMES: [&'static str; 10] = [
         "operations",
         "string",
         "array",
         "map",
         "depth",
+        "seconds",
         "order",
         "support",
         "points",
@@ -88,6 +99,7 @@ impl SceneLimits {
             "array" => self.array = size,
             "map" => self.map = size,
             "depth" => self.depth = size,
+            "seconds" => self.seconds = number,
             "order" => self.order = size,
             "support" => self.support = size,
             "points" => self.points = size,
@@ -111,8 +123,20 @@ impl SceneLimits {
         Ok(limits)
     }
 
-    /// Puts the script limits on `engine`, and confines `import` to `folder`.
+    /// Puts the script limits on `engine` (the time limit counts from now), confines `import`
+    /// to `folder`, and sends the script's `print` and `debug` to stderr (where a closed
+    /// stream cannot stop the program).
     pub fn apply(&self, engine: &mut Engine, folder: &Path) {
+        let deadline = Instant::now() + Duration::from_secs(self.seconds);
+        engine.on_progress(move |operations| {
+            (operations % 1024 == 0 && Instant::now() > deadline).then(|| Dynamic::from(TIME_LIMIT))
+        });
+        engine.on_print(|text| {
+            let _ = writeln!(std::io::stderr(), "{text}");
+        });
+        engine.on_debug(|text, _, at| {
+            let _ = writeln!(std::io::stderr(), "{at:?}: {text}");
+        });
         engine.set_max_operations(self.operations);
         engine.set_max_string_size(self.string);
         engine.set_max_array_size(self.array);
