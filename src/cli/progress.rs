@@ -15,8 +15,6 @@ pub struct Progress {
     bar: Option<ProgressBar>,
     total: usize,
     started: Instant,
-    /// Steps done before this process started (a resumed run).
-    first: usize,
 }
 
 impl Progress {
@@ -36,16 +34,6 @@ impl Progress {
             bar,
             total,
             started: Instant::now(),
-            first: 0,
-        }
-    }
-
-    /// The run resumes after `done` steps: the ETA counts from there.
-    pub fn resume_after(&mut self, done: usize) {
-        self.first = done;
-        if let Some(bar) = &self.bar {
-            bar.set_position(done as u64);
-            bar.reset_eta();
         }
     }
 
@@ -103,12 +91,11 @@ impl Progress {
 
     /// The time left after `done` of `total`, at the pace so far.
     fn eta(&self, done: usize) -> Duration {
-        let since = done.saturating_sub(self.first);
-        if since == 0 {
+        if done == 0 {
             return Duration::ZERO;
         }
         let left = self.total.saturating_sub(done) as f64;
-        Duration::from_secs_f64(self.started.elapsed().as_secs_f64() / since as f64 * left)
+        Duration::from_secs_f64(self.started.elapsed().as_secs_f64() / done as f64 * left)
     }
 }
 

@@ -30,7 +30,7 @@ pub fn rank_warnings(spec: &SceneSpec) -> Vec<String> {
                 .iter()
                 .filter_map(|p| p.position.get(axis).copied())
                 .collect();
-            if coordinates.is_empty() || !(h > 0.0) {
+            if coordinates.is_empty() || h.is_nan() || h <= 0.0 {
                 continue;
             }
             coordinates.sort_by(f64::total_cmp);
