@@ -3,7 +3,7 @@
 //! killed after `LIMIT`) or pass silently. Scenes are small mutations of one 1D column.
 
 use std::io::Read;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -567,11 +567,7 @@ fn corpus() -> Vec<Case> {
 }
 
 fn shipped(name: &str) -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("scripts")
-        .join(name)
-        .display()
-        .to_string()
+    common::shipped_scene(name).display().to_string()
 }
 
 /// Runs `args` with a time limit; (exit status or None if killed, stdout + stderr).
