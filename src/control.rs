@@ -110,12 +110,13 @@ impl LoadStepControl for StepCutting {
 }
 
 /// The norms of one Newton iterate's forces (over the active nodes): the out-of-balance force
-/// at the free DOFs, the external and the internal force.
+/// at the free DOFs, the external and the internal force; and the load factor λ of the iterate.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ResidualNorms {
     pub free: f64,
     pub external: f64,
     pub internal: f64,
+    pub load_factor: f64,
 }
 
 /// When a Newton iterate has converged.
@@ -130,17 +131,36 @@ pub trait ConvergenceCriterion: Send + Sync {
     }
 }
 
-/// The default criterion: the out-of-balance force at the free DOFs relative to the larger of
-/// the external and internal force norms, `‖f_ext − f_int‖_free / max(‖f_ext‖, ‖f_int‖)`
-/// (absolute when both are zero).
+/// The default criterion: the out-of-balance force at the free DOFs relative to the load
+/// scale, the larger of the external and internal force norms brought to a load factor of at
+/// least 1:
+///
+/// ```text
+///   ‖f_ext − f_int‖_free · s / max(‖f_ext‖, ‖f_int‖),   s = min(|λ|, 1)  (s = 1 when λ = 0)
+/// ```
+///
+/// (absolute when both norms are zero). For λ ≥ 1 this is the out-of-balance force relative
+/// to the current forces; for a small λ it is relative to the forces the load would give at
+/// λ = 1 (for proportional loading, `max(‖f_ext‖, ‖f_int‖)/λ`), not to the tiny current ones.
+/// Why: the internal force carries a round-off floor of its own (the Hencky logarithm of
+/// eigenvalues near 1, positions of magnitude |x|), about 1e-13..1e-12 of the full-load force
+/// on the test columns, independent of λ. Relative to the current forces that floor is
+/// 1e-6..1e-5 at λ = 1e-6, far above any useful tolerance, and cutting the step makes it worse;
+/// relative to the load scale it stays below the default tolerance 1e-9 for any increment.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct NormalisedResidual;
 
 impl ConvergenceCriterion for NormalisedResidual {
     fn measure(&self, norms: &ResidualNorms) -> f64 {
         let scale = norms.external.max(norms.internal);
+        let lambda = norms.load_factor.abs();
+        let to_unit_load = if lambda > 0.0 && lambda < 1.0 {
+            lambda
+        } else {
+            1.0
+        };
         if scale > 0.0 {
-            norms.free / scale
+            norms.free * to_unit_load / scale
         } else {
             norms.free
         }
@@ -232,6 +252,7 @@ mod tests {
             free: 1e-3,
             external: 10.0,
             internal: 20.0,
+            load_factor: 1.0,
         };
         assert_eq!(NormalisedResidual.measure(&norms), 5e-5);
         assert!(NormalisedResidual.converged(5e-5, &[], 1e-4));
@@ -239,7 +260,19 @@ mod tests {
             free: 1e-12,
             external: 0.0,
             internal: 0.0,
+            load_factor: 0.0,
         };
         assert_eq!(NormalisedResidual.measure(&unloaded), 1e-12);
+        // at λ = 1e-3 the forces are 1e-3 of the load scale: relative to that scale
+        let small = ResidualNorms {
+            load_factor: 1e-3,
+            ..norms
+        };
+        assert!((NormalisedResidual.measure(&small) - 5e-8).abs() < 1e-20);
+        let beyond = ResidualNorms {
+            load_factor: 2.0,
+            ..norms
+        };
+        assert_eq!(NormalisedResidual.measure(&beyond), 5e-5);
     }
 }

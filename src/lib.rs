@@ -26,6 +26,7 @@ pub mod effects;
 pub mod explain;
 pub mod fem;
 pub mod ghost;
+pub mod interrupt;
 pub mod material;
 pub mod mechanics;
 pub mod method;

@@ -1,17 +1,21 @@
 //! The `impm` command line: run, study or check a Rhai scene.
 
-use std::io::{IsTerminal, Write};
+mod cli;
+
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+use cli::console::{Failure, note, say};
+use cli::progress::Progress;
+
 use impm::effects;
 use impm::explain::explain_scene;
+use impm::output::{FolderLock, clear_earlier_run};
 use impm::plugin::{Module, ModuleSet};
-use impm::records::StepRecord;
-use impm::run::{default_output_dir, run_scene};
-use impm::scene::scene_parameters;
+use impm::run::{RunError, default_output_dir, run_scene_with_modules};
+use impm::scene::{SceneLimits, rank_warnings, scene_parameters};
 use impm::study::{RunOutcome, StudyEvent, StudyPlan, Sweep, default_study_dir, run_study};
 
 #[derive(Parser)]
@@ -37,6 +41,10 @@ enum Command {
         /// Override a scene parameter (a top-level `let`), e.g. --set cells=100.
         #[arg(long = "set", value_name = "NAME=VALUE")]
         set: Vec<String>,
+        /// Raise or lower a limit on the scene (operations, string, array, map, depth, seconds,
+        /// order, support, points, memory in MB), e.g. --limit operations=1000000000.
+        #[arg(long = "limit", value_name = "NAME=VALUE")]
+        limit: Vec<String>,
     },
     /// Run a scene over the cross product of parameter values; write study.csv, study.md and
     /// charts of error against cells and against wall time.
@@ -58,6 +66,14 @@ enum Command {
         /// Also write and plot the final stress of every point along the column.
         #[arg(long)]
         profiles: bool,
+        /// Stop a run after this many seconds (at the end of its load step in flight), record
+        /// it as "timed out" and go on with the next.
+        #[arg(long, value_name = "SECONDS")]
+        timeout: Option<f64>,
+        /// Raise or lower a limit on the scene (operations, string, array, map, depth, seconds,
+        /// order, support, points, memory in MB), e.g. --limit operations=1000000000.
+        #[arg(long = "limit", value_name = "NAME=VALUE")]
+        limit: Vec<String>,
     },
     /// Validate a scene without solving; list its parameters.
     Check {
@@ -68,6 +84,10 @@ enum Command {
         /// ones it leaves out), read from the built schedules.
         #[arg(long)]
         explain: bool,
+        /// Raise or lower a limit on the scene (operations, string, array, map, depth, seconds,
+        /// order, support, points, memory in MB), e.g. --limit operations=1000000000.
+        #[arg(long = "limit", value_name = "NAME=VALUE")]
+        limit: Vec<String>,
     },
     /// Print the reference of the scene language (every call, its options, the bases, the
     /// material models and point fields), as in docs/scene-api.md.
@@ -86,20 +106,36 @@ fn parse_overrides(set: &[String]) -> Result<Vec<(String, String)>, String> {
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            // help and version go to stdout, usage errors to stderr; neither may panic
+            let _ = e.print();
+            return ExitCode::from(if e.use_stderr() { 2 } else { 0 });
+        }
+    };
+    if let Err(why) = impm::interrupt::install() {
+        note(&format!("warning: {why}"));
+    }
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
-        Err(message) => {
-            eprintln!("error: {message}");
+        Err(Failure::Message(message)) => {
+            note(&format!("error: {message}"));
             ExitCode::FAILURE
         }
+        Err(Failure::BrokenPipe) => ExitCode::from(141),
     }
 }
 
-fn run(cli: Cli) -> Result<(), String> {
+fn run(cli: Cli) -> Result<(), Failure> {
     let modules = effects::built_in();
     match cli.command {
-        Command::Run { scene, out, set } => run_command(&modules, &scene, out, &set),
+        Command::Run {
+            scene,
+            out,
+            set,
+            limit,
+        } => run_command(&modules, &scene, out, &set, &limits(&limit)?),
         Command::Study {
             scene,
             sweep,
@@ -107,6 +143,8 @@ fn run(cli: Cli) -> Result<(), String> {
             out,
             against,
             profiles,
+            timeout,
+            limit,
         } => {
             let plan = StudyPlan {
                 out_dir: out.unwrap_or_else(|| default_study_dir(&scene)),
@@ -118,6 +156,8 @@ fn run(cli: Cli) -> Result<(), String> {
                 fixed: parse_overrides(&set)?,
                 against,
                 profiles,
+                timeout: timeout_seconds(timeout)?,
+                limits: limits(&limit)?,
             };
             study_command(&plan)
         }
@@ -125,44 +165,60 @@ fn run(cli: Cli) -> Result<(), String> {
             scene,
             set,
             explain,
-        } => check_command(&modules, &scene, &set, explain),
-        Command::Api => {
-            print!("{}", modules.scene_api().reference());
-            Ok(())
-        }
+            limit,
+        } => check_command(&modules, &scene, &set, explain, &limits(&limit)?),
+        Command::Api => say(&modules.scene_api().reference()),
     }
 }
 
-/// `impm run`: solves the scene, with a progress line, and says where the results are.
+/// The `--limit` assignments over the default limits.
+fn limits(assignments: &[String]) -> Result<SceneLimits, Failure> {
+    Ok(SceneLimits::from_assignments(assignments)?)
+}
+
+/// `--timeout SECONDS`: positive and finite.
+fn timeout_seconds(seconds: Option<f64>) -> Result<Option<std::time::Duration>, Failure> {
+    match seconds {
+        None => Ok(None),
+        Some(s) if s.is_finite() && s > 0.0 => Ok(Some(std::time::Duration::from_secs_f64(s))),
+        Some(s) => Err(format!("--timeout {s}: give a positive number of seconds").into()),
+    }
+}
+
+/// `impm run`: solves the scene, with a progress display, and says where the results are
+/// (results and the final line on stdout, diagnostics on stderr).
 fn run_command(
     modules: &ModuleSet,
     scene: &Path,
     out: Option<PathBuf>,
     set: &[String],
-) -> Result<(), String> {
+    limits: &SceneLimits,
+) -> Result<(), Failure> {
     let overrides = parse_overrides(set)?;
     let spec = modules
-        .load_scene(scene, &overrides)
+        .load_scene_within(scene, &overrides, limits)
         .map_err(|e| e.to_string())?;
     let out_dir = out.unwrap_or_else(|| default_output_dir(&spec));
+    let _lock = lock_output_folder(&out_dir)?;
     let steps = spec.load_factors.len();
     let mut progress = Progress::new(steps);
-    eprintln!(
+    note(&format!(
         "{}: {}D, {} points, {} load steps -> {}",
         spec.name,
         spec.dim(),
         spec.point_count(),
         steps,
         out_dir.display()
-    );
-    let result = run_scene(&spec, &out_dir, |record| progress.step(record));
+    ));
+    for warning in rank_warnings(&spec) {
+        note(&format!("warning: {warning}"));
+    }
+    let result = run_scene_with_modules(&spec, &out_dir, modules, |record| progress.step(record));
     progress.finish();
-    let summary = result.map_err(|e| {
-        format!(
-            "{e}\nresults up to the last completed step are in {}",
-            out_dir.display()
-        )
-    })?;
+    let summary = match result {
+        Ok(summary) => summary,
+        Err(e) => return Err(run_failure(&e, &out_dir).into()),
+    };
     let (_, wall) = summary.total_seconds();
     let mut line = format!(
         "done: {} steps, {} Newton iterations, {:.2} s",
@@ -177,39 +233,89 @@ fn run_command(
     if let Some(e) = summary.final_error() {
         line += &format!(", error (eq. 15) {e:.3e}");
     }
-    eprintln!("{line}");
-    eprintln!(
-        "results: {}/particles.pvd (open in ParaView)",
+    say(&format!(
+        "{line}\nresults: {}/particles.pvd (open in ParaView)\n",
         out_dir.display()
-    );
-    Ok(())
+    ))
 }
 
-/// `impm study`: the runs of the sweep, with a progress line.
-fn study_command(plan: &StudyPlan) -> Result<(), String> {
-    let mut bar = Progress::new(0);
+/// Locks the output folder for this run (a second run into it fails) and removes what an
+/// earlier run left there; says so if that run was killed.
+fn lock_output_folder(dir: &Path) -> Result<FolderLock, Failure> {
+    let lock = FolderLock::acquire(dir)?;
+    if let Some(pid) = lock.killed_run() {
+        note(&format!(
+            "warning: an earlier run into {} (process {pid}) was killed before it finished; its files are replaced",
+            dir.display()
+        ));
+    }
+    clear_earlier_run(dir).map_err(|e| {
+        format!(
+            "cannot remove the files of an earlier run from {}: {e}",
+            dir.display()
+        )
+    })?;
+    Ok(lock)
+}
+
+/// What a failed or stopped run tells the user: why, and where what was done is (only if it
+/// was written).
+fn run_failure(error: &RunError, out_dir: &Path) -> String {
+    let summary = out_dir.join("summary.json");
+    let kept = if summary.is_file() {
+        format!(
+            "\nresults up to the last completed step are in {} (summary.json says how far it got)",
+            out_dir.display()
+        )
+    } else {
+        String::new()
+    };
+    format!("{error}{kept}")
+}
+
+/// `impm study`: the runs of the sweep, with a progress display.
+fn study_command(plan: &StudyPlan) -> Result<(), Failure> {
+    let lock = FolderLock::acquire(&plan.out_dir)?;
+    if let Some(pid) = lock.killed_run() {
+        note(&format!(
+            "warning: an earlier study into {} (process {pid}) was killed before it finished",
+            plan.out_dir.display()
+        ));
+    }
+    let mut bar: Option<Progress> = None;
     let records = run_study(plan, |event| match event {
         StudyEvent::Started {
             index,
             total,
             label,
-        } => {
-            bar.total = total;
-            bar.show(index, &format!("run {}/{total}: {label}", index + 1));
-        }
+        } => bar
+            .get_or_insert_with(|| Progress::new(total))
+            .start_item(index, &format!("run {}/{total}: {label}", index + 1)),
         StudyEvent::Finished { .. } => {}
-    })?;
-    bar.finish();
+    });
+    if let Some(bar) = &mut bar {
+        bar.finish();
+    }
+    let records = records?;
     let failed = records
         .iter()
         .filter(|r| r.outcome != RunOutcome::Completed)
         .count();
-    eprintln!(
-        "{} runs ({failed} failed) -> {}/study.csv, study.md and charts",
+    let line = format!(
+        "{} runs ({failed} not completed) -> {}/study.csv, study.md and charts\n",
         records.len(),
         plan.out_dir.display()
     );
-    Ok(())
+    if let Some(reason) = impm::interrupt::stop_reason() {
+        say(&line)?;
+        return Err(format!(
+            "the study was {} after {} runs; the rows of the runs done are kept",
+            reason.status(),
+            records.len()
+        )
+        .into());
+    }
+    say(&line)
 }
 
 /// `impm check`: validates the scene and says what it declares (and, with `--explain`, what
@@ -219,18 +325,29 @@ fn check_command(
     scene: &Path,
     set: &[String],
     explain: bool,
-) -> Result<(), String> {
+    limits: &SceneLimits,
+) -> Result<(), Failure> {
+    use std::fmt::Write;
     let overrides = parse_overrides(set)?;
     let parameters = scene_parameters(scene).map_err(|e| e.to_string())?;
     let spec = modules
-        .load_scene(scene, &overrides)
+        .load_scene_within(scene, &overrides, limits)
         .map_err(|e| e.to_string())?;
-    println!("scene {} is valid", spec.name);
-    println!("parameters (override with --set NAME=VALUE):");
-    for p in &parameters {
-        println!("  {:<14} = {:<30} (line {})", p.name, p.default, p.line);
+    let mut text = String::new();
+    let _ = writeln!(text, "scene {} is valid", spec.name);
+    for warning in rank_warnings(&spec) {
+        let _ = writeln!(text, "warning: {warning}");
     }
-    println!(
+    let _ = writeln!(text, "parameters (override with --set NAME=VALUE):");
+    for p in &parameters {
+        let _ = writeln!(
+            text,
+            "  {:<14} = {:<30} (line {})",
+            p.name, p.default, p.line
+        );
+    }
+    let _ = writeln!(
+        text,
         "{}D grid {:?} cells, basis {}, {} bodies, {} points, {} load steps, load factors {}",
         spec.dim(),
         spec.grid.cells,
@@ -243,14 +360,15 @@ fn check_command(
     let used: Vec<&dyn Module> = modules.iter().filter(|m| m.used_by(&spec)).collect();
     for module in &used {
         if let Some(description) = module.describe(&spec) {
-            println!("  {}: {description}", module.name());
+            let _ = writeln!(text, "  {}: {description}", module.name());
         }
     }
     if explain {
-        print!("{}", explain_scene(&spec, modules)?);
+        let _ = write!(text, "{}", explain_scene(&spec, modules)?);
     } else {
         let names: Vec<&str> = used.iter().map(|m| m.name()).collect();
-        println!(
+        let _ = writeln!(
+            text,
             "modules: {} (--explain lists the systems)",
             if names.is_empty() {
                 "none".to_string()
@@ -259,7 +377,7 @@ fn check_command(
             }
         );
     }
-    Ok(())
+    say(&text)
 }
 
 /// The load factors in short: all of them if few, else first, last, extremes.
@@ -278,62 +396,4 @@ fn describe_factors(factors: &[f64]) -> String {
         factors[factors.len() - 1],
         factors.len()
     )
-}
-
-/// A one-line progress display on a terminal; silent otherwise.
-struct Progress {
-    total: usize,
-    terminal: bool,
-}
-
-impl Progress {
-    fn new(total: usize) -> Self {
-        Self {
-            total,
-            terminal: std::io::stderr().is_terminal(),
-        }
-    }
-
-    fn step(&mut self, r: &StepRecord) {
-        let last = r.residuals.last().copied().unwrap_or(0.0);
-        self.show(
-            r.step,
-            &format!(
-                "step {}/{} λ={:.3} iterations {} residual {:.1e}{}",
-                r.step,
-                self.total,
-                r.load_factor,
-                r.iterations,
-                last,
-                if r.cuts > 0 {
-                    format!(" (cut {}x)", r.cuts)
-                } else {
-                    String::new()
-                }
-            ),
-        );
-    }
-
-    /// Draws the bar at `done` of `total` with a status text.
-    fn show(&mut self, done: usize, text: &str) {
-        if !self.terminal {
-            return;
-        }
-        let width = 30;
-        let filled = (width * done / self.total.max(1)).min(width);
-        let mut err = std::io::stderr();
-        let _ = write!(
-            err,
-            "\r[{}{}] {text:<70.70}",
-            "#".repeat(filled),
-            " ".repeat(width - filled),
-        );
-        let _ = err.flush();
-    }
-
-    fn finish(&mut self) {
-        if self.terminal {
-            eprintln!();
-        }
-    }
 }

@@ -237,8 +237,18 @@ impl ModuleSet {
         path: &std::path::Path,
         overrides: &[(String, String)],
     ) -> Result<SceneSpec, SceneError> {
+        self.load_scene_within(path, overrides, &crate::scene::SceneLimits::default())
+    }
+
+    /// [`ModuleSet::load_scene`] within `limits` (`impm --limit NAME=VALUE`).
+    pub fn load_scene_within(
+        &self,
+        path: &std::path::Path,
+        overrides: &[(String, String)],
+        limits: &crate::scene::SceneLimits,
+    ) -> Result<SceneSpec, SceneError> {
         let modules: Vec<&dyn SceneModule> = self.iter().map(|m| m as &dyn SceneModule).collect();
-        crate::scene::load_scene_with(path, overrides, &modules)
+        crate::scene::load_scene_within(path, overrides, &modules, limits)
     }
 
     /// The scene language of the core and these modules.

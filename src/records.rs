@@ -116,10 +116,13 @@ pub struct Summary {
     pub nodes: usize,
     pub planned_steps: usize,
     pub steps: Vec<StepRecord>,
-    /// "running", "completed" or "failed".
+    /// "running", "completed", "failed", "interrupted" or "timed out".
     pub status: &'static str,
     pub failure: Option<String>,
     pub failed_step: Option<StepRecord>,
+    /// What the scene cannot do right (e.g. too few points for the basis across a direction,
+    /// `scene::rank_warnings`), also printed when the run starts.
+    pub warnings: Vec<String>,
 }
 
 /// A JSON number, or null where not finite (JSON has no NaN).
@@ -190,6 +193,7 @@ impl Summary {
             status: "running",
             failure: None,
             failed_step: None,
+            warnings: crate::scene::rank_warnings(spec),
         }
     }
 
@@ -201,6 +205,11 @@ impl Summary {
         self.status = "failed";
         self.failure = Some(error.to_string());
         self.failed_step = Some(record);
+    }
+
+    /// Marks the run as stopped before its end (`"interrupted"`, `"timed out"`).
+    pub fn stop(&mut self, status: &'static str) {
+        self.status = status;
     }
 
     pub fn finish(&mut self) {
@@ -267,6 +276,9 @@ impl Summary {
         }
         if let Some(r) = &self.failed_step {
             v["failed_step"] = step_json(r);
+        }
+        if !self.warnings.is_empty() {
+            v["warnings"] = json!(self.warnings);
         }
         v
     }

@@ -222,9 +222,15 @@ impl<const D: usize> Simulation<D> {
         outcome
     }
 
-    /// Runs all remaining load steps, calling `on_step` after each.
+    /// Runs all remaining load steps, calling `on_step` after each. A stop asked between steps
+    /// (a signal or the deadline, see [`crate::interrupt`]) ends the run after the step in
+    /// flight, with the summary's status saying why.
     pub fn run(&mut self, mut on_step: impl FnMut(&StepRecord)) -> Result<(), SolverError> {
         while self.steps_done < self.spec.load_factors.len() {
+            if let Some(reason) = crate::interrupt::stop_reason() {
+                self.summary.stop(reason.status());
+                break;
+            }
             let record = self.step()?;
             on_step(record);
         }
@@ -538,7 +544,14 @@ fn run_in<const D: usize>(
     let result = sim
         .write_initial_state()
         .and_then(|()| sim.run(on_step))
-        .map_err(RunError::Solve);
+        .map_err(RunError::Solve)
+        .and_then(|()| match crate::interrupt::stop_reason() {
+            Some(reason) if sim.summary.status == reason.status() => Err(RunError::Stopped {
+                reason,
+                steps_done: sim.steps_done(),
+            }),
+            _ => Ok(()),
+        });
     (Some(sim.summary), result)
 }
 
@@ -547,6 +560,11 @@ fn run_in<const D: usize>(
 pub enum RunError {
     Build(BuildError),
     Solve(SolverError),
+    /// Stopped by a signal or the deadline after `steps_done` completed steps.
+    Stopped {
+        reason: crate::interrupt::StopReason,
+        steps_done: usize,
+    },
 }
 
 impl std::fmt::Display for RunError {
@@ -554,6 +572,9 @@ impl std::fmt::Display for RunError {
         match self {
             RunError::Build(e) => write!(f, "cannot set up the simulation: {e}"),
             RunError::Solve(e) => write!(f, "{e}"),
+            RunError::Stopped { reason, steps_done } => {
+                write!(f, "{} after load step {steps_done}", reason.status())
+            }
         }
     }
 }

@@ -42,7 +42,18 @@ where
         // Best effort: the original error is the one worth reporting.
         let _ = fs::remove_file(&temp_path);
     }
-    result.map_err(|e| io::Error::new(e.kind(), format!("writing {}: {e}", path.display())))
+    result.map_err(|e| {
+        let hint = match e.kind() {
+            io::ErrorKind::StorageFull | io::ErrorKind::QuotaExceeded => {
+                " (no space left on the device: free space, or write elsewhere with --out)"
+            }
+            io::ErrorKind::PermissionDenied | io::ErrorKind::ReadOnlyFilesystem => {
+                " (the folder is not writable: choose another with --out)"
+            }
+            _ => "",
+        };
+        io::Error::new(e.kind(), format!("writing {}: {e}{hint}", path.display()))
+    })
 }
 
 /// Creates a new, uniquely named temporary file in the folder of `path`.

@@ -42,10 +42,12 @@
 //! output folder the way a person would and checks it.
 
 mod atomic;
+mod folder;
 mod pvd;
 mod vtu;
 
 pub use atomic::write_atomic;
+pub use folder::{FolderLock, clear_earlier_run};
 pub use pvd::PvdSeries;
 pub use vtu::{
     CellKind, Cells, Compression, Field, VtuContents, lattice_cells, pad_points, read_vtu,

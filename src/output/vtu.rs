@@ -301,9 +301,38 @@ pub fn write_vtu_with(
         .try_into_xml_format(compressor, level)
         .map_err(|e| io::Error::other(format!("vtkio could not encode {}: {e}", path.display())))?;
     write_atomic_with(path, |w| {
-        file.write(w)
-            .map_err(|e| io::Error::other(format!("vtkio: {e}")))
+        // vtkio reports a failed write as a formatting error: keep the real one (a full disk)
+        let mut writer = KeepingError {
+            inner: w,
+            error: None,
+        };
+        file.write(&mut writer).map_err(|e| {
+            writer
+                .error
+                .take()
+                .unwrap_or_else(|| io::Error::other(format!("vtkio: {e}")))
+        })
     })
+}
+
+/// A writer that keeps the first error of the writer it wraps.
+struct KeepingError<'a, W: io::Write> {
+    inner: &'a mut W,
+    error: Option<io::Error>,
+}
+
+impl<W: io::Write> io::Write for KeepingError<'_, W> {
+    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+        self.inner.write(buf).inspect_err(|e| {
+            if self.error.is_none() {
+                self.error = Some(io::Error::new(e.kind(), e.to_string()));
+            }
+        })
+    }
+
+    fn flush(&mut self) -> io::Result<()> {
+        self.inner.flush()
+    }
 }
 
 /// Checks everything [`write_vtu`] promises to reject.

@@ -15,6 +15,7 @@ use rhai::{AST, Dynamic, Engine, FnPtr, Position};
 
 use super::error::ScriptError;
 use super::geometry::point_in_polygon;
+use super::limits::SceneLimits;
 use super::options::{Options, describe, number};
 use super::seeding::{Placement, first_point_outside_grid, seed_box, seed_points_placed};
 use super::words::{Seeder, Words};
@@ -159,6 +160,9 @@ pub struct SceneBuilder {
     pub analytic: Option<Located<ColumnDeclaration>>,
     /// The options of every map call, in call order (modules read the options they added).
     pub call_options: Vec<(&'static str, Located<Options>)>,
+    /// Limits on the basis order, points and memory (checked as the scene is declared and
+    /// resolved, before anything big is allocated).
+    pub limits: SceneLimits,
     /// The modules' declarations, by type.
     store: BTreeMap<TypeId, Box<dyn Any + Send + Sync>>,
 }
@@ -175,6 +179,7 @@ impl SceneBuilder {
             output: None,
             analytic: None,
             call_options: Vec::new(),
+            limits: SceneLimits::default(),
             store: BTreeMap::new(),
         }
     }
@@ -310,14 +315,39 @@ impl SceneBuilder {
         let bodies = self
             .bodies
             .iter()
-            .map(|body| resolve_body(body, &grid, engine, ast))
+            .map(|body| resolve_body(body, &grid, engine, ast, &self.limits))
             .collect::<Result<Vec<_>, _>>()?;
+        let points: usize = bodies.iter().map(|body| body.points.len()).sum();
+        let spec_grid = &grid.value.spec;
+        let nodes = spec_grid.node_count(usize::MAX).unwrap_or(usize::MAX);
+        self.limits
+            .check_memory(dim, spec_grid.basis.order(), points, nodes)
+            .map_err(|why| ScriptError::at(grid.at, why))?;
         let load_schedule = self.load_schedule.as_ref().ok_or_else(|| {
             ScriptError::unlocated(
                 "the scene has no load steps: call load_steps(n), load_factors([..]), load_factors(n, |k| ..) or load_phases([..])",
             )
         })?;
         let load_factors = resolve_load_schedule(load_schedule, engine, ast)?;
+        if let Some(output) = &self.output
+            && let Some(beyond) = output
+                .value
+                .steps
+                .iter()
+                .flatten()
+                .find(|&&step| step > load_factors.len())
+        {
+            return Err(ScriptError::at(
+                output.at,
+                format!(
+                    "output(...): step {beyond} is beyond the last load step {} (the schedule{} has {} steps); steps are 1..={}, and the last step is always written",
+                    load_factors.len(),
+                    load_schedule.line_note(),
+                    load_factors.len(),
+                    load_factors.len()
+                ),
+            ));
+        }
         let analytic = match &self.analytic {
             None => None,
             Some(column) => Some(resolve_column(column, &self.materials, dim, &grid_note)?),
@@ -461,6 +491,7 @@ fn resolve_body(
     grid: &Located<GridDeclaration>,
     engine: &Engine,
     ast: &AST,
+    limits: &SceneLimits,
 ) -> Result<BodySpec, ScriptError> {
     let declaration = &body.value;
     let seeder = grid.value.seeder;
@@ -472,7 +503,7 @@ fn resolve_body(
             format!("body '{}': {message}", declaration.name),
         ))
     };
-    let points_per_cell = match points_per_axis(&declaration.points_per_cell, &grid.value) {
+    let points_per_cell = match points_per_axis(&declaration.points_per_cell, &grid.value, limits) {
         Ok(counts) => counts,
         Err(why) => return fail(why),
     };
@@ -557,7 +588,11 @@ fn resolve_body(
 
 /// Points per cell along every axis of `grid`, checked: one count per axis, and not more
 /// seeding positions than `MAX_SEED_CANDIDATES`.
-fn points_per_axis(points_per_cell: &PointsPerCell, grid: &GridSpec) -> Result<Vec<usize>, String> {
+fn points_per_axis(
+    points_per_cell: &PointsPerCell,
+    grid: &GridSpec,
+    limits: &SceneLimits,
+) -> Result<Vec<usize>, String> {
     let dim = grid.dim();
     let counts = match points_per_cell {
         PointsPerCell::Uniform(count) => vec![*count; dim],
@@ -576,10 +611,13 @@ fn points_per_axis(points_per_cell: &PointsPerCell, grid: &GridSpec) -> Result<V
         .try_fold(1usize, |count, (&cells, &ppc)| {
             count.checked_mul(cells.checked_mul(ppc)?)
         });
-    if candidates.is_none_or(|count| count > MAX_SEED_CANDIDATES) {
-        return Err(format!(
-            "too many seeding positions (grid cells x ppc^D exceeds {MAX_SEED_CANDIDATES})"
-        ));
+    match candidates {
+        Some(count) if count <= MAX_SEED_CANDIDATES => limits.check_points(count)?,
+        _ => {
+            return Err(format!(
+                "too many seeding positions (grid cells x ppc^D exceeds {MAX_SEED_CANDIDATES})"
+            ));
+        }
     }
     Ok(counts)
 }

@@ -157,6 +157,7 @@ fn declare_grid(
     for refine in &builder.words.refinements {
         kind = refine(kind, options)?;
     }
+    builder.limits.check_order(kind.order(), dim)?;
     let spec = GridSpec {
         lower,
         upper,

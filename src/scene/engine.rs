@@ -9,6 +9,7 @@ use rhai::{Dynamic, Engine, EvalAltResult, NativeCallContext, Position};
 use super::SceneSpec;
 use super::builder::{MaterialHandle, Region, Resolver, SceneBuilder};
 use super::error::{SceneError, ScriptError};
+use super::limits::SceneLimits;
 use super::options::Options;
 use super::params::{Parameter, apply_overrides, find_parameters};
 use super::registry::{CallSpec, Declare, SceneApi};
@@ -39,18 +40,36 @@ pub fn scene_api(modules: &[&dyn SceneModule]) -> SceneApi {
 
 /// Runs the scene script at `path` with `--set` overrides `(NAME, VALUE)` applied, in the
 /// scene language of the core and `modules`, and returns the resolved scene. The scene name is
-/// the file stem.
+/// the file stem. The default [`SceneLimits`] apply.
 pub fn load_scene_with(
     path: &Path,
     overrides: &[(String, String)],
     modules: &[&dyn SceneModule],
 ) -> Result<SceneSpec, SceneError> {
+    load_scene_within(path, overrides, modules, &SceneLimits::default())
+}
+
+/// [`load_scene_with`] within `limits` (script operations and sizes, basis order, points,
+/// memory): a runaway script or an oversized scene ends with the limit it hit.
+pub fn load_scene_within(
+    path: &Path,
+    overrides: &[(String, String)],
+    modules: &[&dyn SceneModule],
+    limits: &SceneLimits,
+) -> Result<SceneSpec, SceneError> {
     let file = path.display().to_string();
     let source = read_script(path, &file)?;
     let api = Arc::new(scene_api(modules));
     let words = Arc::new(api.words().clone());
-    let state: SharedBuilder = Arc::new(Mutex::new(Some(SceneBuilder::new(words.clone()))));
-    let engine = scene_engine(&state, &api);
+    let mut builder = SceneBuilder::new(words.clone());
+    builder.limits = *limits;
+    let state: SharedBuilder = Arc::new(Mutex::new(Some(builder)));
+    let mut engine = scene_engine(&state, &api);
+    let folder = match path.parent() {
+        Some(parent) if !parent.as_os_str().is_empty() => parent,
+        _ => Path::new("."),
+    };
+    limits.apply(&mut engine, folder);
     let expected = |name: &str| api.expected(name);
     // syntax errors are reported against the script as written, before any override
     engine
@@ -65,11 +84,12 @@ pub fn load_scene_with(
         .run_ast(&ast)
         .map_err(|error| ScriptError::from_eval_with(error, &expected).in_file(&file))?;
     // taking the builder out closes the API: predicates run below cannot declare more
-    let builder = state
+    let mut builder = state
         .lock()
         .unwrap_or_else(PoisonError::into_inner)
         .take()
         .unwrap_or_else(|| SceneBuilder::new(words));
+    builder.limits = *limits;
     let name = path.file_stem().map_or_else(
         || "scene".to_string(),
         |stem| stem.to_string_lossy().into_owned(),
@@ -92,9 +112,19 @@ pub fn scene_parameters(path: &Path) -> Result<Vec<Parameter>, SceneError> {
         .collect())
 }
 
+/// The script's text, without a UTF-8 byte-order mark (some editors write one).
 fn read_script(path: &Path, file: &str) -> Result<String, SceneError> {
-    std::fs::read_to_string(path).map_err(|error| {
-        SceneError::whole_file(file, format!("cannot read the scene script: {error}"))
+    let text = std::fs::read_to_string(path).map_err(|error| {
+        let hint = match error.kind() {
+            std::io::ErrorKind::InvalidData => " (the file is not UTF-8 text: save it as UTF-8)",
+            std::io::ErrorKind::NotFound => " (check the path)",
+            _ => "",
+        };
+        SceneError::whole_file(file, format!("cannot read the scene script: {error}{hint}"))
+    })?;
+    Ok(match text.strip_prefix('\u{feff}') {
+        Some(rest) => rest.to_string(),
+        None => text,
     })
 }
 

@@ -121,7 +121,7 @@ impl ScriptError {
             EvalAltResult::ErrorFunctionNotFound(ref signature, _) => {
                 function_not_found_message(signature, expected)
             }
-            ref other => other.to_string(),
+            ref other => limit_message(other).unwrap_or_else(|| other.to_string()),
         };
         for (name, call) in called_functions.iter().rev() {
             match call.line() {
@@ -148,6 +148,28 @@ impl ScriptError {
             message: self.message,
         }
     }
+}
+
+/// What a script that hit one of the engine's limits (`scene::SceneLimits`) is told.
+fn limit_message(error: &EvalAltResult) -> Option<String> {
+    Some(match error {
+        EvalAltResult::ErrorTooManyOperations(_) => "the script hit the limit on operations (an endless loop?); if the scene really needs more, raise it with --limit operations=N".to_string(),
+        EvalAltResult::ErrorDataTooLarge(what, _) => {
+            let name = if what.contains("rray") {
+                "array"
+            } else if what.contains("ap") {
+                "map"
+            } else {
+                "string"
+            };
+            format!("{what} grew beyond the limit on its size (a runaway loop?); --limit {name}=N raises it")
+        }
+        EvalAltResult::ErrorTerminated(value, _) if value.to_string() == super::limits::TIME_LIMIT => {
+            "the scene took longer than the limit on its evaluation time (an endless loop, or a map or array grown one item at a time?); --limit seconds=N raises it".to_string()
+        }
+        EvalAltResult::ErrorStackOverflow(_) => "script functions nest deeper than the limit on calls (endless recursion?); --limit depth=N raises it".to_string(),
+        _ => return None,
+    })
 }
 
 /// "Function not found" with the expected call form when the name is one of the scene API's.

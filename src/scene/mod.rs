@@ -35,8 +35,10 @@ mod engine;
 mod error;
 mod fem_seeding;
 mod geometry;
+mod limits;
 mod options;
 mod params;
+mod rank;
 mod registry;
 mod schedule;
 mod seeding;
@@ -51,15 +53,17 @@ pub use builder::{
     BodyDeclaration, LoadSchedule, Located, MAX_NODES, MAX_SEED_CANDIDATES, MaterialHandle,
     PointsPerCell, Region, Resolver, SceneBuilder, ensure_unset,
 };
-pub use engine::{SceneModule, load_scene_with, scene_api, scene_parameters};
+pub use engine::{SceneModule, load_scene_with, load_scene_within, scene_api, scene_parameters};
 pub use error::{SceneError, ScriptError};
 pub use fem_seeding::{PartialCell, seed_element_points};
 pub use geometry::{point_in_polygon, polygon_double_area};
+pub use limits::{SceneLimits, memory_estimate, support_size};
 pub use options::{
     Choice, Kind, OptionSpec, OptionValue, Options, Range, array_of, describe, function, number,
     numbers, string, whole_number, whole_numbers,
 };
 pub use params::Parameter;
+pub use rank::rank_warnings;
 pub use registry::{CallSpec, Declare, SceneApi};
 pub use schedule::{MAX_STEPS, phase_factors};
 pub use seeding::{

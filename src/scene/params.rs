@@ -93,15 +93,26 @@ pub(crate) fn find_parameters(source: &str) -> Vec<ParameterSite> {
     sites
 }
 
-/// Replaces the initialisers of the overridden parameters. Later overrides of the same name
-/// win. Returns an error message if an override names no parameter.
+/// Replaces the initialisers of the overridden parameters. Returns an error message if an
+/// override names no parameter, names one twice, or is a number out of the range of a float.
 pub(crate) fn apply_overrides(
     source: &str,
     sites: &[ParameterSite],
     overrides: &[(String, String)],
 ) -> Result<String, String> {
     let mut replacements: Vec<(Range<usize>, String)> = Vec::new();
-    for (name, value) in overrides {
+    for (k, (name, value)) in overrides.iter().enumerate() {
+        if let Some((_, first)) = overrides[..k].iter().find(|(other, _)| other == name) {
+            return Err(format!(
+                "--set {name} is given twice ({first} and {value}): give each parameter once"
+            ));
+        }
+        let trimmed = value.trim();
+        if looks_numeric(trimmed) && trimmed.parse::<f64>().is_ok_and(|x| !x.is_finite()) {
+            return Err(format!(
+                "--set {name}={value}: the number is out of the range of a float (about ±1.8e308)"
+            ));
+        }
         let Some(site) = sites.iter().find(|site| &site.parameter.name == name) else {
             let known: Vec<&str> = sites
                 .iter()
@@ -120,7 +131,6 @@ pub(crate) fn apply_overrides(
         let mut literal = override_literal(value, &site.parameter.default);
         // keep the line count of the replaced text so later lines keep their numbers
         literal.extend(std::iter::repeat_n('\n', original.matches('\n').count()));
-        replacements.retain(|(range, _)| *range != site.initialiser);
         replacements.push((site.initialiser.clone(), literal));
     }
     replacements.sort_by_key(|(range, _)| range.start);
@@ -586,5 +596,10 @@ let last = 5"##;
             error.contains("no parameter 'd'") && error.contains("a, b, c"),
             "{error}"
         );
+        let twice = [("a".into(), "1".into()), ("a".into(), "2".into())];
+        let error = apply_overrides(source, &sites, &twice).unwrap_err();
+        assert!(error.contains("given twice (1 and 2)"), "{error}");
+        let error = apply_overrides(source, &sites, &[("a".into(), "1e400".into())]).unwrap_err();
+        assert!(error.contains("out of the range"), "{error}");
     }
 }

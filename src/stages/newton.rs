@@ -3,8 +3,11 @@
 //! (`control::ConvergenceCriterion`; by default the normalised out-of-balance force
 //!
 //! ```text
-//!   ‖f_ext − f_int‖_free / max(‖f_ext‖, ‖f_int‖)      (norms over all active components)
+//!   ‖f_ext − f_int‖_free · min(|λ|, 1) / max(‖f_ext‖, ‖f_int‖)   (norms over all active components)
 //! ```
+//!
+//! relative to the load scale, so that tiny load increments converge; see
+//! `control::NormalisedResidual`
 //!
 //! ) falls below the tolerance, or fails after `max_iterations` linear solves. The solve is the
 //! linear-solver layer's (`solver`), told whether the tangent is symmetric. The first residual
@@ -54,6 +57,7 @@ pub fn check_convergence<const D: usize>(
         free: free.sqrt(),
         external: external.sqrt(),
         internal: internal.sqrt(),
+        load_factor: step.factor,
     });
     newton.residuals.push(norm);
     if !norm.is_finite() {

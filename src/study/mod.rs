@@ -49,9 +49,9 @@ pub use table::{convergence_rates, csv_header};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use crate::interrupt::{StopReason, set_deadline, stop_reason};
 use crate::resources::Stage;
-use crate::run::load_scene;
-use crate::run::run_scene_keeping_summary;
+use crate::run::{RunError, run_scene_keeping_summary};
 use crate::scene::{AnalyticSpec, scene_parameters};
 
 /// One `--sweep`: parameter names moved together and their value tuples.
@@ -100,6 +100,11 @@ pub struct StudyPlan {
     pub against: String,
     /// Also read, write and plot the final stress profile of every run.
     pub profiles: bool,
+    /// The longest a run may take (`--timeout`): it then stops at the end of its load step
+    /// and is recorded as "timed out".
+    pub timeout: Option<std::time::Duration>,
+    /// The scene limits of every run (`--limit`).
+    pub limits: crate::scene::SceneLimits,
 }
 
 /// A run's result.
@@ -107,6 +112,12 @@ pub struct StudyPlan {
 pub enum RunOutcome {
     Completed,
     Failed(String),
+    /// Stopped before its end: `status` is "interrupted" (a signal) or "timed out"
+    /// (`--timeout`); the message says after which step.
+    Stopped {
+        status: &'static str,
+        message: String,
+    },
 }
 
 /// One row of the study.
@@ -239,23 +250,37 @@ fn run_one(plan: &StudyPlan, index: usize, parameters: Vec<(String, String)>) ->
     };
     let memory = memory::begin_run();
     let start = Instant::now();
-    let spec = match load_scene(&plan.scene, &overrides) {
-        Ok(mut spec) => {
-            spec.output.every = spec.load_factors.len().max(1);
-            spec
-        }
-        Err(e) => {
-            record.outcome = RunOutcome::Failed(e.to_string());
-            record.wall_seconds = start.elapsed().as_secs_f64();
-            record.memory = memory::end_run(memory);
-            return record;
-        }
-    };
+    let spec =
+        match crate::effects::built_in().load_scene_within(&plan.scene, &overrides, &plan.limits) {
+            Ok(mut spec) => {
+                spec.output.every = spec.load_factors.len().max(1);
+                spec
+            }
+            Err(e) => {
+                record.outcome = RunOutcome::Failed(e.to_string());
+                record.wall_seconds = start.elapsed().as_secs_f64();
+                record.memory = memory::end_run(memory);
+                return record;
+            }
+        };
+    set_deadline(plan.timeout.map(|limit| start + limit));
     let (summary, result) = run_scene_keeping_summary(&spec, &dir, |_| {});
+    set_deadline(None);
     record.wall_seconds = start.elapsed().as_secs_f64();
     record.memory = memory::end_run(memory);
-    if let Err(e) = result {
-        record.outcome = RunOutcome::Failed(e.to_string());
+    match result {
+        Ok(()) => {}
+        Err(RunError::Stopped { reason, steps_done }) => {
+            record.outcome = RunOutcome::Stopped {
+                status: reason.status(),
+                message: format!(
+                    "after load step {steps_done} of {} ({:.1} s)",
+                    spec.load_factors.len(),
+                    record.wall_seconds
+                ),
+            };
+        }
+        Err(e) => record.outcome = RunOutcome::Failed(e.to_string()),
     }
     if let Some(summary) = summary {
         record.points = Some(summary.points);
@@ -294,7 +319,9 @@ fn run_one(plan: &StudyPlan, index: usize, parameters: Vec<(String, String)>) ->
     record
 }
 
-/// Runs the study and writes its files; `on_event` hears each run start and finish.
+/// Runs the study and writes its files; `on_event` hears each run start and finish. The
+/// files are rewritten after every run (atomically), so a study stopped by a signal keeps every
+/// run done so far; it stops after the run in flight (which is recorded as interrupted).
 pub fn run_study(
     plan: &StudyPlan,
     mut on_event: impl FnMut(StudyEvent),
@@ -306,6 +333,9 @@ pub fn run_study(
     let total = combinations.len();
     let mut records = Vec::with_capacity(total);
     for (index, parameters) in combinations.into_iter().enumerate() {
+        if stop_reason() == Some(StopReason::Interrupted) {
+            break;
+        }
         let label = parameters
             .iter()
             .map(|(n, v)| format!("{n}={v}"))
@@ -323,7 +353,13 @@ pub fn run_study(
             record: &record,
         });
         records.push(record);
+        write_study_files(plan, &records)?;
     }
+    Ok(records)
+}
+
+/// `study.csv`, `study.md` and the charts of the runs done so far.
+fn write_study_files(plan: &StudyPlan, records: &[RunRecord]) -> Result<(), String> {
     let names: Vec<String> = plan
         .sweeps
         .iter()
@@ -334,16 +370,16 @@ pub fn run_study(
         crate::output::write_atomic(&path, text.as_bytes())
             .map_err(|e| format!("{}: {e}", path.display()))
     };
-    write("study.csv", table::csv(&names, &records))?;
-    let against = plot_axis(plan, &records);
+    write("study.csv", table::csv(&names, records))?;
+    let against = plot_axis(plan, records);
     let mut charts = Vec::new();
     if let Some(against) = &against {
         let stem = format!("error_vs_{against}");
-        plot::error_against_parameter(&records, against, &plan.out_dir.join(&stem))?;
+        plot::error_against_parameter(records, against, &plan.out_dir.join(&stem))?;
         charts.push((format!("Eq. 15 error against {against}"), stem));
     }
     plot::error_against_time(
-        &records,
+        records,
         against.as_deref(),
         &plan.out_dir.join("error_vs_time"),
     )?;
@@ -352,8 +388,8 @@ pub fn run_study(
         "error_vs_time".to_string(),
     ));
     if plan.profiles {
-        write("profiles.csv", profile::csv(&names, &records))?;
-        profile::charts(&records, &plan.out_dir)?;
+        write("profiles.csv", profile::csv(&names, records))?;
+        profile::charts(records, &plan.out_dir)?;
         charts.push(("Stress along the column".into(), "profiles".into()));
         charts.push((
             "Pointwise stress error along the column".into(),
@@ -362,9 +398,8 @@ pub fn run_study(
     }
     write(
         "study.md",
-        table::markdown(plan, &names, &records, against.as_deref(), &charts),
-    )?;
-    Ok(records)
+        table::markdown(plan, &names, records, against.as_deref(), &charts),
+    )
 }
 
 /// The x parameter of the error plot: `plan.against` if swept and numeric, else the first

@@ -66,6 +66,7 @@ fn status(record: &RunRecord) -> (&'static str, String) {
     match &record.outcome {
         RunOutcome::Completed => ("completed", String::new()),
         RunOutcome::Failed(message) => ("failed", message.clone()),
+        RunOutcome::Stopped { status, message } => (status, message.clone()),
     }
 }
 
@@ -283,6 +284,7 @@ fn runs_table(names: &[String], records: &[RunRecord]) -> String {
                 let first = m.lines().next().unwrap_or_default();
                 format!("failed: {}", first.replace('|', "/"))
             }
+            RunOutcome::Stopped { status, message } => format!("{status}: {message}"),
         };
         row.extend([
             status,

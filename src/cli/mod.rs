@@ -1,0 +1,5 @@
+//! Pieces of the command line kept out of `main.rs`: writing to the console without panicking
+//! ([`console`]) and the progress display ([`progress`]).
+
+pub mod console;
+pub mod progress;

@@ -1,0 +1,192 @@
+//! The output folder of one run at a time: a lock file (`.impm.lock`, holding the process id)
+//! so that a second run into the same folder fails with a clear message instead of
+//! interleaving its files, and the removal of what an earlier run into the folder left that the
+//! new run will not rewrite.
+//!
+//! A lock whose process no longer exists was left by a run that was killed; it is taken over
+//! and reported ([`FolderLock::killed_run`]). Only files impm writes are removed: series files
+//! `STEM_NNNN.vtu` of a series `STEM.pvd` in the folder, the `.pvd` files, `summary.json`,
+//! `checkpoint.json`, and the temporary files of interrupted atomic writes (`.NAME.PID.N.tmp`).
+
+use std::fs;
+use std::io;
+use std::path::{Path, PathBuf};
+
+/// The lock on an output folder, released (removed) when dropped.
+#[derive(Debug)]
+pub struct FolderLock {
+    path: PathBuf,
+    killed: Option<u32>,
+}
+
+const LOCK_NAME: &str = ".impm.lock";
+
+impl FolderLock {
+    /// Locks `dir` (created if missing) for this process, or says which run holds it.
+    pub fn acquire(dir: &Path) -> Result<Self, String> {
+        fs::create_dir_all(dir)
+            .map_err(|e| format!("cannot create the output folder {}: {e}", dir.display()))?;
+        let path = dir.join(LOCK_NAME);
+        let mut killed = None;
+        loop {
+            match fs::OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .open(&path)
+            {
+                Ok(file) => {
+                    use std::io::Write;
+                    let mut file = file;
+                    writeln!(file, "{}", std::process::id()).map_err(|e| {
+                        format!("cannot write the lock file {}: {e}", path.display())
+                    })?;
+                    return Ok(Self { path, killed });
+                }
+                Err(e) if e.kind() == io::ErrorKind::AlreadyExists => {
+                    let holder = fs::read_to_string(&path)
+                        .ok()
+                        .and_then(|text| text.trim().parse::<u32>().ok());
+                    match holder {
+                        Some(pid) if pid != std::process::id() && process_exists(pid) => {
+                            return Err(format!(
+                                "another impm run (process {pid}) is writing into {}; wait for it to finish, or choose another folder with --out",
+                                dir.display()
+                            ));
+                        }
+                        _ => {
+                            // stale: its process is gone (killed), or the file is unreadable
+                            killed = holder.or(Some(0));
+                            fs::remove_file(&path).map_err(|e| {
+                                format!("cannot remove the stale lock {}: {e}", path.display())
+                            })?;
+                        }
+                    }
+                }
+                Err(e) => {
+                    return Err(format!(
+                        "cannot lock the output folder {}: {e}",
+                        dir.display()
+                    ));
+                }
+            }
+        }
+    }
+
+    /// The process id of an earlier run into the folder that was killed before it finished
+    /// (its lock was left behind), if any; 0 if its lock file was unreadable.
+    pub fn killed_run(&self) -> Option<u32> {
+        self.killed
+    }
+}
+
+impl Drop for FolderLock {
+    fn drop(&mut self) {
+        let _ = fs::remove_file(&self.path);
+    }
+}
+
+fn process_exists(pid: u32) -> bool {
+    Path::new("/proc").join(pid.to_string()).exists()
+}
+
+/// Removes what an earlier run left in `dir` (see the module docs); returns how many files.
+pub fn clear_earlier_run(dir: &Path) -> io::Result<usize> {
+    let names: Vec<String> = match fs::read_dir(dir) {
+        Ok(entries) => entries
+            .filter_map(|entry| entry.ok())
+            .filter(|entry| entry.file_type().is_ok_and(|t| t.is_file()))
+            .filter_map(|entry| entry.file_name().into_string().ok())
+            .collect(),
+        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(0),
+        Err(e) => return Err(e),
+    };
+    let series: Vec<&str> = names
+        .iter()
+        .filter_map(|name| name.strip_suffix(".pvd"))
+        .collect();
+    let mut removed = 0;
+    for name in &names {
+        if is_impm_file(name, &series) {
+            fs::remove_file(dir.join(name))?;
+            removed += 1;
+        }
+    }
+    Ok(removed)
+}
+
+/// Whether `name` is a file impm writes, given the series (`.pvd` stems) in its folder.
+fn is_impm_file(name: &str, series: &[&str]) -> bool {
+    if matches!(name, "summary.json" | "checkpoint.json") || name.ends_with(".pvd") {
+        return true;
+    }
+    if is_temporary(name) {
+        return true;
+    }
+    name.strip_suffix(".vtu")
+        .and_then(|stem| stem.rsplit_once('_'))
+        .is_some_and(|(series_name, number)| {
+            !number.is_empty()
+                && number.bytes().all(|b| b.is_ascii_digit())
+                && series.contains(&series_name)
+        })
+}
+
+/// `.NAME.PID.N.tmp`, the temporary file of an atomic write.
+fn is_temporary(name: &str) -> bool {
+    let Some(inner) = name.strip_prefix('.').and_then(|n| n.strip_suffix(".tmp")) else {
+        return false;
+    };
+    let mut parts = inner.rsplitn(3, '.');
+    let counter = parts.next().unwrap_or_default();
+    let pid = parts.next().unwrap_or_default();
+    let digits = |s: &str| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit());
+    digits(counter) && digits(pid) && parts.next().is_some_and(|n| !n.is_empty())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_impm_files_are_recognised() {
+        let series = ["particles", "grid"];
+        for name in [
+            "particles_0003.vtu",
+            "grid_12345.vtu",
+            "particles.pvd",
+            "summary.json",
+            ".particles_0001.vtu.4242.0.tmp",
+        ] {
+            assert!(is_impm_file(name, &series), "{name}");
+        }
+        for name in [
+            "mesh_0001.vtu",
+            "particles_final.vtu",
+            "notes.txt",
+            ".hidden.tmp",
+            "particles_0001.vtu.bak",
+        ] {
+            assert!(!is_impm_file(name, &series), "{name}");
+        }
+    }
+
+    #[test]
+    fn a_second_lock_fails_and_a_stale_one_is_taken_over() {
+        let dir = std::env::temp_dir().join(format!("impm-lock-{}", std::process::id()));
+        let _ = fs::remove_dir_all(&dir);
+        let lock = FolderLock::acquire(&dir).unwrap();
+        assert_eq!(lock.killed_run(), None);
+        drop(lock);
+        // a lock of a live process that is not us (pid 1 exists on Linux)
+        fs::write(dir.join(LOCK_NAME), "1\n").unwrap();
+        let error = FolderLock::acquire(&dir).unwrap_err();
+        assert!(error.contains("process 1"), "{error}");
+        // a lock of a process that cannot exist (above the kernel's pid limit)
+        fs::write(dir.join(LOCK_NAME), "2000000000\n").unwrap();
+        let lock = FolderLock::acquire(&dir).unwrap();
+        assert_eq!(lock.killed_run(), Some(2_000_000_000));
+        drop(lock);
+        assert!(!dir.join(LOCK_NAME).exists());
+        let _ = fs::remove_dir_all(&dir);
+    }
+}
