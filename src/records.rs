@@ -120,6 +120,8 @@ pub struct Summary {
     pub status: &'static str,
     pub failure: Option<String>,
     pub failed_step: Option<StepRecord>,
+    /// What the modules warned about (e.g. a condition the material no longer follows).
+    pub warnings: Vec<String>,
 }
 
 /// A JSON number, or null where not finite (JSON has no NaN).
@@ -190,6 +192,7 @@ impl Summary {
             status: "running",
             failure: None,
             failed_step: None,
+            warnings: Vec::new(),
         }
     }
 
@@ -268,6 +271,9 @@ impl Summary {
         if let Some(r) = &self.failed_step {
             v["failed_step"] = step_json(r);
         }
+        if !self.warnings.is_empty() {
+            v["warnings"] = json!(self.warnings);
+        }
         v
     }
 
@@ -277,4 +283,51 @@ impl Summary {
         crate::output::write_atomic(&self.path, text.as_bytes())
             .map_err(|e| format!("{}: {e}", self.path.display()))
     }
+
+    /// Writes `history.csv` beside `summary.json` (atomically): one row per converged step with
+    /// `step`, `load_factor`, the eq. 15 `error` when the scene has one, and every measure the
+    /// modules recorded (reactions, probes...), named as in `summary.json`; a value a step does
+    /// not have is left empty.
+    pub fn write_history(&self) -> Result<(), String> {
+        let path = self.path.with_file_name("history.csv");
+        crate::output::write_atomic(&path, history_csv(&self.steps).as_bytes())
+            .map_err(|e| format!("{}: {e}", path.display()))
+    }
+}
+
+/// The text of `history.csv` for these steps (see [`Summary::write_history`]).
+pub fn history_csv(steps: &[StepRecord]) -> String {
+    let mut names: Vec<&str> = Vec::new();
+    if steps.iter().any(|s| s.error.is_some()) {
+        names.push("error");
+    }
+    for step in steps {
+        for (name, _) in &step.measures {
+            if !names.contains(name) {
+                names.push(name);
+            }
+        }
+    }
+    let mut text = String::from("step,load_factor");
+    for name in &names {
+        text += ",";
+        text += name;
+    }
+    text += "\n";
+    for step in steps {
+        text += &format!("{},{}", step.step, step.load_factor);
+        for &name in &names {
+            let value = if name == "error" {
+                step.error
+            } else {
+                step.measure(name)
+            };
+            text += ",";
+            if let Some(value) = value {
+                text += &value.to_string();
+            }
+        }
+        text += "\n";
+    }
+    text
 }

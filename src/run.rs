@@ -169,10 +169,14 @@ impl<const D: usize> Simulation<D> {
         record.measures = self.measures(target);
         self.steps_done = number;
         self.summary.push(record);
-        self.summary.write().map_err(|e| SolverError::Output {
-            step: number,
-            why: e,
-        })?;
+        self.take_warnings();
+        self.summary
+            .write()
+            .and_then(|()| self.summary.write_history())
+            .map_err(|e| SolverError::Output {
+                step: number,
+                why: e,
+            })?;
         Ok(self.summary.steps.last().expect("just pushed"))
     }
 
@@ -233,6 +237,15 @@ impl<const D: usize> Simulation<D> {
             step: self.steps_done,
             why: e,
         })
+    }
+
+    /// Moves the step's warnings into the summary and prints them.
+    fn take_warnings(&mut self) {
+        let warnings = std::mem::take(&mut self.world.resource_mut::<Warnings>().0);
+        for warning in &warnings {
+            eprintln!("warning: {warning}");
+        }
+        self.summary.warnings.extend(warnings);
     }
 
     fn take_failure(&mut self) -> Result<(), SolverError> {
@@ -317,6 +330,7 @@ fn core_world<const D: usize>(spec: &SceneSpec, out_dir: &Path) -> Result<World,
     world.insert_resource(StageClock::default());
     world.insert_resource(PointFields::default());
     world.insert_resource(StepMeasures::default());
+    world.insert_resource(Warnings::default());
     let output = &spec.output;
     world.insert_resource(OutputPlan {
         steps: output.steps.clone(),

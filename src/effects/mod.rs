@@ -12,6 +12,7 @@
 //! | `point_loads.rs` | forces on material points |
 //! | `tractions.rs` | surface tractions carried by traction points |
 //! | `grid_constraints.rs` | `fix` and `displace` on grid nodes |
+//! | `surface_conditions.rs` | prescribed displacements and supports on material surfaces |
 //! | `ghost_penalty.rs` | stabilisation of nearly empty cells |
 //! | `stress_recovery.rs` | moving-least-squares stress recovery |
 
@@ -23,6 +24,7 @@ pub mod materials;
 pub mod point_domains;
 pub mod point_loads;
 pub mod stress_recovery;
+pub mod surface_conditions;
 pub mod tractions;
 
 use crate::material::Hencky;
@@ -40,6 +42,7 @@ pub fn built_in() -> ModuleSet {
         .with(tractions::TractionsModule)
         .with(grid_constraints::GridConstraintsModule)
         .with(grid_constraints::PrescribedDisplacementsModule)
+        .with(surface_conditions::SurfaceConditionsModule)
         .with(ghost_penalty::GhostPenaltyModule)
         .with(stress_recovery::StressRecoveryModule)
 }
