@@ -21,6 +21,17 @@ pub type Measure = Box<dyn Fn(&mut World, f64) -> Option<f64> + Send + Sync>;
 #[derive(Resource, Default)]
 pub struct StepMeasures(pub Vec<(&'static str, Measure)>);
 
+/// The values of the step's measures computed so far, in order: a measure may read the ones
+/// added before it (e.g. `record(...)` rescales a reaction into a named column).
+#[derive(Resource, Default, Debug)]
+pub struct MeasuredValues(pub Vec<(&'static str, f64)>);
+
+impl MeasuredValues {
+    pub fn get(&self, name: &str) -> Option<f64> {
+        self.0.iter().find(|(n, _)| *n == name).map(|(_, v)| *v)
+    }
+}
+
 /// What one load step did.
 #[derive(Clone, Debug)]
 pub struct StepRecord {

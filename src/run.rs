@@ -28,7 +28,7 @@ use crate::method::{
 };
 pub use crate::plugin::BuildError;
 use crate::plugin::{Module, ModuleSet, Plugin, build_plugin};
-use crate::records::{StepMeasures, StepRecord, Summary};
+use crate::records::{MeasuredValues, StepMeasures, StepRecord, Summary};
 use crate::resources::*;
 use crate::scene::SceneSpec;
 use crate::stages::output::{OutputPlan, PointFields};
@@ -273,13 +273,17 @@ impl<const D: usize> Simulation<D> {
         let Some(measures) = self.world.remove_resource::<StepMeasures>() else {
             return Vec::new();
         };
-        let values = measures
-            .0
-            .iter()
-            .filter_map(|(name, measure)| Some((*name, measure(&mut self.world, factor)?)))
-            .collect();
+        self.world.insert_resource(MeasuredValues::default());
+        for (name, measure) in &measures.0 {
+            if let Some(value) = measure(&mut self.world, factor) {
+                self.world
+                    .resource_mut::<MeasuredValues>()
+                    .0
+                    .push((name, value));
+            }
+        }
         self.world.insert_resource(measures);
-        values
+        std::mem::take(&mut self.world.resource_mut::<MeasuredValues>().0)
     }
 
     /// Points' (reference coordinate, Cauchy stress component) along `axis`, sorted by the

@@ -404,3 +404,66 @@ fn history_has_a_row_per_step_with_named_columns() {
         assert_eq!(row[column], step.measure("top_displacement_y").unwrap());
     }
 }
+
+/// The footing pressure of `scripts/strip_footing.rhai` (rough, elastic, δ/B = 1e-3, one step)
+/// after its last step.
+fn footing_pressure(set: &[(&str, &str)]) -> f64 {
+    let mut all = vec![("settlement", "0.001"), ("steps", "1")];
+    all.extend_from_slice(set);
+    let sim = common::run_shipped::<2>("strip_footing.rhai", &all);
+    let last = sim.summary.steps.last().unwrap();
+    assert!((last.measure("settlement").unwrap() - 1e-3).abs() < 1e-3 * 1e-3);
+    last.measure("footing_pressure").unwrap()
+}
+
+/// The elastic rough strip footing at small settlement: the pressure under the footing with the
+/// material-surface condition (quadratic B-splines, 16 cells across B) within 2 % of linear FEM
+/// on the same geometry with 32 cells across B. The rigid footing's edge makes both converge
+/// like h: their Richardson extrapolations (from 8 and 16, and 16 and 32 cells) agree to 0.5 %.
+#[test]
+fn strip_footing_matches_linear_fem() {
+    let mpm = [
+        footing_pressure(&[("cells", "8")]),
+        footing_pressure(&[("cells", "16")]),
+    ];
+    let fem = [
+        footing_pressure(&[("cells", "16"), ("basis", "fem")]),
+        footing_pressure(&[("cells", "32"), ("basis", "fem")]),
+    ];
+    let extrapolated = |p: [f64; 2]| 2.0 * p[1] - p[0];
+    eprintln!(
+        "footing pressure: MPM {mpm:?} -> {:.4}, FEM {fem:?} -> {:.4}",
+        extrapolated(mpm),
+        extrapolated(fem)
+    );
+    assert!(
+        (mpm[1] - fem[1]).abs() < 0.02 * fem[1],
+        "{mpm:?} vs {fem:?}"
+    );
+    assert!(
+        (extrapolated(mpm) - extrapolated(fem)).abs() < 0.005 * extrapolated(fem),
+        "{mpm:?} vs {fem:?}"
+    );
+}
+
+/// `record(...)` of a quantity no module measures is an error naming its line and the
+/// quantities there are.
+#[test]
+fn record_of_an_unknown_quantity_is_an_error() {
+    let text = uniaxial::<2>() + "record(#{ name: \"s\", quantity: \"top_reaction_q\" });\n";
+    let dir = common::temp_dir("boundaries", "record");
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("record.rhai");
+    std::fs::write(&path, text).unwrap();
+    let spec = load_scene(&path, &[]).unwrap();
+    let error = Simulation::<2>::new(&spec, &dir.join("out"))
+        .err()
+        .expect("an error")
+        .to_string();
+    assert!(
+        error.contains("line 17")
+            && error.contains("top_reaction_q")
+            && error.contains("top_reaction_y"),
+        "{error}"
+    );
+}

@@ -15,11 +15,13 @@
 //! | `surface_conditions.rs` | prescribed displacements and supports on material surfaces |
 //! | `ghost_penalty.rs` | stabilisation of nearly empty cells |
 //! | `stress_recovery.rs` | moving-least-squares stress recovery |
+//! | `history.rs` | named columns of history.csv from the measured quantities (`record`) |
 
 pub mod body_force;
 pub mod fem_mesh;
 pub mod ghost_penalty;
 pub mod grid_constraints;
+pub mod history;
 pub mod materials;
 pub mod point_domains;
 pub mod point_loads;
@@ -45,4 +47,5 @@ pub fn built_in() -> ModuleSet {
         .with(surface_conditions::SurfaceConditionsModule)
         .with(ghost_penalty::GhostPenaltyModule)
         .with(stress_recovery::StressRecoveryModule)
+        .with(history::HistoryModule)
 }

@@ -9,15 +9,15 @@
 //! cut into `per_cell` parts per cell crossed, each integrated with the 2-point Gauss rule per
 //! edge, so that a piece whose parts lie within knot spans integrates the B-spline products of
 //! the boundary terms exactly (quadratic and cubic). A boundary
-//! point carries its total displacement u_s = x_s − X_s: at the start of each load step the basis
-//! is evaluated at x_s, restricted to the active nodes and scaled back to a partition of unity,
-//!
-//! ```text
-//!   N̂_i(x_s) = N_i(x_s) / Σ_{j active} N_j(x_s)     (i active),
-//! ```
-//!
-//! (equal to N_i when the whole support is active, the usual case), and after the step it moves
-//! with the grid increment it was held to: x_s += Σ_i N̂_i Δu_i. So u_s is exactly the
+//! point carries its total displacement u_s = x_s − X_s. At the start of each load step it gets
+//! weights N̂_i over active nodes, with which the grid increment is read at the point,
+//! Δu_s = Σ_i N̂_i Δu_i: the basis there, N̂_i = N_i(x_s), when every node of its support is
+//! active (the usual case: the surface inside or on the face of a cell with material points);
+//! otherwise (the surface has left the cells its material points support, e.g. a linear
+//! basis's top row of nodes once the material has moved past it) the host's first-order
+//! extrapolation, N̂_i = N_i(x_p) + ∇N_i(x_p) · (x_s − x_p) over the host's support (as traction
+//! points follow their host). Both sum to one and reproduce linear fields exactly. After the
+//! step the point moves with the increment it was held to: x_s += Σ_i N̂_i Δu_i. So u_s is exactly the
 //! displacement the condition imposed, and the prescribed value is the **total** displacement
 //! of the surface at the load factor, λ ū: the answer does not depend on the number of load
 //! steps or on step cuts (unlike a grid-node `displace`, which moves whatever material is at the
@@ -82,7 +82,7 @@ use rhai::Dynamic;
 
 use crate::basis::{BasisKind, BasisScratch, NodeWeight};
 use crate::checkpoint::{self, CheckpointPart};
-use crate::components::{DeformationGradient, ReferencePosition, Support, Trial};
+use crate::components::{DeformationGradient, Position, ReferencePosition, Support, Trial};
 use crate::mechanics::embed;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{
@@ -524,24 +524,25 @@ fn restore_boundary_points<const D: usize>(
     Ok(())
 }
 
-/// The weights N̂_i(x_s) over the active nodes of `support` (module docs); empty if no node of
-/// the support is active.
-pub fn active_weights<const D: usize>(
+/// The weights N̂_i of a boundary point (module docs): the basis at the point, `support`, when
+/// all its nodes with a non-zero value are active; else the host's first-order extrapolation
+/// to the point, N_i(x_p) + ∇N_i(x_p) · `offset` over the host's support (offset = x_s − x_p).
+pub fn boundary_weights<const D: usize>(
     support: &[NodeWeight<D>],
+    host: &[NodeWeight<D>],
+    offset: &SVector<f64, D>,
     active: &[bool],
 ) -> Vec<(usize, f64)> {
-    let sum: f64 = support
-        .iter()
-        .filter(|w| active[w.node])
-        .map(|w| w.value)
-        .sum();
-    if sum <= 0.0 {
-        return Vec::new();
+    let supported = support.iter().all(|w| w.value == 0.0 || active[w.node]);
+    if supported {
+        return support
+            .iter()
+            .filter(|w| w.value != 0.0)
+            .map(|w| (w.node, w.value))
+            .collect();
     }
-    support
-        .iter()
-        .filter(|w| active[w.node] && w.value != 0.0)
-        .map(|w| (w.node, w.value / sum))
+    host.iter()
+        .map(|w| (w.node, w.value + w.gradient.dot(offset)))
         .collect()
 }
 
@@ -556,7 +557,7 @@ pub fn find_boundary_supports<const D: usize>(
     mut status: ResMut<RunStatus>,
     mut clock: ResMut<StageClock>,
     mut scratch: Local<(BasisScratch, Vec<NodeWeight<D>>)>,
-    hosts: Query<&Support<D>>,
+    hosts: Query<(&Support<D>, &Position<D>)>,
     mut points: Query<&mut BoundaryPoint<D>>,
 ) {
     let _timer = clock.time(Stage::Connectivity);
@@ -577,17 +578,20 @@ pub fn find_boundary_supports<const D: usize>(
             status.fail(fail("left the background grid"));
             return;
         }
-        let weights = active_weights(support, &fields.active);
-        if weights.is_empty() {
+        let Ok((host, host_position)) = hosts.get(point.host) else {
+            status.fail(fail("has lost its host material point"));
+            return;
+        };
+        let offset = point.position - host_position.0;
+        let weights = boundary_weights(support, &host.0, &offset, &fields.active);
+        if weights.is_empty() || weights.iter().any(|(node, _)| !fields.active[*node]) {
             status.fail(fail(
-                "is not next to any material point (no grid node of its support is active); put surface conditions on a body's boundary",
+                "is not next to any material point (its host's support is not active); put surface conditions on a body's boundary",
             ));
             return;
         }
         let mut group: Vec<usize> = weights.iter().map(|(node, _)| *node).collect();
-        if set.0[point.condition].imposition == Imposition::Nitsche
-            && let Ok(host) = hosts.get(point.host)
-        {
+        if set.0[point.condition].imposition == Imposition::Nitsche {
             group.extend(host.0.iter().map(|w| w.node));
         }
         fields.couplings.push(group);
