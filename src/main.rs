@@ -69,6 +69,18 @@ enum Command {
         #[arg(long)]
         explain: bool,
     },
+    /// Draw columns of a run's history.csv against another (a load–displacement curve), as
+    /// OUT_DIR/history_X_Y.svg and .png.
+    Plot {
+        /// The run's output folder (with history.csv).
+        out_dir: PathBuf,
+        /// The column along the horizontal axis, e.g. settlement.
+        #[arg(long)]
+        x: String,
+        /// One or more columns along the vertical axis, comma-separated.
+        #[arg(long, value_delimiter = ',')]
+        y: Vec<String>,
+    },
     /// Print the reference of the scene language (every call, its options, the bases, the
     /// material models and point fields), as in docs/scene-api.md.
     Api,
@@ -126,6 +138,7 @@ fn run(cli: Cli) -> Result<(), String> {
             set,
             explain,
         } => check_command(&modules, &scene, &set, explain),
+        Command::Plot { out_dir, x, y } => plot_command(&out_dir, &x, &y),
         Command::Api => {
             print!("{}", modules.scene_api().reference());
             Ok(())
@@ -336,4 +349,15 @@ impl Progress {
             eprintln!();
         }
     }
+}
+
+/// `impm plot`: a chart of history.csv columns.
+fn plot_command(out_dir: &Path, x: &str, ys: &[String]) -> Result<(), String> {
+    let stem = impm::study::plot_history(out_dir, x, ys)?;
+    println!(
+        "chart: {} and {}",
+        stem.with_extension("svg").display(),
+        stem.with_extension("png").display()
+    );
+    Ok(())
 }

@@ -467,3 +467,58 @@ fn record_of_an_unknown_quantity_is_an_error() {
         "{error}"
     );
 }
+
+/// `impm plot` draws history.csv columns of a run as SVG and PNG; an unknown column is an
+/// error that lists the columns there are.
+#[test]
+fn plot_draws_history_columns() {
+    let dir = common::temp_dir("boundaries", "plot");
+    let scene = common::shipped_scene("strip_footing.rhai");
+    let out = dir.display().to_string();
+    let run = common::impm(&[
+        "run",
+        &scene.display().to_string(),
+        "--out",
+        &out,
+        "--set",
+        "steps=3",
+    ]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let plot = common::impm(&[
+        "plot",
+        &out,
+        "--x",
+        "settlement",
+        "--y",
+        "footing_pressure,load_factor",
+    ]);
+    assert!(
+        plot.status.success(),
+        "{}",
+        String::from_utf8_lossy(&plot.stderr)
+    );
+    for extension in ["svg", "png"] {
+        let file = dir.join(format!(
+            "history_settlement_footing_pressure_load_factor.{extension}"
+        ));
+        let size = std::fs::metadata(&file).map(|m| m.len()).unwrap_or(0);
+        assert!(size > 1000, "{}: {size} bytes", file.display());
+    }
+    let svg =
+        std::fs::read_to_string(dir.join("history_settlement_footing_pressure_load_factor.svg"))
+            .unwrap();
+    assert!(svg.contains("footing_pressure") && svg.contains("settlement"));
+    let bad = common::impm(&["plot", &out, "--x", "settlement", "--y", "pressure"]);
+    let message = String::from_utf8_lossy(&bad.stderr);
+    assert!(
+        !bad.status.success()
+            && message.contains("no column 'pressure'")
+            && message.contains("footing_pressure"),
+        "{message}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
