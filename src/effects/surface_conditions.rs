@@ -143,7 +143,7 @@ pub struct SurfaceConditionSpec {
     pub imposition: Imposition,
     /// α = γ E / h (force per unit area per unit gap).
     pub penalty: f64,
-    /// Which components, in words, for `impm check` ("all", "normal", "[1]").
+    /// Which components, in words, for `impm check` ("all", "normal", "`[1]`").
     pub components: String,
 }
 

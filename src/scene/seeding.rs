@@ -687,7 +687,7 @@ pub struct SurfacePointSeed {
 }
 
 /// The quadrature points of a flat piece of boundary given by its corners (`on: [...]` of
-/// `traction(...)` and of the surface conditions; see [`seed_boundary_gauss`] for the shapes and
+/// `traction(...)` and of the surface conditions; see `seed_boundary_gauss` for the shapes and
 /// `gauss`), each
 /// with its host material point. `points` names the points in messages ("traction points").
 /// Errors (to be located at the declaring call): corners of the wrong number or dimension,
