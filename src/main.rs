@@ -89,6 +89,18 @@ enum Command {
         #[arg(long = "limit", value_name = "NAME=VALUE")]
         limit: Vec<String>,
     },
+    /// Draw columns of a run's history.csv against another (a load–displacement curve), as
+    /// OUT_DIR/history_X_Y.svg and .png.
+    Plot {
+        /// The run's output folder (with history.csv).
+        out_dir: PathBuf,
+        /// The column along the horizontal axis, e.g. settlement.
+        #[arg(long)]
+        x: String,
+        /// One or more columns along the vertical axis, comma-separated.
+        #[arg(long, value_delimiter = ',')]
+        y: Vec<String>,
+    },
     /// Print the reference of the scene language (every call, its options, the bases, the
     /// material models and point fields), as in docs/scene-api.md.
     Api,
@@ -167,6 +179,7 @@ fn run(cli: Cli) -> Result<(), Failure> {
             explain,
             limit,
         } => check_command(&modules, &scene, &set, explain, &limits(&limit)?),
+        Command::Plot { out_dir, x, y } => plot_command(&out_dir, &x, &y),
         Command::Api => say(&modules.scene_api().reference()),
     }
 }
@@ -396,4 +409,14 @@ fn describe_factors(factors: &[f64]) -> String {
         factors[factors.len() - 1],
         factors.len()
     )
+}
+
+/// `impm plot`: a chart of history.csv columns.
+fn plot_command(out_dir: &Path, x: &str, ys: &[String]) -> Result<(), Failure> {
+    let stem = impm::study::plot_history(out_dir, x, ys)?;
+    say(&format!(
+        "chart: {} and {}\n",
+        stem.with_extension("svg").display(),
+        stem.with_extension("png").display()
+    ))
 }

@@ -21,6 +21,17 @@ pub type Measure = Box<dyn Fn(&mut World, f64) -> Option<f64> + Send + Sync>;
 #[derive(Resource, Default)]
 pub struct StepMeasures(pub Vec<(&'static str, Measure)>);
 
+/// The values of the step's measures computed so far, in order: a measure may read the ones
+/// added before it (e.g. `record(...)` rescales a reaction into a named column).
+#[derive(Resource, Default, Debug)]
+pub struct MeasuredValues(pub Vec<(&'static str, f64)>);
+
+impl MeasuredValues {
+    pub fn get(&self, name: &str) -> Option<f64> {
+        self.0.iter().find(|(n, _)| *n == name).map(|(_, v)| *v)
+    }
+}
+
 /// What one load step did.
 #[derive(Clone, Debug)]
 pub struct StepRecord {
@@ -121,7 +132,8 @@ pub struct Summary {
     pub failure: Option<String>,
     pub failed_step: Option<StepRecord>,
     /// What the scene cannot do right (e.g. too few points for the basis across a direction,
-    /// `scene::rank_warnings`), also printed when the run starts.
+    /// `scene::rank_warnings`, printed when the run starts) and what the modules warned about
+    /// during the run (e.g. a condition the material no longer follows).
     pub warnings: Vec<String>,
 }
 
@@ -289,4 +301,51 @@ impl Summary {
         crate::output::write_atomic(&self.path, text.as_bytes())
             .map_err(|e| format!("{}: {e}", self.path.display()))
     }
+
+    /// Writes `history.csv` beside `summary.json` (atomically): one row per converged step with
+    /// `step`, `load_factor`, the eq. 15 `error` when the scene has one, and every measure the
+    /// modules recorded (reactions, probes...), named as in `summary.json`; a value a step does
+    /// not have is left empty.
+    pub fn write_history(&self) -> Result<(), String> {
+        let path = self.path.with_file_name("history.csv");
+        crate::output::write_atomic(&path, history_csv(&self.steps).as_bytes())
+            .map_err(|e| format!("{}: {e}", path.display()))
+    }
+}
+
+/// The text of `history.csv` for these steps (see [`Summary::write_history`]).
+pub fn history_csv(steps: &[StepRecord]) -> String {
+    let mut names: Vec<&str> = Vec::new();
+    if steps.iter().any(|s| s.error.is_some()) {
+        names.push("error");
+    }
+    for step in steps {
+        for (name, _) in &step.measures {
+            if !names.contains(name) {
+                names.push(name);
+            }
+        }
+    }
+    let mut text = String::from("step,load_factor");
+    for name in &names {
+        text += ",";
+        text += name;
+    }
+    text += "\n";
+    for step in steps {
+        text += &format!("{},{}", step.step, step.load_factor);
+        for &name in &names {
+            let value = if name == "error" {
+                step.error
+            } else {
+                step.measure(name)
+            };
+            text += ",";
+            if let Some(value) = value {
+                text += &value.to_string();
+            }
+        }
+        text += "\n";
+    }
+    text
 }

@@ -280,6 +280,11 @@ impl SolverError {
     }
 }
 
+/// Warnings raised by modules during a step (e.g. a grid-node `displace` whose material no
+/// longer follows it): the driver prints them and keeps them in `summary.json`.
+#[derive(Resource, Default, Debug)]
+pub struct Warnings(pub Vec<String>);
+
 /// The first error raised by a stage; later stages of the step do not run once it is set.
 #[derive(Resource, Default, Debug)]
 pub struct RunStatus(pub Option<SolverError>);

@@ -28,7 +28,7 @@ use crate::method::{
 };
 pub use crate::plugin::BuildError;
 use crate::plugin::{Module, ModuleSet, Plugin, build_plugin};
-use crate::records::{StepMeasures, StepRecord, Summary};
+use crate::records::{MeasuredValues, StepMeasures, StepRecord, Summary};
 use crate::resources::*;
 use crate::scene::SceneSpec;
 use crate::stages::output::{OutputPlan, PointFields};
@@ -169,10 +169,14 @@ impl<const D: usize> Simulation<D> {
         record.measures = self.measures(target);
         self.steps_done = number;
         self.summary.push(record);
-        self.summary.write().map_err(|e| SolverError::Output {
-            step: number,
-            why: e,
-        })?;
+        self.take_warnings();
+        self.summary
+            .write()
+            .and_then(|()| self.summary.write_history())
+            .map_err(|e| SolverError::Output {
+                step: number,
+                why: e,
+            })?;
         Ok(self.summary.steps.last().expect("just pushed"))
     }
 
@@ -241,6 +245,18 @@ impl<const D: usize> Simulation<D> {
         })
     }
 
+    /// Moves the step's warnings into the summary and prints them on stderr (a closed or
+    /// full stderr is ignored: `eprintln!` would panic).
+    fn take_warnings(&mut self) {
+        use std::io::Write;
+        let warnings = std::mem::take(&mut self.world.resource_mut::<Warnings>().0);
+        let mut err = std::io::stderr().lock();
+        for warning in &warnings {
+            let _ = writeln!(err, "warning: {warning}");
+        }
+        self.summary.warnings.extend(warnings);
+    }
+
     fn take_failure(&mut self) -> Result<(), SolverError> {
         match self.world.resource_mut::<RunStatus>().0.take() {
             Some(e) => Err(e),
@@ -266,13 +282,17 @@ impl<const D: usize> Simulation<D> {
         let Some(measures) = self.world.remove_resource::<StepMeasures>() else {
             return Vec::new();
         };
-        let values = measures
-            .0
-            .iter()
-            .filter_map(|(name, measure)| Some((*name, measure(&mut self.world, factor)?)))
-            .collect();
+        self.world.insert_resource(MeasuredValues::default());
+        for (name, measure) in &measures.0 {
+            if let Some(value) = measure(&mut self.world, factor) {
+                self.world
+                    .resource_mut::<MeasuredValues>()
+                    .0
+                    .push((name, value));
+            }
+        }
         self.world.insert_resource(measures);
-        values
+        std::mem::take(&mut self.world.resource_mut::<MeasuredValues>().0)
     }
 
     /// Points' (reference coordinate, Cauchy stress component) along `axis`, sorted by the
@@ -323,6 +343,7 @@ fn core_world<const D: usize>(spec: &SceneSpec, out_dir: &Path) -> Result<World,
     world.insert_resource(StageClock::default());
     world.insert_resource(PointFields::default());
     world.insert_resource(StepMeasures::default());
+    world.insert_resource(Warnings::default());
     let output = &spec.output;
     world.insert_resource(OutputPlan {
         steps: output.steps.clone(),

@@ -975,7 +975,7 @@ fn the_assembled_plastic_tangent_matches_finite_differences() {
             }
         }
         let (worst, scale) =
-            common::assert_tangent_matches_finite_differences_of::<M>(&mut sim, symmetric);
+            common::assert_tangent_matches_finite_differences_of::<M>(&mut sim, &|_| {}, symmetric);
         let mut query = sim.world.query::<&impm::stages::PointHistory<M>>();
         let flowing = query.iter(&sim.world).filter(|h| h.trial.yielding).count();
         eprintln!(

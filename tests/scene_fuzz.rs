@@ -61,8 +61,10 @@ fn tokens(text: &str) -> Vec<(usize, usize)> {
             }
             out.push((start, k));
         } else {
-            out.push((k, k + 1));
-            k += 1;
+            // one character, whole (a scene may hold non-ASCII text such as 'λ')
+            let len = text[k..].chars().next().map_or(1, char::len_utf8);
+            out.push((k, k + len));
+            k += len;
         }
     }
     out

@@ -195,13 +195,16 @@ fn names(systems: &[ScheduledSystem]) -> Vec<String> {
     systems.iter().map(|s| s.name.clone()).collect()
 }
 
-const OPTIONAL: [&str; 6] = [
+const OPTIONAL: [&str; 9] = [
     "body_force::apply_body_force",
     "point_loads::apply_point_loads",
     "point_loads::point_load_field",
     "tractions::apply_tractions",
     "tractions::update_traction_points",
     "grid_constraints::apply_prescribed_displacements",
+    "surface_conditions::find_boundary_supports",
+    "surface_conditions::assemble_surface_conditions",
+    "surface_conditions::update_boundary_points",
 ];
 
 /// For several scenes, the schedule holds the systems of exactly the effects it uses, and
@@ -227,7 +230,11 @@ fn schedules_hold_only_the_effects_a_scene_uses() {
         ),
         (
             "stretch_phases.rhai",
-            &["grid_constraints::apply_prescribed_displacements"],
+            &[
+                "surface_conditions::find_boundary_supports",
+                "surface_conditions::assemble_surface_conditions",
+                "surface_conditions::update_boundary_points",
+            ],
         ),
         ("embankment.rhai", &["body_force::apply_body_force"]),
         (
@@ -328,7 +335,7 @@ fn schedules_hold_only_the_effects_a_scene_uses() {
     }
     // a scene with no load at all has no loads stage; its only modules are the material and
     // the grid constraints
-    let spec = load("stretch_phases.rhai", &[("lift", "0.0")]);
+    let spec = load("footing_traction.rhai", &[("pressure", "0.0")]);
     let explanation = explain_scene(&spec, &modules).unwrap();
     let used: Vec<&str> = explanation
         .modules
@@ -349,6 +356,7 @@ fn schedules_hold_only_the_effects_a_scene_uses() {
         "ghost_penalty::find_ghost_faces",
         "ghost_penalty::assemble_ghost_penalty",
         "stress_recovery::recover_stress",
+        "grid_constraints::check_prescribed_motion",
     ]) {
         assert!(
             left_out.iter().any(|s| s == system),
@@ -367,7 +375,7 @@ fn schedules_hold_only_the_effects_a_scene_uses() {
         }
     }
     // the optional systems above, the recovered-stress output field and the plastic systems
-    assert_eq!(left_out.len(), OPTIONAL.len() + 5 + 9, "{left_out:?}");
+    assert_eq!(left_out.len(), OPTIONAL.len() + 6 + 9, "{left_out:?}");
 }
 
 /// The complete scene of docs/scene-api.md, written from the documentation alone, runs.

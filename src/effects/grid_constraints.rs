@@ -23,8 +23,9 @@ use nalgebra::SVector;
 use rhai::{Dynamic, FnPtr, Position};
 
 use crate::components::GridNode;
+use crate::effects::surface_conditions::AXES;
 use crate::plugin::{Extension, Hook, Plugin};
-use crate::resources::{GridFields, LoadStep, Stage, StageClock};
+use crate::resources::{GridFields, LoadStep, Stage, StageClock, Warnings};
 use crate::scene::{
     CallSpec, Located, Resolver, SceneApi, SceneBuilder, SceneSpec, ScriptError, function, numbers,
     whole_numbers,
@@ -43,6 +44,27 @@ pub struct NodeConstraint {
 /// The scene's constrained node components.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct NodeConstraints(pub Vec<NodeConstraint>);
+
+/// What one `fix`/`displace` call selected: for `impm check` and its reaction.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DeclaredConstraint {
+    /// `fix` or `displace`, numbered in declaration order per function (`fix1`, `displace1`):
+    /// names its measures (`fix1_reaction_x`, ...).
+    pub name: String,
+    pub line: Option<usize>,
+    /// The selected (node, component) pairs.
+    pub components: Vec<(usize, usize)>,
+    /// The constrained axes and their prescribed values at load factor 1.
+    pub axes: Vec<usize>,
+    pub values: Vec<f64>,
+    /// The smallest and largest coordinate of the selected nodes, per axis.
+    pub lower: Vec<f64>,
+    pub upper: Vec<f64>,
+}
+
+/// Every `fix`/`displace` call of the scene, in order.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ConstraintDeclarations(pub Vec<DeclaredConstraint>);
 
 /// `fix` (values all zero) or `displace`: components of every node the selector accepts.
 #[derive(Clone, Debug)]
@@ -117,9 +139,10 @@ impl Plugin for GridConstraintsModule {
     }
 
     fn resolve(&self, scene: &mut Resolver) -> Result<(), ScriptError> {
-        let constraints = resolve_constraints(scene)?;
+        let (constraints, declared) = resolve_constraints(scene)?;
         if !constraints.is_empty() {
             scene.spec.set_part(NodeConstraints(constraints));
+            scene.spec.set_part(ConstraintDeclarations(declared));
         }
         Ok(())
     }
@@ -127,10 +150,27 @@ impl Plugin for GridConstraintsModule {
     fn describe(&self, spec: &SceneSpec) -> Option<String> {
         let constraints = constraints(spec);
         let prescribed = constraints.iter().filter(|c| c.value != 0.0).count();
-        Some(format!(
+        let mut text = format!(
             "{} constrained node components ({prescribed} with a prescribed displacement)",
             constraints.len()
-        ))
+        );
+        for d in spec
+            .part::<ConstraintDeclarations>()
+            .map_or(&[][..], |d| &d.0)
+        {
+            let line = d.line.map(|l| format!("line {l}: ")).unwrap_or_default();
+            text += &format!(
+                "\n    {line}{}: {} node components, nodes in {:?} .. {:?}, axes {:?}, values {:?} at load factor 1 (reaction: {}_reaction_x, ...)",
+                d.name,
+                d.components.len(),
+                d.lower,
+                d.upper,
+                d.axes,
+                d.values,
+                d.name
+            );
+        }
+        Some(text)
     }
 
     fn used_by(&self, spec: &SceneSpec) -> bool {
@@ -176,7 +216,70 @@ impl Plugin for GridConstraintsModule {
             .filter_map(|(node, fixity)| Some((entities[node], fixity?)))
             .collect();
         world.insert_batch(batch);
-        simulation.add_systems(Hook::Constraints, constrain_nodes::<D>);
+        let declared = spec
+            .part::<ConstraintDeclarations>()
+            .map_or(Vec::new(), |d| d.0.clone());
+        for (index, declaration) in declared.iter().enumerate() {
+            for (axis, axis_name) in AXES.iter().enumerate().take(D) {
+                let key: &'static str = Box::leak(
+                    format!("{}_reaction_{axis_name}", declaration.name).into_boxed_str(),
+                );
+                simulation.add_measure(key, move |world, _| {
+                    Some(
+                        world
+                            .get_resource::<GridReactions<D>>()?
+                            .reactions
+                            .get(index)?[axis],
+                    )
+                });
+            }
+        }
+        for (axis, axis_name) in AXES.iter().enumerate().take(D) {
+            let key: &'static str =
+                Box::leak(format!("external_force_{axis_name}").into_boxed_str());
+            simulation.add_measure(key, move |world, _| {
+                Some(world.get_resource::<GridReactions<D>>()?.external[axis])
+            });
+        }
+        simulation.world().insert_resource(GridReactions::<D> {
+            declarations: declared,
+            reactions: Vec::new(),
+            external: SVector::zeros(),
+        });
+        simulation
+            .add_systems(Hook::Constraints, constrain_nodes::<D>)
+            .add_systems(Hook::AfterStep, grid_reactions::<D>);
+    }
+}
+
+/// The reaction of every `fix`/`displace` call at the last converged step.
+#[derive(Resource, Clone, Debug)]
+pub struct GridReactions<const D: usize> {
+    pub declarations: Vec<DeclaredConstraint>,
+    /// The force the constrained components exert on the body, per declaration.
+    pub reactions: Vec<SVector<f64, D>>,
+    /// The resultant of the external forces (Σ_i f_ext,i) at the same step, recorded as
+    /// `external_force_x`, ...: with every reaction it sums to zero at equilibrium.
+    pub external: SVector<f64, D>,
+}
+
+/// After a converged step, the reaction of each declaration: at its constrained components,
+/// R = f_int − f_ext (equilibrium f_int = f_ext + R; f_int includes every module's
+/// contribution, e.g. a surface condition's force on nodes that are also constrained). A
+/// component selected by two declarations counts in both.
+pub fn grid_reactions<const D: usize>(
+    fields: Res<GridFields<D>>,
+    mut reactions: ResMut<GridReactions<D>>,
+) {
+    let reactions = &mut *reactions;
+    reactions.external = fields.external_force.iter().sum();
+    reactions.reactions.clear();
+    for declaration in &reactions.declarations {
+        let mut force = SVector::<f64, D>::zeros();
+        for &(node, c) in &declaration.components {
+            force[c] += fields.internal_force[node][c] - fields.external_force[node][c];
+        }
+        reactions.reactions.push(force);
     }
 }
 
@@ -204,7 +307,156 @@ impl Plugin for PrescribedDisplacementsModule {
     }
 
     fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
-        simulation.add_systems(Hook::Loads, apply_prescribed_displacements::<D>);
+        let watch = watched_nodes::<D>(simulation);
+        simulation.world().insert_resource(watch);
+        simulation
+            .add_systems(Hook::Loads, apply_prescribed_displacements::<D>)
+            .add_systems(Hook::AfterStep, check_prescribed_motion::<D>);
+    }
+}
+
+/// Tolerance of [`check_prescribed_motion`]: the material's boundary displacement may differ
+/// from the prescribed one by this fraction.
+pub const PRESCRIBED_MOTION_TOLERANCE: f64 = 0.01;
+
+/// A node with a non-zero prescribed displacement and the material point that started
+/// nearest to it (within a cell), whose motion [`check_prescribed_motion`] compares.
+#[derive(Clone, Debug)]
+pub struct WatchedNode<const D: usize> {
+    pub declaration: usize,
+    pub node: usize,
+    pub position: SVector<f64, D>,
+    pub host: Entity,
+    pub prescribed: SVector<f64, D>,
+    pub fixed: [bool; D],
+}
+
+/// The watched nodes of every `displace`, and the declarations already warned about.
+#[derive(Resource, Clone, Debug)]
+pub struct PrescribedMotion<const D: usize> {
+    pub nodes: Vec<WatchedNode<D>>,
+    pub names: Vec<(String, Option<usize>)>,
+    pub warned: Vec<bool>,
+}
+
+fn watched_nodes<const D: usize>(simulation: &mut Extension<'_, D>) -> PrescribedMotion<D> {
+    let spec = simulation.spec();
+    let entities = simulation.point_entities();
+    let declared = spec
+        .part::<ConstraintDeclarations>()
+        .map_or(&[][..], |d| &d.0);
+    let grid = &spec.grid;
+    let world = simulation.world();
+    let mut node_positions = vec![Vec::new(); world.resource::<GridFields<D>>().active.len()];
+    for node in world.query::<&GridNode<D>>().iter(world) {
+        node_positions[node.index] = node.position.as_slice().to_vec();
+    }
+    let cell = (0..D)
+        .map(|a| (grid.upper[a] - grid.lower[a]) / grid.cells[a] as f64)
+        .fold(0.0, f64::max);
+    let material = spec.material_point_positions();
+    let mut motion = PrescribedMotion::<D> {
+        names: declared.iter().map(|d| (d.name.clone(), d.line)).collect(),
+        warned: vec![false; declared.len()],
+        nodes: Vec::new(),
+    };
+    for (index, declaration) in declared.iter().enumerate() {
+        if declaration.values.iter().all(|&v| v == 0.0) {
+            continue;
+        }
+        let mut nodes: Vec<usize> = declaration.components.iter().map(|&(n, _)| n).collect();
+        nodes.dedup();
+        let queries: Vec<Vec<f64>> = nodes.iter().map(|&n| node_positions[n].clone()).collect();
+        let hosts = crate::scene::nearest_points(grid, &material, &queries);
+        for ((&node, query), host) in nodes.iter().zip(&queries).zip(hosts) {
+            let Some(host) = host else { continue };
+            let distance: f64 = query
+                .iter()
+                .zip(material[host])
+                .map(|(a, b)| (a - b) * (a - b))
+                .sum::<f64>()
+                .sqrt();
+            if distance > cell {
+                continue;
+            }
+            let mut watched = WatchedNode {
+                declaration: index,
+                node,
+                position: SVector::from_column_slice(query),
+                host: entities[host],
+                prescribed: SVector::zeros(),
+                fixed: [false; D],
+            };
+            for (&axis, &value) in declaration.axes.iter().zip(&declaration.values) {
+                watched.fixed[axis] = true;
+                watched.prescribed[axis] = value;
+            }
+            motion.nodes.push(watched);
+        }
+    }
+    motion
+}
+
+/// After a converged step: does the material still carry the motion prescribed at the grid
+/// nodes? The material that started at a watched node X_i is at x_p + F_p (X_i − X_p), with p
+/// the material point that started nearest to it; its displacement along each prescribed axis
+/// is compared with λ times the prescribed value. A difference of more than 1 % of the
+/// largest prescribed component, or a prescribed node without material support, is a warning
+/// (once per declaration): the grid is reset every step, so a node moves the material that is
+/// at it at the start of the step, and in compression the material leaves the node.
+pub fn check_prescribed_motion<const D: usize>(
+    step: Res<LoadStep>,
+    fields: Res<GridFields<D>>,
+    mut motion: ResMut<PrescribedMotion<D>>,
+    mut warnings: ResMut<Warnings>,
+    points: Query<(
+        &crate::components::Position<D>,
+        &crate::components::ReferencePosition<D>,
+        &crate::components::DeformationGradient<D>,
+    )>,
+) {
+    let motion = &mut *motion;
+    for watched in &motion.nodes {
+        if motion.warned[watched.declaration] {
+            continue;
+        }
+        let prescribed = watched.prescribed * step.factor;
+        let scale = prescribed.amax();
+        if scale == 0.0 {
+            continue;
+        }
+        let (name, line) = &motion.names[watched.declaration];
+        let line = line.map(|l| format!("line {l}: ")).unwrap_or_default();
+        let advice = "the grid is reset every step, so a grid-node displace moves the material that is at the node at the start of each step; use surface_displace(...) on the body's surface (docs/boundaries.md)";
+        if !fields.active[watched.node] {
+            motion.warned[watched.declaration] = true;
+            warnings.0.push(format!(
+                "{line}{name}: at step {} the prescribed node at {:?} has no material next to it any more: the material does not follow the prescribed displacement; {advice}",
+                step.number,
+                watched.position.as_slice()
+            ));
+            continue;
+        }
+        let Ok((x, reference, f)) = points.get(watched.host) else {
+            continue;
+        };
+        let achieved = x.0 + f.0 * (watched.position - reference.0) - watched.position;
+        let worst = (0..D)
+            .filter(|&a| watched.fixed[a])
+            .map(|a| (achieved[a] - prescribed[a]).abs())
+            .fold(0.0, f64::max);
+        if worst > PRESCRIBED_MOTION_TOLERANCE * scale {
+            motion.warned[watched.declaration] = true;
+            warnings.0.push(format!(
+                "{line}{name}: at step {} (load factor {}) the material at the prescribed node {:?} moved by {:?} instead of {:?} ({:.1} % off): {advice}",
+                step.number,
+                step.factor,
+                watched.position.as_slice(),
+                achieved.as_slice(),
+                prescribed.as_slice(),
+                100.0 * worst / scale
+            ));
+        }
     }
 }
 
@@ -283,11 +535,15 @@ fn declare_constraint(
     Ok(Dynamic::UNIT)
 }
 
-fn resolve_constraints(scene: &Resolver) -> Result<Vec<NodeConstraint>, ScriptError> {
+#[allow(clippy::type_complexity)]
+fn resolve_constraints(
+    scene: &Resolver,
+) -> Result<(Vec<NodeConstraint>, Vec<DeclaredConstraint>), ScriptError> {
     let declarations = scene.declarations::<ConstraintDeclaration>();
     if declarations.is_empty() {
-        return Ok(Vec::new());
+        return Ok((Vec::new(), Vec::new()));
     }
+    let mut declared: Vec<DeclaredConstraint> = Vec::new();
     let grid = &scene.spec.grid;
     let dim = grid.dim();
     let nodes = scene.node_positions()?;
@@ -314,11 +570,34 @@ fn resolve_constraints(scene: &Resolver) -> Result<Vec<NodeConstraint>, ScriptEr
             declaration.line_note()
         );
         let mut selected = 0usize;
+        let number = 1 + declared
+            .iter()
+            .filter(|d| d.name.starts_with(function))
+            .count();
+        let mut this = DeclaredConstraint {
+            name: format!("{function}{number}"),
+            line: declaration.at.line(),
+            components: Vec::new(),
+            axes: constraint.components.clone(),
+            values: constraint.values.clone(),
+            lower: Vec::new(),
+            upper: Vec::new(),
+        };
         for (node, position) in nodes.iter().enumerate() {
             if !scene.call_predicate(&constraint.selector, position, declaration.at, &context)? {
                 continue;
             }
             selected += 1;
+            if this.lower.is_empty() {
+                this.lower = position.clone();
+                this.upper = position.clone();
+            }
+            for (a, &x) in position.iter().enumerate() {
+                this.lower[a] = this.lower[a].min(x);
+                this.upper[a] = this.upper[a].max(x);
+            }
+            this.components
+                .extend(constraint.components.iter().map(|&c| (node, c)));
             for (&component, &value) in constraint.components.iter().zip(&constraint.values) {
                 if let Some(&(previous, previous_at)) = prescribed.get(&(node, component))
                     && previous != value
@@ -349,13 +628,15 @@ fn resolve_constraints(scene: &Resolver) -> Result<Vec<NodeConstraint>, ScriptEr
                 ),
             ));
         }
+        declared.push(this);
     }
-    Ok(prescribed
+    let constraints = prescribed
         .into_iter()
         .map(|((node, component), (value, _))| NodeConstraint {
             node,
             component,
             value,
         })
-        .collect())
+        .collect();
+    Ok((constraints, declared))
 }

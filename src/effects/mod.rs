@@ -12,17 +12,21 @@
 //! | `point_loads.rs` | forces on material points |
 //! | `tractions.rs` | surface tractions carried by traction points |
 //! | `grid_constraints.rs` | `fix` and `displace` on grid nodes |
+//! | `surface_conditions.rs` | prescribed displacements and supports on material surfaces |
 //! | `ghost_penalty.rs` | stabilisation of nearly empty cells |
 //! | `stress_recovery.rs` | moving-least-squares stress recovery |
+//! | `history.rs` | named columns of history.csv from the measured quantities (`record`) |
 
 pub mod body_force;
 pub mod fem_mesh;
 pub mod ghost_penalty;
 pub mod grid_constraints;
+pub mod history;
 pub mod materials;
 pub mod point_domains;
 pub mod point_loads;
 pub mod stress_recovery;
+pub mod surface_conditions;
 pub mod tractions;
 
 use crate::material::{DruckerPrager, Hencky, MohrCoulomb, VonMises};
@@ -43,6 +47,8 @@ pub fn built_in() -> ModuleSet {
         .with(tractions::TractionsModule)
         .with(grid_constraints::GridConstraintsModule)
         .with(grid_constraints::PrescribedDisplacementsModule)
+        .with(surface_conditions::SurfaceConditionsModule)
         .with(ghost_penalty::GhostPenaltyModule)
         .with(stress_recovery::StressRecoveryModule)
+        .with(history::HistoryModule)
 }

@@ -43,8 +43,8 @@ use crate::output::{Field, PvdSeries, vertex_cells, write_vtu};
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{Grid, GridFields, LoadStep, RunStatus, SolverError, Stage, StageClock};
 use crate::scene::{
-    CallSpec, Kind, Located, MAX_SEED_CANDIDATES, OptionSpec, Options, Resolver, SceneApi,
-    SceneSpec, ScriptError, nearest_points, seed_boundary,
+    CallSpec, Kind, Located, OptionSpec, Options, Resolver, SceneApi, SceneSpec, ScriptError,
+    seed_surface,
 };
 use crate::stages::output::{OutputPlan, pad};
 
@@ -380,102 +380,38 @@ pub fn write_tractions<const D: usize>(
     }
 }
 
-/// Traction points of every `traction(...)`: the corners must match the grid's dimension and
-/// lie in the grid (so every point does).
+/// Traction points of every `traction(...)` (`scene::seed_surface`); the traction must have
+/// one component per axis.
 fn resolve_tractions(scene: &Resolver) -> Result<Vec<TractionPointSpec>, ScriptError> {
     let grid = &scene.spec.grid;
-    let dim = grid.dim();
-    let material_points: Vec<&[f64]> = scene
-        .spec
-        .bodies
-        .iter()
-        .flat_map(|body| &body.points)
-        .map(|point| point.position.as_slice())
-        .collect();
+    let material_points = scene.spec.material_point_positions();
     let mut points = Vec::new();
     for declaration in scene.declarations::<TractionDeclaration>() {
         let traction = &declaration.value;
-        let fail = |message: String| {
-            Err(ScriptError::at(
-                declaration.at,
-                format!("traction(...): {message}"),
-            ))
-        };
-        let shape = [
-            "the end point of the bar",
-            "the two ends of a segment",
-            "three corners of a parallelogram (corner, corner + edge 1, corner + edge 2)",
-        ];
-        if traction.corners.len() != dim {
-            return fail(format!(
-                "option 'on' has {} points but the grid is {dim}-dimensional: give {dim}, {}",
-                traction.corners.len(),
-                shape[dim - 1]
-            ));
+        let fail =
+            |message: String| ScriptError::at(declaration.at, format!("traction(...): {message}"));
+        if traction.traction.len() != grid.dim() {
+            return Err(fail(format!(
+                "option 'traction' has {} components but the grid is {}-dimensional",
+                traction.traction.len(),
+                grid.dim()
+            )));
         }
-        if let Some(corner) = traction.corners.iter().find(|corner| corner.len() != dim) {
-            return fail(format!(
-                "the point {corner:?} of option 'on' has {} coordinates, the grid is {dim}-dimensional",
-                corner.len()
-            ));
-        }
-        if traction.traction.len() != dim {
-            return fail(format!(
-                "option 'traction' has {} components but the grid is {dim}-dimensional",
-                traction.traction.len()
-            ));
-        }
-        let (lower, upper) = (&grid.lower, &grid.upper);
-        if let Some(corner) = traction.corners.iter().find(|corner| {
-            (0..dim).any(|axis| corner[axis] < lower[axis] || corner[axis] > upper[axis])
-        }) {
-            return fail(format!(
-                "the point {corner:?} is outside the grid [{lower:?} .. {upper:?}]"
-            ));
-        }
-        if dim == 3 {
-            // the fourth corner (corner 1 + corner 2 − corner 0) must be in the grid too
-            let c = &traction.corners;
-            let fourth: Vec<f64> = (0..3).map(|a| c[1][a] + c[2][a] - c[0][a]).collect();
-            if (0..dim).any(|axis| fourth[axis] < lower[axis] || fourth[axis] > upper[axis]) {
-                return fail(format!(
-                    "the parallelogram's fourth corner {fourth:?} is outside the grid [{lower:?} .. {upper:?}]"
-                ));
-            }
-        }
-        let seeded = match seed_boundary(
+        let seeded = seed_surface(
             grid,
+            &material_points,
             &traction.corners,
             traction.per_cell,
-            MAX_SEED_CANDIDATES,
-        ) {
-            Ok(seeded) => seeded,
-            Err(count) => {
-                return fail(format!(
-                    "{count} traction points exceed the limit of {MAX_SEED_CANDIDATES}; lower per_cell"
-                ));
-            }
-        };
-        if seeded.iter().all(|(_, area)| *area == 0.0) {
-            return fail(
-                "the boundary piece has zero length or area (repeated or collinear points)"
-                    .to_string(),
-            );
-        }
-        let positions: Vec<Vec<f64>> = seeded
-            .iter()
-            .map(|(position, _)| position.clone())
-            .collect();
-        let hosts = nearest_points(grid, &material_points, &positions);
-        for ((position, area), host) in seeded.into_iter().zip(hosts) {
-            points.push(TractionPointSpec {
-                position,
-                area,
-                traction: traction.traction.clone(),
-                // bodies are resolved first and have points
-                host: host.unwrap_or_default(),
-            });
-        }
+            1,
+            "traction points",
+        )
+        .map_err(fail)?;
+        points.extend(seeded.into_iter().map(|seed| TractionPointSpec {
+            position: seed.position,
+            area: seed.area,
+            traction: traction.traction.clone(),
+            host: seed.host,
+        }));
     }
     Ok(points)
 }

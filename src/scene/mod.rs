@@ -67,8 +67,8 @@ pub use rank::rank_warnings;
 pub use registry::{CallSpec, Declare, SceneApi};
 pub use schedule::{MAX_STEPS, phase_factors};
 pub use seeding::{
-    Placement, first_point_outside_grid, nearest_points, seed_boundary, seed_box, seed_points,
-    seed_points_placed,
+    Placement, SurfacePointSeed, first_point_outside_grid, nearest_points, seed_boundary, seed_box,
+    seed_points, seed_points_placed, seed_surface,
 };
 pub use words::{BasisRefinement, BasisWord, FieldSpec, ModelSpec, Seeder, Word, Words};
 
@@ -228,6 +228,16 @@ impl SceneSpec {
     /// Number of material points of all bodies.
     pub fn point_count(&self) -> usize {
         self.bodies.iter().map(|body| body.points.len()).sum()
+    }
+
+    /// The reference positions of every material point, body after body (global point index
+    /// order).
+    pub fn material_point_positions(&self) -> Vec<&[f64]> {
+        self.bodies
+            .iter()
+            .flat_map(|body| &body.points)
+            .map(|point| point.position.as_slice())
+            .collect()
     }
 
     /// A module's part, if the scene declared it.

@@ -27,7 +27,7 @@
 //! integration error in the cells next to a boundary, where the B-spline functions are not
 //! the shifted copies of each other whose errors cancel (see `docs/results.md`).
 
-use super::{GridSpec, PointSeed};
+use super::{GridSpec, MAX_SEED_CANDIDATES, PointSeed};
 use crate::quadrature::gauss_legendre_unit;
 
 /// Where the points of a cell are placed.
@@ -196,6 +196,22 @@ pub fn seed_boundary(
     per_cell: usize,
     max_points: usize,
 ) -> Result<Vec<(Vec<f64>, f64)>, usize> {
+    seed_boundary_gauss(grid, corners, per_cell, 1, max_points)
+}
+
+/// As [`seed_boundary`], with the `gauss`-point Gauss–Legendre rule along each edge of every
+/// part instead of its midpoint (`gauss` = 1): `gauss^(D−1)` points per part, exact for
+/// polynomials of degree 2 gauss − 1 on each part. Surface conditions use 2 points, so that a
+/// part within one knot span integrates products of B-splines up to cubic exactly.
+pub fn seed_boundary_gauss(
+    grid: &GridSpec,
+    corners: &[Vec<f64>],
+    per_cell: usize,
+    gauss: usize,
+    max_points: usize,
+) -> Result<Vec<(Vec<f64>, f64)>, usize> {
+    let gauss = gauss.max(1);
+    let rule = gauss_legendre_unit(gauss);
     let dim = grid.dim();
     let origin = &corners[0];
     let edges: Vec<Vec<f64>> = corners[1..]
@@ -229,23 +245,28 @@ pub fn seed_boundary(
     };
     let count = parts
         .iter()
-        .try_fold(1usize, |count, &n| count.checked_mul(n))
+        .try_fold(1usize, |count, &n| count.checked_mul(n * gauss))
         .unwrap_or(usize::MAX);
     if count > max_points {
         return Err(count);
     }
-    let piece = area / count as f64;
-    let ranges: Vec<(i64, i64)> = parts.iter().map(|&n| (0, n as i64)).collect();
+    let part_area = area / parts.iter().product::<usize>() as f64;
+    // (part, Gauss point) along each edge: index = part * gauss + g
+    let ranges: Vec<(i64, i64)> = parts.iter().map(|&n| (0, (n * gauss) as i64)).collect();
     let mut points = Vec::with_capacity(count);
     let _ = for_each_index::<std::convert::Infallible>(&ranges, |index| {
         let mut position = origin.clone();
-        for (edge, (&i, &n)) in edges.iter().zip(index.iter().zip(&parts)) {
-            let t = (i as f64 + 0.5) / n as f64;
+        let mut weight = 1.0;
+        for (edge, (&k, &n)) in edges.iter().zip(index.iter().zip(&parts)) {
+            let (i, g) = (k as usize / gauss, k as usize % gauss);
+            let (u, w) = rule[g];
+            let t = (i as f64 + u) / n as f64;
+            weight *= w;
             for (x, e) in position.iter_mut().zip(edge) {
                 *x += t * e;
             }
         }
-        points.push((position, piece));
+        points.push((position, part_area * weight));
         Ok(())
     });
     Ok(points)
@@ -652,4 +673,89 @@ pub(crate) mod tests {
             assert!((box_volume - p.volume).abs() < 1e-14, "{p:?}");
         }
     }
+}
+
+/// A quadrature point of a flat piece of a body's boundary (see [`seed_surface`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SurfacePointSeed {
+    pub position: Vec<f64>,
+    /// Reference area (length in 2D, 1 in 1D) the point carries.
+    pub area: f64,
+    /// The material point nearest to it in the reference configuration (global index): its
+    /// host, whose deformation it follows.
+    pub host: usize,
+}
+
+/// The quadrature points of a flat piece of boundary given by its corners (`on: [...]` of
+/// `traction(...)` and of the surface conditions; see `seed_boundary_gauss` for the shapes and
+/// `gauss`), each
+/// with its host material point. `points` names the points in messages ("traction points").
+/// Errors (to be located at the declaring call): corners of the wrong number or dimension,
+/// outside the grid, of zero extent, or too many points.
+pub fn seed_surface(
+    grid: &GridSpec,
+    material_points: &[&[f64]],
+    corners: &[Vec<f64>],
+    per_cell: usize,
+    gauss: usize,
+    points: &str,
+) -> Result<Vec<SurfacePointSeed>, String> {
+    let dim = grid.dim();
+    let shape = [
+        "the end point of the bar",
+        "the two ends of a segment",
+        "three corners of a parallelogram (corner, corner + edge 1, corner + edge 2)",
+    ];
+    if corners.len() != dim {
+        return Err(format!(
+            "option 'on' has {} points but the grid is {dim}-dimensional: give {dim}, {}",
+            corners.len(),
+            shape[dim - 1]
+        ));
+    }
+    if let Some(corner) = corners.iter().find(|corner| corner.len() != dim) {
+        return Err(format!(
+            "the point {corner:?} of option 'on' has {} coordinates, the grid is {dim}-dimensional",
+            corner.len()
+        ));
+    }
+    let (lower, upper) = (&grid.lower, &grid.upper);
+    let outside = |x: &[f64]| (0..dim).any(|axis| x[axis] < lower[axis] || x[axis] > upper[axis]);
+    if let Some(corner) = corners.iter().find(|corner| outside(corner)) {
+        return Err(format!(
+            "the point {corner:?} is outside the grid [{lower:?} .. {upper:?}]"
+        ));
+    }
+    if dim == 3 {
+        // the fourth corner (corner 1 + corner 2 − corner 0) must be in the grid too
+        let c = corners;
+        let fourth: Vec<f64> = (0..3).map(|a| c[1][a] + c[2][a] - c[0][a]).collect();
+        if outside(&fourth) {
+            return Err(format!(
+                "the parallelogram's fourth corner {fourth:?} is outside the grid [{lower:?} .. {upper:?}]"
+            ));
+        }
+    }
+    let seeded = seed_boundary_gauss(grid, corners, per_cell, gauss, MAX_SEED_CANDIDATES).map_err(
+        |count| {
+            format!("{count} {points} exceed the limit of {MAX_SEED_CANDIDATES}; lower per_cell")
+        },
+    )?;
+    if seeded.iter().all(|(_, area)| *area == 0.0) {
+        return Err(
+            "the boundary piece has zero length or area (repeated or collinear points)".into(),
+        );
+    }
+    let positions: Vec<Vec<f64>> = seeded.iter().map(|(x, _)| x.clone()).collect();
+    let hosts = nearest_points(grid, material_points, &positions);
+    Ok(seeded
+        .into_iter()
+        .zip(hosts)
+        .map(|((position, area), host)| SurfacePointSeed {
+            position,
+            area,
+            // bodies are resolved first and have points
+            host: host.unwrap_or_default(),
+        })
+        .collect())
 }

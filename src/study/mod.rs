@@ -36,11 +36,13 @@
 //!   recorded). Where the reset is not available, the column holds the process's lifetime peak
 //!   and `study.md` says so.
 
+mod history_plot;
 mod memory;
 mod plot;
 mod profile;
 mod table;
 
+pub use history_plot::{plot_history, read_history};
 pub use memory::MemoryUse;
 pub use plot::{Series, chart};
 pub use profile::{ProfilePoint, read_profile};

@@ -5,6 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
+use bevy_ecs::prelude::World;
 use bevy_ecs::schedule::ScheduleLabel;
 use bevy_ecs::system::RunSystemOnce;
 
@@ -68,13 +69,18 @@ pub fn run_shipped<const D: usize>(script: &str, set: &[(&str, &str)]) -> Simula
 /// Runs the stress update and the assembly for the current increments; returns the internal
 /// force at the free DOFs.
 pub fn internal_force(sim: &mut Simulation<2>) -> Vec<f64> {
-    internal_force_of::<Hencky>(sim)
+    internal_force_of::<Hencky>(sim, &|_| {})
 }
 
-/// [`internal_force`] of a scene whose points are all of material model `M`.
-pub fn internal_force_of<M: Material>(sim: &mut Simulation<2>) -> Vec<f64> {
+/// As [`internal_force`], for a scene whose points are all of material model `M`, with
+/// `after_assembly` run after the assembly (a module's contributions at `Hook::AfterAssembly`).
+pub fn internal_force_of<M: Material>(
+    sim: &mut Simulation<2>,
+    after_assembly: &dyn Fn(&mut World),
+) -> Vec<f64> {
     sim.world.run_system_once(update_stress::<2, M>).unwrap();
     sim.world.run_system_once(assemble::<2>).unwrap();
+    after_assembly(&mut sim.world);
     let fields = sim.world.resource::<GridFields<2>>();
     let mut f = vec![0.0; fields.dof_count];
     for (node, dofs) in fields.dofs.iter().enumerate() {
@@ -100,16 +106,18 @@ fn slot_of(sim: &Simulation<2>, dof: usize) -> (usize, usize) {
 /// the step) equals central finite differences of the assembled internal force to 1e-6 of
 /// its largest entry, and is symmetric. Returns (max |K - K_fd|, max |K|).
 pub fn assert_tangent_matches_finite_differences(sim: &mut Simulation<2>) -> (f64, f64) {
-    assert_tangent_matches_finite_differences_of::<Hencky>(sim, true)
+    assert_tangent_matches_finite_differences_of::<Hencky>(sim, &|_| {}, true)
 }
 
-/// [`assert_tangent_matches_finite_differences`] of a scene whose points are all of material
-/// model `M`; the symmetry is asserted only if `symmetric`.
+/// As [`assert_tangent_matches_finite_differences`], for a scene whose points are all of
+/// material model `M`, with `after_assembly` adding a module's contributions after the
+/// assembly; the symmetry of K is asserted only when `symmetric`.
 pub fn assert_tangent_matches_finite_differences_of<M: Material>(
     sim: &mut Simulation<2>,
+    after_assembly: &dyn Fn(&mut World),
     symmetric: bool,
 ) -> (f64, f64) {
-    let f0 = internal_force_of::<M>(sim);
+    let f0 = internal_force_of::<M>(sim, after_assembly);
     assert!(f0.iter().all(|v| v.is_finite()));
     let n = f0.len();
     let k: Vec<Vec<f64>> = {
@@ -128,9 +136,9 @@ pub fn assert_tangent_matches_finite_differences_of<M: Material>(
         };
         let base = sim.world.resource::<GridFields<2>>().increment[node][c];
         set(sim, base + h);
-        let fp = internal_force_of::<M>(sim);
+        let fp = internal_force_of::<M>(sim, after_assembly);
         set(sim, base - h);
-        let fm = internal_force_of::<M>(sim);
+        let fm = internal_force_of::<M>(sim, after_assembly);
         set(sim, base);
         for row in 0..n {
             let fd = (fp[row] - fm[row]) / (2.0 * h);

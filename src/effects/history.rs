@@ -1,0 +1,150 @@
+//! Named columns of `history.csv`: `record(#{ name, quantity, scale })` records, after every
+//! converged step, `scale` times a quantity another module measures (a reaction, a mean
+//! traction, a surface's mean displacement...), under a name of the scene's choosing, so that
+//! other tools read a load–displacement curve without knowing the scene (e.g. `settlement` and
+//! `footing_pressure` of `scripts/strip_footing.rhai`).
+//!
+//! The recorded quantities of a run are the measures of its modules (`Extension::add_measure`):
+//! `impm check` lists the names (e.g. `footing_reaction_y`); a `record` of a name no module
+//! measures is an error naming the call's line and the names there are. This module is built
+//! after the others, so its measures read theirs (`records::MeasuredValues`).
+
+use rhai::Dynamic;
+
+use crate::plugin::{Extension, Plugin};
+use crate::records::{MeasuredValues, StepMeasures};
+use crate::scene::{
+    CallSpec, Kind, Located, OptionSpec, Options, Range, Resolver, SceneApi, SceneSpec, ScriptError,
+};
+
+/// The quantity that is the step's load factor.
+pub const LOAD_FACTOR: &str = "load_factor";
+
+/// One `record(...)`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RecordSpec {
+    pub name: String,
+    pub quantity: String,
+    pub scale: f64,
+    pub line: Option<usize>,
+}
+
+/// The scene's `record(...)` calls.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Records(pub Vec<RecordSpec>);
+
+/// The module.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct HistoryModule;
+
+impl Plugin for HistoryModule {
+    fn name(&self) -> &'static str {
+        "history"
+    }
+
+    fn scene_api(&self, api: &mut SceneApi) {
+        api.call(CallSpec::options(
+            "record",
+            "records `scale` times a measured quantity (e.g. `footing_reaction_y`; `impm check` lists them) after every converged step as a column `name` of history.csv and a key of summary.json",
+            vec![
+                OptionSpec::required("name", Kind::Text, "the column's name (a word)"),
+                OptionSpec::required("quantity", Kind::Text, "the measured quantity (or `load_factor`)"),
+                OptionSpec::new(
+                    "scale",
+                    Kind::Number(Range::Any),
+                    "factor applied to the quantity (default 1)",
+                ),
+            ],
+            |builder, options: &Options, at| {
+                builder.declare(Located::new(
+                    RecordSpec {
+                        name: options.text("name").unwrap_or_default().to_string(),
+                        quantity: options.text("quantity").unwrap_or_default().to_string(),
+                        scale: options.number("scale").unwrap_or(1.0),
+                        line: at.line(),
+                    },
+                    at,
+                ));
+                Ok(Dynamic::UNIT)
+            },
+        ));
+    }
+
+    fn resolve(&self, scene: &mut Resolver) -> Result<(), ScriptError> {
+        let mut records: Vec<RecordSpec> = Vec::new();
+        for declaration in scene.declarations::<RecordSpec>() {
+            let record = &declaration.value;
+            let name = &record.name;
+            if name.is_empty() || name.contains(|c: char| c.is_whitespace() || c == ',') {
+                return Err(ScriptError::at(
+                    declaration.at,
+                    format!(
+                        "record(...): name {name:?} must be a non-empty word without spaces or commas"
+                    ),
+                ));
+            }
+            if records.iter().any(|r| &r.name == name) {
+                return Err(ScriptError::at(
+                    declaration.at,
+                    format!("record(...): '{name}' is recorded twice"),
+                ));
+            }
+            records.push(record.clone());
+        }
+        if !records.is_empty() {
+            scene.spec.set_part(Records(records));
+        }
+        Ok(())
+    }
+
+    fn describe(&self, spec: &SceneSpec) -> Option<String> {
+        let records = &spec.part::<Records>()?.0;
+        let lines: Vec<String> = records
+            .iter()
+            .map(|r| {
+                let line = r.line.map(|l| format!("line {l}: ")).unwrap_or_default();
+                format!("{line}{} = {} × {}", r.name, r.scale, r.quantity)
+            })
+            .collect();
+        Some(lines.join("\n    "))
+    }
+
+    fn used_by(&self, spec: &SceneSpec) -> bool {
+        spec.part::<Records>().is_some()
+    }
+
+    fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
+        let records = simulation
+            .spec()
+            .part::<Records>()
+            .map_or(Vec::new(), |r| r.0.clone());
+        let measured: Vec<&'static str> = simulation
+            .world()
+            .get_resource::<StepMeasures>()
+            .map_or(Vec::new(), |m| m.0.iter().map(|(name, _)| *name).collect());
+        for record in records {
+            let (quantity, scale) = (record.quantity.clone(), record.scale);
+            // measure names live as long as the run's records
+            let name: &'static str = Box::leak(record.name.clone().into_boxed_str());
+            if quantity == LOAD_FACTOR {
+                simulation.add_measure(name, move |_, factor| Some(scale * factor));
+                continue;
+            }
+            if !measured.contains(&record.quantity.as_str()) {
+                let line = record
+                    .line
+                    .map(|l| format!("line {l}: "))
+                    .unwrap_or_default();
+                simulation.fail(format!(
+                    "{line}record(...): no module measures '{}'; the recorded quantities are: {LOAD_FACTOR}, {}",
+                    record.quantity,
+                    measured.join(", ")
+                ));
+                return;
+            }
+            simulation.add_measure(name, move |world, _| {
+                Some(scale * world.get_resource::<MeasuredValues>()?.get(&quantity)?)
+            });
+        }
+    }
+}

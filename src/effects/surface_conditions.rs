@@ -1,0 +1,887 @@
+//! Prescribed displacements and supports on material surfaces (`surface_displace(...)`),
+//! imposed weakly on the grid functions that support the surface, which need not align with
+//! the grid and moves with the material.
+//!
+//! # Boundary points
+//! A condition is declared on a flat piece of the body's boundary (`on:`, the geometry words of
+//! `traction(...)`: `scene::seed_surface`), seeded as boundary points s with reference position
+//! X_s, reference area A_s (length in 2D) and a host, the nearest material point: the piece is
+//! cut into `per_cell` parts per cell crossed, each integrated with the 2-point Gauss rule per
+//! edge, so that a piece whose parts lie within knot spans integrates the B-spline products of
+//! the boundary terms exactly (quadratic and cubic). A boundary
+//! point carries its total displacement u_s = x_s − X_s. At the start of each load step it gets
+//! weights N̂_i over active nodes, with which the grid increment is read at the point,
+//! Δu_s = Σ_i N̂_i Δu_i: the basis there, N̂_i = N_i(x_s), when every node of its support is
+//! active (the usual case: the surface inside or on the face of a cell with material points);
+//! otherwise (the surface has left the cells its material points support, e.g. a linear
+//! basis's top row of nodes once the material has moved past it) the host's first-order
+//! extrapolation, N̂_i = N_i(x_p) + ∇N_i(x_p) · (x_s − x_p) over the host's support (as traction
+//! points follow their host). Both sum to one and reproduce linear fields exactly. After the
+//! step the point moves with the increment it was held to: x_s += Σ_i N̂_i Δu_i. So u_s is exactly the
+//! displacement the condition imposed, and the prescribed value is the **total** displacement
+//! of the surface at the load factor, λ ū: the answer does not depend on the number of load
+//! steps or on step cuts (unlike a grid-node `displace`, which moves whatever material is at the
+//! node at the start of each step).
+//!
+//! # Weak imposition
+//! With P the projection onto the constrained components (all: I, rough / no slip; `smooth`:
+//! n nᵀ with n the surface's reference outward normal; listed components: the diagonal of
+//! those axes) and the gap at an iterate
+//!
+//! ```text
+//!   g_s = P (u_s^n + Σ_j N̂_j Δu_j − λ ū),
+//! ```
+//!
+//! **penalty** adds to the internal force and the tangent (the Hessian of ½ α Σ_s A_s |g_s|²)
+//!
+//! ```text
+//!   f_int,i += α A_s N̂_i g_s,        K_ij += α A_s N̂_i N̂_j P           (symmetric),
+//! ```
+//!
+//! and **Nitsche's method** adds the consistency term, the traction the body carries at the
+//! surface, so that the exact solution satisfies the discrete equations for any α (the error
+//! does not grow like 1/α):
+//!
+//! ```text
+//!   f_int,i −= N̂_i P T_s,            T_s = τ F⁻ᵀ N A_s = τ_h Δf_h⁻ᵀ m_s,   m_s = F_hⁿ⁻ᵀ N A_s,
+//!   K_ij    −= N̂_i P ∂T_s/∂Δu_j      (j in the host's support),
+//! ```
+//!
+//! where T_s is the force on the piece of surface (Nanson: σ n da = τ F⁻ᵀ N dA) from the host's
+//! Kirchhoff stress τ_h and F = Δf_h F_hⁿ. T_s has the form of a point's internal force with
+//! m_s in place of V0 ∇N, so ∂T_s/∂Δu_j is the host's stiffness block
+//! (`TrialState::stiffness(1, Δf⁻ᵀ m_s, Δf⁻ᵀ ∇N_j)`), exact for any material. The variant is
+//! the non-symmetric "incomplete" one (no adjoint term): it needs only the material's first
+//! tangent, works with non-symmetric material tangents (plasticity), and is consistent; its
+//! tangent is not symmetric, so a run that uses it declares so (`Extension::nonsymmetric_tangent`)
+//! and the linear solve uses LU. The symmetric variant would need the derivative of the
+//! material tangent in its exact linearisation and is not provided.
+//!
+//! # Penalty factor
+//! α = γ E / h, with E the largest stiffness scale of the scene's materials
+//! (`MaterialSpec::stiffness`) and h the smallest cell size: a spring per unit area as stiff as
+//! γ cells of the material. Default γ: 1e4 for `penalty` (the gap, the part of the surface
+//! traction the material's compliance lets through, is then about σ h / (γ E): 1e-4 of a
+//! cell's elastic shortening; relative to a prescribed displacement of 20 % strain over 4 cells
+//! that is below 1e-4), and 100 for `nitsche` (it only has to dominate the consistency term
+//! for stability, ~E/h per unit area; the accuracy does not depend on it).
+//!
+//! # Reactions
+//! The force the condition exerts on the body, R = Σ_s (P T_s − α A_s g_s) (Nitsche) or
+//! −Σ_s α A_s g_s (penalty), at every converged step, with its mean traction R / Σ A_s and the
+//! mean displacement of the surface Σ A_s u_s / Σ A_s: measures named after the condition
+//! (`NAME_reaction_x`, `NAME_traction_y`, `NAME_displacement_y`, ...) in `summary.json` and
+//! `history.csv`.
+//!
+//! Systems: [`find_boundary_supports`] (`Hook::Connectivity`), [`assemble_surface_conditions`]
+//! (`Hook::AfterAssembly`), [`update_boundary_points`] (`Hook::PointUpdate`).
+
+use bevy_ecs::prelude::*;
+use nalgebra::{SMatrix, SVector};
+use rhai::Dynamic;
+
+use crate::basis::{BasisKind, BasisScratch, NodeWeight};
+use crate::checkpoint::{self, CheckpointPart};
+use crate::components::{DeformationGradient, Position, ReferencePosition, Support, Trial};
+use crate::mechanics::embed;
+use crate::plugin::{Extension, Hook, Plugin};
+use crate::resources::{
+    Grid, GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock,
+};
+use crate::scene::{
+    CallSpec, Choice, Kind, Located, OptionSpec, Options, Range, Resolver, SceneApi, SceneSpec,
+    ScriptError, seed_surface,
+};
+
+/// How a condition is imposed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Imposition {
+    Penalty,
+    Nitsche,
+}
+
+impl Imposition {
+    /// The default dimensionless penalty factor γ (module docs).
+    pub fn default_gamma(self) -> f64 {
+        match self {
+            Imposition::Penalty => 1e4,
+            Imposition::Nitsche => 100.0,
+        }
+    }
+
+    pub fn word(self) -> &'static str {
+        match self {
+            Imposition::Penalty => "penalty",
+            Imposition::Nitsche => "nitsche",
+        }
+    }
+}
+
+/// One boundary point of a condition, as resolved from the scene.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BoundaryPointSpec {
+    pub position: Vec<f64>,
+    pub area: f64,
+    /// The host material point (global point index).
+    pub host: usize,
+}
+
+/// One `surface_displace(...)`, resolved.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SurfaceConditionSpec {
+    /// Names its measures (`NAME_reaction_x`, ...).
+    pub name: String,
+    /// Line of the declaring call, for messages and `impm check`.
+    pub line: Option<usize>,
+    pub points: Vec<BoundaryPointSpec>,
+    /// The projection P onto the constrained components, D x D row by row.
+    pub projection: Vec<f64>,
+    /// The reference outward unit normal.
+    pub normal: Vec<f64>,
+    /// The prescribed total displacement at load factor 1 (one entry per axis).
+    pub displacement: Vec<f64>,
+    pub imposition: Imposition,
+    /// α = γ E / h (force per unit area per unit gap).
+    pub penalty: f64,
+    /// Which components, in words, for `impm check` ("all", "normal", "`[1]`").
+    pub components: String,
+}
+
+impl SurfaceConditionSpec {
+    /// Σ A_s.
+    pub fn area(&self) -> f64 {
+        self.points.iter().map(|p| p.area).sum()
+    }
+}
+
+/// The scene's surface conditions.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SurfaceConditions(pub Vec<SurfaceConditionSpec>);
+
+/// `surface_displace(...)` as declared.
+#[derive(Clone, Debug)]
+struct SurfaceDeclaration {
+    corners: Vec<Vec<f64>>,
+    displacement: Option<Vec<f64>>,
+    components: Option<Vec<usize>>,
+    smooth: bool,
+    imposition: Imposition,
+    gamma: Option<f64>,
+    per_cell: usize,
+    name: Option<String>,
+}
+
+/// Why surface conditions do not apply to linear FEM.
+const NOT_WITH_FEM: &str = "surface conditions act through the background grid's basis; basis \"fem\" has a body-fitted mesh whose nodes move with the body (use fix/displace on its nodes)";
+
+/// A boundary point: an entity of its own that carries a piece of a constrained surface.
+#[derive(Component, Clone, Debug, PartialEq)]
+pub struct BoundaryPoint<const D: usize> {
+    /// Index of its condition.
+    pub condition: usize,
+    /// Index among all boundary points (checkpoint order).
+    pub id: u32,
+    pub reference_position: SVector<f64, D>,
+    /// Current position (converged, start of the load step).
+    pub position: SVector<f64, D>,
+    pub area: f64,
+    pub host: Entity,
+    /// The active nodes of the basis at `position` with the weights N̂_i (module docs).
+    pub weights: Vec<(usize, f64)>,
+}
+
+/// One condition in the world: what the systems need, and its last reaction.
+#[derive(Clone, Debug)]
+pub struct SurfaceCondition<const D: usize> {
+    pub projection: SMatrix<f64, D, D>,
+    pub normal: SVector<f64, D>,
+    pub displacement: SVector<f64, D>,
+    pub imposition: Imposition,
+    pub penalty: f64,
+    pub area: f64,
+    /// The force the condition exerted on the body at the last converged step.
+    pub reaction: SVector<f64, D>,
+    /// Σ A_s u_s / Σ A_s at the last converged step.
+    pub mean_displacement: SVector<f64, D>,
+    /// max_s |g_s| at the last converged step.
+    pub largest_gap: f64,
+}
+
+/// The conditions of the run, in declaration order.
+#[derive(Resource, Clone, Debug, Default)]
+pub struct SurfaceConditionSet<const D: usize>(pub Vec<SurfaceCondition<D>>);
+
+/// The module.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct SurfaceConditionsModule;
+
+fn conditions(spec: &SceneSpec) -> &[SurfaceConditionSpec] {
+    spec.part::<SurfaceConditions>().map_or(&[], |c| &c.0)
+}
+
+impl Plugin for SurfaceConditionsModule {
+    fn name(&self) -> &'static str {
+        "surface conditions"
+    }
+
+    fn scene_api(&self, api: &mut SceneApi) {
+        let choice = |word, meaning| Choice {
+            word,
+            meaning: Some(meaning),
+        };
+        api.call(CallSpec::options(
+            "surface_displace",
+            "prescribes the total displacement (at load factor 1, ramped with it; zero: a support) of a flat piece of a body's surface that need not follow the grid, imposed weakly (penalty or Nitsche) on the grid functions supporting it through boundary points that move with the material; the reaction, mean traction and mean displacement are recorded every step as NAME_reaction_x, NAME_traction_x, NAME_displacement_x, ... (see docs/boundaries.md)",
+            vec![
+                OptionSpec::required(
+                    "on",
+                    Kind::Points,
+                    "the piece of surface: 1D `[[x]]`, 2D a segment `[[x0, y0], [x1, y1]]`, 3D a parallelogram `[c0, c1, c2]` (edges c1 − c0, c2 − c0)",
+                ),
+                OptionSpec::new(
+                    "displacement",
+                    Kind::Numbers,
+                    "the total displacement at load factor 1, one entry per axis (default zero: a support)",
+                ),
+                OptionSpec::new(
+                    "components",
+                    Kind::Wholes { min: 0 },
+                    "the constrained axes (0-based; default all of them: rough, no slip)",
+                ),
+                OptionSpec::new(
+                    "smooth",
+                    Kind::Flag,
+                    "constrain only the component along the surface's normal (a smooth contact; default false)",
+                ),
+                OptionSpec::new(
+                    "method",
+                    Kind::Choice(vec![
+                        choice("penalty", "a stiff spring per unit area: symmetric, gap ~ σ h / (γ E)"),
+                        choice("nitsche", "penalty plus the surface traction: consistent (exact for any γ), non-symmetric tangent"),
+                    ]),
+                    "how the condition is imposed (default \"nitsche\")",
+                ),
+                OptionSpec::new(
+                    "penalty",
+                    Kind::Number(Range::Positive),
+                    "dimensionless penalty factor γ, α = γ E / h (default 1e4 for penalty, 100 for nitsche)",
+                ),
+                OptionSpec::new(
+                    "per_cell",
+                    Kind::Whole {
+                        min: 1,
+                        max: Some(1000),
+                    },
+                    "parts per cell crossed, each with 2 Gauss points per edge (default 1)",
+                ),
+                OptionSpec::new(
+                    "name",
+                    Kind::Text,
+                    "names the recorded quantities (default surface1, surface2, ... in declaration order)",
+                ),
+            ],
+            |builder, options: &Options, at| {
+                if options.has("smooth") && options.has("components") {
+                    return Err(
+                        "give either 'smooth' (the normal component) or 'components', not both"
+                            .into(),
+                    );
+                }
+                let imposition = match options.text("method") {
+                    Some("penalty") => Imposition::Penalty,
+                    _ => Imposition::Nitsche,
+                };
+                builder.declare(Located::new(
+                    SurfaceDeclaration {
+                        corners: options.points("on").unwrap_or_default().to_vec(),
+                        displacement: options.numbers("displacement").map(<[f64]>::to_vec),
+                        components: options.wholes("components").map(<[usize]>::to_vec),
+                        smooth: options.flag("smooth").unwrap_or(false),
+                        imposition,
+                        gamma: options.number("penalty"),
+                        per_cell: options.whole("per_cell").unwrap_or(1),
+                        name: options.text("name").map(str::to_string),
+                    },
+                    at,
+                ));
+                Ok(Dynamic::UNIT)
+            },
+        ));
+    }
+
+    fn resolve(&self, scene: &mut Resolver) -> Result<(), ScriptError> {
+        let resolved = resolve_conditions(scene)?;
+        if !resolved.is_empty() {
+            scene.spec.set_part(SurfaceConditions(resolved));
+        }
+        Ok(())
+    }
+
+    fn describe(&self, spec: &SceneSpec) -> Option<String> {
+        let lines: Vec<String> = conditions(spec)
+            .iter()
+            .map(|c| {
+                let line = c.line.map(|l| format!("line {l}: ")).unwrap_or_default();
+                let (lower, upper) = coordinate_range(c.points.iter().map(|p| &p.position[..]));
+                format!(
+                    "{line}'{}': {} boundary points, x in {lower:?} .. {upper:?}, area {}, displacement {:?} at load factor 1, components {}, {} (α = {:.4e})",
+                    c.name,
+                    c.points.len(),
+                    round(c.area()),
+                    c.displacement,
+                    c.components,
+                    c.imposition.word(),
+                    c.penalty
+                )
+            })
+            .collect();
+        (!lines.is_empty()).then(|| lines.join("\n"))
+    }
+
+    fn used_by(&self, spec: &SceneSpec) -> bool {
+        !conditions(spec).is_empty()
+    }
+
+    fn applies_to(&self, spec: &SceneSpec) -> bool {
+        spec.grid.basis != BasisKind::Fem
+    }
+
+    fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
+        if !self.applies_to(simulation.spec()) {
+            simulation.fail(NOT_WITH_FEM);
+            return;
+        }
+        let specs = conditions(simulation.spec());
+        let set = match world_conditions::<D>(specs) {
+            Ok(set) => set,
+            Err(why) => {
+                simulation.fail(why);
+                return;
+            }
+        };
+        if let Err(why) = spawn_boundary_points(simulation, specs) {
+            simulation.fail(why);
+            return;
+        }
+        if specs.iter().any(|c| c.imposition == Imposition::Nitsche) {
+            simulation.nonsymmetric_tangent();
+        }
+        simulation.world().insert_resource(set);
+        for (index, condition) in specs.iter().enumerate() {
+            add_condition_measures::<D>(simulation, index, &condition.name);
+        }
+        simulation
+            .checkpoint(CheckpointPart {
+                name: "boundary points",
+                save: save_boundary_points::<D>,
+                restore: restore_boundary_points::<D>,
+            })
+            .add_systems(Hook::Connectivity, find_boundary_supports::<D>)
+            .add_systems(Hook::AfterAssembly, assemble_surface_conditions::<D>)
+            .add_systems(Hook::PointUpdate, update_boundary_points::<D>);
+    }
+}
+
+fn round(x: f64) -> f64 {
+    (x * 1e9).round() / 1e9
+}
+
+/// The smallest and largest coordinate per axis of `positions`.
+pub fn coordinate_range<'a>(positions: impl Iterator<Item = &'a [f64]>) -> (Vec<f64>, Vec<f64>) {
+    let (mut lower, mut upper) = (Vec::<f64>::new(), Vec::<f64>::new());
+    for x in positions {
+        if lower.is_empty() {
+            lower = x.to_vec();
+            upper = x.to_vec();
+        }
+        for (a, &c) in x.iter().enumerate() {
+            lower[a] = lower[a].min(c);
+            upper[a] = upper[a].max(c);
+        }
+    }
+    (
+        lower.into_iter().map(round).collect(),
+        upper.into_iter().map(round).collect(),
+    )
+}
+
+/// Names of the axes in measure names.
+pub const AXES: [&str; 3] = ["x", "y", "z"];
+
+/// `NAME_reaction_x`, `NAME_traction_x`, `NAME_displacement_x`, ... of condition `index`.
+fn add_condition_measures<const D: usize>(
+    simulation: &mut Extension<'_, D>,
+    index: usize,
+    name: &str,
+) {
+    type Quantity<const D: usize> = fn(&SurfaceCondition<D>) -> SVector<f64, D>;
+    let quantities: [(&str, Quantity<D>); 3] = [
+        ("reaction", |c| c.reaction),
+        ("traction", |c| c.reaction / c.area),
+        ("displacement", |c| c.mean_displacement),
+    ];
+    for (what, quantity) in quantities {
+        for (axis, axis_name) in AXES.iter().enumerate().take(D) {
+            // measure names live as long as the run's records: a few per condition
+            let key: &'static str =
+                Box::leak(format!("{name}_{what}_{axis_name}").into_boxed_str());
+            simulation.add_measure(key, move |world, _| {
+                let set = world.get_resource::<SurfaceConditionSet<D>>()?;
+                Some(quantity(set.0.get(index)?)[axis])
+            });
+        }
+    }
+}
+
+/// The conditions' data in the world (vectors and matrices of dimension D).
+fn world_conditions<const D: usize>(
+    specs: &[SurfaceConditionSpec],
+) -> Result<SurfaceConditionSet<D>, String> {
+    let mut set = Vec::with_capacity(specs.len());
+    for spec in specs {
+        if spec.projection.len() != D * D || spec.displacement.len() != D || spec.normal.len() != D
+        {
+            return Err(format!(
+                "surface condition '{}' is not {D}-dimensional",
+                spec.name
+            ));
+        }
+        set.push(SurfaceCondition {
+            projection: SMatrix::from_row_slice(&spec.projection),
+            normal: SVector::from_column_slice(&spec.normal),
+            displacement: SVector::from_column_slice(&spec.displacement),
+            imposition: spec.imposition,
+            penalty: spec.penalty,
+            area: spec.area(),
+            reaction: SVector::zeros(),
+            mean_displacement: SVector::zeros(),
+            largest_gap: 0.0,
+        });
+    }
+    Ok(SurfaceConditionSet(set))
+}
+
+fn spawn_boundary_points<const D: usize>(
+    simulation: &mut Extension<'_, D>,
+    specs: &[SurfaceConditionSpec],
+) -> Result<(), String> {
+    let entities = simulation.point_entities();
+    let world = simulation.world();
+    let mut batch = Vec::new();
+    for (condition, spec) in specs.iter().enumerate() {
+        for point in &spec.points {
+            if point.position.len() != D {
+                return Err(format!("boundary point of '{}' not in {D}D", spec.name));
+            }
+            let host = *entities
+                .get(point.host)
+                .ok_or_else(|| format!("boundary point host {} does not exist", point.host))?;
+            let position = SVector::from_column_slice(&point.position);
+            batch.push(BoundaryPoint::<D> {
+                condition,
+                id: batch.len() as u32,
+                reference_position: position,
+                position,
+                area: point.area,
+                host,
+                weights: Vec::new(),
+            });
+        }
+    }
+    if let Some(point) = batch
+        .iter()
+        .find(|p| world.get::<ReferencePosition<D>>(p.host).is_none())
+    {
+        return Err(format!(
+            "boundary point {} has no material point as host",
+            point.id
+        ));
+    }
+    world.spawn_batch(batch);
+    Ok(())
+}
+
+fn save_boundary_points<const D: usize>(world: &mut World) -> Vec<f64> {
+    let mut points: Vec<_> = world
+        .query::<&BoundaryPoint<D>>()
+        .iter(world)
+        .map(|p| (p.id, p.position))
+        .collect();
+    points.sort_by_key(|(id, _)| *id);
+    points.iter().flat_map(|(_, x)| x.iter().copied()).collect()
+}
+
+fn restore_boundary_points<const D: usize>(
+    world: &mut World,
+    values: &[f64],
+) -> Result<(), String> {
+    let mut query = world.query::<&mut BoundaryPoint<D>>();
+    let count = query.iter(world).len();
+    let records: Vec<&[f64]> = checkpoint::records(values, D, count)?.collect();
+    for mut point in query.iter_mut(world) {
+        point.position = SVector::from_column_slice(records[point.id as usize]);
+    }
+    Ok(())
+}
+
+/// The weights N̂_i of a boundary point (module docs): the basis at the point, `support`, when
+/// all its nodes with a non-zero value are active; else the host's first-order extrapolation
+/// to the point, N_i(x_p) + ∇N_i(x_p) · `offset` over the host's support (offset = x_s − x_p).
+pub fn boundary_weights<const D: usize>(
+    support: &[NodeWeight<D>],
+    host: &[NodeWeight<D>],
+    offset: &SVector<f64, D>,
+    active: &[bool],
+) -> Vec<(usize, f64)> {
+    let supported = support.iter().all(|w| w.value == 0.0 || active[w.node]);
+    if supported {
+        return support
+            .iter()
+            .filter(|w| w.value != 0.0)
+            .map(|w| (w.node, w.value))
+            .collect();
+    }
+    host.iter()
+        .map(|w| (w.node, w.value + w.gradient.dot(offset)))
+        .collect()
+}
+
+/// Connectivity: the basis at every boundary point, and the nodes its condition couples (its
+/// own support, and for Nitsche its host's).
+#[allow(clippy::too_many_arguments)] // a system: its parameters are what it reads and writes
+pub fn find_boundary_supports<const D: usize>(
+    grid: Res<Grid<D>>,
+    step: Res<LoadStep>,
+    set: Res<SurfaceConditionSet<D>>,
+    mut fields: ResMut<GridFields<D>>,
+    mut status: ResMut<RunStatus>,
+    mut clock: ResMut<StageClock>,
+    mut scratch: Local<(BasisScratch, Vec<NodeWeight<D>>)>,
+    hosts: Query<(&Support<D>, &Position<D>)>,
+    mut points: Query<&mut BoundaryPoint<D>>,
+) {
+    let _timer = clock.time(Stage::Connectivity);
+    let (scratch, support) = &mut *scratch;
+    let fields = &mut *fields;
+    for mut point in points.iter_mut() {
+        let fail = |why: &str| SolverError::Module {
+            step: step.number,
+            what: format!(
+                "boundary point {} of surface condition {} at {:?} {why}",
+                point.id,
+                point.condition + 1,
+                point.position.iter().copied().collect::<Vec<_>>()
+            ),
+            recoverable: false,
+        };
+        if grid.0.eval(&point.position, scratch, support).is_err() {
+            status.fail(fail("left the background grid"));
+            return;
+        }
+        let Ok((host, host_position)) = hosts.get(point.host) else {
+            status.fail(fail("has lost its host material point"));
+            return;
+        };
+        let offset = point.position - host_position.0;
+        let weights = boundary_weights(support, &host.0, &offset, &fields.active);
+        if weights.is_empty() || weights.iter().any(|(node, _)| !fields.active[*node]) {
+            status.fail(fail(
+                "is not next to any material point (its host's support is not active); put surface conditions on a body's boundary",
+            ));
+            return;
+        }
+        let mut group: Vec<usize> = weights.iter().map(|(node, _)| *node).collect();
+        if set.0[point.condition].imposition == Imposition::Nitsche {
+            group.extend(host.0.iter().map(|w| w.node));
+        }
+        fields.couplings.push(group);
+        point.weights = weights;
+    }
+}
+
+/// The gap g_s = P (u_s^n + Σ N̂_i Δu_i − λ ū) of a boundary point.
+fn gap<const D: usize>(
+    point: &BoundaryPoint<D>,
+    condition: &SurfaceCondition<D>,
+    increment: &[SVector<f64, D>],
+    factor: f64,
+) -> SVector<f64, D> {
+    let mut u = point.position - point.reference_position;
+    for &(node, n) in &point.weights {
+        u += increment[node] * n;
+    }
+    condition.projection * (u - condition.displacement * factor)
+}
+
+/// The Nitsche traction force T_s = τ_h Δf_h⁻ᵀ m_s of a boundary point (module docs), with
+/// m_s = F_hⁿ⁻ᵀ N A_s and the host's trial state; also returns Δf⁻ᵀ m_s.
+fn nitsche_traction<const D: usize>(
+    point: &BoundaryPoint<D>,
+    condition: &SurfaceCondition<D>,
+    trial: &Trial<D>,
+    committed: &DeformationGradient<D>,
+) -> (SVector<f64, D>, SVector<f64, D>) {
+    let inverse = embed(&committed.0)
+        .try_inverse()
+        .map(|m| crate::mechanics::block::<D>(&m))
+        .unwrap_or_else(SMatrix::identity);
+    let m = inverse.transpose() * condition.normal * point.area;
+    let g_m = trial.0.spatial_gradient(&m);
+    (trial.0.internal_force(1.0, &g_m), g_m)
+}
+
+/// Newton: every condition's contribution to f_int and K (module docs).
+#[allow(clippy::type_complexity)]
+pub fn assemble_surface_conditions<const D: usize>(
+    step: Res<LoadStep>,
+    set: Res<SurfaceConditionSet<D>>,
+    mut fields: ResMut<GridFields<D>>,
+    mut newton: ResMut<Newton>,
+    mut clock: ResMut<StageClock>,
+    hosts: Query<(&Support<D>, &Trial<D>, &DeformationGradient<D>)>,
+    points: Query<&BoundaryPoint<D>>,
+) {
+    let _timer = clock.time(Stage::Assembly);
+    let fields = &mut *fields;
+    let matrix = &mut newton.matrix;
+    for point in points.iter() {
+        let condition = &set.0[point.condition];
+        let p = &condition.projection;
+        let alpha_a = condition.penalty * point.area;
+        let g = gap(point, condition, &fields.increment, step.factor);
+        let force = g * alpha_a;
+        let penalty_block = p * alpha_a;
+        for &(i, n_i) in &point.weights {
+            fields.internal_force[i] += force * n_i;
+            for &(j, n_j) in &point.weights {
+                matrix.add_block(
+                    &fields.dofs[i],
+                    &fields.dofs[j],
+                    &(penalty_block * (n_i * n_j)),
+                );
+            }
+        }
+        if condition.imposition != Imposition::Nitsche {
+            continue;
+        }
+        let Ok((support, trial, committed)) = hosts.get(point.host) else {
+            continue;
+        };
+        let (traction, g_m) = nitsche_traction(point, condition, trial, committed);
+        let projected = p * traction;
+        for &(i, n_i) in &point.weights {
+            fields.internal_force[i] -= projected * n_i;
+        }
+        for w in &support.0 {
+            let g_j = trial.0.spatial_gradient(&w.gradient);
+            let block = p * trial.0.stiffness(1.0, &g_m, &g_j);
+            for &(i, n_i) in &point.weights {
+                matrix.add_block(&fields.dofs[i], &fields.dofs[w.node], &(block * -n_i));
+            }
+        }
+    }
+}
+
+/// After a converged step: each condition's reaction, mean displacement and largest gap, then
+/// the boundary points move with the increment they were held to.
+pub fn update_boundary_points<const D: usize>(
+    step: Res<LoadStep>,
+    fields: Res<GridFields<D>>,
+    mut set: ResMut<SurfaceConditionSet<D>>,
+    hosts: Query<(&Trial<D>, &DeformationGradient<D>)>,
+    mut points: Query<&mut BoundaryPoint<D>>,
+) {
+    for condition in set.0.iter_mut() {
+        condition.reaction = SVector::zeros();
+        condition.mean_displacement = SVector::zeros();
+        condition.largest_gap = 0.0;
+    }
+    for mut point in points.iter_mut() {
+        let condition = &set.0[point.condition];
+        let g = gap(&point, condition, &fields.increment, step.factor);
+        let mut reaction = -g * (condition.penalty * point.area);
+        if condition.imposition == Imposition::Nitsche {
+            // the host's F was just committed: T_s from the trial state and Fⁿ⁺¹ Δf⁻¹ = Fⁿ
+            if let Ok((trial, _)) = hosts.get(point.host) {
+                let previous =
+                    DeformationGradient(trial.0.increment_inverse * trial.0.deformation_gradient);
+                let (traction, _) = nitsche_traction(&point, condition, trial, &previous);
+                reaction += condition.projection * traction;
+            }
+        }
+        let mut du = SVector::<f64, D>::zeros();
+        for &(node, n) in &point.weights {
+            du += fields.increment[node] * n;
+        }
+        point.position += du;
+        let condition = &mut set.0[point.condition];
+        condition.reaction += reaction;
+        condition.mean_displacement += (point.position - point.reference_position) * point.area;
+        condition.largest_gap = condition.largest_gap.max(g.norm());
+    }
+    for condition in set.0.iter_mut() {
+        condition.mean_displacement /= condition.area;
+    }
+}
+
+/// Boundary points of every `surface_displace(...)`, with the condition's projection, normal
+/// and penalty factor.
+fn resolve_conditions(scene: &Resolver) -> Result<Vec<SurfaceConditionSpec>, ScriptError> {
+    let declarations = scene.declarations::<SurfaceDeclaration>();
+    if declarations.is_empty() {
+        return Ok(Vec::new());
+    }
+    if !SurfaceConditionsModule.applies_to(scene.spec) {
+        return Err(ScriptError::at(
+            declarations[0].at,
+            format!("surface_displace(...): {NOT_WITH_FEM}"),
+        ));
+    }
+    let grid = &scene.spec.grid;
+    let dim = grid.dim();
+    let material_points = scene.spec.material_point_positions();
+    let stiffness = scene
+        .spec
+        .materials
+        .iter()
+        .map(|m| m.stiffness)
+        .fold(0.0, f64::max);
+    let cell = (0..dim)
+        .map(|a| (grid.upper[a] - grid.lower[a]) / grid.cells[a] as f64)
+        .fold(f64::INFINITY, f64::min);
+    let mut resolved: Vec<SurfaceConditionSpec> = Vec::new();
+    for (index, declaration) in declarations.iter().enumerate() {
+        let d = &declaration.value;
+        let fail = |message: String| {
+            ScriptError::at(declaration.at, format!("surface_displace(...): {message}"))
+        };
+        let displacement = d.displacement.clone().unwrap_or(vec![0.0; dim]);
+        if displacement.len() != dim {
+            return Err(fail(format!(
+                "option 'displacement' has {} components but the grid is {dim}-dimensional",
+                displacement.len()
+            )));
+        }
+        if let Some(components) = &d.components {
+            if components.is_empty() {
+                return Err(fail("option 'components' lists no axis".into()));
+            }
+            if let Some(c) = components.iter().find(|&&c| c >= dim) {
+                return Err(fail(format!(
+                    "component {c} does not exist, the grid is {dim}-dimensional (components 0..{})",
+                    dim - 1
+                )));
+            }
+        }
+        let seeded = seed_surface(
+            grid,
+            &material_points,
+            &d.corners,
+            d.per_cell,
+            2,
+            "boundary points",
+        )
+        .map_err(fail)?;
+        let normal = outward_normal(&d.corners, &seeded, &material_points);
+        let (projection, components) = match (&d.components, d.smooth) {
+            (_, true) => (
+                (0..dim * dim)
+                    .map(|k| normal[k / dim] * normal[k % dim])
+                    .collect(),
+                "normal".to_string(),
+            ),
+            (Some(list), false) => (
+                (0..dim * dim)
+                    .map(|k| {
+                        let (r, c) = (k / dim, k % dim);
+                        if r == c && list.contains(&r) {
+                            1.0
+                        } else {
+                            0.0
+                        }
+                    })
+                    .collect(),
+                format!("{list:?}"),
+            ),
+            (None, false) => (
+                (0..dim * dim)
+                    .map(|k| if k / dim == k % dim { 1.0 } else { 0.0 })
+                    .collect(),
+                "all".to_string(),
+            ),
+        };
+        let name = d.name.clone().unwrap_or(format!("surface{}", index + 1));
+        if name.is_empty() || name.contains(|c: char| c.is_whitespace() || c == ',') {
+            return Err(fail(format!(
+                "name {name:?} must be a non-empty word without spaces or commas (it names history.csv columns)"
+            )));
+        }
+        if resolved.iter().any(|c| c.name == name) {
+            return Err(fail(format!(
+                "name '{name}' is used by another surface condition"
+            )));
+        }
+        let gamma = d.gamma.unwrap_or(d.imposition.default_gamma());
+        resolved.push(SurfaceConditionSpec {
+            name,
+            line: declaration.at.line(),
+            points: seeded
+                .into_iter()
+                .map(|s| BoundaryPointSpec {
+                    position: s.position,
+                    area: s.area,
+                    host: s.host,
+                })
+                .collect(),
+            projection,
+            normal,
+            displacement,
+            imposition: d.imposition,
+            penalty: gamma * stiffness / cell,
+            components,
+        });
+    }
+    Ok(resolved)
+}
+
+/// The unit normal of the surface piece (1D: the axis; 2D: the segment turned by 90°; 3D: the
+/// cross product of the edges), oriented away from the material: towards the side of the
+/// boundary points away from their hosts.
+fn outward_normal(
+    corners: &[Vec<f64>],
+    seeded: &[crate::scene::SurfacePointSeed],
+    material_points: &[&[f64]],
+) -> Vec<f64> {
+    let dim = corners.len();
+    let edge = |k: usize| -> Vec<f64> { (0..dim).map(|a| corners[k][a] - corners[0][a]).collect() };
+    let mut normal = match dim {
+        1 => vec![1.0],
+        2 => {
+            let e = edge(1);
+            vec![e[1], -e[0]]
+        }
+        _ => {
+            let (a, b) = (edge(1), edge(2));
+            vec![
+                a[1] * b[2] - a[2] * b[1],
+                a[2] * b[0] - a[0] * b[2],
+                a[0] * b[1] - a[1] * b[0],
+            ]
+        }
+    };
+    let length = normal.iter().map(|c| c * c).sum::<f64>().sqrt();
+    normal.iter_mut().for_each(|c| *c /= length);
+    let away: f64 = seeded
+        .iter()
+        .map(|s| {
+            let host = material_points[s.host];
+            (0..dim)
+                .map(|a| normal[a] * (s.position[a] - host[a]))
+                .sum::<f64>()
+        })
+        .sum();
+    if away < 0.0 {
+        normal.iter_mut().for_each(|c| *c = -*c);
+    }
+    normal
+}

@@ -1,0 +1,522 @@
+//! Boundaries that follow the material (`surface_displace`), reactions and histories: uniaxial
+//! strain against the exact Hencky solution, the conditions' tangents against finite
+//! differences, the global balance of reactions and loads, and the warning of a grid-node
+//! `displace` that the material no longer follows.
+
+mod common;
+
+use bevy_ecs::system::RunSystemOnce;
+use impm::components::Trial;
+use impm::effects::surface_conditions::{assemble_surface_conditions, find_boundary_supports};
+use impm::records::StepRecord;
+use impm::resources::{GridFields, LoadStep};
+use impm::run::{Simulation, load_scene};
+use impm::solver::NO_DOF;
+use impm::stages::{evaluate_basis, number_dofs};
+
+/// Young's modulus and Poisson's ratio of the uniaxial-strain scenes.
+const E: f64 = 1000.0;
+const NU: f64 = 0.3;
+
+/// Loads a scene written inline, with overrides.
+fn scene_sim<const D: usize>(name: &str, text: &str, set: &[(&str, &str)]) -> Simulation<D> {
+    let dir = common::temp_dir("boundaries", name);
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join(format!("{name}.rhai"));
+    std::fs::write(&path, text).unwrap();
+    let spec = load_scene(&path, &common::overrides(set)).unwrap_or_else(|e| panic!("{e}"));
+    Simulation::<D>::new(&spec, &dir.join("out")).unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// A block of unit width (and depth) and height 1 on rollers (base and sides), its top moved
+/// vertically to `stretch` times its height by a rough `surface_displace` (no lateral
+/// motion): uniaxial strain. The grid reaches 0.2 above the top (room for tension).
+fn uniaxial<const D: usize>() -> String {
+    let (lower, upper, cells, corners, displacement, fixes) = match D {
+        2 => (
+            "[0.0, 0.0]",
+            "[1.0, 1.2]",
+            "[cells, cells]",
+            "[[0.0, 1.0], [1.0, 1.0]]",
+            "[0.0, stretch - 1.0]",
+            "fix(|x| x[1] == 0.0, [1]);\nfix(|x| x[0] == 0.0 || x[0] == 1.0, [0]);",
+        ),
+        _ => (
+            "[0.0, 0.0, 0.0]",
+            "[1.0, 1.0, 1.2]",
+            "[2, 2, cells]",
+            "[[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]]",
+            "[0.0, 0.0, stretch - 1.0]",
+            "fix(|x| x[2] == 0.0, [2]);\nfix(|x| x[0] == 0.0 || x[0] == 1.0, [0]);\nfix(|x| x[1] == 0.0 || x[1] == 1.0, [1]);",
+        ),
+    };
+    let top = if D == 2 {
+        "[1.0, 1.0]"
+    } else {
+        "[1.0, 1.0, 1.0]"
+    };
+    format!(
+        r#"
+let basis = "bspline";
+let order = 2;
+let integration = "points";
+let method = "penalty";
+let cells = 4;
+let steps = 5;
+let ppc = 2;
+let stretch = 0.8;
+grid(#{{ lower: {lower}, upper: {upper}, cells: {cells}, basis: basis, order: order, integration: integration }});
+const m = material(#{{ name: "m", E: {E}, nu: {NU}, density: 1.0 }});
+body(#{{ name: "block", material: m, region: box({lower}, {top}), ppc: ppc }});
+{fixes}
+surface_displace(#{{ on: {corners}, displacement: {displacement}, method: method, name: "top" }});
+load_steps(steps);
+"#
+    )
+}
+
+/// Runs to the end; returns the simulation and the records.
+fn run<const D: usize>(
+    name: &str,
+    text: &str,
+    set: &[(&str, &str)],
+) -> (Simulation<D>, Vec<StepRecord>) {
+    let mut sim = scene_sim::<D>(name, text, set);
+    sim.run(|_| {})
+        .unwrap_or_else(|e| panic!("{name} {set:?}: {e}"));
+    let steps = sim.summary.steps.clone();
+    (sim, steps)
+}
+
+/// The Hencky uniaxial-strain stresses for the vertical stretch s: (σ_vertical, σ_lateral) =
+/// ((λ + 2μ) ln s / s, λ ln s / s).
+fn hencky_uniaxial(stretch: f64) -> (f64, f64) {
+    let lame = E * NU / ((1.0 + NU) * (1.0 - 2.0 * NU));
+    let mu = E / (2.0 * (1.0 + NU));
+    let strain = stretch.ln() / stretch;
+    ((lame + 2.0 * mu) * strain, lame * strain)
+}
+
+/// Every point's σ against the exact uniaxial-strain state; returns the largest relative
+/// difference (to |σ_vertical|) and the top's recorded displacement and reaction.
+fn uniaxial_errors<const D: usize>(sim: &mut Simulation<D>, stretch: f64) -> (f64, f64, f64) {
+    let (vertical, lateral) = hencky_uniaxial(stretch);
+    let v = D - 1;
+    let mut worst = 0.0f64;
+    let mut q = sim.world.query::<&Trial<D>>();
+    for trial in q.iter(&sim.world) {
+        let sigma = trial.0.cauchy();
+        for a in 0..3 {
+            for b in 0..3 {
+                let exact = match (a == b, a == v) {
+                    (true, true) => vertical,
+                    (true, false) => lateral,
+                    _ => 0.0,
+                };
+                worst = worst.max((sigma[(a, b)] - exact).abs() / vertical.abs());
+            }
+        }
+    }
+    let axis = ["x", "y", "z"][v];
+    let last = sim.summary.steps.last().unwrap();
+    let u = last.measure(&format!("top_displacement_{axis}")).unwrap();
+    let r = last.measure(&format!("top_reaction_{axis}")).unwrap();
+    (worst, u, r)
+}
+
+/// Where the method integrates a homogeneous deformation exactly (GIMP, CPDI, B-splines with
+/// domain integration), Nitsche's method gives the exact Hencky state at every point, the
+/// prescribed top displacement and the exact reaction (σ times the unit top area) to 1e-6, in
+/// compression to 80 % and tension to 120 %, 2D and 3D, in 5 load steps.
+#[test]
+fn nitsche_gives_the_exact_uniaxial_strain_where_the_method_is_exact() {
+    let cases: [&[(&str, &str)]; 3] = [
+        &[("basis", "gimp")],
+        &[("basis", "cpdi")],
+        &[("integration", "domain")],
+    ];
+    for stretch in ["0.8", "1.2"] {
+        for case in cases {
+            let mut set = case.to_vec();
+            set.extend([("method", "nitsche"), ("stretch", stretch)]);
+            let s: f64 = stretch.parse().unwrap();
+            let (mut sim, _) = run::<2>("exact2d", &uniaxial::<2>(), &set);
+            let (worst, u, r) = uniaxial_errors(&mut sim, s);
+            let (exact, _) = hencky_uniaxial(s);
+            eprintln!("2D {set:?}: σ error {worst:.1e}, top u {u}, reaction {r} (exact {exact})");
+            assert!(worst < 1e-6, "2D {set:?}: σ off by {worst:e}");
+            assert!(
+                (u - (s - 1.0)).abs() < 1e-6 * (s - 1.0).abs(),
+                "2D {set:?}: u {u}"
+            );
+            assert!(
+                (r - exact).abs() < 1e-6 * exact.abs(),
+                "2D {set:?}: reaction {r} vs {exact}"
+            );
+        }
+        let set = [
+            ("method", "nitsche"),
+            ("stretch", stretch),
+            ("integration", "domain"),
+        ];
+        let s: f64 = stretch.parse().unwrap();
+        let (mut sim, _) = run::<3>("exact3d", &uniaxial::<3>(), &set);
+        let (worst, u, r) = uniaxial_errors(&mut sim, s);
+        let (exact, _) = hencky_uniaxial(s);
+        eprintln!("3D {set:?}: σ error {worst:.1e}, top u {u}, reaction {r} (exact {exact})");
+        assert!(worst < 1e-6, "3D: σ off by {worst:e}");
+        assert!((u - (s - 1.0)).abs() < 1e-6 * (s - 1.0).abs(), "3D: u {u}");
+        assert!(
+            (r - exact).abs() < 1e-6 * exact.abs(),
+            "3D: reaction {r} vs {exact}"
+        );
+    }
+}
+
+/// The default (penalty, γ = 1e4) with the methods that do not integrate the homogeneous state
+/// exactly (point-integrated quadratic B-splines, 2 points per cell and axis): the top's
+/// material displacement within 0.1 % of the prescribed one and the reaction within 2 % of the
+/// exact force, with 5 and with 40 load steps (a total displacement: the step count changes
+/// the answer only by the method's own error), in compression and tension, 2D and 3D.
+#[test]
+fn penalty_default_holds_the_total_displacement_with_any_step_count() {
+    for stretch in ["0.8", "1.2"] {
+        let s: f64 = stretch.parse().unwrap();
+        let (exact, _) = hencky_uniaxial(s);
+        for steps in ["5", "40"] {
+            let set = [("stretch", stretch), ("steps", steps)];
+            let (mut sim, _) = run::<2>("penalty2d", &uniaxial::<2>(), &set);
+            let (worst, u, r) = uniaxial_errors(&mut sim, s);
+            eprintln!("2D {set:?}: σ spread {worst:.1e}, top u {u}, reaction {r} (exact {exact})");
+            assert!(
+                (u - (s - 1.0)).abs() < 1e-3 * (s - 1.0).abs(),
+                "2D {set:?}: u {u}"
+            );
+            assert!(
+                (r - exact).abs() < 0.02 * exact.abs(),
+                "2D {set:?}: {r} vs {exact}"
+            );
+        }
+        let set = [("stretch", stretch), ("steps", "5")];
+        let (mut sim, _) = run::<3>("penalty3d", &uniaxial::<3>(), &set);
+        let (worst, u, r) = uniaxial_errors(&mut sim, s);
+        eprintln!("3D {set:?}: σ spread {worst:.1e}, top u {u}, reaction {r} (exact {exact})");
+        assert!((u - (s - 1.0)).abs() < 1e-3 * (s - 1.0).abs(), "3D: u {u}");
+        assert!((r - exact).abs() < 0.02 * exact.abs(), "3D: {r} vs {exact}");
+    }
+}
+
+/// The assembled tangent with a surface condition equals finite differences of the assembled
+/// internal force at a deformed state (after two steps of compression, the boundary inside a
+/// cell) and a large trial increment: penalty (symmetric) and Nitsche (not symmetric).
+#[test]
+fn surface_condition_tangents_match_finite_differences() {
+    for method in ["penalty", "nitsche"] {
+        let text = uniaxial::<2>();
+        let mut sim = scene_sim::<2>("fd", &text, &[("method", method), ("cells", "3")]);
+        sim.step().unwrap();
+        sim.step().unwrap();
+        *sim.world.resource_mut::<LoadStep>() = LoadStep {
+            number: 3,
+            factor: 0.6,
+            previous_factor: 0.4,
+            completes_step: true,
+        };
+        sim.world.run_system_once(evaluate_basis::<2>).unwrap();
+        sim.world
+            .run_system_once(find_boundary_supports::<2>)
+            .unwrap();
+        sim.world.run_system_once(number_dofs::<2>).unwrap();
+        {
+            let mut fields = sim.world.resource_mut::<GridFields<2>>();
+            for node in 0..fields.dofs.len() {
+                let dofs = fields.dofs[node];
+                let t = node as f64;
+                for (k, &dof) in dofs.iter().enumerate() {
+                    if dof != NO_DOF {
+                        fields.increment[node][k] = 0.02 * (1.3 * t + k as f64).sin() - 0.01;
+                    }
+                }
+            }
+        }
+        let add = |world: &mut bevy_ecs::world::World| {
+            world
+                .run_system_once(assemble_surface_conditions::<2>)
+                .unwrap();
+        };
+        let (worst, scale) = common::assert_tangent_matches_finite_differences_of::<
+            impm::material::Hencky,
+        >(&mut sim, &add, method == "penalty");
+        eprintln!("{method}: max |K - K_fd| = {worst:.2e} of {scale:.2e}");
+    }
+}
+
+/// Newton converges quadratically with either condition: once the residual is below 0.1,
+/// each next one (above round-off, 1e-10: a stiff penalty raises it) is at most 10 r².
+#[test]
+fn newton_converges_quadratically_with_surface_conditions() {
+    for method in ["penalty", "nitsche"] {
+        let (_, steps) = run::<2>("quadratic", &uniaxial::<2>(), &[("method", method)]);
+        let mut checked = 0;
+        for step in &steps {
+            for pair in step.residuals.windows(2) {
+                if pair[0] < 0.1 && pair[1] > 1e-10 {
+                    checked += 1;
+                    assert!(
+                        pair[1] <= 10.0 * pair[0] * pair[0],
+                        "{method}, step {}: residuals {:?}",
+                        step.step,
+                        step.residuals
+                    );
+                }
+            }
+        }
+        assert!(
+            checked > 0,
+            "{method}: some iterations in the quadratic range"
+        );
+    }
+}
+
+/// Reactions of every constraint and surface condition plus the external loads (body force,
+/// point loads, tractions) sum to zero at every converged step, to the Newton tolerance, 2D
+/// and 3D.
+#[test]
+fn reactions_balance_the_loads() {
+    let text2 = r#"
+grid(#{ lower: [0.0, 0.0], upper: [2.0, 1.5], cells: [4, 3], basis: "bspline", order: 2 });
+const m = material(#{ name: "m", E: 1000.0, nu: 0.3, density: 2.0 });
+body(#{ name: "block", material: m, region: box([0.0, 0.0], [2.0, 1.0]), ppc: 2 });
+body_force([0.0, -10.0]);
+point_load_total(|x| x[0] > 1.7 && x[1] > 0.7, [5.0, -8.0]);
+traction(#{ on: [[2.0, 0.2], [2.0, 0.8]], traction: [-30.0, 4.0] });
+fix(|x| x[1] == 0.0);
+surface_displace(#{ on: [[0.0, 1.0], [1.0, 1.0]], displacement: [0.0, -0.05], name: "platen" });
+solver(#{ tolerance: 1e-10 });
+load_steps(3);
+"#;
+    let (_, steps) = run::<2>("balance2d", text2, &[]);
+    check_balance(&steps, &["fix1", "platen"], 2);
+    let text3 = r#"
+grid(#{ lower: [0.0, 0.0, 0.0], upper: [1.0, 1.0, 1.5], cells: [2, 2, 3], basis: "bspline", order: 2 });
+const m = material(#{ name: "m", E: 1000.0, nu: 0.3, density: 2.0 });
+body(#{ name: "block", material: m, region: box([0.0, 0.0, 0.0], [1.0, 1.0, 1.0]), ppc: 2 });
+body_force([0.0, 0.0, -10.0]);
+point_load_total(|x| x[2] > 0.8, [1.0, 20.0, -3.0]);
+traction(#{ on: [[1.0, 0.0, 0.2], [1.0, 1.0, 0.2], [1.0, 0.0, 0.8]], traction: [-20.0, 0.0, 3.0] });
+fix(|x| x[2] == 0.0);
+surface_displace(#{ on: [[0.0, 0.0, 1.0], [0.5, 0.0, 1.0], [0.0, 1.0, 1.0]], displacement: [0.0, 0.0, -0.03], method: "nitsche", name: "platen" });
+solver(#{ tolerance: 1e-10 });
+load_steps(2);
+"#;
+    let (_, steps) = run::<3>("balance3d", text3, &[]);
+    check_balance(&steps, &["fix1", "platen"], 3);
+}
+
+fn check_balance(steps: &[StepRecord], conditions: &[&str], dim: usize) {
+    for step in steps {
+        for axis in ["x", "y", "z"].iter().take(dim) {
+            let external = step.measure(&format!("external_force_{axis}")).unwrap();
+            let reactions: Vec<f64> = conditions
+                .iter()
+                .map(|c| step.measure(&format!("{c}_reaction_{axis}")).unwrap())
+                .collect();
+            let scale = reactions.iter().fold(external.abs(), |m, r| m.max(r.abs()));
+            let sum = external + reactions.iter().sum::<f64>();
+            eprintln!(
+                "{dim}D step {}, {axis}: external {external:.6}, reactions {reactions:?}, sum {sum:.2e}",
+                step.step
+            );
+            assert!(scale > 1.0, "a meaningful load");
+            assert!(
+                sum.abs() < 1e-8 * scale,
+                "{dim}D step {}, {axis}: sum {sum:e}",
+                step.step
+            );
+        }
+    }
+}
+
+/// A grid-node `displace` that compresses a block loses its material (the grid is reset every
+/// step): the run warns, in `summary.json` too; stretching the same block in one step is
+/// exact and does not warn.
+#[test]
+fn grid_node_displace_warns_when_the_material_leaves_it() {
+    let text = r#"
+let lift = -0.2;
+let steps = 5;
+grid(#{ lower: [0.0, 0.0], upper: [1.0, 1.0], cells: [4, 4], basis: "bspline", order: 2 });
+const m = material(#{ name: "m", E: 1000.0, nu: 0.0, density: 1.0 });
+body(#{ name: "block", material: m, region: box([0.0, 0.0], [1.0, 1.0]), ppc: 2 });
+fix(|x| x[1] == 0.0, [1]);
+fix(|x| x[0] == 0.0 || x[0] == 1.0, [0]);
+displace(|x| x[1] == 1.0, [1], [lift]);
+load_steps(steps);
+"#;
+    let (sim, _) = run::<2>("warn", text, &[]);
+    let json = sim.summary.to_json();
+    let warnings = json["warnings"].as_array().expect("a warning");
+    assert_eq!(warnings.len(), 1, "{warnings:?}");
+    let warning = warnings[0].as_str().unwrap();
+    assert!(
+        warning.contains("line 9") && warning.contains("surface_displace"),
+        "{warning}"
+    );
+    let (sim, _) = run::<2>("nowarn", text, &[("lift", "0.05"), ("steps", "1")]);
+    assert!(
+        sim.summary.warnings.is_empty(),
+        "{:?}",
+        sim.summary.warnings
+    );
+}
+
+/// `history.csv` has one row per converged step with the step, the load factor and every
+/// recorded quantity, named from the scene, equal to the records of `summary.json`.
+#[test]
+fn history_has_a_row_per_step_with_named_columns() {
+    let (sim, steps) = run::<2>("history", &uniaxial::<2>(), &[]);
+    let path = sim.summary.path.with_file_name("history.csv");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    assert_eq!(&header[..2], &["step", "load_factor"]);
+    for name in [
+        "top_reaction_y",
+        "top_traction_y",
+        "top_displacement_y",
+        "fix1_reaction_y",
+    ] {
+        assert!(header.contains(&name), "{header:?}");
+    }
+    let rows: Vec<Vec<f64>> = lines
+        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+        .collect();
+    assert_eq!(rows.len(), steps.len());
+    let column = header
+        .iter()
+        .position(|h| *h == "top_displacement_y")
+        .unwrap();
+    for (row, step) in rows.iter().zip(&steps) {
+        assert_eq!(row[0], step.step as f64);
+        assert_eq!(row[1], step.load_factor);
+        assert_eq!(row[column], step.measure("top_displacement_y").unwrap());
+    }
+}
+
+/// The footing pressure of `scripts/strip_footing.rhai` (rough, elastic, δ/B = 1e-3, one step)
+/// after its last step.
+fn footing_pressure(set: &[(&str, &str)]) -> f64 {
+    let mut all = vec![("settlement", "0.001"), ("steps", "1")];
+    all.extend_from_slice(set);
+    let sim = common::run_shipped::<2>("strip_footing.rhai", &all);
+    let last = sim.summary.steps.last().unwrap();
+    assert!((last.measure("settlement").unwrap() - 1e-3).abs() < 1e-3 * 1e-3);
+    last.measure("footing_pressure").unwrap()
+}
+
+/// The elastic rough strip footing at small settlement: the pressure under the footing with the
+/// material-surface condition (quadratic B-splines, 16 cells across B) within 2 % of linear FEM
+/// on the same geometry with 32 cells across B. The rigid footing's edge makes both converge
+/// like h: their Richardson extrapolations (from 8 and 16, and 16 and 32 cells) agree to 0.5 %.
+#[test]
+fn strip_footing_matches_linear_fem() {
+    let mpm = [
+        footing_pressure(&[("cells", "8")]),
+        footing_pressure(&[("cells", "16")]),
+    ];
+    let fem = [
+        footing_pressure(&[("cells", "16"), ("basis", "fem")]),
+        footing_pressure(&[("cells", "32"), ("basis", "fem")]),
+    ];
+    let extrapolated = |p: [f64; 2]| 2.0 * p[1] - p[0];
+    eprintln!(
+        "footing pressure: MPM {mpm:?} -> {:.4}, FEM {fem:?} -> {:.4}",
+        extrapolated(mpm),
+        extrapolated(fem)
+    );
+    assert!(
+        (mpm[1] - fem[1]).abs() < 0.02 * fem[1],
+        "{mpm:?} vs {fem:?}"
+    );
+    assert!(
+        (extrapolated(mpm) - extrapolated(fem)).abs() < 0.005 * extrapolated(fem),
+        "{mpm:?} vs {fem:?}"
+    );
+}
+
+/// `record(...)` of a quantity no module measures is an error naming its line and the
+/// quantities there are.
+#[test]
+fn record_of_an_unknown_quantity_is_an_error() {
+    let text = uniaxial::<2>() + "record(#{ name: \"s\", quantity: \"top_reaction_q\" });\n";
+    let dir = common::temp_dir("boundaries", "record");
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("record.rhai");
+    std::fs::write(&path, text).unwrap();
+    let spec = load_scene(&path, &[]).unwrap();
+    let error = Simulation::<2>::new(&spec, &dir.join("out"))
+        .err()
+        .expect("an error")
+        .to_string();
+    assert!(
+        error.contains("line 17")
+            && error.contains("top_reaction_q")
+            && error.contains("top_reaction_y"),
+        "{error}"
+    );
+}
+
+/// `impm plot` draws history.csv columns of a run as SVG and PNG; an unknown column is an
+/// error that lists the columns there are.
+#[test]
+fn plot_draws_history_columns() {
+    let dir = common::temp_dir("boundaries", "plot");
+    let scene = common::shipped_scene("strip_footing.rhai");
+    let out = dir.display().to_string();
+    let run = common::impm(&[
+        "run",
+        &scene.display().to_string(),
+        "--out",
+        &out,
+        "--set",
+        "steps=3",
+    ]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let plot = common::impm(&[
+        "plot",
+        &out,
+        "--x",
+        "settlement",
+        "--y",
+        "footing_pressure,load_factor",
+    ]);
+    assert!(
+        plot.status.success(),
+        "{}",
+        String::from_utf8_lossy(&plot.stderr)
+    );
+    for extension in ["svg", "png"] {
+        let file = dir.join(format!(
+            "history_settlement_footing_pressure_load_factor.{extension}"
+        ));
+        let size = std::fs::metadata(&file).map(|m| m.len()).unwrap_or(0);
+        assert!(size > 1000, "{}: {size} bytes", file.display());
+    }
+    let svg =
+        std::fs::read_to_string(dir.join("history_settlement_footing_pressure_load_factor.svg"))
+            .unwrap();
+    assert!(svg.contains("footing_pressure") && svg.contains("settlement"));
+    let bad = common::impm(&["plot", &out, "--x", "settlement", "--y", "pressure"]);
+    let message = String::from_utf8_lossy(&bad.stderr);
+    assert!(
+        !bad.status.success()
+            && message.contains("no column 'pressure'")
+            && message.contains("footing_pressure"),
+        "{message}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
