@@ -310,6 +310,9 @@ fn study_command(plan: &StudyPlan) -> Result<(), Failure> {
         bar.finish();
     }
     let records = records?;
+    if !records.is_empty() && !impm::study::has_error_measure(&records) {
+        note(&format!("warning: {}", impm::study::NO_ERROR_MEASURE));
+    }
     let failed = records
         .iter()
         .filter(|r| r.outcome != RunOutcome::Completed)

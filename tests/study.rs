@@ -227,3 +227,33 @@ fn unknown_sweep_parameters_are_refused_before_running() {
     assert!(err.contains("no parameter 'cels'"), "{err}");
     assert!(!dir.join("study.csv").exists());
 }
+
+/// A scene without an analytic solution (the strip footing): the study runs, says that no run
+/// reports an error (console and study.md) and draws no empty error charts.
+#[test]
+fn a_study_without_an_error_measure_says_so_and_draws_no_error_charts() {
+    let dir = temp("no_error");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/strip_footing.rhai");
+    let out = impm(&[
+        "study",
+        scene.to_str().unwrap(),
+        "--sweep",
+        "cells=2,4",
+        "--set",
+        "steps=1",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("no run reports an error"), "{err}");
+    let md = std::fs::read_to_string(dir.join("study.md")).unwrap();
+    assert!(md.contains("no run reports an error"), "{md}");
+    assert!(!md.contains("error_vs_"), "{md}");
+    assert!(!dir.join("error_vs_time.svg").exists());
+    assert!(!dir.join("error_vs_cells.svg").exists());
+    let (_, rows) = read_csv(&dir.join("study.csv"));
+    assert_eq!(rows.len(), 2);
+    assert!(rows.iter().all(|r| get(r, "status") == "completed"));
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -22,6 +22,10 @@
 //! | `profiles.csv`, `profiles.svg/.png`, `profile_errors.svg/.png` | with `--profiles`: the final stress of every point along the column axis against the analytic solution, and the pointwise error |
 //! | `runs/NNN/` | each run's own output (`summary.json`, initial and final `.vtu`) |
 //!
+//! The error charts and rates need an error measure: a scene without an analytic solution
+//! (`analytic_column(...)`) gets neither, and `study.md` and the console say so
+//! ([`NO_ERROR_MEASURE`]) instead of drawing empty charts.
+//!
 //! ## How runs are executed and measured
 //!
 //! Runs execute one after the other **in this process**, through the library (no subprocess):
@@ -373,22 +377,25 @@ fn write_study_files(plan: &StudyPlan, records: &[RunRecord]) -> Result<(), Stri
             .map_err(|e| format!("{}: {e}", path.display()))
     };
     write("study.csv", table::csv(&names, records))?;
-    let against = plot_axis(plan, records);
+    let measured = has_error_measure(records);
+    let against = plot_axis(plan, records).filter(|_| measured);
     let mut charts = Vec::new();
     if let Some(against) = &against {
         let stem = format!("error_vs_{against}");
         plot::error_against_parameter(records, against, &plan.out_dir.join(&stem))?;
         charts.push((format!("Eq. 15 error against {against}"), stem));
     }
-    plot::error_against_time(
-        records,
-        against.as_deref(),
-        &plan.out_dir.join("error_vs_time"),
-    )?;
-    charts.push((
-        "Accuracy-cost front: eq. 15 error against wall time".to_string(),
-        "error_vs_time".to_string(),
-    ));
+    if measured {
+        plot::error_against_time(
+            records,
+            against.as_deref(),
+            &plan.out_dir.join("error_vs_time"),
+        )?;
+        charts.push((
+            "Accuracy-cost front: eq. 15 error against wall time".to_string(),
+            "error_vs_time".to_string(),
+        ));
+    }
     if plan.profiles {
         write("profiles.csv", profile::csv(&names, records))?;
         profile::charts(records, &plan.out_dir)?;
@@ -402,6 +409,16 @@ fn write_study_files(plan: &StudyPlan, records: &[RunRecord]) -> Result<(), Stri
         "study.md",
         table::markdown(plan, &names, records, against.as_deref(), &charts),
     )
+}
+
+/// What a study says when no run reports an error (the error charts would be empty).
+pub const NO_ERROR_MEASURE: &str = "no run reports an error: the scene declares no analytic \
+    solution (analytic_column(...)), so the study tabulates times and iterations only, without \
+    error charts or convergence rates";
+
+/// Whether any run reports an error measure (eq. 15 against the scene's analytic solution).
+pub fn has_error_measure(records: &[RunRecord]) -> bool {
+    records.iter().any(|r| r.error.is_some())
 }
 
 /// The x parameter of the error plot: `plan.against` if swept and numeric, else the first

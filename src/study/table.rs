@@ -199,6 +199,9 @@ pub fn markdown(
     charts: &[(String, String)],
 ) -> String {
     let mut md = intro(plan, records);
+    if !super::has_error_measure(records) {
+        let _ = writeln!(md, "Note: {}.\n", super::NO_ERROR_MEASURE);
+    }
     md.push_str(&runs_table(names, records));
     if let Some(against) = against {
         md.push_str(&rates_section(records, against));
