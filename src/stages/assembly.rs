@@ -3,8 +3,9 @@
 //! Every point adds V0 τ g_i to the internal force of its support nodes and the blocks K_ij to
 //! the tangent. When K is symmetric (`Newton::symmetric`: hyperelastic and associated plastic
 //! models) only j >= i is computed and the transpose is added for the mirror block; otherwise
-//! (non-associated plasticity) every block K_ij is computed. The node-j factor of K_ij is computed once per node. Consecutive points with
-//! the same support (the points of a cell) form a group: their blocks are summed in a dense
+//! (non-associated plasticity) every block K_ij is computed. The node-j factor of K_ij is
+//! computed once per node. Consecutive points with the same support (the points of a cell)
+//! form a group: their blocks are summed in a dense
 //! buffer, and the group's sum is scattered into the sparse values once, at positions cached
 //! for the group; so the inner loop is D³ multiply-adds and D² additions per pair, and the
 //! scattered writes are paid per cell rather than per point.
