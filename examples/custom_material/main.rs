@@ -8,13 +8,13 @@
 //! 3. `modules.load_scene(..)` reads scenes that name your model;
 //! 4. `run_scene_with_modules(&spec, out, &modules, ..)` runs them.
 //!
-//! The scene `examples/neo_hookean_column.rhai` is the paper's self-weight column in the new
+//! The scene `examples/custom_material/neo_hookean_column.rhai` is the paper's self-weight column in the new
 //! material; its stress is statically determinate and its settlement follows from the model
 //! (scene header). The example runs it at the scene's resolution and at twice as many cells,
 //! prints the paper's error measure (eq. 15) and the error of the top displacement, and fails
 //! (exit 1) unless both are below 2e-3 at either resolution and do not grow with refinement.
 //!
-//!   cargo run --release --example custom_material -- examples/neo_hookean_column.rhai out/neo_hookean
+//!   cargo run --release --example custom_material -- examples/custom_material/neo_hookean_column.rhai out/neo_hookean
 //!
 //! Arguments: SCENE OUT_DIR [--set NAME=VALUE]...
 
