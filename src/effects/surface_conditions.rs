@@ -259,7 +259,7 @@ impl Plugin for SurfaceConditionsModule {
                         choice("penalty", "a stiff spring per unit area: symmetric, gap ~ σ h / (γ E)"),
                         choice("nitsche", "penalty plus the surface traction: consistent (exact for any γ), non-symmetric tangent"),
                     ]),
-                    "how the condition is imposed (default \"nitsche\")",
+                    "how the condition is imposed (default \"penalty\")",
                 ),
                 OptionSpec::new(
                     "penalty",
@@ -288,8 +288,8 @@ impl Plugin for SurfaceConditionsModule {
                     );
                 }
                 let imposition = match options.text("method") {
-                    Some("penalty") => Imposition::Penalty,
-                    _ => Imposition::Nitsche,
+                    Some("nitsche") => Imposition::Nitsche,
+                    _ => Imposition::Penalty,
                 };
                 builder.declare(Located::new(
                     SurfaceDeclaration {
