@@ -1090,3 +1090,97 @@ fix(|x| x[0] == 0.0, [0]);
         assert!((x.elastic_left_cauchy_green - y.elastic_left_cauchy_green).amax() < 1e-10);
     }
 }
+
+/// The load–settlement curve `footing_pressure / s_u` of `scripts/strip_footing.rhai` on
+/// weightless soil pushed to δ/B = 0.05 in 10 steps (quadratic B-splines, rough footing), one
+/// value per step.
+fn footing_curve(set: &[(&str, &str)], strength: f64) -> Vec<f64> {
+    let mut all = vec![("settlement", "0.05"), ("steps", "10")];
+    all.extend_from_slice(set);
+    let sim = common::run_shipped::<2>("strip_footing.rhai", &all);
+    let steps = &sim.summary.steps;
+    assert_eq!(steps.len(), 10, "{set:?}");
+    let last = steps.last().unwrap().measure("settlement").unwrap();
+    assert!((last - 0.05).abs() < 1e-3 * 0.05, "settlement {last}");
+    steps
+        .iter()
+        .map(|s| s.measure("footing_pressure").unwrap() / strength)
+        .collect()
+}
+
+/// Prandtl's strip footing on weightless Tresca soil (von Mises, σ_y = √3 s_u, E/s_u = 1000,
+/// ν = 0.3): q_u / s_u = 2 + π. At the coarse resolutions CI affords (4 and 8 cells across B)
+/// the plateau is far above it (+52 % and +31 %: isochoric plastic flow locks the quadratic
+/// B-spline discretisation, and the rigid footing's edge is a singularity): the test checks
+/// what those meshes honestly reach — the curve levels off (the last step adds < 1.5 %), the
+/// plateau lies above 2 + π and approaches it under refinement, the 8-cell value within 35 %
+/// of it and the first-order Richardson extrapolation of 4 and 8 cells within 12 %. The finer
+/// figures are in docs/plasticity.md.
+#[test]
+fn tresca_strip_footing_approaches_prandtl() {
+    let prandtl = 2.0 + std::f64::consts::PI;
+    let curve = |cells: &str| {
+        footing_curve(
+            &[("material", "tresca"), ("su", "10"), ("cells", cells)],
+            10.0,
+        )
+    };
+    let coarse = curve("4");
+    let fine = curve("8");
+    eprintln!("q/s_u, 4 cells: {coarse:.4?}\nq/s_u, 8 cells: {fine:.4?}");
+    for c in [&coarse, &fine] {
+        assert!(c.windows(2).all(|w| w[1] > w[0]), "{c:?}");
+        let n = c.len();
+        assert!(c[n - 1] - c[n - 2] < 0.015 * c[n - 1], "no plateau: {c:?}");
+    }
+    let (q4, q8) = (*coarse.last().unwrap(), *fine.last().unwrap());
+    assert!(q4 > q8 && q8 > prandtl, "{q4} {q8}");
+    assert!((q8 - prandtl).abs() < 0.35 * prandtl, "{q8}");
+    let extrapolated = 2.0 * q8 - q4;
+    eprintln!("extrapolated {extrapolated:.4} against {prandtl:.4}");
+    assert!(
+        (extrapolated - prandtl).abs() < 0.12 * prandtl,
+        "{extrapolated}"
+    );
+}
+
+/// The Mohr–Coulomb strip footing on weightless c–φ soil, associated flow, φ = 20°
+/// (`scripts/strip_footing.rhai`, `material: "mohr_coulomb"`, c = 10, E/c = 1000, ν = 0.3):
+/// q_u / c = N_c = (N_q − 1) cot φ with N_q = e^{π tan φ} tan²(π/4 + φ/2) = 14.835. At 4 and 8
+/// cells across B the plateau at δ/B = 0.05 is +38 % and +21 % above it (as for Tresca, the
+/// coarse quadratic B-spline meshes are too stiff); the test checks that the curve levels off
+/// (the last step adds < 2.5 %), lies above N_c and approaches it under refinement, the 8-cell
+/// value within 25 % and the first-order Richardson extrapolation of 4 and 8 cells within 8 %.
+#[test]
+fn mohr_coulomb_strip_footing_approaches_prandtl_nc() {
+    let phi = 20f64.to_radians();
+    let nq = (std::f64::consts::PI * phi.tan()).exp()
+        * (std::f64::consts::FRAC_PI_4 + phi / 2.0).tan().powi(2);
+    let nc = (nq - 1.0) / phi.tan();
+    assert!((nc - 14.835).abs() < 1e-3, "{nc}");
+    let curve = |cells: &str| {
+        footing_curve(
+            &[
+                ("material", "mohr_coulomb"),
+                ("c", "10"),
+                ("phi", "20"),
+                ("cells", cells),
+            ],
+            10.0,
+        )
+    };
+    let coarse = curve("4");
+    let fine = curve("8");
+    eprintln!("q/c, 4 cells: {coarse:.3?}\nq/c, 8 cells: {fine:.3?}");
+    for c in [&coarse, &fine] {
+        assert!(c.windows(2).all(|w| w[1] > w[0]), "{c:?}");
+        let n = c.len();
+        assert!(c[n - 1] - c[n - 2] < 0.025 * c[n - 1], "no plateau: {c:?}");
+    }
+    let (q4, q8) = (*coarse.last().unwrap(), *fine.last().unwrap());
+    assert!(q4 > q8 && q8 > nc, "{q4} {q8}");
+    assert!((q8 - nc).abs() < 0.25 * nc, "{q8}");
+    let extrapolated = 2.0 * q8 - q4;
+    eprintln!("extrapolated {extrapolated:.3} against {nc:.3}");
+    assert!((extrapolated - nc).abs() < 0.08 * nc, "{extrapolated}");
+}
