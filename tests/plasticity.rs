@@ -1184,3 +1184,85 @@ fn mohr_coulomb_strip_footing_approaches_prandtl_nc() {
     eprintln!("extrapolated {extrapolated:.3} against {nc:.3}");
     assert!((extrapolated - nc).abs() < 0.08 * nc, "{extrapolated}");
 }
+
+/// `Material::history_from_stress`, the seam of initial (geostatic `K0`) stresses: for every
+/// plastic model, the history made from an admissible stress (a rotated `K0 = 0.6` state,
+/// `σ_v = −10`, well inside the surfaces of c = 1, φ = 30° and σ_y = 20) gives back that
+/// stress at `F = I` (to 1e-12 relative) without plastic flow, its consistent tangent matches
+/// finite differences from there (elastic and plastic increments), a stress outside the yield
+/// surface and a non-symmetric one are rejected, and Hencky (no history) says it cannot.
+#[test]
+fn an_initial_stress_becomes_a_history_that_returns_it() {
+    let rotation = Rotation3::from_axis_angle(&Vector3::z_axis(), 0.3).into_inner();
+    let geostatic =
+        rotation * Matrix3::from_diagonal(&Vector3::new(-6.0, -10.0, -6.0)) * rotation.transpose();
+    let check = |material: &dyn Fn(&Matrix3<f64>) -> Result<PlasticHistory, String>,
+                 respond: &dyn Fn(&PlasticHistory) -> Response<2, PlasticHistory>,
+                 name: &str| {
+        let history = material(&geostatic).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let response = respond(&history);
+        let error = (response.kirchhoff - geostatic).amax() / geostatic.amax();
+        eprintln!("{name}: initial stress returned to {error:.1e}");
+        assert!(error < 1e-12, "{name}: {:?}", response.kirchhoff);
+        assert!(!response.history.yielding && response.history.plastic_strain == 0.0);
+        let drift =
+            (response.history.elastic_left_cauchy_green - history.elastic_left_cauchy_green).amax();
+        assert!(drift < 1e-14, "{name}: b_e moved by {drift:e}");
+        let outside = Matrix3::from_diagonal(&Vector3::new(-100.0, 0.0, 0.0));
+        let message = material(&outside).unwrap_err();
+        assert!(
+            message.contains("outside the yield surface"),
+            "{name}: {message}"
+        );
+        let mut skew = geostatic;
+        skew[(0, 1)] += 1.0;
+        assert!(material(&skew).unwrap_err().contains("symmetric"), "{name}");
+    };
+    let identity = SMatrix::<f64, 2, 2>::identity();
+    let von_mises = VonMises::new(elastic(), 20.0, 0.0).unwrap();
+    let drucker = drucker_prager(10.0);
+    let coulomb = mohr_coulomb(10.0, None);
+    check(
+        &|s| von_mises.history_from_stress(s),
+        &|h| von_mises.respond(&identity, &identity, h).unwrap(),
+        "von_mises",
+    );
+    check(
+        &|s| drucker.history_from_stress(s),
+        &|h| drucker.respond(&identity, &identity, h).unwrap(),
+        "drucker_prager",
+    );
+    check(
+        &|s| coulomb.history_from_stress(s),
+        &|h| coulomb.respond(&identity, &identity, h).unwrap(),
+        "mohr_coulomb",
+    );
+    let history = coulomb.history_from_stress(&geostatic).unwrap();
+    check_tangent::<2, _>(
+        &coulomb,
+        &history,
+        &identity,
+        [1e-4, -1e-4, 0.0],
+        Region::Elastic,
+    );
+    check_tangent::<2, _>(
+        &coulomb,
+        &history,
+        &identity,
+        [0.02, -0.03, 0.0],
+        Region::Plane,
+    );
+    let history = von_mises.history_from_stress(&geostatic).unwrap();
+    check_tangent::<2, _>(
+        &von_mises,
+        &history,
+        &identity,
+        [0.03, -0.04, 0.0],
+        Region::Plane,
+    );
+    let message = elastic().history_from_stress(&geostatic).unwrap_err();
+    assert!(
+        message.contains("cannot start from an initial stress"),
+        "{message}"
+    );
+}

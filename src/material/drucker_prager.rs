@@ -290,6 +290,12 @@ impl Material for DruckerPrager {
         self.elastic.youngs_modulus
     }
 
+    fn history_from_stress(&self, stress: &Matrix3<f64>) -> Result<PlasticHistory, String> {
+        elastoplastic::history_from_stress(&self.elastic, stress, |strain, stress, _| {
+            Ok(self.return_map(strain, stress))
+        })
+    }
+
     fn tangent_is_symmetric(&self) -> bool {
         self.eta == self.eta_bar
     }

@@ -158,6 +158,43 @@ pub fn elastic_strain(elastic: &Hencky, stress: &Vector3<f64>) -> Vector3<f64> {
     stress.map(|s| (s - mean) / (2.0 * shear) + mean / (3.0 * bulk))
 }
 
+/// The history of a point that carries the Kirchhoff stress `τ_0` before any deformation (an
+/// initial stress, e.g. geostatic `K0`): on the principal axes of `τ_0`,
+/// `b_e = exp(2 D_e⁻¹ τ_0)`, so that the elastic response at `F = I` is `τ_0` exactly, and no
+/// plastic strain. A stress outside the yield surface (`return_map` flows plastically from it,
+/// with `ε̄_p = 0`) or not symmetric and finite is an error.
+pub fn history_from_stress(
+    elastic: &Hencky,
+    stress: &Matrix3<f64>,
+    return_map: impl FnOnce(&Vector3<f64>, &Vector3<f64>, f64) -> Result<PrincipalReturn, String>,
+) -> Result<PlasticHistory, String> {
+    let scale = stress.amax().max(f64::MIN_POSITIVE);
+    if stress.iter().any(|s| !s.is_finite()) || (stress - stress.transpose()).amax() > 1e-12 * scale
+    {
+        return Err(format!(
+            "an initial stress must be finite and symmetric, got {stress:?}"
+        ));
+    }
+    let eigen = stress.symmetric_eigen();
+    let principal = eigen.eigenvalues;
+    let strain = elastic_strain(elastic, &principal);
+    let returned = return_map(&strain, &principal, 0.0)?;
+    if returned.yielding {
+        return Err(format!(
+            "the initial stress with principal values {:?} lies outside the yield surface",
+            principal.as_slice()
+        ));
+    }
+    let q = eigen.eigenvectors;
+    let stretch = Matrix3::from_diagonal(&strain.map(|e| (2.0 * e).exp()));
+    let b = q * stretch * q.transpose();
+    Ok(PlasticHistory {
+        elastic_left_cauchy_green: (b + b.transpose()) * 0.5,
+        plastic_strain: 0.0,
+        yielding: false,
+    })
+}
+
 /// The elasto-plastic response (module docs) of a model with elastic part `elastic` and
 /// principal-space return map `return_map(trial strains, trial stresses, committed ε̄_p)`.
 pub fn respond<const D: usize>(

@@ -138,6 +138,18 @@ pub trait Material: Clone + Debug + PartialEq + Send + Sync + 'static {
     fn tangent_is_symmetric(&self) -> bool {
         true
     }
+
+    /// The committed history of a point that carries the Kirchhoff stress `stress` (3x3,
+    /// symmetric) before any deformation: the seam of initial stresses (a geostatic `K0`
+    /// state). A model whose history cannot hold a stress (hyperelastic ones, whose stress is
+    /// a function of `F` alone) says so; a stress the model cannot carry (outside its yield
+    /// surface) is an error.
+    fn history_from_stress(&self, _stress: &Matrix3<f64>) -> Result<Self::History, String> {
+        Err(format!(
+            "the '{}' model cannot start from an initial stress (its stress is a function of the deformation alone)",
+            Self::MODEL
+        ))
+    }
 }
 
 /// A point's history as a fixed number of values, for saved states (`checkpoint`).

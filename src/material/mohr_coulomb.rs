@@ -299,6 +299,12 @@ impl Material for MohrCoulomb {
         self.elastic.youngs_modulus
     }
 
+    fn history_from_stress(&self, stress: &Matrix3<f64>) -> Result<PlasticHistory, String> {
+        elastoplastic::history_from_stress(&self.elastic, stress, |_, stress, _| {
+            self.return_map(stress)
+        })
+    }
+
     fn tangent_is_symmetric(&self) -> bool {
         self.dilation == self.friction
     }

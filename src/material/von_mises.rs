@@ -175,4 +175,10 @@ impl Material for VonMises {
     fn stiffness_scale(&self) -> f64 {
         self.elastic.youngs_modulus
     }
+
+    fn history_from_stress(&self, stress: &Matrix3<f64>) -> Result<PlasticHistory, String> {
+        elastoplastic::history_from_stress(&self.elastic, stress, |strain, stress, alpha| {
+            Ok(self.return_map(strain, stress, alpha))
+        })
+    }
 }
