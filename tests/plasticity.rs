@@ -1108,6 +1108,39 @@ fn footing_curve(set: &[(&str, &str)], strength: f64) -> Vec<f64> {
         .collect()
 }
 
+/// The footing curves at 4 (`coarse`) and 8 cells across B (`fine`) against the limit `limit`:
+/// both rise monotonically and level off (the last step adds less than `plateau` of the value),
+/// the plateau lies above the limit and decreases under refinement, the 8-cell value is within
+/// `fine_tolerance` of the limit and the first-order Richardson extrapolation `2 q_8 − q_4`
+/// within `extrapolated_tolerance` (all relative).
+fn assert_footing_approaches(
+    coarse: &[f64],
+    fine: &[f64],
+    limit: f64,
+    plateau: f64,
+    fine_tolerance: f64,
+    extrapolated_tolerance: f64,
+) {
+    eprintln!("q, 4 cells: {coarse:.4?}\nq, 8 cells: {fine:.4?}");
+    for c in [coarse, fine] {
+        assert!(c.windows(2).all(|w| w[1] > w[0]), "{c:?}");
+        let n = c.len();
+        assert!(
+            c[n - 1] - c[n - 2] < plateau * c[n - 1],
+            "no plateau: {c:?}"
+        );
+    }
+    let (q4, q8) = (*coarse.last().unwrap(), *fine.last().unwrap());
+    assert!(q4 > q8 && q8 > limit, "{q4} {q8}");
+    assert!((q8 - limit).abs() < fine_tolerance * limit, "{q8}");
+    let extrapolated = 2.0 * q8 - q4;
+    eprintln!("extrapolated {extrapolated:.4} against {limit:.4}");
+    assert!(
+        (extrapolated - limit).abs() < extrapolated_tolerance * limit,
+        "{extrapolated}"
+    );
+}
+
 /// Prandtl's strip footing on weightless Tresca soil (von Mises, σ_y = √3 s_u, E/s_u = 1000,
 /// ν = 0.3): q_u / s_u = 2 + π. At the coarse resolutions CI affords (4 and 8 cells across B)
 /// the plateau is far above it (+52 % and +31 %: isochoric plastic flow locks the quadratic
@@ -1125,23 +1158,7 @@ fn tresca_strip_footing_approaches_prandtl() {
             10.0,
         )
     };
-    let coarse = curve("4");
-    let fine = curve("8");
-    eprintln!("q/s_u, 4 cells: {coarse:.4?}\nq/s_u, 8 cells: {fine:.4?}");
-    for c in [&coarse, &fine] {
-        assert!(c.windows(2).all(|w| w[1] > w[0]), "{c:?}");
-        let n = c.len();
-        assert!(c[n - 1] - c[n - 2] < 0.015 * c[n - 1], "no plateau: {c:?}");
-    }
-    let (q4, q8) = (*coarse.last().unwrap(), *fine.last().unwrap());
-    assert!(q4 > q8 && q8 > prandtl, "{q4} {q8}");
-    assert!((q8 - prandtl).abs() < 0.35 * prandtl, "{q8}");
-    let extrapolated = 2.0 * q8 - q4;
-    eprintln!("extrapolated {extrapolated:.4} against {prandtl:.4}");
-    assert!(
-        (extrapolated - prandtl).abs() < 0.12 * prandtl,
-        "{extrapolated}"
-    );
+    assert_footing_approaches(&curve("4"), &curve("8"), prandtl, 0.015, 0.35, 0.12);
 }
 
 /// The Mohr–Coulomb strip footing on weightless c–φ soil, associated flow, φ = 20°
@@ -1169,20 +1186,7 @@ fn mohr_coulomb_strip_footing_approaches_prandtl_nc() {
             10.0,
         )
     };
-    let coarse = curve("4");
-    let fine = curve("8");
-    eprintln!("q/c, 4 cells: {coarse:.3?}\nq/c, 8 cells: {fine:.3?}");
-    for c in [&coarse, &fine] {
-        assert!(c.windows(2).all(|w| w[1] > w[0]), "{c:?}");
-        let n = c.len();
-        assert!(c[n - 1] - c[n - 2] < 0.025 * c[n - 1], "no plateau: {c:?}");
-    }
-    let (q4, q8) = (*coarse.last().unwrap(), *fine.last().unwrap());
-    assert!(q4 > q8 && q8 > nc, "{q4} {q8}");
-    assert!((q8 - nc).abs() < 0.25 * nc, "{q8}");
-    let extrapolated = 2.0 * q8 - q4;
-    eprintln!("extrapolated {extrapolated:.3} against {nc:.3}");
-    assert!((extrapolated - nc).abs() < 0.08 * nc, "{extrapolated}");
+    assert_footing_approaches(&curve("4"), &curve("8"), nc, 0.025, 0.25, 0.08);
 }
 
 /// `Material::history_from_stress`, the seam of initial (geostatic `K0`) stresses: for every
