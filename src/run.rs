@@ -337,7 +337,10 @@ fn core_world<const D: usize>(spec: &SceneSpec, out_dir: &Path) -> Result<World,
         tolerance: spec.solver.tolerance,
         max_iterations: spec.solver.max_iterations,
     });
-    world.insert_resource(Newton::default());
+    world.insert_resource(Newton {
+        solver: spec.solver.linear.solver(),
+        ..Newton::default()
+    });
     world.insert_resource(Convergence::default());
     world.insert_resource(RunStatus::default());
     world.insert_resource(StageClock::default());

@@ -24,16 +24,20 @@
 //!
 //! ## Format
 //!
-//! `.vtu` files are VTK XML `UnstructuredGrid` files written with `vtkio` 0.7: version 1.0,
-//! little endian, `UInt64` headers, inline base64 binary data, **uncompressed** by default
-//! ([`write_vtu`]; this is what `vtkio` writes fastest, about 4x faster than zlib level 1, and
-//! ParaView 5.11 / VTK 9.2 reads it). Zlib-compressed output (also read by ParaView 5.11, about
-//! 5x smaller) is available with [`write_vtu_with`] and [`Compression::Zlib`]. LZ4 is deliberately
-//! not offered (meshio cannot read vtkio's LZ4 files). Coordinates and all arrays are `Float64`;
-//! points are always 3D (pad 1D/2D coordinates with zeros, e.g. with [`pad_points`]).
+//! `.vtu` files are VTK XML `UnstructuredGrid` files: version 1.0, little endian, `UInt64`
+//! headers. By default ([`write_vtu`], [`Encoding::AppendedRaw`]) the arrays are **raw binary
+//! appended data**, the layout VTK writes itself, streamed by a small writer of our own
+//! (`appended.rs`: `vtkio` writes only inline base64) — the fastest to write and to read, and
+//! read by ParaView, meshio and [`read_vtu`]. Zlib-compressed output (inline base64 through
+//! `vtkio`, also read by ParaView and meshio, about 5x smaller and several times slower to
+//! write) is available with [`write_vtu_with`] and [`Encoding::Zlib`]. LZ4 is deliberately
+//! not offered (meshio cannot read vtkio's LZ4 files). Coordinates and all arrays are `Float64`
+//! (connectivity and offsets `Int64`, cell types `UInt8`); points are always 3D (pad 1D/2D
+//! coordinates with zeros, e.g. with [`pad_points`]).
 //! A 3x3 tensor is a 9-component array in row-major order (`xx xy xz yx yy yz zx zy zz`), which
-//! ParaView shows as a tensor; component 4 is `yy`.
-//!
+//! ParaView shows as a tensor; component 4 is `yy`. In the default encoding its components are
+//! named `XX XY .. ZZ` in the file, which ParaView's component menu and colour bar show.
+
 //! Every writer validates its input and returns an [`std::io::Error`] of kind
 //! [`InvalidInput`](std::io::ErrorKind::InvalidInput) with a message naming the offending field
 //! (and, for a NaN or infinity, the index) instead of panicking; nothing is written then.
@@ -41,6 +45,7 @@
 //! The companion script `scripts/check_output.py` (run with ParaView's `pvpython`) opens an
 //! output folder the way a person would and checks it.
 
+mod appended;
 mod atomic;
 mod folder;
 mod pvd;
@@ -50,7 +55,7 @@ pub use atomic::write_atomic;
 pub use folder::{FolderLock, clear_earlier_run};
 pub use pvd::PvdSeries;
 pub use vtu::{
-    CellKind, Cells, Compression, Field, VtuContents, lattice_cells, pad_points, read_vtu,
+    CellKind, Cells, Encoding, Field, VtuContents, lattice_cells, pad_points, read_vtu,
     try_lattice_cells, vertex_cells, write_vtu, write_vtu_with,
 };
 
@@ -69,11 +74,7 @@ mod tests {
     /// (`cauchy_stress` and `deformation_gradient` 9 components, `displacement` 3, `volume` 1)
     /// and of a background grid of `dims` cells of size 0.25 (`mass` 1, `displacement` 3;
     /// cell data `cell_id` 1).
-    fn write_sample_run(
-        out: &Path,
-        dims: &[usize],
-        compression: Compression,
-    ) -> std::io::Result<()> {
+    fn write_sample_run(out: &Path, dims: &[usize], encoding: Encoding) -> std::io::Result<()> {
         let mut particles = PvdSeries::new(out.join("particles.pvd"));
         let mut grid = PvdSeries::new(out.join("grid.pvd"));
         let grid_cells = try_lattice_cells(dims)?;
@@ -127,7 +128,7 @@ mod tests {
                     Field::scalar("volume", &volume),
                 ],
                 &[],
-                compression,
+                encoding,
             )?;
             particles.push(time, &name)?;
 
@@ -147,7 +148,7 @@ mod tests {
                     Field::new("displacement", 3, &grid_disp),
                 ],
                 &[Field::scalar("cell_id", &cell_id)],
-                compression,
+                encoding,
             )?;
             grid.push(time, &name)?;
         }
@@ -164,19 +165,19 @@ mod tests {
             Some(dir) => std::path::PathBuf::from(dir),
             None => temp.path().to_path_buf(),
         };
-        let runs: [(&Path, &[usize], Compression, usize, usize); 2] = [
-            (&out, &[4, 3], Compression::None, 20, 12),
+        let runs: [(&Path, &[usize], Encoding, usize, usize); 2] = [
+            (&out, &[4, 3], Encoding::AppendedRaw, 20, 12),
             (
                 &out.join("zlib-hex"),
                 &[2, 2, 2],
-                Compression::Zlib { level: 1 },
+                Encoding::Zlib { level: 1 },
                 27,
                 8,
             ),
         ];
-        for (folder, dims, compression, grid_points, grid_cells) in runs {
+        for (folder, dims, encoding, grid_points, grid_cells) in runs {
             std::fs::create_dir_all(folder).unwrap();
-            write_sample_run(folder, dims, compression).unwrap();
+            write_sample_run(folder, dims, encoding).unwrap();
             for step in 0..3 {
                 let p = read_vtu(&folder.join(step_file_name("particles", step))).unwrap();
                 assert_eq!(p.points.len(), 10);

@@ -149,7 +149,8 @@ fn format_time(t: f64) -> String {
     }
 }
 
-fn escape_attribute(s: &str) -> String {
+/// `s` with the five XML special characters escaped, for an attribute value.
+pub(super) fn escape_attribute(s: &str) -> String {
     let mut out = String::with_capacity(s.len());
     for c in s.chars() {
         match c {

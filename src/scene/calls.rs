@@ -16,7 +16,7 @@ use super::registry::{CallSpec, SceneApi};
 use super::schedule::{MAX_STEPS, equal_steps, phase_factors};
 use super::seeding::Placement;
 use super::words::{BasisWord, ModelSpec};
-use super::{GridSpec, MaterialSpec, OutputSpec, SolverSpec};
+use super::{GridSpec, LinearBackend, MaterialSpec, OutputSpec, SolverSpec};
 use crate::basis::BasisKind;
 use crate::material::{Hencky, Material, MaterialParameters, ParameterValue};
 
@@ -571,6 +571,23 @@ fn solver_call() -> CallSpec {
                 Kind::Whole { min: 0, max: None },
                 "how many times a load step may be halved when Newton fails (default 8)",
             ),
+            OptionSpec::new(
+                "linear",
+                Kind::Choice(vec![
+                    Choice {
+                        word: "direct",
+                        meaning: Some("sparse Cholesky, LU where the tangent is not symmetric"),
+                    },
+                    Choice {
+                        word: "iterative",
+                        meaning: Some(
+                            "Jacobi-preconditioned CG, BiCGSTAB where the tangent is not \
+                             symmetric (relative tolerance 1e-10)",
+                        ),
+                    },
+                ]),
+                "backend of the linear solves (default \"direct\")",
+            ),
         ],
         |builder, options, at| {
             ensure_unset(&builder.solver, "solver")?;
@@ -583,6 +600,10 @@ fn solver_call() -> CallSpec {
                 max_step_cuts: options
                     .whole("max_step_cuts")
                     .unwrap_or(default.max_step_cuts),
+                linear: match options.text("linear") {
+                    Some("iterative") => LinearBackend::Iterative,
+                    _ => LinearBackend::Direct,
+                },
             };
             builder.solver = Some(Located::new(solver, at));
             Ok(Dynamic::UNIT)

@@ -133,6 +133,8 @@ pub struct SolverSpec {
     pub max_iterations: usize,
     /// How many times a load step may be halved when Newton fails (0 = never cut).
     pub max_step_cuts: usize,
+    /// The backend of the linear solves.
+    pub linear: LinearBackend,
 }
 
 impl Default for SolverSpec {
@@ -141,6 +143,27 @@ impl Default for SolverSpec {
             tolerance: 1e-9,
             max_iterations: 30,
             max_step_cuts: 8,
+            linear: LinearBackend::Direct,
+        }
+    }
+}
+
+/// The backend of the linear solves of Newton's method (see `solver`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum LinearBackend {
+    /// Sparse Cholesky / LU (`solver::DirectSolver`).
+    #[default]
+    Direct,
+    /// Jacobi-preconditioned CG / BiCGSTAB (`solver::KrylovSolver`).
+    Iterative,
+}
+
+impl LinearBackend {
+    /// A new solver of this kind.
+    pub fn solver(self) -> Box<dyn crate::solver::LinearSolver> {
+        match self {
+            LinearBackend::Direct => Box::new(crate::solver::DirectSolver::default()),
+            LinearBackend::Iterative => Box::new(crate::solver::KrylovSolver::default()),
         }
     }
 }

@@ -7,11 +7,16 @@
 //! arc-length and F-bar do not): a solver may use a symmetric method (Cholesky, CG) only then.
 //! Arc-length control adds one unknown, the load factor: [`LinearSolver::solve_bordered`] solves
 //! the bordered system with two solves of `K` by default.
+//!
+//! Backends: [`DirectSolver`] (faer's sparse Cholesky / LU, the default) and [`KrylovSolver`]
+//! (preconditioned CG / BiCGSTAB with a [`Preconditioner`], Jacobi today).
 
 mod direct;
+mod krylov;
 mod matrix;
 
 pub use direct::DirectSolver;
+pub use krylov::{Jacobi, KrylovSolver, Preconditioner, multiply};
 pub use matrix::{NO_DOF, NO_ENTRY, SparseMatrix};
 
 /// Which factorisation solved a system.
@@ -21,6 +26,10 @@ pub enum SolverKind {
     None,
     Cholesky,
     Lu,
+    /// Preconditioned conjugate gradients ([`KrylovSolver`], symmetric tangents).
+    ConjugateGradients,
+    /// Preconditioned BiCGSTAB ([`KrylovSolver`], non-symmetric tangents).
+    BiCgStab,
 }
 
 /// A failure of the linear solve.
@@ -29,6 +38,8 @@ pub enum LinearSolveError {
     /// Every factorisation failed: the tangent is singular (for example a node with no
     /// stiffness, or a mechanism in the constraints).
     Singular(String),
+    /// An iterative solve did not reach its tolerance.
+    NotConverged(String),
 }
 
 impl std::fmt::Display for LinearSolveError {
@@ -37,6 +48,7 @@ impl std::fmt::Display for LinearSolveError {
             LinearSolveError::Singular(why) => {
                 write!(f, "the tangent stiffness is singular ({why})")
             }
+            LinearSolveError::NotConverged(why) => write!(f, "{why}"),
         }
     }
 }
@@ -220,5 +232,143 @@ mod tests {
             assert!((x[i] - exact[i]).abs() < 1e-10, "x[{i}]");
         }
         assert!((y - exact[n]).abs() < 1e-10);
+    }
+
+    /// A 2D grid Laplacian (5-point stencil, Dirichlet outside) of `m x m` DOFs, scaled by a
+    /// smoothly varying stiffness, plus `skew` times a first-difference (convection) term that
+    /// makes it non-symmetric. The direct LU solve is the reference.
+    fn grid_operator(m: usize, skew: f64) -> SparseMatrix {
+        let index = |i: usize, j: usize| (i + m * j) as u32;
+        let dofs: Vec<[u32; 1]> = (0..m * m).map(|k| [k as u32]).collect();
+        let mut stencils = Vec::new();
+        for j in 0..m {
+            for i in 0..m {
+                let mut s = vec![i + m * j];
+                if i > 0 {
+                    s.push(i - 1 + m * j);
+                }
+                if i + 1 < m {
+                    s.push(i + 1 + m * j);
+                }
+                if j > 0 {
+                    s.push(i + m * (j - 1));
+                }
+                if j + 1 < m {
+                    s.push(i + m * (j + 1));
+                }
+                s.sort_unstable();
+                stencils.push(s);
+            }
+        }
+        let mut sys = SparseMatrix::default();
+        sys.rebuild_pattern(m * m, &dofs, stencils.iter().map(|s| s.as_slice()));
+        // stiffness of node (i, j); an edge has the mean of its two nodes' (symmetric part)
+        let k = |i: usize, j: usize| 1.0 + 0.5 * ((i * j) as f64 * 0.1).sin();
+        for j in 0..m {
+            for i in 0..m {
+                let mut diagonal = 0.1;
+                let mut couple = |a: usize, b: usize, sign: f64| {
+                    let edge = 0.5 * (k(i, j) + k(a, b));
+                    diagonal += edge;
+                    sys.add(index(i, j), index(a, b), -edge + sign * skew);
+                };
+                if i > 0 {
+                    couple(i - 1, j, -1.0);
+                }
+                if i + 1 < m {
+                    couple(i + 1, j, 1.0);
+                }
+                if j > 0 {
+                    couple(i, j - 1, -1.0);
+                }
+                if j + 1 < m {
+                    couple(i, j + 1, 1.0);
+                }
+                sys.add(index(i, j), index(i, j), diagonal);
+            }
+        }
+        sys
+    }
+
+    fn relative_difference(a: &[f64], b: &[f64]) -> f64 {
+        let diff: f64 = a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum();
+        let size: f64 = b.iter().map(|y| y * y).sum();
+        (diff / size).sqrt()
+    }
+
+    #[test]
+    fn conjugate_gradients_and_bicgstab_match_the_direct_solve() {
+        for (skew, symmetric, kind) in [
+            (0.0, true, SolverKind::ConjugateGradients),
+            (0.3, false, SolverKind::BiCgStab),
+        ] {
+            let sys = grid_operator(20, skew);
+            assert_eq!(sys.is_symmetric(1e-14), symmetric);
+            let rhs: Vec<f64> = (0..400).map(|k| (k as f64 * 0.37).cos()).collect();
+            let mut direct = rhs.clone();
+            DirectSolver::default()
+                .solve(&sys, symmetric, &mut direct)
+                .unwrap();
+            let mut iterative = rhs.clone();
+            let mut krylov = KrylovSolver::default();
+            assert_eq!(krylov.solve(&sys, symmetric, &mut iterative), Ok(kind));
+            // the residual is reduced by 1e-10; the error by that times the condition number
+            let error = relative_difference(&iterative, &direct);
+            assert!(error < 1e-8, "{kind:?}: relative error {error:.2e}");
+            let mut check = vec![0.0; 400];
+            multiply(&sys, &iterative, &mut check);
+            assert!(
+                relative_difference(&check, &rhs) <= 1e-10,
+                "{kind:?} residual"
+            );
+            assert!(krylov.last_iterations > 5 && krylov.last_iterations < 400);
+        }
+    }
+
+    #[test]
+    fn a_dof_without_stiffness_is_singular_with_its_number() {
+        let mut sys = grid_operator(6, 0.0);
+        let diagonal = sys.get(7, 7);
+        sys.add(7, 7, -diagonal);
+        let mut rhs = vec![1.0; 36];
+        let error = KrylovSolver::default()
+            .solve(&sys, true, &mut rhs)
+            .unwrap_err();
+        assert!(error.to_string().contains("DOF 7"), "{error}");
+    }
+
+    /// An indefinite tangent (a body past a limit point): CG either fails with a reason or
+    /// returns a solution whose true residual meets the tolerance, never a wrong answer.
+    #[test]
+    fn an_indefinite_tangent_is_solved_or_refused_never_answered_wrongly() {
+        for shift in [-2.0, -5.0, -40.0] {
+            let mut sys = grid_operator(6, 0.0);
+            sys.add(7, 7, shift);
+            let rhs: Vec<f64> = (0..36).map(|k| 1.0 + k as f64 * 0.1).collect();
+            let mut x = rhs.clone();
+            match KrylovSolver::default().solve(&sys, true, &mut x) {
+                Ok(_) => {
+                    let mut check = vec![0.0; 36];
+                    multiply(&sys, &x, &mut check);
+                    assert!(relative_difference(&check, &rhs) <= 1e-10, "shift {shift}");
+                }
+                Err(error) => assert!(
+                    error.to_string().contains("positive definite")
+                        || error.to_string().contains("true residual"),
+                    "{error}"
+                ),
+            }
+        }
+    }
+
+    #[test]
+    fn too_few_iterations_is_an_error_that_names_the_way_out() {
+        let sys = grid_operator(20, 0.0);
+        let mut rhs = vec![1.0; 400];
+        let mut krylov = KrylovSolver::default();
+        krylov.max_iterations = 3;
+        let error = krylov.solve(&sys, true, &mut rhs).unwrap_err();
+        assert!(matches!(error, LinearSolveError::NotConverged(_)));
+        assert!(error.to_string().contains("linear: \"direct\""), "{error}");
     }
 }
