@@ -351,7 +351,13 @@ fn run_failure(error: &RunError, out_dir: &Path, resume: &str) -> String {
     } else {
         String::new()
     };
-    let resumable = !matches!(error, RunError::Build(_) | RunError::Resume(_));
+    // a scene that cannot be solved needs changing, not continuing
+    let resumable = !matches!(
+        error,
+        RunError::Build(_)
+            | RunError::Resume(_)
+            | RunError::Solve(impm::resources::SolverError::NotHeld { .. })
+    );
     if resumable && Checkpoint::path_in(out_dir).is_file() {
         kept += &format!("\nto continue from the last checkpoint: {resume}");
     }

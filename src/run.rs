@@ -448,6 +448,9 @@ fn core_world<const D: usize>(spec: &SceneSpec, out_dir: &Path) -> Result<World,
     world.insert_resource(PointFields::default());
     world.insert_resource(StepMeasures::default());
     world.insert_resource(Warnings::default());
+    world.insert_resource(BodyNames(
+        spec.bodies.iter().map(|body| body.name.clone()).collect(),
+    ));
     let output = &spec.output;
     world.insert_resource(OutputPlan {
         steps: output.steps.clone(),

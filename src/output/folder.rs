@@ -91,6 +91,21 @@ fn process_exists(pid: u32) -> bool {
 
 /// Removes what an earlier run left in `dir` (see the module docs); returns how many files.
 pub fn clear_earlier_run(dir: &Path) -> io::Result<usize> {
+    remove_where(dir, is_impm_file)
+}
+
+/// Removes, for a run resumed after load step `step`, what the interrupted run wrote later: the
+/// series files `STEM_NNNN.vtu` with `NNNN > step` of the series in `dir`, and the temporary
+/// files of interrupted atomic writes. Returns how many files.
+pub fn clear_after_step(dir: &Path, step: usize) -> io::Result<usize> {
+    remove_where(dir, |name, series| {
+        is_temporary(name) || series_step(name, series).is_some_and(|n| n > step)
+    })
+}
+
+/// Removes the files of `dir` (a missing folder has none) for which `remove(name, series)`
+/// holds, given the series (`.pvd` stems) in the folder; returns how many.
+fn remove_where(dir: &Path, remove: impl Fn(&str, &[&str]) -> bool) -> io::Result<usize> {
     let names: Vec<String> = match fs::read_dir(dir) {
         Ok(entries) => entries
             .filter_map(|entry| entry.ok())
@@ -106,31 +121,7 @@ pub fn clear_earlier_run(dir: &Path) -> io::Result<usize> {
         .collect();
     let mut removed = 0;
     for name in &names {
-        if is_impm_file(name, &series) {
-            fs::remove_file(dir.join(name))?;
-            removed += 1;
-        }
-    }
-    Ok(removed)
-}
-
-/// Removes, for a run resumed after load step `step`, what the interrupted run wrote later: the
-/// series files `STEM_NNNN.vtu` with `NNNN > step` of the series in `dir`, and the temporary
-/// files of interrupted atomic writes. Returns how many files.
-pub fn clear_after_step(dir: &Path, step: usize) -> io::Result<usize> {
-    let names: Vec<String> = fs::read_dir(dir)?
-        .filter_map(|entry| entry.ok())
-        .filter(|entry| entry.file_type().is_ok_and(|t| t.is_file()))
-        .filter_map(|entry| entry.file_name().into_string().ok())
-        .collect();
-    let series: Vec<&str> = names
-        .iter()
-        .filter_map(|name| name.strip_suffix(".pvd"))
-        .collect();
-    let mut removed = 0;
-    for name in &names {
-        let later = series_step(name, &series).is_some_and(|n| n > step);
-        if later || is_temporary(name) {
+        if remove(name, &series) {
             fs::remove_file(dir.join(name))?;
             removed += 1;
         }

@@ -10,6 +10,7 @@
 
 mod direct;
 mod matrix;
+pub mod modes;
 
 pub use direct::DirectSolver;
 pub use matrix::{NO_DOF, NO_ENTRY, SparseMatrix};
