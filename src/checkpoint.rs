@@ -13,6 +13,8 @@
 
 use bevy_ecs::prelude::*;
 
+use crate::output::PvdSeries;
+
 /// One owner's part of a saved state.
 #[derive(Clone, Copy)]
 pub struct CheckpointPart {
@@ -24,6 +26,63 @@ pub struct CheckpointPart {
 /// The parts registered in a simulation's world, in registration order.
 #[derive(Resource, Default, Clone)]
 pub struct CheckpointParts(pub Vec<CheckpointPart>);
+
+/// Gives access to the `.pvd` series an owner writes (the core: particles, grid, nodes; a
+/// module: its own), so that a resumed run continues each series instead of starting it anew.
+pub type SeriesAccess = for<'w> fn(&'w mut World) -> Vec<&'w mut PvdSeries>;
+
+/// The series registered in a simulation's world (`plugin::Extension::series`).
+#[derive(Resource, Default, Clone)]
+pub struct CheckpointSeries(pub Vec<SeriesAccess>);
+
+/// Every registered series' `(file name, entries)`, in registration order.
+pub fn save_series(world: &mut World) -> Vec<(String, Vec<(f64, String)>)> {
+    let access = world
+        .get_resource::<CheckpointSeries>()
+        .cloned()
+        .unwrap_or_default();
+    let mut saved = Vec::new();
+    for series_of in access.0 {
+        for series in series_of(world) {
+            saved.push((series_file_name(series), series.entries().to_vec()));
+        }
+    }
+    saved
+}
+
+/// Gives every registered series of `world` its saved entries (matched by file name) and
+/// rewrites its `.pvd` file; a series with nothing saved is left empty.
+pub fn restore_series(
+    world: &mut World,
+    saved: &[(String, Vec<(f64, String)>)],
+) -> Result<(), String> {
+    let access = world
+        .get_resource::<CheckpointSeries>()
+        .cloned()
+        .unwrap_or_default();
+    for series_of in access.0 {
+        for series in series_of(world) {
+            let name = series_file_name(series);
+            let entries = saved
+                .iter()
+                .find(|(saved_name, _)| *saved_name == name)
+                .map(|(_, entries)| entries.clone())
+                .unwrap_or_default();
+            series
+                .restore_entries(entries)
+                .map_err(|e| format!("{name}: {e}"))?;
+        }
+    }
+    Ok(())
+}
+
+fn series_file_name(series: &PvdSeries) -> String {
+    series
+        .path()
+        .file_name()
+        .map(|name| name.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
 
 /// A saved state: the number of load steps done and every part's numbers.
 #[derive(Clone, Debug, PartialEq)]

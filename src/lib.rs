@@ -13,7 +13,7 @@
 //! * Pure kernels: [`basis`], [`material`], [`mechanics`], [`quadrature`], [`solver`],
 //!   [`analytic`], [`recovery`], [`ghost`], [`fem`], [`parameter`].
 //! * Driver and I/O: [`run`] (build and drive a simulation), [`records`] (summary.json),
-//!   [`checkpoint`] (saved states, part by part),
+//!   [`checkpoint`] (saved states, part by part), [`restart`] (checkpoint files, resuming),
 //!   [`explain`] (what a scene runs), [`scene`] (Rhai), [`output`] (VTK), [`study`] (sweeps,
 //!   tables and charts).
 
@@ -37,6 +37,7 @@ pub mod quadrature;
 pub mod records;
 pub mod recovery;
 pub mod resources;
+pub mod restart;
 pub mod run;
 pub mod scene;
 pub mod solver;

@@ -14,7 +14,8 @@ use impm::effects;
 use impm::explain::explain_scene;
 use impm::output::{FolderLock, clear_earlier_run};
 use impm::plugin::{Module, ModuleSet};
-use impm::run::{RunError, default_output_dir, run_scene_with_modules};
+use impm::restart::{Checkpoint, RunIdentity};
+use impm::run::{RestartPlan, RunError, default_output_dir, run_scene_restartable};
 use impm::scene::{SceneLimits, rank_warnings, scene_parameters};
 use impm::study::{RunOutcome, StudyEvent, StudyPlan, Sweep, default_study_dir, run_study};
 
@@ -45,6 +46,14 @@ enum Command {
         /// order, support, points, memory in MB), e.g. --limit operations=1000000000.
         #[arg(long = "limit", value_name = "NAME=VALUE")]
         limit: Vec<String>,
+        /// Continue an interrupted, killed or failed run from its last checkpoint in OUT_DIR
+        /// (same scene and --set values); see "Restart" in docs/restart.md.
+        #[arg(long, value_name = "OUT_DIR")]
+        resume: Option<PathBuf>,
+        /// Write the checkpoint (OUT_DIR/checkpoint.json) every N load steps instead of at
+        /// every output step.
+        #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+        checkpoint_every: Option<u64>,
     },
     /// Run a scene over the cross product of parameter values; write study.csv, study.md and
     /// charts of error against cells and against wall time.
@@ -147,7 +156,16 @@ fn run(cli: Cli) -> Result<(), Failure> {
             out,
             set,
             limit,
-        } => run_command(&modules, &scene, out, &set, &limits(&limit)?),
+            resume,
+            checkpoint_every,
+        } => {
+            let restart = RunRestart {
+                resume,
+                every: checkpoint_every.map(|n| n as usize),
+                limit: limit.clone(),
+            };
+            run_command(&modules, &scene, out, &set, &limits(&limit)?, &restart)
+        }
         Command::Study {
             scene,
             sweep,
@@ -198,21 +216,69 @@ fn timeout_seconds(seconds: Option<f64>) -> Result<Option<std::time::Duration>, 
     }
 }
 
+/// `impm run`'s checkpoint options.
+struct RunRestart {
+    /// `--resume OUT_DIR`.
+    resume: Option<PathBuf>,
+    /// `--checkpoint-every N`.
+    every: Option<usize>,
+    /// The `--limit` assignments (repeated in the command that resumes the run).
+    limit: Vec<String>,
+}
+
 /// `impm run`: solves the scene, with a progress display, and says where the results are
-/// (results and the final line on stdout, diagnostics on stderr).
+/// (results and the final line on stdout, diagnostics on stderr). The run keeps checkpoints;
+/// with `--resume` it continues the run of its output folder.
 fn run_command(
     modules: &ModuleSet,
     scene: &Path,
     out: Option<PathBuf>,
     set: &[String],
     limits: &SceneLimits,
+    restart: &RunRestart,
 ) -> Result<(), Failure> {
     let overrides = parse_overrides(set)?;
     let spec = modules
         .load_scene_within(scene, &overrides, limits)
         .map_err(|e| e.to_string())?;
-    let out_dir = out.unwrap_or_else(|| default_output_dir(&spec));
-    let _lock = lock_output_folder(&out_dir)?;
+    let out_dir = match (&restart.resume, out) {
+        (Some(resume), Some(out)) if *resume != out => {
+            return Err(format!(
+                "--resume {} and --out {} name different folders: a resumed run continues in                  the folder it resumes (leave out --out)",
+                resume.display(),
+                out.display()
+            )
+            .into());
+        }
+        (Some(resume), _) => resume.clone(),
+        (None, Some(out)) => out,
+        (None, None) => default_output_dir(&spec),
+    };
+    let plan = RestartPlan {
+        identity: RunIdentity::of(scene, &overrides)?,
+        every: restart.every,
+        command: resume_command(scene, set, restart, &out_dir),
+    };
+    let (_lock, checkpoint) = match &restart.resume {
+        Some(dir) => {
+            let lock = FolderLock::acquire(dir)?;
+            if let Some(pid) = lock.killed_run() {
+                note(&format!(
+                    "the run into {} (process {pid}) was killed before it finished",
+                    dir.display()
+                ));
+            }
+            let checkpoint = Checkpoint::read(dir, &plan.identity)?;
+            note(&format!(
+                "resuming {} after load step {} of {}",
+                dir.display(),
+                checkpoint.steps_done,
+                spec.load_factors.len()
+            ));
+            (lock, Some(checkpoint))
+        }
+        None => (lock_output_folder(&out_dir)?, None),
+    };
     let steps = spec.load_factors.len();
     let mut progress = Progress::new(steps);
     note(&format!(
@@ -226,11 +292,13 @@ fn run_command(
     for warning in rank_warnings(&spec) {
         note(&format!("warning: {warning}"));
     }
-    let result = run_scene_with_modules(&spec, &out_dir, modules, |record| progress.step(record));
+    let result = run_scene_restartable(&spec, &out_dir, modules, &plan, checkpoint, |record| {
+        progress.step(record)
+    });
     progress.finish();
     let summary = match result {
         Ok(summary) => summary,
-        Err(e) => return Err(run_failure(&e, &out_dir).into()),
+        Err(e) => return Err(run_failure(&e, &out_dir, &plan.command).into()),
     };
     let (_, wall) = summary.total_seconds();
     let mut line = format!(
@@ -271,11 +339,11 @@ fn lock_output_folder(dir: &Path) -> Result<FolderLock, Failure> {
     Ok(lock)
 }
 
-/// What a failed or stopped run tells the user: why, and where what was done is (only if it
-/// was written).
-fn run_failure(error: &RunError, out_dir: &Path) -> String {
+/// What a failed or stopped run tells the user: why, where what was done is (only if it was
+/// written) and how to continue it (only if a checkpoint was written).
+fn run_failure(error: &RunError, out_dir: &Path, resume: &str) -> String {
     let summary = out_dir.join("summary.json");
-    let kept = if summary.is_file() {
+    let mut kept = if summary.is_file() {
         format!(
             "\nresults up to the last completed step are in {} (summary.json says how far it got)",
             out_dir.display()
@@ -283,7 +351,55 @@ fn run_failure(error: &RunError, out_dir: &Path) -> String {
     } else {
         String::new()
     };
+    // a scene that cannot be solved needs changing, not continuing
+    let resumable = !matches!(
+        error,
+        RunError::Build(_)
+            | RunError::Resume(_)
+            | RunError::Solve(impm::resources::SolverError::NotHeld { .. })
+    );
+    if resumable && Checkpoint::path_in(out_dir).is_file() {
+        kept += &format!("\nto continue from the last checkpoint: {resume}");
+    }
     format!("{error}{kept}")
+}
+
+/// The command that resumes this run: the same scene, `--set`, `--limit` and
+/// `--checkpoint-every`, and `--resume OUT_DIR`.
+fn resume_command(scene: &Path, set: &[String], restart: &RunRestart, out_dir: &Path) -> String {
+    let mut words = vec![
+        "impm".to_string(),
+        "run".to_string(),
+        shell_word(&scene.display().to_string()),
+    ];
+    for assignment in set {
+        words.extend(["--set".to_string(), shell_word(assignment)]);
+    }
+    for assignment in &restart.limit {
+        words.extend(["--limit".to_string(), shell_word(assignment)]);
+    }
+    if let Some(every) = restart.every {
+        words.extend(["--checkpoint-every".to_string(), every.to_string()]);
+    }
+    words.extend([
+        "--resume".to_string(),
+        shell_word(&out_dir.display().to_string()),
+    ]);
+    words.join(" ")
+}
+
+/// `word` as a POSIX shell reads it: as is when it has no special character, else in single
+/// quotes.
+fn shell_word(word: &str) -> String {
+    let plain = !word.is_empty()
+        && word
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "_-./=:,+@%".contains(c));
+    if plain {
+        word.to_string()
+    } else {
+        format!("'{}'", word.replace('\'', "'\\''"))
+    }
 }
 
 /// `impm study`: the runs of the sweep, with a progress display.

@@ -42,7 +42,7 @@ use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::IntoScheduleConfigs;
 use bevy_ecs::system::ScheduleSystem;
 
-use crate::checkpoint::{CheckpointPart, CheckpointParts};
+use crate::checkpoint::{CheckpointPart, CheckpointParts, CheckpointSeries, SeriesAccess};
 use crate::components::PointId;
 pub use crate::method::Hook;
 use crate::method::Providers;
@@ -367,6 +367,16 @@ impl<'w, const D: usize> Extension<'w, D> {
             .get_resource_or_init::<CheckpointParts>()
             .0
             .push(part);
+        self
+    }
+
+    /// Registers the `.pvd` series the plugin writes (see `checkpoint`), so that a resumed run
+    /// continues them and each lists every step once.
+    pub fn series(&mut self, access: SeriesAccess) -> &mut Self {
+        self.world
+            .get_resource_or_init::<CheckpointSeries>()
+            .0
+            .push(access);
         self
     }
 

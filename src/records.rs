@@ -135,6 +135,9 @@ pub struct Summary {
     /// `scene::rank_warnings`, printed when the run starts) and what the modules warned about
     /// during the run (e.g. a condition the material no longer follows).
     pub warnings: Vec<String>,
+    /// The command that continues this run from its last checkpoint (`impm run .. --resume`),
+    /// written as `"resume"` while the run is not completed, when it keeps checkpoints.
+    pub resume: Option<String>,
 }
 
 /// A JSON number, or null where not finite (JSON has no NaN).
@@ -206,6 +209,7 @@ impl Summary {
             failure: None,
             failed_step: None,
             warnings: crate::scene::rank_warnings(spec),
+            resume: None,
         }
     }
 
@@ -292,7 +296,15 @@ impl Summary {
         if !self.warnings.is_empty() {
             v["warnings"] = json!(self.warnings);
         }
+        if let Some(command) = self.resume.as_ref().filter(|_| self.status != "completed") {
+            v["resume"] = Value::String(command.clone());
+        }
         v
+    }
+
+    /// The completed steps' records as in `summary.json` (what a checkpoint keeps).
+    pub fn steps_json(&self) -> Vec<Value> {
+        self.steps.iter().map(step_json).collect()
     }
 
     /// Writes `summary.json` atomically.
@@ -311,6 +323,95 @@ impl Summary {
         crate::output::write_atomic(&path, history_csv(&self.steps).as_bytes())
             .map_err(|e| format!("{}: {e}", path.display()))
     }
+}
+
+/// A step's record read back from its `summary.json` form ([`Summary::steps_json`]), as a
+/// resumed run restores the steps done before. `measures` are the names of the run's measures
+/// in the order they are taken; the record's measures come back in that order.
+pub fn step_from_json(value: &Value, measures: &[&'static str]) -> Result<StepRecord, String> {
+    let count = |key: &str| {
+        value[key]
+            .as_u64()
+            .map(|n| n as usize)
+            .ok_or_else(|| format!("a step's {key} is not a count"))
+    };
+    let real = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
+    let reals = |v: &Value| -> Vec<f64> {
+        v.as_array()
+            .map(|list| list.iter().map(real).collect())
+            .unwrap_or_default()
+    };
+    let mut record = StepRecord::new(count("step")?, real(&value["load_factor"]));
+    record.iterations = count("iterations")?;
+    record.residuals = reals(&value["residuals"]);
+    record.converged = value["converged"].as_bool().unwrap_or(false);
+    record.dofs = count("dofs")?;
+    record.seconds = stage_clock(&value["seconds"]);
+    record.wall_seconds = real(&value["wall_seconds"]);
+    record.error = value.get("error").map(real);
+    record.cuts = count("cuts")?;
+    for &name in measures {
+        if let Some(v) = value.get(name) {
+            record.measures.push((name, real(v)));
+        }
+    }
+    let object = value.as_object().ok_or("a step is not an object")?;
+    if let Some(unknown) = object
+        .keys()
+        .find(|key| !STEP_KEYS.contains(&key.as_str()) && !measures.contains(&key.as_str()))
+    {
+        return Err(format!(
+            "a step has the measure {unknown}, which this run does not take"
+        ));
+    }
+    record.substeps = match value["substeps"].as_array() {
+        Some(list) => list
+            .iter()
+            .map(|a| SubstepRecord {
+                from: real(&a["from"]),
+                to: real(&a["to"]),
+                iterations: a["iterations"].as_u64().unwrap_or(0) as usize,
+                residuals: reals(&a["residuals"]),
+                converged: a["converged"].as_bool().unwrap_or(false),
+                failure: a["failure"].as_str().map(str::to_string),
+            })
+            .collect(),
+        // a step solved in one attempt records it only in the step's own figures
+        None => vec![SubstepRecord {
+            from: f64::NAN,
+            to: record.load_factor,
+            iterations: record.iterations,
+            residuals: record.residuals.clone(),
+            converged: record.converged,
+            failure: None,
+        }],
+    };
+    Ok(record)
+}
+
+/// The keys of a step's record that are not measures.
+const STEP_KEYS: &[&str] = &[
+    "step",
+    "load_factor",
+    "iterations",
+    "residuals",
+    "converged",
+    "dofs",
+    "seconds",
+    "wall_seconds",
+    "error",
+    "cuts",
+    "substeps",
+];
+
+fn stage_clock(value: &Value) -> StageClock {
+    let mut clock = StageClock::default();
+    for stage in Stage::ALL {
+        let seconds = value[stage.name()].as_f64().unwrap_or(0.0);
+        clock.seconds[stage as usize] =
+            std::time::Duration::try_from_secs_f64(seconds).unwrap_or_default();
+    }
+    clock
 }
 
 /// The text of `history.csv` for these steps (see [`Summary::write_history`]).

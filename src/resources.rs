@@ -183,6 +183,13 @@ pub enum SolverError {
     },
     /// Writing results failed.
     Output { step: usize, why: String },
+    /// A body's rigid motion is a zero-energy mode of the tangent: nothing holds it
+    /// (`solver::modes`).
+    NotHeld {
+        step: usize,
+        body: String,
+        modes: Vec<String>,
+    },
     /// A module's stage failed (e.g. a traction point left the grid, a GIMP or CPDI domain
     /// cannot be used); `recoverable` if a smaller load step may succeed.
     Module {
@@ -254,6 +261,13 @@ impl std::fmt::Display for SolverError {
             SolverError::Output { step, why } => {
                 write!(f, "load step {step}: writing output failed: {why}")
             }
+            SolverError::NotHeld { step, body, modes } => write!(
+                f,
+                "load step {step}: {body} not held: the tangent stiffness is singular, nothing \
+                 stops it {}; add fix(...) or displace(...) on its nodes (or a surface condition, \
+                 see docs/boundaries.md)",
+                modes.join(", nor ")
+            ),
             SolverError::Module { step, what, .. } => write!(f, "load step {step}: {what}"),
         }
     }
@@ -279,6 +293,10 @@ impl SolverError {
         }
     }
 }
+
+/// The bodies' names, in declaration order (`BodyIndex`), for messages.
+#[derive(Resource, Default, Debug)]
+pub struct BodyNames(pub Vec<String>);
 
 /// Warnings raised by modules during a step (e.g. a grid-node `displace` whose material no
 /// longer follows it): the driver prints them and keeps them in `summary.json`.

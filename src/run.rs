@@ -8,7 +8,14 @@
 //! for each load step: attempts as the control policy says (control.rs),             step
 //!     each attempt runs the step schedule (method.rs); a failed one is rolled back
 //!     records: iterations, residuals, cuts, stage times, eq. 15 error, measures   -> summary.json
+//!     a checkpoint after every output step (or every N steps), if the run keeps them
+//!                                                                   -> checkpoint.json (restart.rs)
 //! ```
+//!
+//! A run that resumes (`impm run SCENE --resume OUT_DIR`) builds the same world, restores the
+//! checkpoint's state, records and series instead of writing the initial state, removes the
+//! files of steps after it, and goes on from the step after the checkpoint
+//! ([`Simulation::resume_from`]).
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -17,7 +24,7 @@ use bevy_ecs::prelude::*;
 use nalgebra::{SMatrix, SVector};
 
 use crate::basis::GridBasis;
-use crate::checkpoint::{self, CheckpointPart, CheckpointParts, SavedState};
+use crate::checkpoint::{self, CheckpointPart, CheckpointParts, CheckpointSeries, SavedState};
 use crate::components::*;
 use crate::control::{Attempt, LoadStepControl, StepCutting};
 use crate::effects;
@@ -28,8 +35,9 @@ use crate::method::{
 };
 pub use crate::plugin::BuildError;
 use crate::plugin::{Module, ModuleSet, Plugin, build_plugin};
-use crate::records::{MeasuredValues, StepMeasures, StepRecord, Summary};
+use crate::records::{MeasuredValues, StepMeasures, StepRecord, Summary, step_from_json};
 use crate::resources::*;
+use crate::restart::{Checkpoint, RunIdentity};
 use crate::scene::SceneSpec;
 use crate::stages::output::{OutputPlan, PointFields};
 
@@ -40,6 +48,19 @@ pub struct Simulation<const D: usize> {
     pub summary: Summary,
     steps_done: usize,
     control: Box<dyn LoadStepControl>,
+    restart: Option<RestartPlan>,
+}
+
+/// How a run keeps checkpoints (see [`crate::restart`]).
+#[derive(Clone, Debug)]
+pub struct RestartPlan {
+    /// The scene file and overrides the run is made of (checked when it is resumed).
+    pub identity: RunIdentity,
+    /// A checkpoint every this many steps (and after the last); `None`: after every output
+    /// step.
+    pub every: Option<usize>,
+    /// The command that resumes the run, for the messages and `summary.json`.
+    pub command: String,
 }
 
 impl<const D: usize> Simulation<D> {
@@ -85,6 +106,7 @@ impl<const D: usize> Simulation<D> {
             summary: Summary::new(spec, points, active, out_dir),
             steps_done: 0,
             control: Box::new(StepCutting::new(spec.solver.max_step_cuts)),
+            restart: None,
         })
     }
 
@@ -119,6 +141,84 @@ impl<const D: usize> Simulation<D> {
         Ok(())
     }
 
+    /// Keeps checkpoints as `plan` says (after the initial state and then after every output
+    /// step or every N steps); `summary.json` says how to resume.
+    pub fn keep_checkpoints(&mut self, plan: RestartPlan) {
+        self.summary.resume = Some(plan.command.clone());
+        self.restart = Some(plan);
+    }
+
+    /// Whether a checkpoint is due after the steps done so far.
+    fn checkpoint_due(&self) -> bool {
+        let Some(plan) = &self.restart else {
+            return false;
+        };
+        let done = self.steps_done;
+        match plan.every {
+            Some(every) => {
+                done.is_multiple_of(every.max(1)) || done == self.spec.load_factors.len()
+            }
+            None => self.world.resource::<OutputPlan>().writes(&LoadStep {
+                number: done,
+                completes_step: true,
+                ..LoadStep::default()
+            }),
+        }
+    }
+
+    /// Writes the checkpoint of the steps done so far, if the run keeps checkpoints.
+    fn write_checkpoint(&mut self) -> Result<(), SolverError> {
+        let Some(plan) = &self.restart else {
+            return Ok(());
+        };
+        let identity = plan.identity.clone();
+        let checkpoint = Checkpoint {
+            identity,
+            steps_done: self.steps_done,
+            parts: checkpoint::save_parts(&mut self.world),
+            series: checkpoint::save_series(&mut self.world),
+            steps: self.summary.steps_json(),
+            warnings: self.summary.warnings.clone(),
+        };
+        let dir = self.world.resource::<OutputPlan>().dir.clone();
+        checkpoint.write(&dir).map_err(|why| SolverError::Output {
+            step: self.steps_done,
+            why,
+        })
+    }
+
+    /// Continues a run from its checkpoint instead of writing the initial state: restores the
+    /// points and every module's state, the records (`summary.json`, `history.csv`) and the
+    /// `.pvd` series, and removes the files of the steps after the checkpoint.
+    pub fn resume_from(&mut self, checkpoint: Checkpoint) -> Result<(), String> {
+        self.restore_state(&SavedState {
+            steps_done: checkpoint.steps_done,
+            parts: checkpoint.parts,
+        })?;
+        let measures: Vec<&'static str> = self
+            .world
+            .get_resource::<StepMeasures>()
+            .map(|m| m.0.iter().map(|(name, _)| *name).collect())
+            .unwrap_or_default();
+        self.summary.steps = checkpoint
+            .steps
+            .iter()
+            .map(|step| step_from_json(step, &measures))
+            .collect::<Result<_, _>>()
+            .map_err(|why| format!("the checkpoint's records: {why}"))?;
+        self.summary.warnings = checkpoint.warnings;
+        let dir = self.world.resource::<OutputPlan>().dir.clone();
+        crate::output::clear_after_step(&dir, checkpoint.steps_done).map_err(|e| {
+            format!(
+                "cannot remove the files of the steps after the checkpoint from {}: {e}",
+                dir.display()
+            )
+        })?;
+        checkpoint::restore_series(&mut self.world, &checkpoint.series)?;
+        self.summary.write()?;
+        self.summary.write_history()
+    }
+
     /// Number of load steps done.
     pub fn steps_done(&self) -> usize {
         self.steps_done
@@ -131,7 +231,8 @@ impl<const D: usize> Simulation<D> {
         self.take_failure()?;
         self.summary
             .write()
-            .map_err(|e| SolverError::Output { step: 0, why: e })
+            .map_err(|e| SolverError::Output { step: 0, why: e })?;
+        self.write_checkpoint()
     }
 
     /// Solves the next load step with the attempts the control policy asks for (see
@@ -237,6 +338,9 @@ impl<const D: usize> Simulation<D> {
             }
             let record = self.step()?;
             on_step(record);
+            if self.checkpoint_due() {
+                self.write_checkpoint()?;
+            }
         }
         self.summary.finish();
         self.summary.write().map_err(|e| SolverError::Output {
@@ -347,6 +451,9 @@ fn core_world<const D: usize>(spec: &SceneSpec, out_dir: &Path) -> Result<World,
     world.insert_resource(PointFields::default());
     world.insert_resource(StepMeasures::default());
     world.insert_resource(Warnings::default());
+    world.insert_resource(BodyNames(
+        spec.bodies.iter().map(|body| body.name.clone()).collect(),
+    ));
     let output = &spec.output;
     world.insert_resource(OutputPlan {
         steps: output.steps.clone(),
@@ -360,7 +467,14 @@ fn core_world<const D: usize>(spec: &SceneSpec, out_dir: &Path) -> Result<World,
         save: save_points::<D>,
         restore: restore_points::<D>,
     }]));
+    world.insert_resource(CheckpointSeries(vec![core_series]));
     Ok(world)
+}
+
+/// The core's series: particles, grid and nodes.
+fn core_series(world: &mut World) -> Vec<&mut crate::output::PvdSeries> {
+    let plan = world.resource_mut::<OutputPlan>().into_inner();
+    vec![&mut plan.particles, &mut plan.grid, &mut plan.nodes]
 }
 
 /// The numbers of a point's state: x, u, F (row by row), V.
@@ -517,7 +631,7 @@ pub fn run_scene_keeping_summary_with(
     plugin: &impl Plugin,
     on_step: impl FnMut(&StepRecord),
 ) -> (Option<Summary>, Result<(), RunError>) {
-    run_with(spec, out_dir, &effects::built_in(), plugin, on_step)
+    run_with(spec, out_dir, &effects::built_in(), plugin, None, on_step)
 }
 
 /// [`run_scene`] with the modules of `modules` (the built-in ones and your own, e.g. a
@@ -528,20 +642,44 @@ pub fn run_scene_with_modules(
     modules: &ModuleSet,
     on_step: impl FnMut(&StepRecord),
 ) -> Result<Summary, RunError> {
-    completed(run_with(spec, out_dir, modules, &(), on_step))
+    completed(run_with(spec, out_dir, modules, &(), None, on_step))
 }
+
+/// [`run_scene_with_modules`] keeping checkpoints as `plan` says, and continuing from
+/// `resume` (a checkpoint of this run read with [`Checkpoint::read`]) if given.
+pub fn run_scene_restartable(
+    spec: &SceneSpec,
+    out_dir: &Path,
+    modules: &ModuleSet,
+    plan: &RestartPlan,
+    resume: Option<Checkpoint>,
+    on_step: impl FnMut(&StepRecord),
+) -> Result<Summary, RunError> {
+    completed(run_with(
+        spec,
+        out_dir,
+        modules,
+        &(),
+        Some((plan, resume)),
+        on_step,
+    ))
+}
+
+/// A run's checkpoint plan, and the checkpoint it resumes from.
+type Restart<'a> = Option<(&'a RestartPlan, Option<Checkpoint>)>;
 
 fn run_with(
     spec: &SceneSpec,
     out_dir: &Path,
     modules: &ModuleSet,
     plugin: &impl Plugin,
+    restart: Restart<'_>,
     on_step: impl FnMut(&StepRecord),
 ) -> (Option<Summary>, Result<(), RunError>) {
     match spec.dim() {
-        1 => run_in::<1>(spec, out_dir, modules, plugin, on_step),
-        2 => run_in::<2>(spec, out_dir, modules, plugin, on_step),
-        3 => run_in::<3>(spec, out_dir, modules, plugin, on_step),
+        1 => run_in::<1>(spec, out_dir, modules, plugin, restart, on_step),
+        2 => run_in::<2>(spec, out_dir, modules, plugin, restart, on_step),
+        3 => run_in::<3>(spec, out_dir, modules, plugin, restart, on_step),
         d => (
             None,
             Err(RunError::Build(BuildError(format!(
@@ -556,6 +694,7 @@ fn run_in<const D: usize>(
     out_dir: &Path,
     modules: &ModuleSet,
     plugin: &impl Plugin,
+    restart: Restart<'_>,
     on_step: impl FnMut(&StepRecord),
 ) -> (Option<Summary>, Result<(), RunError>) {
     let mut sim = match Simulation::<D>::with_modules(spec, out_dir, modules) {
@@ -565,8 +704,19 @@ fn run_in<const D: usize>(
     if let Err(e) = sim.add_plugin(plugin) {
         return (None, Err(RunError::Build(e)));
     }
-    let result = sim
-        .write_initial_state()
+    let mut resume = None;
+    if let Some((plan, checkpoint)) = restart {
+        sim.keep_checkpoints(plan.clone());
+        resume = checkpoint;
+    }
+    let start = match resume {
+        Some(checkpoint) => match sim.resume_from(checkpoint) {
+            Ok(()) => Ok(()),
+            Err(why) => return (None, Err(RunError::Resume(why))),
+        },
+        None => sim.write_initial_state(),
+    };
+    let result = start
         .and_then(|()| sim.run(on_step))
         .map_err(RunError::Solve)
         .and_then(|()| match crate::interrupt::stop_reason() {
@@ -584,6 +734,8 @@ fn run_in<const D: usize>(
 pub enum RunError {
     Build(BuildError),
     Solve(SolverError),
+    /// The checkpoint could not be restored.
+    Resume(String),
     /// Stopped by a signal or the deadline after `steps_done` completed steps.
     Stopped {
         reason: crate::interrupt::StopReason,
@@ -596,6 +748,7 @@ impl std::fmt::Display for RunError {
         match self {
             RunError::Build(e) => write!(f, "cannot set up the simulation: {e}"),
             RunError::Solve(e) => write!(f, "{e}"),
+            RunError::Resume(why) => write!(f, "cannot resume the run: {why}"),
             RunError::Stopped { reason, steps_done } => {
                 write!(f, "{} after load step {steps_done}", reason.status())
             }

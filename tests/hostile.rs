@@ -537,6 +537,14 @@ fn corpus() -> Vec<Case> {
             1,
             "non-empty",
         ),
+        // a body with no support is named at the first solve, not after the step cuts
+        Case {
+            name: "body with no support",
+            scene: Some(base_with("fix(|x| x[0] == 0.0, [0]);\n", "").into_bytes()),
+            args: vec!["run", "SCENE", "--out", "DIR/o"],
+            status: 1,
+            fragment: "load step 1: body 'column' is not held: the tangent stiffness is singular, nothing stops it moving along x; add fix(...) or displace(...)",
+        },
         // the method cannot be right: say so
         case(
             "too few points for the order",

@@ -203,6 +203,7 @@ impl Plugin for TractionsModule {
                 save: save_traction_points::<D>,
                 restore: restore_traction_points::<D>,
             })
+            .series(|world| vec![&mut world.resource_mut::<TractionSeries>().into_inner().0])
             .add_systems(Hook::Loads, apply_tractions::<D>)
             .add_systems(Hook::PointUpdate, update_traction_points::<D>)
             .add_systems(Hook::Output, write_tractions::<D>);

@@ -6,7 +6,7 @@
 //! A lock whose process no longer exists was left by a run that was killed; it is taken over
 //! and reported ([`FolderLock::killed_run`]). Only files impm writes are removed: series files
 //! `STEM_NNNN.vtu` of a series `STEM.pvd` in the folder, the `.pvd` files, `summary.json`,
-//! `checkpoint.json`, and the temporary files of interrupted atomic writes (`.NAME.PID.N.tmp`).
+//! `history.csv`, `checkpoint.json`, and the temporary files of interrupted atomic writes (`.NAME.PID.N.tmp`).
 
 use std::fs;
 use std::io;
@@ -91,6 +91,21 @@ fn process_exists(pid: u32) -> bool {
 
 /// Removes what an earlier run left in `dir` (see the module docs); returns how many files.
 pub fn clear_earlier_run(dir: &Path) -> io::Result<usize> {
+    remove_where(dir, is_impm_file)
+}
+
+/// Removes, for a run resumed after load step `step`, what the interrupted run wrote later: the
+/// series files `STEM_NNNN.vtu` with `NNNN > step` of the series in `dir`, and the temporary
+/// files of interrupted atomic writes. Returns how many files.
+pub fn clear_after_step(dir: &Path, step: usize) -> io::Result<usize> {
+    remove_where(dir, |name, series| {
+        is_temporary(name) || series_step(name, series).is_some_and(|n| n > step)
+    })
+}
+
+/// Removes the files of `dir` (a missing folder has none) for which `remove(name, series)`
+/// holds, given the series (`.pvd` stems) in the folder; returns how many.
+fn remove_where(dir: &Path, remove: impl Fn(&str, &[&str]) -> bool) -> io::Result<usize> {
     let names: Vec<String> = match fs::read_dir(dir) {
         Ok(entries) => entries
             .filter_map(|entry| entry.ok())
@@ -106,7 +121,7 @@ pub fn clear_earlier_run(dir: &Path) -> io::Result<usize> {
         .collect();
     let mut removed = 0;
     for name in &names {
-        if is_impm_file(name, &series) {
+        if remove(name, &series) {
             fs::remove_file(dir.join(name))?;
             removed += 1;
         }
@@ -114,21 +129,25 @@ pub fn clear_earlier_run(dir: &Path) -> io::Result<usize> {
     Ok(removed)
 }
 
+/// The step number of a series file `STEM_NNNN.vtu` of one of the `series`.
+fn series_step(name: &str, series: &[&str]) -> Option<usize> {
+    let (series_name, number) = name.strip_suffix(".vtu")?.rsplit_once('_')?;
+    if number.is_empty() || !number.bytes().all(|b| b.is_ascii_digit()) {
+        return None;
+    }
+    series
+        .contains(&series_name)
+        .then(|| number.parse().ok())
+        .flatten()
+}
+
 /// Whether `name` is a file impm writes, given the series (`.pvd` stems) in its folder.
 fn is_impm_file(name: &str, series: &[&str]) -> bool {
-    if matches!(name, "summary.json" | "checkpoint.json") || name.ends_with(".pvd") {
+    if matches!(name, "summary.json" | "history.csv" | "checkpoint.json") || name.ends_with(".pvd")
+    {
         return true;
     }
-    if is_temporary(name) {
-        return true;
-    }
-    name.strip_suffix(".vtu")
-        .and_then(|stem| stem.rsplit_once('_'))
-        .is_some_and(|(series_name, number)| {
-            !number.is_empty()
-                && number.bytes().all(|b| b.is_ascii_digit())
-                && series.contains(&series_name)
-        })
+    is_temporary(name) || series_step(name, series).is_some()
 }
 
 /// `.NAME.PID.N.tmp`, the temporary file of an atomic write.
@@ -168,6 +187,40 @@ mod tests {
         ] {
             assert!(!is_impm_file(name, &series), "{name}");
         }
+    }
+
+    #[test]
+    fn a_resumed_run_removes_only_the_later_steps() {
+        let dir = std::env::temp_dir().join(format!("impm-after-{}", std::process::id()));
+        let _ = fs::remove_dir_all(&dir);
+        fs::create_dir_all(&dir).unwrap();
+        let names = [
+            "particles.pvd",
+            "particles_0002.vtu",
+            "particles_0003.vtu",
+            "particles_0004.vtu",
+            "mesh_0009.vtu",
+            ".particles_0004.vtu.42.0.tmp",
+        ];
+        for name in names {
+            fs::write(dir.join(name), "x").unwrap();
+        }
+        assert_eq!(clear_after_step(&dir, 3).unwrap(), 2);
+        let mut left: Vec<String> = fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        left.sort();
+        assert_eq!(
+            left,
+            [
+                "mesh_0009.vtu",
+                "particles.pvd",
+                "particles_0002.vtu",
+                "particles_0003.vtu"
+            ]
+        );
+        let _ = fs::remove_dir_all(&dir);
     }
 
     #[test]

@@ -80,6 +80,29 @@ impl PvdSeries {
         result
     }
 
+    /// Replaces the entries with `entries` (those of a checkpoint, when a run is resumed) and
+    /// rewrites the `.pvd` atomically, or removes it when there are none. Every listed file
+    /// must exist (`NotFound` otherwise, and the series is left unchanged).
+    pub fn restore_entries(&mut self, entries: Vec<(f64, String)>) -> io::Result<()> {
+        if let Some((_, missing)) = entries
+            .iter()
+            .find(|(_, name)| !self.folder().join(name).is_file())
+        {
+            return Err(io::Error::new(
+                io::ErrorKind::NotFound,
+                format!("{}: {missing} is missing", self.path.display()),
+            ));
+        }
+        self.entries = entries;
+        if self.entries.is_empty() {
+            return match std::fs::remove_file(&self.path) {
+                Err(e) if e.kind() != io::ErrorKind::NotFound => Err(e),
+                _ => Ok(()),
+            };
+        }
+        write_atomic(&self.path, self.to_xml().as_bytes())
+    }
+
     /// The `.pvd` document for the current entries.
     fn to_xml(&self) -> String {
         let mut xml = String::from(

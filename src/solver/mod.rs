@@ -14,6 +14,7 @@
 mod direct;
 mod krylov;
 mod matrix;
+pub mod modes;
 
 pub use direct::DirectSolver;
 pub use krylov::{Jacobi, KrylovSolver, Preconditioner, multiply};

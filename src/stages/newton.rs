@@ -15,12 +15,16 @@
 
 use bevy_ecs::prelude::*;
 
+use crate::basis::GridBasis;
+use crate::components::{BodyIndex, Support};
 use crate::control::ResidualNorms;
+use crate::resources::{BodyNames, Grid};
 use crate::resources::{
     Convergence, GridFields, LoadStep, Newton, NewtonSettings, RunStatus, SolverError, Stage,
     StageClock,
 };
-use crate::solver::NO_DOF;
+use crate::solver::modes::{is_zero_energy, rigid_modes, span_has_zero_energy};
+use crate::solver::{NO_DOF, SparseMatrix};
 
 /// Growth of the out-of-balance force over the step's first residual (or over 1, if smaller)
 /// that is taken as divergence.
@@ -81,15 +85,37 @@ pub fn check_convergence<const D: usize>(
 }
 
 /// Newton stage 4: solve K δ = f_ext − f_int and add δ to the free components of Δu.
+///
+/// Before the run's first solve (at zero stress, where rigid rotations cost no energy either)
+/// and after a failed solve, the bodies are checked for rigid motions the tangent does not
+/// resist ([`crate::solver::modes`]): a body that nothing holds is reported as such at once,
+/// whatever module holds the others, instead of as a singular tangent after every step cut.
+#[allow(clippy::too_many_arguments)]
 pub fn solve_linear_system<const D: usize>(
     mut fields: ResMut<GridFields<D>>,
     step: Res<LoadStep>,
     mut newton: ResMut<Newton>,
     mut status: ResMut<RunStatus>,
     mut clock: ResMut<StageClock>,
+    points: Query<(&BodyIndex, &Support<D>)>,
+    grid: Res<Grid<D>>,
+    names: Option<Res<BodyNames>>,
 ) {
     let _timer = clock.time(Stage::LinearSolve);
     let newton = &mut *newton;
+    let first_solve = step.number == 1 && step.previous_factor == 0.0 && newton.iterations == 0;
+    let not_held = |rotations: bool| {
+        let names = names.as_ref().map_or(&[][..], |n| &n.0[..]);
+        body_not_held(&points, &grid.0, &fields, &newton.matrix, names, rotations)
+    };
+    if first_solve && let Some((body, modes)) = not_held(true) {
+        status.fail(SolverError::NotHeld {
+            step: step.number,
+            body,
+            modes,
+        });
+        return;
+    }
     newton.iterations += 1;
     match newton
         .solver
@@ -97,10 +123,17 @@ pub fn solve_linear_system<const D: usize>(
     {
         Ok(kind) => newton.last_solver = kind,
         Err(why) => {
-            status.fail(SolverError::LinearSolve {
-                step: step.number,
-                iteration: newton.iterations,
-                why: why.to_string(),
+            status.fail(match not_held(false) {
+                Some((body, modes)) => SolverError::NotHeld {
+                    step: step.number,
+                    body,
+                    modes,
+                },
+                None => SolverError::LinearSolve {
+                    step: step.number,
+                    iteration: newton.iterations,
+                    why: why.to_string(),
+                },
             });
             return;
         }
@@ -122,4 +155,56 @@ pub fn solve_linear_system<const D: usize>(
             }
         }
     }
+}
+
+/// The first body (or, if none alone, all of them together) whose rigid motions include a
+/// zero-energy mode of the tangent: `("body 'name' is", modes)`.
+fn body_not_held<const D: usize>(
+    points: &Query<(&BodyIndex, &Support<D>)>,
+    grid: &GridBasis<D>,
+    fields: &GridFields<D>,
+    matrix: &SparseMatrix,
+    names: &[String],
+    rotations: bool,
+) -> Option<(String, Vec<String>)> {
+    if matrix.size() == 0 {
+        return None;
+    }
+    let mut nodes: Vec<Vec<usize>> = Vec::new();
+    for (body, support) in points.iter() {
+        let index = body.0 as usize;
+        if nodes.len() <= index {
+            nodes.resize(index + 1, Vec::new());
+        }
+        nodes[index].extend(support.0.iter().map(|w| w.node));
+    }
+    for list in &mut nodes {
+        list.sort_unstable();
+        list.dedup();
+    }
+    let position = |node: usize| grid.node_position(node);
+    let free_modes = |nodes: &[usize]| -> Vec<String> {
+        let modes = rigid_modes(nodes, &position, &fields.dofs, matrix.size(), rotations);
+        let alone: Vec<String> = modes
+            .iter()
+            .filter(|mode| is_zero_energy(matrix, &mode.values))
+            .map(|mode| mode.name.clone())
+            .collect();
+        if alone.is_empty() && span_has_zero_energy(matrix, &modes) {
+            return vec!["rotating about the point where it is held".to_string()];
+        }
+        alone
+    };
+    for (index, body_nodes) in nodes.iter().enumerate() {
+        let modes = free_modes(body_nodes);
+        if !modes.is_empty() {
+            let name = names.get(index).map_or(index.to_string(), |n| n.clone());
+            return Some((format!("body '{name}' is"), modes));
+        }
+    }
+    let mut all: Vec<usize> = nodes.concat();
+    all.sort_unstable();
+    all.dedup();
+    let modes = free_modes(&all);
+    (!modes.is_empty()).then(|| ("the bodies are".to_string(), modes))
 }

@@ -1,0 +1,361 @@
+//! Checkpoint files and resuming a run (`impm run SCENE --resume OUT_DIR`).
+//!
+//! A run that keeps checkpoints writes `OUT_DIR/checkpoint.json` atomically (the output
+//! folder's [`write_atomic`]) after the initial state and after every output step (or every N
+//! steps, `impm run --checkpoint-every N`). It holds everything the rest of the run depends on:
+//!
+//! ```text
+//! format, version          "impm checkpoint", FORMAT_VERSION, and the impm version that wrote it
+//! scene, scene_hash, set   the scene file, a hash of its bytes, the --set overrides (RunIdentity)
+//! steps_done               the load step the state is after (the schedule position)
+//! parts                    every owner's saved state (checkpoint::CheckpointPart): the points'
+//!                          x, u, F, V; each module's own (plastic history, traction points...)
+//! series                   the entries of every .pvd series (checkpoint::CheckpointSeries)
+//! steps, warnings          the records: summary.json's steps (history.csv is made from them)
+//! ```
+//!
+//! Numbers are stored exactly: every `f64` as the 16 hexadecimal digits of its bits, so a
+//! resumed run continues from the very same state and writes bit-identical files. The step
+//! control needs no state of its own: `StepCutting` starts every load step afresh, so the
+//! position in the schedule is `steps_done`.
+//!
+//! Resuming refuses a checkpoint of another format version or impm version (the results would
+//! not be those of the interrupted run) and one whose scene file or `--set` overrides differ
+//! from the command's, saying which. The hash is 64-bit FNV-1a over the scene file's bytes,
+//! written here in a few lines: it detects a changed file, it is no security measure, and it
+//! must be stable across Rust releases (std's `DefaultHasher` is not promised to be). Files a
+//! scene imports are not hashed.
+
+use std::path::{Path, PathBuf};
+
+use serde_json::{Value, json};
+
+use crate::output::write_atomic;
+
+/// The checkpoint's file name in the output folder.
+pub const CHECKPOINT_FILE: &str = "checkpoint.json";
+
+/// The version of the checkpoint format; a resumed run refuses any other.
+pub const FORMAT_VERSION: u64 = 1;
+
+const FORMAT_NAME: &str = "impm checkpoint";
+
+/// What a run was made of: the scene file (its path as given, and a hash of its bytes) and the
+/// `--set` overrides. A run resumes only a checkpoint of the same identity.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RunIdentity {
+    pub scene: String,
+    pub scene_hash: String,
+    pub overrides: Vec<(String, String)>,
+}
+
+impl RunIdentity {
+    /// The identity of a run of the scene file `scene` with `overrides`.
+    pub fn of(scene: &Path, overrides: &[(String, String)]) -> Result<Self, String> {
+        let bytes = std::fs::read(scene)
+            .map_err(|e| format!("cannot read the scene {}: {e}", scene.display()))?;
+        Ok(Self {
+            scene: scene.display().to_string(),
+            scene_hash: format!("{:016x}", fnv1a(&bytes)),
+            overrides: overrides.to_vec(),
+        })
+    }
+
+    /// Why a checkpoint of `saved` cannot be resumed by this run, if it cannot.
+    fn differs_from(&self, saved: &RunIdentity, file: &Path) -> Option<String> {
+        if self.scene_hash != saved.scene_hash {
+            return Some(format!(
+                "{} was written by a run of the scene {} as it was then (hash {}), but {} now \
+                 hashes to {}: the scene changed, so the run cannot be continued; run it anew \
+                 without --resume",
+                file.display(),
+                saved.scene,
+                saved.scene_hash,
+                self.scene,
+                self.scene_hash
+            ));
+        }
+        if self.overrides != saved.overrides {
+            return Some(format!(
+                "{} was written by a run with {}, but this command has {}: give the same --set \
+                 values to continue that run, or run anew without --resume",
+                file.display(),
+                describe_overrides(&saved.overrides),
+                describe_overrides(&self.overrides)
+            ));
+        }
+        None
+    }
+}
+
+fn describe_overrides(overrides: &[(String, String)]) -> String {
+    if overrides.is_empty() {
+        return "no --set".to_string();
+    }
+    overrides
+        .iter()
+        .map(|(name, value)| format!("--set {name}={value}"))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// 64-bit FNV-1a (see the module docs for why it is written here).
+fn fnv1a(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325, |hash, &byte| {
+        (hash ^ u64::from(byte)).wrapping_mul(0x0000_0100_0000_01b3)
+    })
+}
+
+/// The contents of a checkpoint file (see the module docs).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Checkpoint {
+    pub identity: RunIdentity,
+    pub steps_done: usize,
+    /// Every owner's part: `(name, numbers)`, in registration order.
+    pub parts: Vec<(String, Vec<f64>)>,
+    /// Every series: `(.pvd file name, (time, file) entries)`.
+    pub series: Vec<(String, Vec<(f64, String)>)>,
+    /// The completed steps' records, as in `summary.json`.
+    pub steps: Vec<Value>,
+    /// The run's warnings so far.
+    pub warnings: Vec<String>,
+}
+
+impl Checkpoint {
+    /// The checkpoint file of the output folder `dir`.
+    pub fn path_in(dir: &Path) -> PathBuf {
+        dir.join(CHECKPOINT_FILE)
+    }
+
+    /// Writes the checkpoint into `dir` atomically.
+    pub fn write(&self, dir: &Path) -> Result<(), String> {
+        let path = Self::path_in(dir);
+        let text = serde_json::to_string(&self.to_json()).map_err(|e| e.to_string())?;
+        write_atomic(&path, text.as_bytes()).map_err(|e| e.to_string())
+    }
+
+    /// Reads the checkpoint of `dir` and checks that `identity` may resume it.
+    pub fn read(dir: &Path, identity: &RunIdentity) -> Result<Self, String> {
+        let path = Self::path_in(dir);
+        let text = std::fs::read_to_string(&path).map_err(|e| match e.kind() {
+            std::io::ErrorKind::NotFound => format!(
+                "there is no checkpoint in {} ({CHECKPOINT_FILE}): the run did not get to write \
+                 one, or the folder is not a run's output folder; run the scene anew without \
+                 --resume",
+                dir.display()
+            ),
+            _ => format!("cannot read {}: {e}", path.display()),
+        })?;
+        let value: Value = serde_json::from_str(&text)
+            .map_err(|e| format!("{} is not a valid checkpoint: {e}", path.display()))?;
+        let checkpoint = Self::from_json(&value, &path)?;
+        match identity.differs_from(&checkpoint.identity, &path) {
+            Some(why) => Err(why),
+            None => Ok(checkpoint),
+        }
+    }
+
+    fn to_json(&self) -> Value {
+        json!({
+            "format": FORMAT_NAME,
+            "version": FORMAT_VERSION,
+            "impm": env!("CARGO_PKG_VERSION"),
+            "scene": self.identity.scene,
+            "scene_hash": self.identity.scene_hash,
+            "set": self.identity.overrides,
+            "steps_done": self.steps_done,
+            "parts": self.parts.iter().map(|(name, values)| json!({
+                "name": name,
+                "values": hex(values),
+            })).collect::<Vec<_>>(),
+            "series": self.series.iter().map(|(file, entries)| json!({
+                "file": file,
+                "entries": entries
+                    .iter()
+                    .map(|(time, name)| json!([hex(&[*time]), name]))
+                    .collect::<Vec<_>>(),
+            })).collect::<Vec<_>>(),
+            "steps": self.steps,
+            "warnings": self.warnings,
+        })
+    }
+
+    fn from_json(value: &Value, path: &Path) -> Result<Self, String> {
+        let bad = |what: &str| format!("{} is not a valid checkpoint: {what}", path.display());
+        if value["format"].as_str() != Some(FORMAT_NAME) {
+            return Err(bad("it is not an impm checkpoint file"));
+        }
+        let version = value["version"].as_u64();
+        let impm = value["impm"].as_str().unwrap_or("?");
+        if version != Some(FORMAT_VERSION) || impm != env!("CARGO_PKG_VERSION") {
+            return Err(format!(
+                "{} was written by impm {impm} (checkpoint format {}), this is impm {} (format \
+                 {FORMAT_VERSION}): a checkpoint is resumed only by the version that wrote it; \
+                 run the scene anew without --resume",
+                path.display(),
+                version.map_or("?".to_string(), |v| v.to_string()),
+                env!("CARGO_PKG_VERSION")
+            ));
+        }
+        let text = |v: &Value, what: &str| {
+            v.as_str()
+                .map(str::to_string)
+                .ok_or_else(|| bad(&format!("{what} is not a string")))
+        };
+        let array = |v: &'_ Value, what: &str| -> Result<Vec<Value>, String> {
+            v.as_array()
+                .cloned()
+                .ok_or_else(|| bad(&format!("{what} is not a list")))
+        };
+        let overrides = array(&value["set"], "set")?
+            .iter()
+            .map(|pair| {
+                Ok((
+                    text(&pair[0], "a --set name")?,
+                    text(&pair[1], "a --set value")?,
+                ))
+            })
+            .collect::<Result<_, String>>()?;
+        let parts = array(&value["parts"], "parts")?
+            .iter()
+            .map(|part| {
+                let name = text(&part["name"], "a part's name")?;
+                let values = unhex(&text(&part["values"], "a part's values")?)
+                    .ok_or_else(|| bad(&format!("the values of part {name} are damaged")))?;
+                Ok((name, values))
+            })
+            .collect::<Result<_, String>>()?;
+        let series = array(&value["series"], "series")?
+            .iter()
+            .map(|series| {
+                let file = text(&series["file"], "a series' file")?;
+                let entries = array(&series["entries"], "a series' entries")?
+                    .iter()
+                    .map(|entry| {
+                        let time = unhex(&text(&entry[0], "an entry's time")?)
+                            .and_then(|t| t.first().copied())
+                            .ok_or_else(|| bad(&format!("a time of {file} is damaged")))?;
+                        Ok((time, text(&entry[1], "an entry's file")?))
+                    })
+                    .collect::<Result<_, String>>()?;
+                Ok((file, entries))
+            })
+            .collect::<Result<_, String>>()?;
+        let warnings = array(&value["warnings"], "warnings")?
+            .iter()
+            .map(|w| text(w, "a warning"))
+            .collect::<Result<_, String>>()?;
+        Ok(Self {
+            identity: RunIdentity {
+                scene: text(&value["scene"], "scene")?,
+                scene_hash: text(&value["scene_hash"], "scene_hash")?,
+                overrides,
+            },
+            steps_done: value["steps_done"]
+                .as_u64()
+                .ok_or_else(|| bad("steps_done is not a count"))? as usize,
+            parts,
+            series,
+            steps: array(&value["steps"], "steps")?,
+            warnings,
+        })
+    }
+}
+
+/// The numbers as the hexadecimal digits of their bits, 16 per number.
+fn hex(values: &[f64]) -> String {
+    values
+        .iter()
+        .map(|v| format!("{:016x}", v.to_bits()))
+        .collect()
+}
+
+/// The numbers of [`hex`], or `None` if `text` is not such a string.
+fn unhex(text: &str) -> Option<Vec<f64>> {
+    if !text.len().is_multiple_of(16) || !text.is_ascii() {
+        return None;
+    }
+    (0..text.len() / 16)
+        .map(|i| {
+            u64::from_str_radix(&text[16 * i..16 * (i + 1)], 16)
+                .ok()
+                .map(f64::from_bits)
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numbers_round_trip_bit_for_bit() {
+        let values = [
+            0.0,
+            -0.0,
+            1.0 / 3.0,
+            f64::MIN_POSITIVE / 3.0,
+            f64::NAN,
+            -1e300,
+        ];
+        let back = unhex(&hex(&values)).unwrap();
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&back), bits(&values));
+        assert!(unhex("123").is_none());
+        assert!(unhex("zzzzzzzzzzzzzzzz").is_none());
+    }
+
+    #[test]
+    fn fnv1a_matches_its_reference_values() {
+        // the published test vectors of 64-bit FNV-1a
+        assert_eq!(fnv1a(b""), 0xcbf2_9ce4_8422_2325);
+        assert_eq!(fnv1a(b"a"), 0xaf63_dc4c_8601_ec8c);
+        assert_eq!(fnv1a(b"foobar"), 0x8594_4171_f739_67e8);
+    }
+
+    fn sample() -> Checkpoint {
+        Checkpoint {
+            identity: RunIdentity {
+                scene: "scene.rhai".into(),
+                scene_hash: "0123456789abcdef".into(),
+                overrides: vec![("cells".into(), "4".into())],
+            },
+            steps_done: 3,
+            parts: vec![("points".into(), vec![0.1, 0.2, -3.5])],
+            series: vec![(
+                "particles.pvd".into(),
+                vec![(0.0, "particles_0000.vtu".into())],
+            )],
+            steps: vec![json!({"step": 1})],
+            warnings: vec!["careful".into()],
+        }
+    }
+
+    #[test]
+    fn a_checkpoint_reads_back_and_refuses_another_identity() {
+        let dir = std::env::temp_dir().join(format!("impm-restart-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let written = sample();
+        written.write(&dir).unwrap();
+        assert_eq!(Checkpoint::read(&dir, &written.identity).unwrap(), written);
+        let mut other = written.identity.clone();
+        other.overrides[0].1 = "8".into();
+        let why = Checkpoint::read(&dir, &other).unwrap_err();
+        assert!(
+            why.contains("--set cells=4") && why.contains("--set cells=8"),
+            "{why}"
+        );
+        other = written.identity.clone();
+        other.scene_hash = "fedcba9876543210".into();
+        let why = Checkpoint::read(&dir, &other).unwrap_err();
+        assert!(why.contains("the scene changed"), "{why}");
+        let mut text = std::fs::read_to_string(Checkpoint::path_in(&dir)).unwrap();
+        text = text.replace("\"version\":1", "\"version\":99");
+        std::fs::write(Checkpoint::path_in(&dir), text).unwrap();
+        let why = Checkpoint::read(&dir, &written.identity).unwrap_err();
+        assert!(why.contains("format 99"), "{why}");
+        let _ = std::fs::remove_dir_all(&dir);
+        let why = Checkpoint::read(&dir, &written.identity).unwrap_err();
+        assert!(why.contains("there is no checkpoint"), "{why}");
+    }
+}
