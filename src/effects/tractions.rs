@@ -9,6 +9,12 @@
 //! Each carries its reference area A_s and the traction h_s (force per unit reference area, of
 //! fixed direction: a dead load), and moves with the material ([`update_traction_points`]).
 //!
+//! **Point loads at any position** (`point_load_at(#{ at, force })`) are load points of the
+//! same kind: a point of unit "area" carrying the force P at a reference position X that need
+//! not be a material point, f_ext,i += λ P N_i(x), moving with the material like a traction
+//! point (its host is the material point nearest to X). A point load on a material point
+//! (`point_load`) is the special case X = X_p.
+//!
 //! Systems, added only when a scene declares tractions:
 //!
 //! * [`apply_tractions`] (`Hook::Loads`): evaluate the basis at x_s and spread λ h_s A_s over
@@ -29,15 +35,23 @@
 //! usual case: a boundary inside or on the face of a cell with material points) this is exactly
 //! the quadrature above. A traction point with no active node in its support is an error.
 //! Tractions act through the background grid's basis, so they do not apply to linear FEM.
+//!
+//! With linear FEM (`basis: "fem"`) a point load at a position is spread by its host's element
+//! instead: N̂_i = N_a(ξ_p) + ∇N_a(x_p) · (x − x_p), the first-order expansion of the host
+//! integration point's shape functions (the weights of [`host_weights`]). They sum to one and
+//! reproduce linear functions, so the nodal forces have the load's resultant and moment exactly
+//! (statically equivalent); they differ from N_a(x) only by the bilinear term of the element,
+//! a self-equilibrated nodal pattern whose effect is local (Saint-Venant).
 
 use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 
 use rhai::Dynamic;
 
+use super::probes::material_point_near;
 use crate::basis::{BasisKind, BasisScratch, NodeWeight};
 use crate::checkpoint::{self, CheckpointPart};
-use crate::components::{DeformationGradient, Position, ReferencePosition};
+use crate::components::{DeformationGradient, Position, ReferencePosition, Support};
 use crate::mechanics::spread_over_active;
 use crate::output::{Field, PvdSeries, vertex_cells, write_vtu};
 use crate::plugin::{Extension, Hook, Plugin};
@@ -95,6 +109,26 @@ struct TractionDeclaration {
     per_cell: usize,
 }
 
+/// `point_load_at(...)`: a force at a reference position, carried by a load point.
+#[derive(Clone, Debug)]
+struct PointLoadAtDeclaration {
+    at: Vec<f64>,
+    force: Vec<f64>,
+}
+
+/// The load points of the scene's `point_load_at(...)`: traction points of unit area whose
+/// traction is the force (module docs).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PointLoadsAt(pub Vec<TractionPointSpec>);
+
+/// How load points get their weights: the basis at the point (MPM), or the host's element
+/// expanded to the point (linear FEM, module docs).
+#[derive(Resource, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LoadPointWeights {
+    Basis,
+    Host,
+}
+
 /// Why tractions do not apply to linear FEM.
 const NOT_WITH_FEM: &str = "tractions are applied through the background grid's basis; basis \"fem\" has a body-fitted mesh instead (use point_load_total on the boundary points)";
 
@@ -143,11 +177,33 @@ impl Plugin for TractionsModule {
                 Ok(Dynamic::UNIT)
             },
         ));
+        api.call(CallSpec::options(
+            "point_load_at",
+            "a force (at load factor 1, a dead load) at a reference position that need not be a material point, spread through the basis like a traction and carried by the material (with basis \"fem\": by the element of the nearest integration point)",
+            vec![
+                OptionSpec::required(
+                    "at",
+                    Kind::Numbers,
+                    "the reference position, one entry per axis (in or on the body, within a cell of its material points)",
+                ),
+                OptionSpec::required("force", Kind::Numbers, "the force P, one entry per axis"),
+            ],
+            |builder, options: &Options, at| {
+                builder.declare(Located::new(
+                    PointLoadAtDeclaration {
+                        at: options.numbers("at").unwrap_or_default().to_vec(),
+                        force: options.numbers("force").unwrap_or_default().to_vec(),
+                    },
+                    at,
+                ));
+                Ok(Dynamic::UNIT)
+            },
+        ));
     }
 
     fn resolve(&self, scene: &mut Resolver) -> Result<(), ScriptError> {
         if let Some(first) = scene.declarations::<TractionDeclaration>().first()
-            && !self.applies_to(scene.spec)
+            && scene.spec.grid.basis == BasisKind::Fem
         {
             return Err(ScriptError::at(
                 first.at,
@@ -158,34 +214,43 @@ impl Plugin for TractionsModule {
         if !points.is_empty() {
             scene.spec.set_part(Tractions(points));
         }
+        let loads = resolve_point_loads_at(scene)?;
+        if !loads.is_empty() {
+            scene.spec.set_part(PointLoadsAt(loads));
+        }
         Ok(())
     }
 
     fn describe(&self, spec: &SceneSpec) -> Option<String> {
-        let points = &spec.part::<Tractions>()?.0;
-        let area: f64 = points.iter().map(|p| p.area).sum();
-        Some(format!(
-            "{} traction points on a boundary of reference area (length) {}",
-            points.len(),
-            (area * 1e9).round() / 1e9
-        ))
+        let mut lines = Vec::new();
+        if let Some(points) = spec.part::<Tractions>() {
+            let area: f64 = points.0.iter().map(|p| p.area).sum();
+            lines.push(format!(
+                "{} traction points on a boundary of reference area (length) {}",
+                points.0.len(),
+                (area * 1e9).round() / 1e9
+            ));
+        }
+        for load in spec.part::<PointLoadsAt>().map_or(&[][..], |l| &l.0) {
+            lines.push(format!(
+                "point load {:?} at {:?} (load factor 1)",
+                load.traction, load.position
+            ));
+        }
+        (!lines.is_empty()).then(|| lines.join("\n"))
     }
 
     fn used_by(&self, spec: &SceneSpec) -> bool {
-        spec.part::<Tractions>().is_some_and(|points| {
-            points
-                .0
-                .iter()
-                .any(|point| point.traction.iter().any(|&c| c != 0.0))
-        })
+        load_point_specs(spec).any(|point| point.traction.iter().any(|&c| c != 0.0))
     }
 
     fn applies_to(&self, spec: &SceneSpec) -> bool {
-        spec.grid.basis != BasisKind::Fem
+        spec.grid.basis != BasisKind::Fem || spec.part::<PointLoadsAt>().is_some()
     }
 
     fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
-        if !self.applies_to(simulation.spec()) && self.used_by(simulation.spec()) {
+        let fem = simulation.spec().grid.basis == BasisKind::Fem;
+        if fem && simulation.spec().part::<Tractions>().is_some() {
             simulation.fail(NOT_WITH_FEM);
             return;
         }
@@ -193,6 +258,11 @@ impl Plugin for TractionsModule {
             simulation.fail(why);
             return;
         }
+        simulation.world().insert_resource(if fem {
+            LoadPointWeights::Host
+        } else {
+            LoadPointWeights::Basis
+        });
         let dir = simulation.world().resource::<OutputPlan>().dir.clone();
         simulation
             .world()
@@ -209,6 +279,13 @@ impl Plugin for TractionsModule {
     }
 }
 
+/// The scene's load points: the traction points, then the point loads at positions.
+fn load_point_specs(spec: &SceneSpec) -> impl Iterator<Item = &TractionPointSpec> {
+    let tractions = spec.part::<Tractions>().map_or(&[][..], |t| &t.0);
+    let loads = spec.part::<PointLoadsAt>().map_or(&[][..], |l| &l.0);
+    tractions.iter().chain(loads)
+}
+
 /// Spawns the scene's traction points (entities with a [`TractionPoint`] only).
 fn spawn_traction_points<const D: usize>(simulation: &mut Extension<'_, D>) -> Result<(), String> {
     let vector = |values: &[f64], what: &str| {
@@ -223,9 +300,8 @@ fn spawn_traction_points<const D: usize>(simulation: &mut Extension<'_, D>) -> R
     let entities = simulation.point_entities();
     let spec = simulation.spec();
     let world = simulation.world();
-    let points = spec.part::<Tractions>().map_or(&[][..], |t| &t.0);
-    let mut batch = Vec::with_capacity(points.len());
-    for (id, point) in points.iter().enumerate() {
+    let mut batch = Vec::new();
+    for (id, point) in load_point_specs(spec).enumerate() {
         let position = vector(&point.position, "position")?;
         let host = *entities
             .get(point.host)
@@ -273,20 +349,53 @@ fn restore_traction_points<const D: usize>(
     Ok(())
 }
 
+/// The weights N_a(x_p) + ∇N_a(x_p) · `offset` of a host's support expanded to a point at
+/// x_p + `offset` (module docs: load points with linear FEM). They sum to one when the host's
+/// do, and reproduce linear functions.
+pub fn host_weights<const D: usize>(
+    host: &[NodeWeight<D>],
+    offset: &SVector<f64, D>,
+) -> Vec<NodeWeight<D>> {
+    host.iter()
+        .map(|w| NodeWeight {
+            node: w.node,
+            value: w.value + w.gradient.dot(offset),
+            gradient: w.gradient,
+        })
+        .collect()
+}
+
 /// Traction forces λ h_s A_s N_i(x_s) at the start-of-step positions.
+#[allow(clippy::too_many_arguments)] // a system: its parameters are what it reads and writes
 pub fn apply_tractions<const D: usize>(
     grid: Res<Grid<D>>,
     step: Res<LoadStep>,
+    weights: Res<LoadPointWeights>,
     mut fields: ResMut<GridFields<D>>,
     mut status: ResMut<RunStatus>,
     mut clock: ResMut<StageClock>,
     mut scratch: Local<BasisScratch>,
+    hosts: Query<(&Support<D>, &Position<D>)>,
     mut points: Query<&mut TractionPoint<D>>,
 ) {
     let _timer = clock.time(Stage::Loads);
     let fields = &mut *fields;
     for mut point in points.iter_mut() {
         let point = &mut *point;
+        if *weights == LoadPointWeights::Host {
+            let Ok((host, x)) = hosts.get(point.host) else {
+                continue;
+            };
+            point.support = host_weights(&host.0, &(point.position - x.0));
+            let force = point.traction * (point.area * step.factor);
+            spread_over_active(
+                &force,
+                &point.support,
+                &fields.active,
+                &mut fields.external_force,
+            );
+            continue;
+        }
         let fail = |why: &str| SolverError::Module {
             step: step.number,
             what: format!(
@@ -414,4 +523,33 @@ fn resolve_tractions(scene: &Resolver) -> Result<Vec<TractionPointSpec>, ScriptE
         }));
     }
     Ok(points)
+}
+
+/// The load point of every `point_load_at(...)`: hosted by the nearest material point, which
+/// must be within a cell (the largest cell size) of the position.
+fn resolve_point_loads_at(scene: &Resolver) -> Result<Vec<TractionPointSpec>, ScriptError> {
+    let dim = scene.spec.dim();
+    let mut loads = Vec::new();
+    for declaration in scene.declarations::<PointLoadAtDeclaration>() {
+        let load = &declaration.value;
+        let fail = |message: String| {
+            ScriptError::at(declaration.at, format!("point_load_at(...): {message}"))
+        };
+        for (what, values) in [("at", &load.at), ("force", &load.force)] {
+            if values.len() != dim {
+                return Err(fail(format!(
+                    "'{what}' has {} components but the grid is {dim}-dimensional",
+                    values.len()
+                )));
+            }
+        }
+        let host = material_point_near(scene.spec, &load.at).map_err(fail)?;
+        loads.push(TractionPointSpec {
+            position: load.at.clone(),
+            area: 1.0,
+            traction: load.force.clone(),
+            host,
+        });
+    }
+    Ok(loads)
 }
