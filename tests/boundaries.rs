@@ -748,3 +748,46 @@ fn a_study_over_a_recorded_quantity_draws_its_error_chart() {
         assert!(!md.contains("no run reports an error"), "{md}");
     }
 }
+
+/// `impm check` lists every load declaration with its line, what it selects (count and
+/// coordinate range) and its total force at load factor 1: a body force (ρ b times the body's
+/// volume), point loads on every selected point and in total, a traction (h times the
+/// segment's length) and a point load at a position.
+#[test]
+fn check_lists_every_load_with_its_total_force() {
+    let text = r#"grid(#{ lower: [0.0, 0.0], upper: [2.0, 1.5], cells: [4, 3], basis: "bspline", order: 2 });
+const m = material(#{ name: "m", E: 1000.0, nu: 0.3, density: 2.0 });
+body(#{ name: "block", material: m, region: box([0.0, 0.0], [2.0, 1.0]), ppc: 2 });
+body_force([0.0, -10.0]);
+point_load(|x| x[1] > 0.7, [1.0, 0.0]);
+point_load_total(|x| x[0] > 1.7, [5.0, -8.0]);
+traction(#{ on: [[2.0, 0.2], [2.0, 0.8]], traction: [-30.0, 4.0] });
+point_load_at(#{ at: [1.0, 1.0], force: [0.0, -3.0] });
+fix(|x| x[1] == 0.0);
+load_steps(1);
+"#;
+    let dir = common::temp_dir("boundaries", "check_loads");
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("loads.rhai");
+    std::fs::write(&path, text).unwrap();
+    let output = common::impm(&["check", path.to_str().unwrap()]);
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        output.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    for expected in [
+        "line 4: body_force: 32 material points (all), x in [0.125, 0.125] .. [1.875, 0.875], total force [0.0, -40.0]",
+        "line 5: point_load: 8 material points, x in [0.125, 0.875] .. [1.875, 0.875], total force [8.0, 0.0]",
+        "line 6: point_load_total: 4 material points, x in [1.875, 0.125] .. [1.875, 0.875], total force [5.0, -8.0]",
+        "line 7: traction: 3 traction points, x in [2.0, 0.3] .. [2.0, 0.7], total force [-18.0, 2.4] at load factor 1",
+        "line 8: point_load_at: 1 load point, x in [1.0, 1.0] .. [1.0, 1.0], total force [0.0, -3.0]",
+        "line 9: fix1",
+    ] {
+        assert!(
+            stdout.contains(expected),
+            "missing '{expected}' in\n{stdout}"
+        );
+    }
+}

@@ -19,6 +19,8 @@
 //! | `history.rs` | named columns of history.csv from the measured quantities (`record`) |
 
 pub mod body_force;
+pub mod carried_points;
+pub mod declarations;
 pub mod fem_mesh;
 pub mod ghost_penalty;
 pub mod grid_constraints;

@@ -48,9 +48,11 @@ use nalgebra::SVector;
 
 use rhai::Dynamic;
 
+use super::carried_points::{CarriedPoint, restore_positions, save_positions};
+use super::declarations::LoadSummary;
 use super::probes::material_point_near;
 use crate::basis::{BasisKind, BasisScratch, NodeWeight};
-use crate::checkpoint::{self, CheckpointPart};
+use crate::checkpoint::CheckpointPart;
 use crate::components::{DeformationGradient, Position, ReferencePosition, Support};
 use crate::mechanics::spread_over_active;
 use crate::output::{Field, PvdSeries, vertex_cells, write_vtu};
@@ -120,6 +122,10 @@ struct PointLoadAtDeclaration {
 /// traction is the force (module docs).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct PointLoadsAt(pub Vec<TractionPointSpec>);
+
+/// Each `traction` and `point_load_at` as `impm check` lists it.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct LoadPointDeclarations(pub Vec<LoadSummary>);
 
 /// How load points get their weights: the basis at the point (MPM), or the host's element
 /// expanded to the point (linear FEM, module docs).
@@ -210,34 +216,43 @@ impl Plugin for TractionsModule {
                 format!("traction(...): {NOT_WITH_FEM}"),
             ));
         }
-        let points = resolve_tractions(scene)?;
+        let mut summaries = Vec::new();
+        let points = resolve_tractions(scene, &mut summaries)?;
         if !points.is_empty() {
             scene.spec.set_part(Tractions(points));
         }
-        let loads = resolve_point_loads_at(scene)?;
+        let loads = resolve_point_loads_at(scene, &mut summaries)?;
         if !loads.is_empty() {
             scene.spec.set_part(PointLoadsAt(loads));
+        }
+        if !summaries.is_empty() {
+            scene.spec.set_part(LoadPointDeclarations(summaries));
         }
         Ok(())
     }
 
     fn describe(&self, spec: &SceneSpec) -> Option<String> {
-        let mut lines = Vec::new();
+        let mut parts = Vec::new();
         if let Some(points) = spec.part::<Tractions>() {
             let area: f64 = points.0.iter().map(|p| p.area).sum();
-            lines.push(format!(
+            parts.push(format!(
                 "{} traction points on a boundary of reference area (length) {}",
                 points.0.len(),
                 (area * 1e9).round() / 1e9
             ));
         }
-        for load in spec.part::<PointLoadsAt>().map_or(&[][..], |l| &l.0) {
-            lines.push(format!(
-                "point load {:?} at {:?} (load factor 1)",
-                load.traction, load.position
-            ));
+        if let Some(loads) = spec.part::<PointLoadsAt>() {
+            parts.push(format!("{} point loads at positions", loads.0.len()));
         }
-        (!lines.is_empty()).then(|| lines.join("\n"))
+        let mut text = parts.join("; ");
+        for declaration in spec
+            .part::<LoadPointDeclarations>()
+            .map_or(&[][..], |d| &d.0)
+        {
+            text += "\n    ";
+            text += &declaration.describe();
+        }
+        (!parts.is_empty()).then_some(text)
     }
 
     fn used_by(&self, spec: &SceneSpec) -> bool {
@@ -270,8 +285,8 @@ impl Plugin for TractionsModule {
         simulation
             .checkpoint(CheckpointPart {
                 name: "traction points",
-                save: save_traction_points::<D>,
-                restore: restore_traction_points::<D>,
+                save: save_positions::<D, TractionPoint<D>>,
+                restore: restore_positions::<D, TractionPoint<D>>,
             })
             .add_systems(Hook::Loads, apply_tractions::<D>)
             .add_systems(Hook::PointUpdate, update_traction_points::<D>)
@@ -325,28 +340,16 @@ fn spawn_traction_points<const D: usize>(simulation: &mut Extension<'_, D>) -> R
     Ok(())
 }
 
-/// The traction points' positions, in id order.
-fn save_traction_points<const D: usize>(world: &mut World) -> Vec<f64> {
-    let mut points: Vec<_> = world
-        .query::<&TractionPoint<D>>()
-        .iter(world)
-        .map(|p| (p.id, p.position))
-        .collect();
-    points.sort_by_key(|(id, _)| *id);
-    points.iter().flat_map(|(_, x)| x.iter().copied()).collect()
-}
-
-fn restore_traction_points<const D: usize>(
-    world: &mut World,
-    values: &[f64],
-) -> Result<(), String> {
-    let mut query = world.query::<&mut TractionPoint<D>>();
-    let count = query.iter(world).len();
-    let records: Vec<&[f64]> = checkpoint::records(values, D, count)?.collect();
-    for mut point in query.iter_mut(world) {
-        point.position = SVector::from_column_slice(records[point.id as usize]);
+impl<const D: usize> CarriedPoint<D> for TractionPoint<D> {
+    fn id(&self) -> u32 {
+        self.id
     }
-    Ok(())
+    fn position(&self) -> SVector<f64, D> {
+        self.position
+    }
+    fn position_mut(&mut self) -> &mut SVector<f64, D> {
+        &mut self.position
+    }
 }
 
 /// The weights N_a(x_p) + ∇N_a(x_p) · `offset` of a host's support expanded to a point at
@@ -384,7 +387,12 @@ pub fn apply_tractions<const D: usize>(
         let point = &mut *point;
         if *weights == LoadPointWeights::Host {
             let Ok((host, x)) = hosts.get(point.host) else {
-                continue;
+                status.fail(SolverError::Module {
+                    step: step.number,
+                    what: format!("load point {} has lost its host material point", point.id),
+                    recoverable: false,
+                });
+                return;
             };
             point.support = host_weights(&host.0, &(point.position - x.0));
             let force = point.traction * (point.area * step.factor);
@@ -490,8 +498,11 @@ pub fn write_tractions<const D: usize>(
 }
 
 /// Traction points of every `traction(...)` (`scene::seed_surface`); the traction must have
-/// one component per axis.
-fn resolve_tractions(scene: &Resolver) -> Result<Vec<TractionPointSpec>, ScriptError> {
+/// one component per axis. Adds each declaration's summary to `summaries`.
+fn resolve_tractions(
+    scene: &Resolver,
+    summaries: &mut Vec<LoadSummary>,
+) -> Result<Vec<TractionPointSpec>, ScriptError> {
     let grid = &scene.spec.grid;
     let material_points = scene.spec.material_point_positions();
     let mut points = Vec::new();
@@ -515,6 +526,14 @@ fn resolve_tractions(scene: &Resolver) -> Result<Vec<TractionPointSpec>, ScriptE
             "traction points",
         )
         .map_err(fail)?;
+        let area: f64 = seeded.iter().map(|seed| seed.area).sum();
+        summaries.push(LoadSummary::new(
+            declaration.at.line(),
+            "traction",
+            "traction points",
+            seeded.iter().map(|seed| &seed.position[..]),
+            traction.traction.iter().map(|c| c * area).collect(),
+        ));
         points.extend(seeded.into_iter().map(|seed| TractionPointSpec {
             position: seed.position,
             area: seed.area,
@@ -526,8 +545,12 @@ fn resolve_tractions(scene: &Resolver) -> Result<Vec<TractionPointSpec>, ScriptE
 }
 
 /// The load point of every `point_load_at(...)`: hosted by the nearest material point, which
-/// must be within a cell (the largest cell size) of the position.
-fn resolve_point_loads_at(scene: &Resolver) -> Result<Vec<TractionPointSpec>, ScriptError> {
+/// must be within a cell (the largest cell size) of the position. Adds each declaration's
+/// summary to `summaries`.
+fn resolve_point_loads_at(
+    scene: &Resolver,
+    summaries: &mut Vec<LoadSummary>,
+) -> Result<Vec<TractionPointSpec>, ScriptError> {
     let dim = scene.spec.dim();
     let mut loads = Vec::new();
     for declaration in scene.declarations::<PointLoadAtDeclaration>() {
@@ -544,6 +567,13 @@ fn resolve_point_loads_at(scene: &Resolver) -> Result<Vec<TractionPointSpec>, Sc
             }
         }
         let host = material_point_near(scene.spec, &load.at).map_err(fail)?;
+        summaries.push(LoadSummary::new(
+            declaration.at.line(),
+            "point_load_at",
+            "load point",
+            std::iter::once(&load.at[..]),
+            load.force.clone(),
+        ));
         loads.push(TractionPointSpec {
             position: load.at.clone(),
             area: 1.0,
