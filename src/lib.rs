@@ -11,7 +11,7 @@
 //!   [`effects`] (the built-in ones: materials, loads, constraints, GIMP/CPDI, FEM, ghost
 //!   penalty, stress recovery).
 //! * Pure kernels: [`basis`], [`material`], [`mechanics`], [`quadrature`], [`solver`],
-//!   [`analytic`], [`recovery`], [`ghost`], [`fem`], [`parameter`].
+//!   [`analytic`], [`recovery`], [`interpolation`], [`ghost`], [`fem`], [`parameter`].
 //! * Driver and I/O: [`run`] (build and drive a simulation), [`records`] (summary.json),
 //!   [`checkpoint`] (saved states, part by part), [`restart`] (checkpoint files, resuming),
 //!   [`explain`] (what a scene runs), [`scene`] (Rhai), [`output`] (VTK), [`study`] (sweeps,
@@ -26,6 +26,7 @@ pub mod effects;
 pub mod explain;
 pub mod fem;
 pub mod ghost;
+pub mod interpolation;
 pub mod interrupt;
 pub mod material;
 pub mod mechanics;

@@ -17,7 +17,9 @@ use impm::plugin::{Module, ModuleSet};
 use impm::restart::{Checkpoint, RunIdentity};
 use impm::run::{RestartPlan, RunError, default_output_dir, run_scene_restartable};
 use impm::scene::{SceneLimits, rank_warnings, scene_parameters};
-use impm::study::{RunOutcome, StudyEvent, StudyPlan, Sweep, default_study_dir, run_study};
+use impm::study::{
+    RunOutcome, StudyEvent, StudyPlan, Sweep, default_study_dir, parse_reference, run_study,
+};
 
 #[derive(Parser)]
 #[command(
@@ -75,6 +77,11 @@ enum Command {
         /// Also write and plot the final stress of every point along the column.
         #[arg(long)]
         profiles: bool,
+        /// The error measure: the relative error of a recorded quantity (a history.csv column)
+        /// against this value, e.g. --reference tip_deflection=-0.0732 (replaces the scene's
+        /// reference(...)).
+        #[arg(long, value_name = "NAME=VALUE")]
+        reference: Option<String>,
         /// Stop a run after this many seconds (at the end of its load step in flight), record
         /// it as "timed out" and go on with the next.
         #[arg(long, value_name = "SECONDS")]
@@ -173,6 +180,7 @@ fn run(cli: Cli) -> Result<(), Failure> {
             out,
             against,
             profiles,
+            reference,
             timeout,
             limit,
         } => {
@@ -188,6 +196,7 @@ fn run(cli: Cli) -> Result<(), Failure> {
                 profiles,
                 timeout: timeout_seconds(timeout)?,
                 limits: limits(&limit)?,
+                reference: reference.as_deref().map(parse_reference).transpose()?,
             };
             study_command(&plan)
         }

@@ -520,3 +520,274 @@ fn plot_draws_history_columns() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A probe reads a homogeneous deformation exactly, inside the points and outside their hull
+/// (at the top corner, where the fit extrapolates): with Nitsche and GIMP (2D) or domain
+/// integration (3D) the uniaxial strain is exact at every point, so the probe's displacement,
+/// Cauchy stress and F equal the exact ones to 1e-6.
+#[test]
+fn probes_read_a_homogeneous_deformation_exactly() {
+    let stretch = 0.8;
+    let (vertical, lateral) = hencky_uniaxial(stretch);
+    type Probes<'a> = &'a [(&'a str, Vec<f64>)];
+    for dim in [2, 3] {
+        let (probes, set): (Probes, Vec<(&str, &str)>) = if dim == 2 {
+            (
+                &[("inside", vec![0.3, 0.77]), ("corner", vec![1.0, 1.0])],
+                vec![("basis", "gimp"), ("method", "nitsche")],
+            )
+        } else {
+            (
+                &[
+                    ("inside", vec![0.3, 0.6, 0.77]),
+                    ("corner", vec![1.0, 1.0, 1.0]),
+                ],
+                vec![("integration", "domain"), ("method", "nitsche")],
+            )
+        };
+        let mut text = if dim == 2 {
+            uniaxial::<2>()
+        } else {
+            uniaxial::<3>()
+        };
+        for (name, at) in probes {
+            text +=
+                &format!("probe(#{{ name: \"{name}\", at: {at:?}, stress: true, F: true }});\n");
+        }
+        let steps = if dim == 2 {
+            run::<2>("probe_exact", &text, &set).1
+        } else {
+            run::<3>("probe_exact", &text, &set).1
+        };
+        let last = steps.last().unwrap();
+        let v = dim - 1;
+        let axes = ["x", "y", "z"];
+        for (name, at) in probes {
+            let value = |key: String| {
+                last.measure(&key)
+                    .unwrap_or_else(|| panic!("{key} not recorded"))
+            };
+            for a in 0..dim {
+                let exact_u = if a == v { (stretch - 1.0) * at[v] } else { 0.0 };
+                let u = value(format!("{name}_displacement_{}", axes[a]));
+                assert!(
+                    (u - exact_u).abs() < 1e-6 * 0.2,
+                    "{dim}D {name} u_{a} {u} vs {exact_u}"
+                );
+                for b in 0..dim {
+                    let exact_f = match (a == b, a == v) {
+                        (true, true) => stretch,
+                        (true, false) => 1.0,
+                        _ => 0.0,
+                    };
+                    let f = value(format!("{name}_F_{}{}", axes[a], axes[b]));
+                    assert!((f - exact_f).abs() < 1e-6, "{dim}D {name} F_{a}{b} {f}");
+                }
+            }
+            for (a, axis) in axes.iter().enumerate() {
+                let exact = if a == v { vertical } else { lateral };
+                let s = value(format!("{name}_stress_{axis}{axis}"));
+                assert!(
+                    (s - exact).abs() < 1e-6 * vertical.abs(),
+                    "{dim}D {name} σ_{a}{a} {s} vs {exact}"
+                );
+            }
+            let shear = value(format!("{name}_stress_xy"));
+            assert!(
+                shear.abs() < 1e-6 * vertical.abs(),
+                "{dim}D {name} σ_xy {shear}"
+            );
+        }
+    }
+}
+
+/// The tip deflection of `scripts/beam_tip_probe.rhai` (its `tip_deflection` column).
+fn tip_deflection(set: &[(&str, &str)]) -> f64 {
+    let sim = common::run_shipped::<2>("beam_tip_probe.rhai", set);
+    let last = sim.summary.steps.last().unwrap();
+    let external = last.measure("external_force_y").unwrap();
+    assert!(
+        (external + 0.2).abs() < 1e-12,
+        "{set:?}: the load's resultant is {external}"
+    );
+    last.measure("tip_deflection").unwrap()
+}
+
+/// The cantilever of `scripts/beam_tip_probe.rhai`: a point load at the tip's mid-depth, where
+/// there is no material point, read by a tip probe. Quadratic B-splines with 8 cells per unit
+/// length give the tip deflection within 1 % of linear FEM on the same beam (Richardson
+/// extrapolation of 16 and 32 cells per unit: both converge like h², FEM through its shear
+/// locking); the MPM's own extrapolation (8 and 16) agrees with FEM's to 0.1 %.
+#[test]
+fn cantilever_tip_probe_matches_linear_fem() {
+    let mpm = [
+        tip_deflection(&[("cells_per_unit", "8")]),
+        tip_deflection(&[("cells_per_unit", "16")]),
+    ];
+    let fem = [
+        tip_deflection(&[("cells_per_unit", "16"), ("basis", "fem")]),
+        tip_deflection(&[("cells_per_unit", "32"), ("basis", "fem")]),
+    ];
+    let extrapolated = |d: [f64; 2]| d[1] + (d[1] - d[0]) / 3.0;
+    let reference = extrapolated(fem);
+    eprintln!(
+        "tip deflection: MPM {mpm:?} -> {:.6}, FEM {fem:?} -> {reference:.6}",
+        extrapolated(mpm)
+    );
+    assert!(
+        (mpm[0] - reference).abs() < 0.01 * reference.abs(),
+        "{mpm:?} vs {reference}"
+    );
+    assert!((mpm[1] - reference).abs() < (mpm[0] - reference).abs());
+    assert!(
+        (extrapolated(mpm) - reference).abs() < 1e-3 * reference.abs(),
+        "{mpm:?} vs {fem:?}"
+    );
+}
+
+/// A point load at the position of a material point is the point load on that point: the
+/// load point's basis is the point's own (every node of its support active), so the runs agree
+/// to round-off.
+#[test]
+fn a_point_load_at_a_material_point_is_the_point_load_on_it() {
+    let beam = std::fs::read_to_string(common::shipped_scene("beam_tip_probe.rhai")).unwrap();
+    // the material point at (9.9375, 1.4375) with 4 cells per unit length and ppc 2
+    let at = beam.replace(
+        "point_load_at(#{ at: [length, mid], force: [0.0, force] });",
+        "point_load_at(#{ at: [9.9375, 1.4375], force: [0.0, force] });",
+    );
+    let on = beam.replace(
+        "point_load_at(#{ at: [length, mid], force: [0.0, force] });",
+        "point_load(|x| x[0] > 9.93 && x[0] < 9.94 && x[1] > 1.43 && x[1] < 1.44, [0.0, force]);",
+    );
+    assert_ne!(at, beam);
+    assert_ne!(on, beam);
+    let tip = |name: &str, text: &str| {
+        let (_, steps) = run::<2>(name, text, &[]);
+        steps.last().unwrap().measure("tip_deflection").unwrap()
+    };
+    let (a, b) = (tip("load_at", &at), tip("load_on", &on));
+    assert!((a - b).abs() < 1e-12 * b.abs(), "{a} vs {b}");
+    assert!(b < -0.05, "{b}");
+}
+
+/// A probe or a point load away from every body is an error naming its line.
+#[test]
+fn probes_and_point_loads_off_the_body_are_errors() {
+    let dir = common::temp_dir("boundaries", "probe_off");
+    std::fs::create_dir_all(&dir).unwrap();
+    for call in [
+        "probe(#{ name: \"far\", at: [0.5, 3.0] });",
+        "point_load_at(#{ at: [0.5, 3.0], force: [0.0, 1.0] });",
+        "probe(#{ name: \"short\", at: [0.5, 0.5, 0.5] });",
+    ] {
+        let path = dir.join("off.rhai");
+        std::fs::write(&path, uniaxial::<2>() + call + "\n").unwrap();
+        let error = load_scene(&path, &[]).expect_err(call).to_string();
+        assert!(error.contains("off.rhai:17:"), "{call}: {error}");
+        assert!(
+            error.contains("not in or on a body") || error.contains("components"),
+            "{call}: {error}"
+        );
+    }
+}
+
+/// `impm study` over the cantilever of `scripts/beam_tip_probe.rhai` uses the scene's
+/// reference tip deflection as its error measure: every run has the relative error of
+/// `tip_deflection` (as its history.csv says), the error falls with the cells, and the error
+/// charts are drawn and titled with the quantity. `--reference` replaces the scene's value.
+#[test]
+fn a_study_over_a_recorded_quantity_draws_its_error_chart() {
+    use impm::study::{StudyPlan, Sweep, parse_reference, run_study};
+    for reference in [None, Some("tip_deflection=-0.0732")] {
+        let out_dir = common::temp_dir("boundaries", &format!("study{}", reference.is_some()));
+        let _ = std::fs::remove_dir_all(&out_dir);
+        let plan = StudyPlan {
+            scene: common::shipped_scene("beam_tip_probe.rhai"),
+            sweeps: vec![Sweep::parse("cells_per_unit=2,4,8").unwrap()],
+            fixed: Vec::new(),
+            out_dir: out_dir.clone(),
+            against: "cells_per_unit".into(),
+            profiles: false,
+            timeout: None,
+            limits: Default::default(),
+            reference: reference.map(|r| parse_reference(r).unwrap()),
+        };
+        let records = run_study(&plan, |_| {}).unwrap();
+        let value = if reference.is_some() {
+            -0.0732
+        } else {
+            -0.07319
+        };
+        let mut errors = Vec::new();
+        for record in &records {
+            let history =
+                std::fs::read_to_string(out_dir.join(&record.run_dir).join("history.csv")).unwrap();
+            let (names, columns) = impm::study::read_history(&history).unwrap();
+            let column = names.iter().position(|n| n == "tip_deflection").unwrap();
+            let q = *columns[column].last().unwrap();
+            let error = record.error.expect("an error measure");
+            assert!(
+                (error - (q - value).abs() / value.abs()).abs() < 1e-12,
+                "{error} for {q} against {value}"
+            );
+            assert_eq!(record.error_of.as_deref(), Some("tip_deflection"));
+            errors.push(error);
+        }
+        assert!(errors[0] > errors[1] && errors[1] > errors[2], "{errors:?}");
+        for chart in ["error_vs_cells_per_unit.svg", "error_vs_time.svg"] {
+            let svg = std::fs::read_to_string(out_dir.join(chart)).unwrap();
+            assert!(svg.contains("relative error of tip_deflection"), "{chart}");
+            assert!(
+                svg.contains("<polyline") || svg.contains("<path"),
+                "{chart} is empty"
+            );
+        }
+        let md = std::fs::read_to_string(out_dir.join("study.md")).unwrap();
+        assert!(md.contains("relative error of tip_deflection"), "{md}");
+        assert!(!md.contains("no run reports an error"), "{md}");
+    }
+}
+
+/// `impm check` lists every load declaration with its line, what it selects (count and
+/// coordinate range) and its total force at load factor 1: a body force (ρ b times the body's
+/// volume), point loads on every selected point and in total, a traction (h times the
+/// segment's length) and a point load at a position.
+#[test]
+fn check_lists_every_load_with_its_total_force() {
+    let text = r#"grid(#{ lower: [0.0, 0.0], upper: [2.0, 1.5], cells: [4, 3], basis: "bspline", order: 2 });
+const m = material(#{ name: "m", E: 1000.0, nu: 0.3, density: 2.0 });
+body(#{ name: "block", material: m, region: box([0.0, 0.0], [2.0, 1.0]), ppc: 2 });
+body_force([0.0, -10.0]);
+point_load(|x| x[1] > 0.7, [1.0, 0.0]);
+point_load_total(|x| x[0] > 1.7, [5.0, -8.0]);
+traction(#{ on: [[2.0, 0.2], [2.0, 0.8]], traction: [-30.0, 4.0] });
+point_load_at(#{ at: [1.0, 1.0], force: [0.0, -3.0] });
+fix(|x| x[1] == 0.0);
+load_steps(1);
+"#;
+    let dir = common::temp_dir("boundaries", "check_loads");
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("loads.rhai");
+    std::fs::write(&path, text).unwrap();
+    let output = common::impm(&["check", path.to_str().unwrap()]);
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        output.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    for expected in [
+        "line 4: body_force: 32 material points (all), x in [0.125, 0.125] .. [1.875, 0.875], total force [0.0, -40.0]",
+        "line 5: point_load: 8 material points, x in [0.125, 0.875] .. [1.875, 0.875], total force [8.0, 0.0]",
+        "line 6: point_load_total: 4 material points, x in [1.875, 0.125] .. [1.875, 0.875], total force [5.0, -8.0]",
+        "line 7: traction: 3 traction points, x in [2.0, 0.3] .. [2.0, 0.7], total force [-18.0, 2.4] at load factor 1",
+        "line 8: point_load_at: 1 load point, x in [1.0, 1.0] .. [1.0, 1.0], total force [0.0, -3.0]",
+        "line 9: fix1",
+    ] {
+        assert!(
+            stdout.contains(expected),
+            "missing '{expected}' in\n{stdout}"
+        );
+    }
+}

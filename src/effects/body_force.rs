@@ -11,6 +11,7 @@ use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 use rhai::Dynamic;
 
+use super::declarations::LoadSummary;
 use crate::components::{Mass, Support};
 use crate::mechanics::spread_force;
 use crate::plugin::{Extension, Hook, Plugin};
@@ -20,6 +21,10 @@ use crate::scene::{CallSpec, Located, Resolver, SceneApi, SceneSpec, ScriptError
 /// The scene's body force per unit mass at load factor 1 (one entry per axis).
 #[derive(Clone, Debug, PartialEq)]
 pub struct BodyForceSpec(pub Vec<f64>);
+
+/// Where the scene declared its body force (for `impm check`).
+#[derive(Clone, Debug, PartialEq)]
+struct BodyForceLine(Option<usize>);
 
 /// Body force per unit mass at load factor 1.
 #[derive(Resource, Clone, Copy, Debug, PartialEq)]
@@ -72,12 +77,37 @@ impl Plugin for BodyForceModule {
             ));
         }
         scene.spec.set_part(declared.value);
+        scene.spec.set_part(BodyForceLine(declared.at.line()));
         Ok(())
     }
 
+    /// The force per unit mass, and the declaration with its total force b Σ ρ₀ V_p over every
+    /// material point.
     fn describe(&self, spec: &SceneSpec) -> Option<String> {
-        spec.part::<BodyForceSpec>()
-            .map(|b| format!("{:?} per unit mass at load factor 1", b.0))
+        let b = spec.part::<BodyForceSpec>()?;
+        let mass: f64 = spec
+            .bodies
+            .iter()
+            .map(|body| {
+                let density = spec.materials.get(body.material).map_or(0.0, |m| m.density);
+                density * body.points.iter().map(|p| p.volume).sum::<f64>()
+            })
+            .sum();
+        let summary = LoadSummary::new(
+            spec.part::<BodyForceLine>().and_then(|l| l.0),
+            "body_force",
+            "material points (all)",
+            spec.bodies
+                .iter()
+                .flat_map(|body| &body.points)
+                .map(|p| &p.position[..]),
+            b.0.iter().map(|c| c * mass).collect(),
+        );
+        Some(format!(
+            "{:?} per unit mass at load factor 1\n    {}",
+            b.0,
+            summary.describe()
+        ))
     }
 
     fn used_by(&self, spec: &SceneSpec) -> bool {

@@ -29,6 +29,31 @@ pub struct RecordSpec {
     pub line: Option<usize>,
 }
 
+/// The scene's `reference(...)`: the reference value of a recorded quantity.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ReferenceSpec {
+    pub quantity: String,
+    pub value: f64,
+    pub line: Option<usize>,
+}
+
+impl ReferenceSpec {
+    /// The name of the recorded error, `QUANTITY_error`.
+    pub fn error_name(&self) -> String {
+        format!("{}_error", self.quantity)
+    }
+
+    /// |q − value| / |value|, or |q| when the value is zero.
+    pub fn error(&self, q: f64) -> f64 {
+        let difference = (q - self.value).abs();
+        if self.value == 0.0 {
+            difference
+        } else {
+            difference / self.value.abs()
+        }
+    }
+}
+
 /// The scene's `record(...)` calls.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Records(pub Vec<RecordSpec>);
@@ -68,6 +93,35 @@ impl Plugin for HistoryModule {
                 Ok(Dynamic::UNIT)
             },
         ));
+        api.call(CallSpec::options(
+            "reference",
+            "the reference (exact or converged) value of a recorded quantity at the end of the run: every step records its relative error as QUANTITY_error, and `impm study` uses it as the error measure (call once)",
+            vec![
+                OptionSpec::required(
+                    "quantity",
+                    Kind::Text,
+                    "a recorded quantity: a measure (e.g. `tip_displacement_y`) or the name of a `record`",
+                ),
+                OptionSpec::required("value", Kind::Number(Range::Any), "its reference value"),
+            ],
+            |builder, options: &Options, at| {
+                if let Some(previous) = builder.declared::<ReferenceSpec>().first() {
+                    return Err(format!(
+                        "reference(...) was already called{}; a run has one error measure",
+                        previous.line_note()
+                    ));
+                }
+                builder.declare(Located::new(
+                    ReferenceSpec {
+                        quantity: options.text("quantity").unwrap_or_default().to_string(),
+                        value: options.number("value").unwrap_or_default(),
+                        line: at.line(),
+                    },
+                    at,
+                ));
+                Ok(Dynamic::UNIT)
+            },
+        ));
     }
 
     fn resolve(&self, scene: &mut Resolver) -> Result<(), ScriptError> {
@@ -94,23 +148,38 @@ impl Plugin for HistoryModule {
         if !records.is_empty() {
             scene.spec.set_part(Records(records));
         }
+        if let Some(reference) = scene.declarations::<ReferenceSpec>().first() {
+            scene.spec.set_part(reference.value.clone());
+        }
         Ok(())
     }
 
     fn describe(&self, spec: &SceneSpec) -> Option<String> {
-        let records = &spec.part::<Records>()?.0;
-        let lines: Vec<String> = records
+        let records = spec.part::<Records>().map_or(&[][..], |r| &r.0);
+        let mut lines: Vec<String> = records
             .iter()
             .map(|r| {
                 let line = r.line.map(|l| format!("line {l}: ")).unwrap_or_default();
                 format!("{line}{} = {} × {}", r.name, r.scale, r.quantity)
             })
             .collect();
-        Some(lines.join("\n    "))
+        if let Some(reference) = spec.part::<ReferenceSpec>() {
+            let line = reference
+                .line
+                .map(|l| format!("line {l}: "))
+                .unwrap_or_default();
+            lines.push(format!(
+                "{line}reference {} = {} ({} records its relative error)",
+                reference.quantity,
+                reference.value,
+                reference.error_name()
+            ));
+        }
+        (!lines.is_empty()).then(|| lines.join("\n    "))
     }
 
     fn used_by(&self, spec: &SceneSpec) -> bool {
-        spec.part::<Records>().is_some()
+        spec.part::<Records>().is_some() || spec.part::<ReferenceSpec>().is_some()
     }
 
     fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
@@ -146,5 +215,50 @@ impl Plugin for HistoryModule {
                 Some(scale * world.get_resource::<MeasuredValues>()?.get(&quantity)?)
             });
         }
+        if let Some(reference) = simulation.spec().part::<ReferenceSpec>().cloned() {
+            add_reference_error(simulation, &measured, reference);
+        }
     }
+}
+
+/// `QUANTITY_error` of the scene's reference value; an error if nothing records the quantity.
+fn add_reference_error<const D: usize>(
+    simulation: &mut Extension<'_, D>,
+    measured: &[&'static str],
+    reference: ReferenceSpec,
+) {
+    let records: Vec<String> = simulation
+        .spec()
+        .part::<Records>()
+        .map_or(Vec::new(), |r| r.0.iter().map(|r| r.name.clone()).collect());
+    let quantity = reference.quantity.clone();
+    let known = quantity == LOAD_FACTOR
+        || measured.contains(&quantity.as_str())
+        || records.contains(&quantity);
+    if !known {
+        let line = reference
+            .line
+            .map(|l| format!("line {l}: "))
+            .unwrap_or_default();
+        simulation.fail(format!(
+            "{line}reference(...): '{quantity}' is not recorded; the recorded quantities are: {LOAD_FACTOR}, {}",
+            measured
+                .iter()
+                .map(|m| m.to_string())
+                .chain(records)
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
+        return;
+    }
+    // measure names live as long as the run's records
+    let name: &'static str = Box::leak(reference.error_name().into_boxed_str());
+    simulation.add_measure(name, move |world, factor| {
+        let value = if quantity == LOAD_FACTOR {
+            factor
+        } else {
+            world.get_resource::<MeasuredValues>()?.get(&quantity)?
+        };
+        Some(reference.error(value))
+    });
 }

@@ -15,9 +15,12 @@
 //! | `surface_conditions.rs` | prescribed displacements and supports on material surfaces |
 //! | `ghost_penalty.rs` | stabilisation of nearly empty cells |
 //! | `stress_recovery.rs` | moving-least-squares stress recovery |
+//! | `probes.rs` | displacement, stress and F at material reference positions (`probe`) |
 //! | `history.rs` | named columns of history.csv from the measured quantities (`record`) |
 
 pub mod body_force;
+pub mod carried_points;
+pub mod declarations;
 pub mod fem_mesh;
 pub mod ghost_penalty;
 pub mod grid_constraints;
@@ -25,6 +28,7 @@ pub mod history;
 pub mod materials;
 pub mod point_domains;
 pub mod point_loads;
+pub mod probes;
 pub mod stress_recovery;
 pub mod surface_conditions;
 pub mod tractions;
@@ -50,5 +54,6 @@ pub fn built_in() -> ModuleSet {
         .with(surface_conditions::SurfaceConditionsModule)
         .with(ghost_penalty::GhostPenaltyModule)
         .with(stress_recovery::StressRecoveryModule)
+        .with(probes::ProbesModule)
         .with(history::HistoryModule)
 }

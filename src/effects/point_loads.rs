@@ -15,6 +15,7 @@ use std::collections::BTreeMap;
 
 use rhai::{Dynamic, FnPtr};
 
+use super::declarations::LoadSummary;
 use crate::components::{PointId, Support};
 use crate::mechanics::spread_force;
 use crate::plugin::{Extension, Hook, Plugin};
@@ -37,6 +38,10 @@ pub struct PointLoadSpec {
 /// The scene's point loads (summed per point).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct PointLoads(pub Vec<PointLoadSpec>);
+
+/// Each `point_load` / `point_load_total` as `impm check` lists it.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PointLoadDeclarations(pub Vec<LoadSummary>);
 
 /// How a point load's force is given to the points its selector picks.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -113,9 +118,10 @@ impl Plugin for PointLoadsModule {
     }
 
     fn resolve(&self, scene: &mut Resolver) -> Result<(), ScriptError> {
-        let loads = resolve_point_loads(scene)?;
+        let (loads, declarations) = resolve_point_loads(scene)?;
         if !loads.is_empty() {
             scene.spec.set_part(PointLoads(loads));
+            scene.spec.set_part(PointLoadDeclarations(declarations));
         }
         Ok(())
     }
@@ -128,10 +134,18 @@ impl Plugin for PointLoadsModule {
                 *sum += c;
             }
         }
-        Some(format!(
+        let mut text = format!(
             "{} loaded points, total force {total:?} at load factor 1",
             loads.len()
-        ))
+        );
+        for declaration in spec
+            .part::<PointLoadDeclarations>()
+            .map_or(&[][..], |d| &d.0)
+        {
+            text += "\n    ";
+            text += &declaration.describe();
+        }
+        Some(text)
     }
 
     fn used_by(&self, spec: &SceneSpec) -> bool {
@@ -208,9 +222,13 @@ fn point_load_field<const D: usize>(
 
 /// Point loads on the seeded points: each declaration's selector is called with the reference
 /// position of every point (body after body, seeding order, which is the global point index);
-/// several loads on one point add up.
-fn resolve_point_loads(scene: &Resolver) -> Result<Vec<PointLoadSpec>, ScriptError> {
+/// several loads on one point add up. Also each declaration's summary for `impm check`.
+fn resolve_point_loads(
+    scene: &Resolver,
+) -> Result<(Vec<PointLoadSpec>, Vec<LoadSummary>), ScriptError> {
     let dim = scene.spec.dim();
+    let positions = scene.spec.material_point_positions();
+    let mut summaries = Vec::new();
     let mut forces: BTreeMap<usize, Vec<f64>> = BTreeMap::new();
     for declaration in scene.declarations::<PointLoadDeclaration>() {
         let load = &declaration.value;
@@ -244,6 +262,17 @@ fn resolve_point_loads(scene: &Resolver) -> Result<Vec<PointLoadSpec>, ScriptErr
             ));
         }
         let total_volume: f64 = selected.iter().map(|(_, volume)| volume).sum();
+        let count = match load.share {
+            Share::Each => selected.len() as f64,
+            Share::Total => 1.0,
+        };
+        summaries.push(LoadSummary::new(
+            declaration.at.line(),
+            function,
+            "material points",
+            selected.iter().map(|(index, _)| positions[*index]),
+            load.force.iter().map(|c| c * count).collect(),
+        ));
         for (index, volume) in selected {
             let scale = match load.share {
                 Share::Each => 1.0,
@@ -255,8 +284,9 @@ fn resolve_point_loads(scene: &Resolver) -> Result<Vec<PointLoadSpec>, ScriptErr
             }
         }
     }
-    Ok(forces
+    let loads = forces
         .into_iter()
         .map(|(point, force)| PointLoadSpec { point, force })
-        .collect())
+        .collect();
+    Ok((loads, summaries))
 }

@@ -80,10 +80,13 @@ use bevy_ecs::prelude::*;
 use nalgebra::{SMatrix, SVector};
 use rhai::Dynamic;
 
+use super::carried_points::{CarriedPoint, restore_positions, save_positions};
 use crate::basis::{BasisKind, BasisScratch, NodeWeight};
-use crate::checkpoint::{self, CheckpointPart};
+use crate::checkpoint::CheckpointPart;
 use crate::components::{DeformationGradient, Position, ReferencePosition, Support, Trial};
 use crate::mechanics::embed;
+
+use super::declarations::{coordinate_range, round};
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{
     Grid, GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock,
@@ -373,36 +376,13 @@ impl Plugin for SurfaceConditionsModule {
         simulation
             .checkpoint(CheckpointPart {
                 name: "boundary points",
-                save: save_boundary_points::<D>,
-                restore: restore_boundary_points::<D>,
+                save: save_positions::<D, BoundaryPoint<D>>,
+                restore: restore_positions::<D, BoundaryPoint<D>>,
             })
             .add_systems(Hook::Connectivity, find_boundary_supports::<D>)
             .add_systems(Hook::AfterAssembly, assemble_surface_conditions::<D>)
             .add_systems(Hook::PointUpdate, update_boundary_points::<D>);
     }
-}
-
-fn round(x: f64) -> f64 {
-    (x * 1e9).round() / 1e9
-}
-
-/// The smallest and largest coordinate per axis of `positions`.
-pub fn coordinate_range<'a>(positions: impl Iterator<Item = &'a [f64]>) -> (Vec<f64>, Vec<f64>) {
-    let (mut lower, mut upper) = (Vec::<f64>::new(), Vec::<f64>::new());
-    for x in positions {
-        if lower.is_empty() {
-            lower = x.to_vec();
-            upper = x.to_vec();
-        }
-        for (a, &c) in x.iter().enumerate() {
-            lower[a] = lower[a].min(c);
-            upper[a] = upper[a].max(c);
-        }
-    }
-    (
-        lower.into_iter().map(round).collect(),
-        upper.into_iter().map(round).collect(),
-    )
 }
 
 /// Names of the axes in measure names.
@@ -501,27 +481,16 @@ fn spawn_boundary_points<const D: usize>(
     Ok(())
 }
 
-fn save_boundary_points<const D: usize>(world: &mut World) -> Vec<f64> {
-    let mut points: Vec<_> = world
-        .query::<&BoundaryPoint<D>>()
-        .iter(world)
-        .map(|p| (p.id, p.position))
-        .collect();
-    points.sort_by_key(|(id, _)| *id);
-    points.iter().flat_map(|(_, x)| x.iter().copied()).collect()
-}
-
-fn restore_boundary_points<const D: usize>(
-    world: &mut World,
-    values: &[f64],
-) -> Result<(), String> {
-    let mut query = world.query::<&mut BoundaryPoint<D>>();
-    let count = query.iter(world).len();
-    let records: Vec<&[f64]> = checkpoint::records(values, D, count)?.collect();
-    for mut point in query.iter_mut(world) {
-        point.position = SVector::from_column_slice(records[point.id as usize]);
+impl<const D: usize> CarriedPoint<D> for BoundaryPoint<D> {
+    fn id(&self) -> u32 {
+        self.id
     }
-    Ok(())
+    fn position(&self) -> SVector<f64, D> {
+        self.position
+    }
+    fn position_mut(&mut self) -> &mut SVector<f64, D> {
+        &mut self.position
+    }
 }
 
 /// The weights N̂_i of a boundary point (module docs): the basis at the point, `support`, when

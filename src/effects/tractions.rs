@@ -9,6 +9,12 @@
 //! Each carries its reference area A_s and the traction h_s (force per unit reference area, of
 //! fixed direction: a dead load), and moves with the material ([`update_traction_points`]).
 //!
+//! **Point loads at any position** (`point_load_at(#{ at, force })`) are load points of the
+//! same kind: a point of unit "area" carrying the force P at a reference position X that need
+//! not be a material point, f_ext,i += λ P N_i(x), moving with the material like a traction
+//! point (its host is the material point nearest to X). A point load on a material point
+//! (`point_load`) is the special case X = X_p.
+//!
 //! Systems, added only when a scene declares tractions:
 //!
 //! * [`apply_tractions`] (`Hook::Loads`): evaluate the basis at x_s and spread λ h_s A_s over
@@ -29,15 +35,25 @@
 //! usual case: a boundary inside or on the face of a cell with material points) this is exactly
 //! the quadrature above. A traction point with no active node in its support is an error.
 //! Tractions act through the background grid's basis, so they do not apply to linear FEM.
+//!
+//! With linear FEM (`basis: "fem"`) a point load at a position is spread by its host's element
+//! instead: N̂_i = N_a(ξ_p) + ∇N_a(x_p) · (x − x_p), the first-order expansion of the host
+//! integration point's shape functions (the weights of [`host_weights`]). They sum to one and
+//! reproduce linear functions, so the nodal forces have the load's resultant and moment exactly
+//! (statically equivalent); they differ from N_a(x) only by the bilinear term of the element,
+//! a self-equilibrated nodal pattern whose effect is local (Saint-Venant).
 
 use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 
 use rhai::Dynamic;
 
+use super::carried_points::{CarriedPoint, restore_positions, save_positions};
+use super::declarations::LoadSummary;
+use super::probes::material_point_near;
 use crate::basis::{BasisKind, BasisScratch, NodeWeight};
-use crate::checkpoint::{self, CheckpointPart};
-use crate::components::{DeformationGradient, Position, ReferencePosition};
+use crate::checkpoint::CheckpointPart;
+use crate::components::{DeformationGradient, Position, ReferencePosition, Support};
 use crate::mechanics::spread_over_active;
 use crate::output::{Field, PvdSeries, vertex_cells, write_vtu};
 use crate::plugin::{Extension, Hook, Plugin};
@@ -95,6 +111,30 @@ struct TractionDeclaration {
     per_cell: usize,
 }
 
+/// `point_load_at(...)`: a force at a reference position, carried by a load point.
+#[derive(Clone, Debug)]
+struct PointLoadAtDeclaration {
+    at: Vec<f64>,
+    force: Vec<f64>,
+}
+
+/// The load points of the scene's `point_load_at(...)`: traction points of unit area whose
+/// traction is the force (module docs).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PointLoadsAt(pub Vec<TractionPointSpec>);
+
+/// Each `traction` and `point_load_at` as `impm check` lists it.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct LoadPointDeclarations(pub Vec<LoadSummary>);
+
+/// How load points get their weights: the basis at the point (MPM), or the host's element
+/// expanded to the point (linear FEM, module docs).
+#[derive(Resource, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LoadPointWeights {
+    Basis,
+    Host,
+}
+
 /// Why tractions do not apply to linear FEM.
 const NOT_WITH_FEM: &str = "tractions are applied through the background grid's basis; basis \"fem\" has a body-fitted mesh instead (use point_load_total on the boundary points)";
 
@@ -143,49 +183,89 @@ impl Plugin for TractionsModule {
                 Ok(Dynamic::UNIT)
             },
         ));
+        api.call(CallSpec::options(
+            "point_load_at",
+            "a force (at load factor 1, a dead load) at a reference position that need not be a material point, spread through the basis like a traction and carried by the material (with basis \"fem\": by the element of the nearest integration point)",
+            vec![
+                OptionSpec::required(
+                    "at",
+                    Kind::Numbers,
+                    "the reference position, one entry per axis (in or on the body, within a cell of its material points)",
+                ),
+                OptionSpec::required("force", Kind::Numbers, "the force P, one entry per axis"),
+            ],
+            |builder, options: &Options, at| {
+                builder.declare(Located::new(
+                    PointLoadAtDeclaration {
+                        at: options.numbers("at").unwrap_or_default().to_vec(),
+                        force: options.numbers("force").unwrap_or_default().to_vec(),
+                    },
+                    at,
+                ));
+                Ok(Dynamic::UNIT)
+            },
+        ));
     }
 
     fn resolve(&self, scene: &mut Resolver) -> Result<(), ScriptError> {
         if let Some(first) = scene.declarations::<TractionDeclaration>().first()
-            && !self.applies_to(scene.spec)
+            && scene.spec.grid.basis == BasisKind::Fem
         {
             return Err(ScriptError::at(
                 first.at,
                 format!("traction(...): {NOT_WITH_FEM}"),
             ));
         }
-        let points = resolve_tractions(scene)?;
+        let mut summaries = Vec::new();
+        let points = resolve_tractions(scene, &mut summaries)?;
         if !points.is_empty() {
             scene.spec.set_part(Tractions(points));
+        }
+        let loads = resolve_point_loads_at(scene, &mut summaries)?;
+        if !loads.is_empty() {
+            scene.spec.set_part(PointLoadsAt(loads));
+        }
+        if !summaries.is_empty() {
+            scene.spec.set_part(LoadPointDeclarations(summaries));
         }
         Ok(())
     }
 
     fn describe(&self, spec: &SceneSpec) -> Option<String> {
-        let points = &spec.part::<Tractions>()?.0;
-        let area: f64 = points.iter().map(|p| p.area).sum();
-        Some(format!(
-            "{} traction points on a boundary of reference area (length) {}",
-            points.len(),
-            (area * 1e9).round() / 1e9
-        ))
+        let mut parts = Vec::new();
+        if let Some(points) = spec.part::<Tractions>() {
+            let area: f64 = points.0.iter().map(|p| p.area).sum();
+            parts.push(format!(
+                "{} traction points on a boundary of reference area (length) {}",
+                points.0.len(),
+                (area * 1e9).round() / 1e9
+            ));
+        }
+        if let Some(loads) = spec.part::<PointLoadsAt>() {
+            parts.push(format!("{} point loads at positions", loads.0.len()));
+        }
+        let mut text = parts.join("; ");
+        for declaration in spec
+            .part::<LoadPointDeclarations>()
+            .map_or(&[][..], |d| &d.0)
+        {
+            text += "\n    ";
+            text += &declaration.describe();
+        }
+        (!parts.is_empty()).then_some(text)
     }
 
     fn used_by(&self, spec: &SceneSpec) -> bool {
-        spec.part::<Tractions>().is_some_and(|points| {
-            points
-                .0
-                .iter()
-                .any(|point| point.traction.iter().any(|&c| c != 0.0))
-        })
+        load_point_specs(spec).any(|point| point.traction.iter().any(|&c| c != 0.0))
     }
 
     fn applies_to(&self, spec: &SceneSpec) -> bool {
-        spec.grid.basis != BasisKind::Fem
+        spec.grid.basis != BasisKind::Fem || spec.part::<PointLoadsAt>().is_some()
     }
 
     fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
-        if !self.applies_to(simulation.spec()) && self.used_by(simulation.spec()) {
+        let fem = simulation.spec().grid.basis == BasisKind::Fem;
+        if fem && simulation.spec().part::<Tractions>().is_some() {
             simulation.fail(NOT_WITH_FEM);
             return;
         }
@@ -193,6 +273,11 @@ impl Plugin for TractionsModule {
             simulation.fail(why);
             return;
         }
+        simulation.world().insert_resource(if fem {
+            LoadPointWeights::Host
+        } else {
+            LoadPointWeights::Basis
+        });
         let dir = simulation.world().resource::<OutputPlan>().dir.clone();
         simulation
             .world()
@@ -200,14 +285,21 @@ impl Plugin for TractionsModule {
         simulation
             .checkpoint(CheckpointPart {
                 name: "traction points",
-                save: save_traction_points::<D>,
-                restore: restore_traction_points::<D>,
+                save: save_positions::<D, TractionPoint<D>>,
+                restore: restore_positions::<D, TractionPoint<D>>,
             })
             .series(|world| vec![&mut world.resource_mut::<TractionSeries>().into_inner().0])
             .add_systems(Hook::Loads, apply_tractions::<D>)
             .add_systems(Hook::PointUpdate, update_traction_points::<D>)
             .add_systems(Hook::Output, write_tractions::<D>);
     }
+}
+
+/// The scene's load points: the traction points, then the point loads at positions.
+fn load_point_specs(spec: &SceneSpec) -> impl Iterator<Item = &TractionPointSpec> {
+    let tractions = spec.part::<Tractions>().map_or(&[][..], |t| &t.0);
+    let loads = spec.part::<PointLoadsAt>().map_or(&[][..], |l| &l.0);
+    tractions.iter().chain(loads)
 }
 
 /// Spawns the scene's traction points (entities with a [`TractionPoint`] only).
@@ -224,9 +316,8 @@ fn spawn_traction_points<const D: usize>(simulation: &mut Extension<'_, D>) -> R
     let entities = simulation.point_entities();
     let spec = simulation.spec();
     let world = simulation.world();
-    let points = spec.part::<Tractions>().map_or(&[][..], |t| &t.0);
-    let mut batch = Vec::with_capacity(points.len());
-    for (id, point) in points.iter().enumerate() {
+    let mut batch = Vec::new();
+    for (id, point) in load_point_specs(spec).enumerate() {
         let position = vector(&point.position, "position")?;
         let host = *entities
             .get(point.host)
@@ -250,44 +341,70 @@ fn spawn_traction_points<const D: usize>(simulation: &mut Extension<'_, D>) -> R
     Ok(())
 }
 
-/// The traction points' positions, in id order.
-fn save_traction_points<const D: usize>(world: &mut World) -> Vec<f64> {
-    let mut points: Vec<_> = world
-        .query::<&TractionPoint<D>>()
-        .iter(world)
-        .map(|p| (p.id, p.position))
-        .collect();
-    points.sort_by_key(|(id, _)| *id);
-    points.iter().flat_map(|(_, x)| x.iter().copied()).collect()
+impl<const D: usize> CarriedPoint<D> for TractionPoint<D> {
+    fn id(&self) -> u32 {
+        self.id
+    }
+    fn position(&self) -> SVector<f64, D> {
+        self.position
+    }
+    fn position_mut(&mut self) -> &mut SVector<f64, D> {
+        &mut self.position
+    }
 }
 
-fn restore_traction_points<const D: usize>(
-    world: &mut World,
-    values: &[f64],
-) -> Result<(), String> {
-    let mut query = world.query::<&mut TractionPoint<D>>();
-    let count = query.iter(world).len();
-    let records: Vec<&[f64]> = checkpoint::records(values, D, count)?.collect();
-    for mut point in query.iter_mut(world) {
-        point.position = SVector::from_column_slice(records[point.id as usize]);
-    }
-    Ok(())
+/// The weights N_a(x_p) + ∇N_a(x_p) · `offset` of a host's support expanded to a point at
+/// x_p + `offset` (module docs: load points with linear FEM). They sum to one when the host's
+/// do, and reproduce linear functions.
+pub fn host_weights<const D: usize>(
+    host: &[NodeWeight<D>],
+    offset: &SVector<f64, D>,
+) -> Vec<NodeWeight<D>> {
+    host.iter()
+        .map(|w| NodeWeight {
+            node: w.node,
+            value: w.value + w.gradient.dot(offset),
+            gradient: w.gradient,
+        })
+        .collect()
 }
 
 /// Traction forces λ h_s A_s N_i(x_s) at the start-of-step positions.
+#[allow(clippy::too_many_arguments)] // a system: its parameters are what it reads and writes
 pub fn apply_tractions<const D: usize>(
     grid: Res<Grid<D>>,
     step: Res<LoadStep>,
+    weights: Res<LoadPointWeights>,
     mut fields: ResMut<GridFields<D>>,
     mut status: ResMut<RunStatus>,
     mut clock: ResMut<StageClock>,
     mut scratch: Local<BasisScratch>,
+    hosts: Query<(&Support<D>, &Position<D>)>,
     mut points: Query<&mut TractionPoint<D>>,
 ) {
     let _timer = clock.time(Stage::Loads);
     let fields = &mut *fields;
     for mut point in points.iter_mut() {
         let point = &mut *point;
+        if *weights == LoadPointWeights::Host {
+            let Ok((host, x)) = hosts.get(point.host) else {
+                status.fail(SolverError::Module {
+                    step: step.number,
+                    what: format!("load point {} has lost its host material point", point.id),
+                    recoverable: false,
+                });
+                return;
+            };
+            point.support = host_weights(&host.0, &(point.position - x.0));
+            let force = point.traction * (point.area * step.factor);
+            spread_over_active(
+                &force,
+                &point.support,
+                &fields.active,
+                &mut fields.external_force,
+            );
+            continue;
+        }
         let fail = |why: &str| SolverError::Module {
             step: step.number,
             what: format!(
@@ -382,8 +499,11 @@ pub fn write_tractions<const D: usize>(
 }
 
 /// Traction points of every `traction(...)` (`scene::seed_surface`); the traction must have
-/// one component per axis.
-fn resolve_tractions(scene: &Resolver) -> Result<Vec<TractionPointSpec>, ScriptError> {
+/// one component per axis. Adds each declaration's summary to `summaries`.
+fn resolve_tractions(
+    scene: &Resolver,
+    summaries: &mut Vec<LoadSummary>,
+) -> Result<Vec<TractionPointSpec>, ScriptError> {
     let grid = &scene.spec.grid;
     let material_points = scene.spec.material_point_positions();
     let mut points = Vec::new();
@@ -407,6 +527,14 @@ fn resolve_tractions(scene: &Resolver) -> Result<Vec<TractionPointSpec>, ScriptE
             "traction points",
         )
         .map_err(fail)?;
+        let area: f64 = seeded.iter().map(|seed| seed.area).sum();
+        summaries.push(LoadSummary::new(
+            declaration.at.line(),
+            "traction",
+            "traction points",
+            seeded.iter().map(|seed| &seed.position[..]),
+            traction.traction.iter().map(|c| c * area).collect(),
+        ));
         points.extend(seeded.into_iter().map(|seed| TractionPointSpec {
             position: seed.position,
             area: seed.area,
@@ -415,4 +543,44 @@ fn resolve_tractions(scene: &Resolver) -> Result<Vec<TractionPointSpec>, ScriptE
         }));
     }
     Ok(points)
+}
+
+/// The load point of every `point_load_at(...)`: hosted by the nearest material point, which
+/// must be within a cell (the largest cell size) of the position. Adds each declaration's
+/// summary to `summaries`.
+fn resolve_point_loads_at(
+    scene: &Resolver,
+    summaries: &mut Vec<LoadSummary>,
+) -> Result<Vec<TractionPointSpec>, ScriptError> {
+    let dim = scene.spec.dim();
+    let mut loads = Vec::new();
+    for declaration in scene.declarations::<PointLoadAtDeclaration>() {
+        let load = &declaration.value;
+        let fail = |message: String| {
+            ScriptError::at(declaration.at, format!("point_load_at(...): {message}"))
+        };
+        for (what, values) in [("at", &load.at), ("force", &load.force)] {
+            if values.len() != dim {
+                return Err(fail(format!(
+                    "'{what}' has {} components but the grid is {dim}-dimensional",
+                    values.len()
+                )));
+            }
+        }
+        let host = material_point_near(scene.spec, &load.at).map_err(fail)?;
+        summaries.push(LoadSummary::new(
+            declaration.at.line(),
+            "point_load_at",
+            "load point",
+            std::iter::once(&load.at[..]),
+            load.force.clone(),
+        ));
+        loads.push(TractionPointSpec {
+            position: load.at.clone(),
+            area: 1.0,
+            traction: load.force.clone(),
+            host,
+        });
+    }
+    Ok(loads)
 }

@@ -22,9 +22,17 @@
 //! | `profiles.csv`, `profiles.svg/.png`, `profile_errors.svg/.png` | with `--profiles`: the final stress of every point along the column axis against the analytic solution, and the pointwise error |
 //! | `runs/NNN/` | each run's own output (`summary.json`, initial and final `.vtu`) |
 //!
-//! The error charts and rates need an error measure: a scene without an analytic solution
-//! (`analytic_column(...)`) gets neither, and `study.md` and the console say so
-//! ([`NO_ERROR_MEASURE`]) instead of drawing empty charts.
+//! ## The error measure
+//!
+//! The error of a run is, in this order:
+//! * with `--reference NAME=VALUE`, or when the scene declares `reference(#{ quantity, value })`
+//!   (the command line wins): the relative error |q − value| / |value| of the recorded quantity
+//!   q (a history column: a probe's `tip_displacement_y`, a `record`'s name, a reaction...)
+//!   after the last step; the charts say which quantity;
+//! * else, when the scene declares an analytic solution (`analytic_column(...)`): eq. 15.
+//!
+//! The error charts and rates need an error measure: a scene with neither gets none, and
+//! `study.md` and the console say so ([`NO_ERROR_MEASURE`]) instead of drawing empty charts.
 //!
 //! ## How runs are executed and measured
 //!
@@ -55,6 +63,7 @@ pub use table::{convergence_rates, csv_header};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use crate::effects::history::ReferenceSpec;
 use crate::interrupt::{StopReason, set_deadline, stop_reason};
 use crate::resources::Stage;
 use crate::run::{RunError, run_scene_keeping_summary};
@@ -111,6 +120,35 @@ pub struct StudyPlan {
     pub timeout: Option<std::time::Duration>,
     /// The scene limits of every run (`--limit`).
     pub limits: crate::scene::SceneLimits,
+    /// The error measure's reference value (`--reference NAME=VALUE`), replacing the scene's.
+    pub reference: Option<ReferenceSpec>,
+}
+
+/// Parses `--reference NAME=VALUE`.
+pub fn parse_reference(text: &str) -> Result<ReferenceSpec, String> {
+    let (name, value) = text
+        .split_once('=')
+        .ok_or_else(|| format!("--reference expects NAME=VALUE, got '{text}'"))?;
+    let value: f64 = value
+        .trim()
+        .parse()
+        .ok()
+        .filter(|v: &f64| v.is_finite())
+        .ok_or_else(|| {
+            format!(
+                "--reference '{text}': '{}' is not a finite number",
+                value.trim()
+            )
+        })?;
+    let name = name.trim();
+    if name.is_empty() {
+        return Err(format!("--reference '{text}': empty quantity name"));
+    }
+    Ok(ReferenceSpec {
+        quantity: name.to_string(),
+        value,
+        line: None,
+    })
 }
 
 /// A run's result.
@@ -134,7 +172,10 @@ pub struct RunRecord {
     /// The swept parameters of this run, in sweep order.
     pub parameters: Vec<(String, String)>,
     pub outcome: RunOutcome,
+    /// The error measure after the last step: eq. 15, or the relative error of `error_of`.
     pub error: Option<f64>,
+    /// The recorded quantity whose relative error `error` is (`None`: eq. 15).
+    pub error_of: Option<String>,
     pub error_recovered: Option<f64>,
     pub points: Option<usize>,
     pub nodes: Option<usize>,
@@ -242,6 +283,7 @@ fn run_one(plan: &StudyPlan, index: usize, parameters: Vec<(String, String)>) ->
         parameters,
         outcome: RunOutcome::Completed,
         error: None,
+        error_of: None,
         error_recovered: None,
         points: None,
         nodes: None,
@@ -260,6 +302,9 @@ fn run_one(plan: &StudyPlan, index: usize, parameters: Vec<(String, String)>) ->
         match crate::effects::built_in().load_scene_within(&plan.scene, &overrides, &plan.limits) {
             Ok(mut spec) => {
                 spec.output.every = spec.load_factors.len().max(1);
+                if let Some(reference) = &plan.reference {
+                    spec.set_part(reference.clone());
+                }
                 spec
             }
             Err(e) => {
@@ -299,7 +344,13 @@ fn run_one(plan: &StudyPlan, index: usize, parameters: Vec<(String, String)>) ->
             record.stage_seconds[k] = clock.get(*stage).as_secs_f64();
         }
         if record.outcome == RunOutcome::Completed {
-            record.error = summary.final_error();
+            match spec.part::<ReferenceSpec>() {
+                Some(reference) => {
+                    record.error = summary.final_measure(&reference.error_name());
+                    record.error_of = Some(reference.quantity.clone());
+                }
+                None => record.error = summary.final_error(),
+            }
             record.error_recovered = summary.final_measure("error_recovered");
         }
     }
@@ -380,19 +431,21 @@ fn write_study_files(plan: &StudyPlan, records: &[RunRecord]) -> Result<(), Stri
     let measured = has_error_measure(records);
     let against = plot_axis(plan, records).filter(|_| measured);
     let mut charts = Vec::new();
+    let measure = error_measure_name(records);
     if let Some(against) = &against {
         let stem = format!("error_vs_{against}");
-        plot::error_against_parameter(records, against, &plan.out_dir.join(&stem))?;
-        charts.push((format!("Eq. 15 error against {against}"), stem));
+        plot::error_against_parameter(records, against, &measure, &plan.out_dir.join(&stem))?;
+        charts.push((format!("{} against {against}", capitalised(&measure)), stem));
     }
     if measured {
         plot::error_against_time(
             records,
             against.as_deref(),
+            &measure,
             &plan.out_dir.join("error_vs_time"),
         )?;
         charts.push((
-            "Accuracy-cost front: eq. 15 error against wall time".to_string(),
+            format!("Accuracy-cost front: {measure} against wall time"),
             "error_vs_time".to_string(),
         ));
     }
@@ -413,12 +466,30 @@ fn write_study_files(plan: &StudyPlan, records: &[RunRecord]) -> Result<(), Stri
 
 /// What a study says when no run reports an error (the error charts would be empty).
 pub const NO_ERROR_MEASURE: &str = "no run reports an error: the scene declares no analytic \
-    solution (analytic_column(...)), so the study tabulates times and iterations only, without \
-    error charts or convergence rates";
+    solution (analytic_column(...)) and no reference value of a recorded quantity \
+    (reference(#{ quantity, value }) in the scene or --reference NAME=VALUE), so the study \
+    tabulates times and iterations only, without error charts or convergence rates";
 
-/// Whether any run reports an error measure (eq. 15 against the scene's analytic solution).
+/// Whether any run reports an error measure (eq. 15, or a quantity against its reference).
 pub fn has_error_measure(records: &[RunRecord]) -> bool {
     records.iter().any(|r| r.error.is_some())
+}
+
+/// What the runs' error is, for chart titles and axes: "relative error of NAME" or "eq. 15
+/// error".
+pub fn error_measure_name(records: &[RunRecord]) -> String {
+    match records.iter().find_map(|r| r.error_of.as_deref()) {
+        Some(quantity) => format!("relative error of {quantity}"),
+        None => "eq. 15 error".to_string(),
+    }
+}
+
+fn capitalised(text: &str) -> String {
+    let mut chars = text.chars();
+    chars
+        .next()
+        .map(|c| c.to_uppercase().chain(chars).collect())
+        .unwrap_or_default()
 }
 
 /// The x parameter of the error plot: `plan.against` if swept and numeric, else the first

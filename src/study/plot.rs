@@ -317,6 +317,7 @@ fn error_series(
 pub fn error_against_parameter(
     records: &[RunRecord],
     against: &str,
+    measure: &str,
     stem: &Path,
 ) -> Result<(), String> {
     let x = |r: &RunRecord| {
@@ -327,7 +328,7 @@ pub fn error_against_parameter(
     chart(
         &error_series(records, against, x),
         against,
-        "error (eq. 15)",
+        measure,
         (true, true),
         SeriesLabelPosition::UpperRight,
         stem,
@@ -339,6 +340,7 @@ pub fn error_against_parameter(
 pub fn error_against_time(
     records: &[RunRecord],
     against: Option<&str>,
+    measure: &str,
     stem: &Path,
 ) -> Result<(), String> {
     let series = match against {
@@ -362,7 +364,7 @@ pub fn error_against_time(
     chart(
         &series,
         "wall time per run [s]",
-        "error (eq. 15)",
+        measure,
         (true, true),
         SeriesLabelPosition::UpperRight,
         stem,

@@ -201,6 +201,12 @@ pub fn markdown(
     let mut md = intro(plan, records);
     if !super::has_error_measure(records) {
         let _ = writeln!(md, "Note: {}.\n", super::NO_ERROR_MEASURE);
+    } else {
+        let _ = writeln!(
+            md,
+            "Error: the {} after the last load step.\n",
+            super::error_measure_name(records)
+        );
     }
     md.push_str(&runs_table(names, records));
     if let Some(against) = against {

@@ -1,0 +1,76 @@
+//! What `impm check` says of a load declaration: its line, what it selects (how many points,
+//! their coordinate range) and the total force at load factor 1, so that a user verifies the
+//! loads before solving. Each load module keeps a [`LoadSummary`] per declaration in its part
+//! of the scene and prints them in its `describe`.
+
+/// One load declaration as `impm check` lists it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LoadSummary {
+    /// Line of the declaring call.
+    pub line: Option<usize>,
+    /// The call (`point_load_total`, `traction`, ...).
+    pub call: &'static str,
+    /// What it selects, counted: "12 material points", "40 traction points".
+    pub selects: String,
+    /// Coordinate range of the selection (reference positions), per axis.
+    pub lower: Vec<f64>,
+    pub upper: Vec<f64>,
+    /// The total force at load factor 1.
+    pub total_force: Vec<f64>,
+}
+
+impl LoadSummary {
+    /// A summary of `call` at `line` over the reference `positions` it selects.
+    pub fn new<'a>(
+        line: Option<usize>,
+        call: &'static str,
+        what: &str,
+        positions: impl Iterator<Item = &'a [f64]>,
+        total_force: Vec<f64>,
+    ) -> Self {
+        let positions: Vec<&[f64]> = positions.collect();
+        let (lower, upper) = coordinate_range(positions.iter().copied());
+        Self {
+            line,
+            call,
+            selects: format!("{} {what}", positions.len()),
+            lower,
+            upper,
+            total_force: total_force.into_iter().map(round).collect(),
+        }
+    }
+
+    /// `line 12: point_load_total: 4 material points, x in [..] .. [..], total force [..] at
+    /// load factor 1`.
+    pub fn describe(&self) -> String {
+        let line = self.line.map(|l| format!("line {l}: ")).unwrap_or_default();
+        format!(
+            "{line}{}: {}, x in {:?} .. {:?}, total force {:?} at load factor 1",
+            self.call, self.selects, self.lower, self.upper, self.total_force
+        )
+    }
+}
+
+/// Rounds to 9 decimals for listings.
+pub fn round(x: f64) -> f64 {
+    (x * 1e9).round() / 1e9
+}
+
+/// The smallest and largest coordinate per axis of `positions` (rounded for listings).
+pub fn coordinate_range<'a>(positions: impl Iterator<Item = &'a [f64]>) -> (Vec<f64>, Vec<f64>) {
+    let (mut lower, mut upper) = (Vec::<f64>::new(), Vec::<f64>::new());
+    for x in positions {
+        if lower.is_empty() {
+            lower = x.to_vec();
+            upper = x.to_vec();
+        }
+        for (a, &c) in x.iter().enumerate() {
+            lower[a] = lower[a].min(c);
+            upper[a] = upper[a].max(c);
+        }
+    }
+    (
+        lower.into_iter().map(round).collect(),
+        upper.into_iter().map(round).collect(),
+    )
+}
