@@ -16,7 +16,7 @@ use impm::output::{FolderLock, clear_earlier_run};
 use impm::plugin::{Module, ModuleSet};
 use impm::restart::{Checkpoint, RunIdentity};
 use impm::run::{RestartPlan, RunError, default_output_dir, run_scene_restartable};
-use impm::scene::{SceneLimits, rank_warnings, scene_parameters};
+use impm::scene::{SceneLimits, scene_parameters, scene_warnings};
 use impm::study::{
     RunOutcome, StudyEvent, StudyPlan, Sweep, default_study_dir, parse_reference, run_study,
 };
@@ -298,7 +298,7 @@ fn run_command(
         steps,
         out_dir.display()
     ));
-    for warning in rank_warnings(&spec) {
+    for warning in scene_warnings(&spec) {
         note(&format!("warning: {warning}"));
     }
     let result = run_scene_restartable(&spec, &out_dir, modules, &plan, checkpoint, |record| {
@@ -476,7 +476,7 @@ fn check_command(
         .map_err(|e| e.to_string())?;
     let mut text = String::new();
     let _ = writeln!(text, "scene {} is valid", spec.name);
-    for warning in rank_warnings(&spec) {
+    for warning in scene_warnings(&spec) {
         let _ = writeln!(text, "warning: {warning}");
     }
     let _ = writeln!(text, "parameters (override with --set NAME=VALUE):");

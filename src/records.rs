@@ -131,9 +131,9 @@ pub struct Summary {
     pub status: &'static str,
     pub failure: Option<String>,
     pub failed_step: Option<StepRecord>,
-    /// What the scene cannot do right (e.g. too few points for the basis across a direction,
-    /// `scene::rank_warnings`, printed when the run starts) and what the modules warned about
-    /// during the run (e.g. a condition the material no longer follows).
+    /// What the scene cannot do right (`scene::scene_warnings`, printed when the run starts: too
+    /// few points for the basis across a direction, volumetric locking) and what the modules
+    /// warned about during the run (e.g. a condition the material no longer follows).
     pub warnings: Vec<String>,
     /// The command that continues this run from its last checkpoint (`impm run .. --resume`),
     /// written as `"resume"` while the run is not completed, when it keeps checkpoints.
@@ -208,7 +208,7 @@ impl Summary {
             status: "running",
             failure: None,
             failed_step: None,
-            warnings: crate::scene::rank_warnings(spec),
+            warnings: crate::scene::scene_warnings(spec),
             resume: None,
         }
     }

@@ -1270,3 +1270,31 @@ fn an_initial_stress_becomes_a_history_that_returns_it() {
         "{message}"
     );
 }
+
+/// A body of isochoric plastic flow (von Mises / Tresca) gets the volumetric-locking warning
+/// before it runs and in summary.json; an elastic or Mohr–Coulomb footing does not.
+#[test]
+fn tresca_soil_is_warned_about_volumetric_locking() {
+    let warned = |material: &str| {
+        let spec = impm::run::load_scene(
+            &common::shipped_scene("strip_footing.rhai"),
+            &common::overrides(&[("material", material)]),
+        )
+        .unwrap();
+        impm::scene::scene_warnings(&spec)
+            .iter()
+            .any(|w| w.contains("lock volumetrically"))
+    };
+    assert!(warned("tresca"));
+    assert!(!warned("elastic"));
+    assert!(!warned("mohr_coulomb"));
+    let sim = common::run_shipped::<2>(
+        "strip_footing.rhai",
+        &[
+            ("material", "tresca"),
+            ("steps", "1"),
+            ("settlement", "0.002"),
+        ],
+    );
+    assert!(sim.summary.warnings.iter().any(|w| w.contains("F-bar")));
+}
