@@ -267,36 +267,24 @@ impl Material for DruckerPrager {
         "Drucker-Prager elasto-plasticity at finite strain (perfect plasticity, cone and apex returns, associated or not), matched to Mohr-Coulomb"
     }
 
-    fn output_fields() -> &'static [(&'static str, usize)] {
-        elastoplastic::OUTPUT_FIELDS
-    }
-
-    fn output_values(history: &PlasticHistory, out: &mut Vec<f64>) {
-        elastoplastic::output_values(history, out);
-    }
-
-    fn respond<const D: usize>(
-        &self,
-        _deformation_gradient: &SMatrix<f64, D, D>,
-        increment: &SMatrix<f64, D, D>,
-        committed: &PlasticHistory,
-    ) -> Result<Response<D, PlasticHistory>, String> {
-        elastoplastic::respond(&self.elastic, increment, committed, |strain, stress, _| {
-            Ok(self.return_map(strain, stress))
-        })
-    }
-
-    fn stiffness_scale(&self) -> f64 {
-        self.elastic.youngs_modulus
-    }
-
-    fn history_from_stress(&self, stress: &Matrix3<f64>) -> Result<PlasticHistory, String> {
-        elastoplastic::history_from_stress(&self.elastic, stress, |strain, stress, _| {
-            Ok(self.return_map(strain, stress))
-        })
-    }
+    elastoplastic::elastoplastic_material_methods!();
 
     fn tangent_is_symmetric(&self) -> bool {
         self.eta == self.eta_bar
+    }
+}
+
+impl elastoplastic::PrincipalReturnMap for DruckerPrager {
+    fn elasticity(&self) -> &Hencky {
+        &self.elastic
+    }
+
+    fn principal_return(
+        &self,
+        strain: &Vector3<f64>,
+        stress: &Vector3<f64>,
+        _alpha: f64,
+    ) -> Result<PrincipalReturn, String> {
+        Ok(self.return_map(strain, stress))
     }
 }

@@ -112,6 +112,63 @@ pub fn output_values(history: &PlasticHistory, out: &mut Vec<f64>) {
     out.push(if history.yielding { 1.0 } else { 0.0 });
 }
 
+/// A model whose plastic correction is a return map in principal logarithmic-strain space over
+/// a Hencky elasticity: everything else of its [`Material`](super::Material) implementation is
+/// the same for every such model and comes from `elastoplastic_material_methods!`.
+pub trait PrincipalReturnMap {
+    /// The elasticity of the model.
+    fn elasticity(&self) -> &Hencky;
+
+    /// The return of the trial principal state (logarithmic strains, Kirchhoff stresses) with the
+    /// committed hardening variable `alpha`.
+    fn principal_return(
+        &self,
+        strain: &Vector3<f64>,
+        stress: &Vector3<f64>,
+        alpha: f64,
+    ) -> Result<PrincipalReturn, String>;
+}
+
+/// The methods of [`Material`](super::Material) shared by every [`PrincipalReturnMap`] model:
+/// output fields, the response through [`respond`], the stiffness scale and initial stresses
+/// through [`history_from_stress`]. Used inside `impl Material for Model { .. }`.
+macro_rules! elastoplastic_material_methods {
+    () => {
+        fn output_fields() -> &'static [(&'static str, usize)] {
+            elastoplastic::OUTPUT_FIELDS
+        }
+
+        fn output_values(history: &PlasticHistory, out: &mut Vec<f64>) {
+            elastoplastic::output_values(history, out);
+        }
+
+        fn respond<const D: usize>(
+            &self,
+            _deformation_gradient: &SMatrix<f64, D, D>,
+            increment: &SMatrix<f64, D, D>,
+            committed: &PlasticHistory,
+        ) -> Result<Response<D, PlasticHistory>, String> {
+            use elastoplastic::PrincipalReturnMap;
+            elastoplastic::respond(self.elasticity(), increment, committed, |e, t, a| {
+                self.principal_return(e, t, a)
+            })
+        }
+
+        fn stiffness_scale(&self) -> f64 {
+            use elastoplastic::PrincipalReturnMap;
+            self.elasticity().youngs_modulus
+        }
+
+        fn history_from_stress(&self, stress: &Matrix3<f64>) -> Result<PlasticHistory, String> {
+            use elastoplastic::PrincipalReturnMap;
+            elastoplastic::history_from_stress(self.elasticity(), stress, |e, t, a| {
+                self.principal_return(e, t, a)
+            })
+        }
+    };
+}
+pub(super) use elastoplastic_material_methods;
+
 /// What a principal-space return map gives.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PrincipalReturn {

@@ -276,36 +276,24 @@ impl Material for MohrCoulomb {
         "Mohr-Coulomb elasto-plasticity at finite strain (perfect plasticity, returns to the plane, the edges and the apex, associated or not), optional tension cut-off"
     }
 
-    fn output_fields() -> &'static [(&'static str, usize)] {
-        elastoplastic::OUTPUT_FIELDS
-    }
-
-    fn output_values(history: &PlasticHistory, out: &mut Vec<f64>) {
-        elastoplastic::output_values(history, out);
-    }
-
-    fn respond<const D: usize>(
-        &self,
-        _deformation_gradient: &SMatrix<f64, D, D>,
-        increment: &SMatrix<f64, D, D>,
-        committed: &PlasticHistory,
-    ) -> Result<Response<D, PlasticHistory>, String> {
-        elastoplastic::respond(&self.elastic, increment, committed, |_, stress, _| {
-            self.return_map(stress)
-        })
-    }
-
-    fn stiffness_scale(&self) -> f64 {
-        self.elastic.youngs_modulus
-    }
-
-    fn history_from_stress(&self, stress: &Matrix3<f64>) -> Result<PlasticHistory, String> {
-        elastoplastic::history_from_stress(&self.elastic, stress, |_, stress, _| {
-            self.return_map(stress)
-        })
-    }
+    elastoplastic::elastoplastic_material_methods!();
 
     fn tangent_is_symmetric(&self) -> bool {
         self.dilation == self.friction
+    }
+}
+
+impl elastoplastic::PrincipalReturnMap for MohrCoulomb {
+    fn elasticity(&self) -> &Hencky {
+        &self.elastic
+    }
+
+    fn principal_return(
+        &self,
+        _strain: &Vector3<f64>,
+        stress: &Vector3<f64>,
+        _alpha: f64,
+    ) -> Result<PrincipalReturn, String> {
+        self.return_map(stress)
     }
 }

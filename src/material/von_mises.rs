@@ -150,35 +150,20 @@ impl Material for VonMises {
         "von Mises (J2) elasto-plasticity at finite strain (Hencky elasticity, exponential map), perfect or with linear isotropic hardening; s_u gives Tresca's undrained soil in plane strain"
     }
 
-    fn output_fields() -> &'static [(&'static str, usize)] {
-        elastoplastic::OUTPUT_FIELDS
+    elastoplastic::elastoplastic_material_methods!();
+}
+
+impl elastoplastic::PrincipalReturnMap for VonMises {
+    fn elasticity(&self) -> &Hencky {
+        &self.elastic
     }
 
-    fn output_values(history: &PlasticHistory, out: &mut Vec<f64>) {
-        elastoplastic::output_values(history, out);
-    }
-
-    fn respond<const D: usize>(
+    fn principal_return(
         &self,
-        _deformation_gradient: &SMatrix<f64, D, D>,
-        increment: &SMatrix<f64, D, D>,
-        committed: &PlasticHistory,
-    ) -> Result<Response<D, PlasticHistory>, String> {
-        elastoplastic::respond(
-            &self.elastic,
-            increment,
-            committed,
-            |strain, stress, alpha| Ok(self.return_map(strain, stress, alpha)),
-        )
-    }
-
-    fn stiffness_scale(&self) -> f64 {
-        self.elastic.youngs_modulus
-    }
-
-    fn history_from_stress(&self, stress: &Matrix3<f64>) -> Result<PlasticHistory, String> {
-        elastoplastic::history_from_stress(&self.elastic, stress, |strain, stress, alpha| {
-            Ok(self.return_map(strain, stress, alpha))
-        })
+        strain: &Vector3<f64>,
+        stress: &Vector3<f64>,
+        alpha: f64,
+    ) -> Result<PrincipalReturn, String> {
+        Ok(self.return_map(strain, stress, alpha))
     }
 }
