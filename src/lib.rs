@@ -32,6 +32,7 @@ pub mod material;
 pub mod mechanics;
 pub mod method;
 pub mod output;
+pub mod parallel;
 pub mod parameter;
 pub mod plugin;
 pub mod quadrature;

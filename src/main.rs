@@ -56,6 +56,10 @@ enum Command {
         /// every output step.
         #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
         checkpoint_every: Option<u64>,
+        /// Threads for the per-point stages (default: the machine's cores, or
+        /// RAYON_NUM_THREADS); results are bit-identical for a given count.
+        #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+        threads: Option<u64>,
     },
     /// Run a scene over the cross product of parameter values; write study.csv, study.md and
     /// charts of error against cells and against wall time.
@@ -90,6 +94,10 @@ enum Command {
         /// order, support, points, memory in MB), e.g. --limit operations=1000000000.
         #[arg(long = "limit", value_name = "NAME=VALUE")]
         limit: Vec<String>,
+        /// Threads for the per-point stages (default: the machine's cores, or
+        /// RAYON_NUM_THREADS); results are bit-identical for a given count.
+        #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+        threads: Option<u64>,
     },
     /// Validate a scene without solving; list its parameters.
     Check {
@@ -165,7 +173,9 @@ fn run(cli: Cli) -> Result<(), Failure> {
             limit,
             resume,
             checkpoint_every,
+            threads,
         } => {
+            use_threads(threads)?;
             let restart = RunRestart {
                 resume,
                 every: checkpoint_every.map(|n| n as usize),
@@ -183,7 +193,9 @@ fn run(cli: Cli) -> Result<(), Failure> {
             reference,
             timeout,
             limit,
+            threads,
         } => {
+            use_threads(threads)?;
             let plan = StudyPlan {
                 out_dir: out.unwrap_or_else(|| default_study_dir(&scene)),
                 scene,
@@ -208,6 +220,14 @@ fn run(cli: Cli) -> Result<(), Failure> {
         } => check_command(&modules, &scene, &set, explain, &limits(&limit)?),
         Command::Plot { out_dir, x, y } => plot_command(&out_dir, &x, &y),
         Command::Api => say(&modules.scene_api().reference()),
+    }
+}
+
+/// `--threads N`: the global thread pool's size (otherwise rayon's default).
+fn use_threads(threads: Option<u64>) -> Result<(), Failure> {
+    match threads {
+        Some(n) => Ok(impm::parallel::use_threads(n as usize)?),
+        None => Ok(()),
     }
 }
 

@@ -138,6 +138,8 @@ pub struct Summary {
     /// The command that continues this run from its last checkpoint (`impm run .. --resume`),
     /// written as `"resume"` while the run is not completed, when it keeps checkpoints.
     pub resume: Option<String>,
+    /// The threads the stages ran on (`parallel::thread_count` when the run was built).
+    pub threads: usize,
 }
 
 /// A JSON number, or null where not finite (JSON has no NaN).
@@ -210,6 +212,7 @@ impl Summary {
             failed_step: None,
             warnings: crate::scene::scene_warnings(spec),
             resume: None,
+            threads: crate::parallel::thread_count(),
         }
     }
 
@@ -269,6 +272,7 @@ impl Summary {
             "points": self.points,
             "nodes": self.nodes,
             "planned_steps": self.planned_steps,
+            "threads": self.threads,
             "status": self.status,
             "steps": self.steps.iter().map(step_json).collect::<Vec<_>>(),
             "totals": {

@@ -158,6 +158,18 @@ impl SparseMatrix {
         rows: &[u32; D],
         block: &nalgebra::SMatrix<f64, D, D>,
     ) {
+        Self::add_block_to(&mut self.values, starts, rows, block);
+    }
+
+    /// Adds `block` into `values` (laid out as this matrix's values) at positions from
+    /// [`SparseMatrix::block_starts`], skipping components without a DOF.
+    #[inline]
+    pub fn add_block_to<const D: usize>(
+        values: &mut [f64],
+        starts: &[usize; D],
+        rows: &[u32; D],
+        block: &nalgebra::SMatrix<f64, D, D>,
+    ) {
         for (b, &start) in starts.iter().enumerate() {
             if start == NO_ENTRY {
                 continue;
@@ -165,12 +177,21 @@ impl SparseMatrix {
             let mut k = start;
             for (a, &row) in rows.iter().enumerate() {
                 if row != NO_DOF {
-                    debug_assert_eq!(self.row_idx[k], row as usize);
-                    self.values[k] += block[(a, b)];
+                    values[k] += block[(a, b)];
                     k += 1;
                 }
             }
         }
+    }
+
+    /// Lends the values apart from the pattern: `fill` reads the pattern (`block_starts`)
+    /// through `&Self` while it writes the values, or a copy of them per thread
+    /// (`stages/assembly.rs`). Inside `fill`, `values()` of the matrix is empty.
+    pub fn with_values_apart<R>(&mut self, fill: impl FnOnce(&Self, &mut [f64]) -> R) -> R {
+        let mut values = std::mem::take(&mut self.values);
+        let result = fill(self, &mut values);
+        self.values = values;
+        result
     }
 
     /// The matrix as a faer view.

@@ -9,12 +9,17 @@
 //! buffer, and the group's sum is scattered into the sparse values once, at positions cached
 //! for the group; so the inner loop is D³ multiply-adds and D² additions per pair, and the
 //! scattered writes are paid per cell rather than per point.
+//!
+//! Threads (`parallel`): the points are cut into one contiguous part per thread; each part sums
+//! into its own internal force and copy of the tangent values, and the copies are added in part
+//! order. Runs are bit-identical for a given thread count and equal to round-off across counts.
 
 use bevy_ecs::prelude::*;
 use nalgebra::{SMatrix, SVector};
 
 use crate::components::{ReferenceVolume, Support, Trial};
 use crate::mechanics::StiffnessFactor;
+use crate::parallel;
 use crate::resources::{GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock};
 use crate::solver::SparseMatrix;
 
@@ -66,8 +71,8 @@ impl<const D: usize> AssemblyScratch<D> {
     }
 
     /// Adds the group's summed blocks (and, if symmetric, their transposes for j != i) to the
-    /// sparse values and clears them.
-    fn flush(&mut self, dofs: &[[u32; D]], system: &mut SparseMatrix) {
+    /// sparse values (laid out as the system's) and clears them.
+    fn flush(&mut self, dofs: &[[u32; D]], values: &mut [f64]) {
         let m = self.cached_nodes.len();
         let mut pair = 0;
         for i in 0..m {
@@ -75,9 +80,10 @@ impl<const D: usize> AssemblyScratch<D> {
             for j in self.first_partner(i)..m {
                 let (starts_ij, starts_ji) = &self.starts[pair];
                 let k = &mut self.blocks[pair];
-                system.add_block_at(starts_ij, dofs_i, k);
+                SparseMatrix::add_block_to(values, starts_ij, dofs_i, k);
                 if self.symmetric && j != i {
-                    system.add_block_at(starts_ji, &dofs[self.cached_nodes[j]], &k.transpose());
+                    let dofs_j = &dofs[self.cached_nodes[j]];
+                    SparseMatrix::add_block_to(values, starts_ji, dofs_j, &k.transpose());
                 }
                 *k = SMatrix::zeros();
                 pair += 1;
@@ -86,24 +92,99 @@ impl<const D: usize> AssemblyScratch<D> {
     }
 }
 
+/// One thread's part of the assembly: its scratch, and the internal force and tangent values
+/// it sums (the first part sums straight into the grid's and the system's).
+#[derive(Default)]
+pub struct AssemblyPart<const D: usize> {
+    scratch: AssemblyScratch<D>,
+    internal_force: Vec<SVector<f64, D>>,
+    values: Vec<f64>,
+}
+
+#[allow(clippy::too_many_arguments)]
 pub fn assemble<const D: usize>(
     mut fields: ResMut<GridFields<D>>,
     mut newton: ResMut<Newton>,
     mut clock: ResMut<StageClock>,
     mut status: ResMut<RunStatus>,
     step: Res<LoadStep>,
-    mut scratch: Local<AssemblyScratch<D>>,
+    mut parts: Local<Vec<AssemblyPart<D>>>,
     points: Query<(&Support<D>, &Trial<D>, &ReferenceVolume)>,
 ) {
     let _timer = clock.time(Stage::Assembly);
-    let fields = &mut *fields;
-    let scratch = &mut *scratch;
+    let GridFields {
+        dofs,
+        internal_force,
+        ..
+    } = &mut *fields;
     let symmetric = newton.symmetric;
-    fields.internal_force.fill(SVector::zeros());
-    let system = &mut newton.matrix;
-    system.clear_values();
+    let mut points: Vec<_> = points.iter().collect();
+    // One part per thread (`parallel`), summed into its own force and values; the parts are
+    // added in order afterwards, so a given thread count gives bit-identical sums.
+    parts.resize_with(parallel::part_count(points.len()), Default::default);
+    newton.matrix.with_values_apart(|system, values| {
+        let (first, others) = parts.split_first_mut().expect("at least one part");
+        for part in others.iter_mut() {
+            part.internal_force
+                .resize(internal_force.len(), SVector::zeros());
+            part.values.resize(values.len(), 0.0);
+        }
+        let mut targets: Vec<_> =
+            std::iter::once((&mut first.scratch, &mut internal_force[..], &mut values[..]))
+                .chain(others.iter_mut().map(|part| {
+                    (
+                        &mut part.scratch,
+                        &mut part.internal_force[..],
+                        &mut part.values[..],
+                    )
+                }))
+                .collect();
+        parallel::for_each_part(&mut points, &mut targets, |_, points, target| {
+            let (scratch, internal_force, values) = target;
+            internal_force.fill(SVector::zeros());
+            values.fill(0.0);
+            assemble_points(
+                points,
+                dofs,
+                system,
+                symmetric,
+                scratch,
+                internal_force,
+                values,
+            );
+        });
+        let forces: Vec<&[_]> = others.iter().map(|p| &p.internal_force[..]).collect();
+        parallel::add_parts(internal_force, &forces);
+        let others: Vec<&[f64]> = others.iter().map(|p| &p.values[..]).collect();
+        parallel::add_parts(values, &others);
+    });
+    // Guard: a non-finite internal force is reported here, at the node where it appears.
+    if let Some(node) = internal_force
+        .iter()
+        .position(|f| f.iter().any(|c| !c.is_finite()))
+    {
+        status.fail(SolverError::NotFinite {
+            stage: "assembly",
+            what: format!("internal force of grid node {node}"),
+            step: step.number,
+        });
+    }
+}
+
+/// Sums the internal force and tangent blocks of `points` (consecutive points with the same
+/// support form a group, see the module docs) into `internal_force` and `values`.
+#[allow(clippy::type_complexity)]
+fn assemble_points<const D: usize>(
+    points: &[(&Support<D>, &Trial<D>, &ReferenceVolume)],
+    dofs: &[[u32; D]],
+    system: &SparseMatrix,
+    symmetric: bool,
+    scratch: &mut AssemblyScratch<D>,
+    internal_force: &mut [SVector<f64, D>],
+    values: &mut [f64],
+) {
     scratch.cached_nodes.clear();
-    for (support, trial, volume) in points.iter() {
+    for (support, trial, volume) in points {
         let (state, v0, support) = (&trial.0, volume.0, &support.0);
         if !scratch
             .cached_nodes
@@ -111,13 +192,8 @@ pub fn assemble<const D: usize>(
             .copied()
             .eq(support.iter().map(|w| w.node))
         {
-            scratch.flush(&fields.dofs, system);
-            scratch.cache_block_positions(
-                support.iter().map(|w| w.node),
-                &fields.dofs,
-                system,
-                symmetric,
-            );
+            scratch.flush(dofs, values);
+            scratch.cache_block_positions(support.iter().map(|w| w.node), dofs, system, symmetric);
         }
         scratch.gradients.clear();
         scratch
@@ -130,24 +206,12 @@ pub fn assemble<const D: usize>(
         let mut pair = 0;
         for (i, wi) in support.iter().enumerate() {
             let g_i = &scratch.gradients[i];
-            fields.internal_force[wi.node] += state.internal_force(v0, g_i);
+            internal_force[wi.node] += state.internal_force(v0, g_i);
             for factor_j in &scratch.factors[scratch.first_partner(i)..] {
                 scratch.blocks[pair] += state.stiffness_from(v0, g_i, factor_j);
                 pair += 1;
             }
         }
     }
-    scratch.flush(&fields.dofs, system);
-    // Guard: a non-finite internal force is reported here, at the node where it appears.
-    if let Some(node) = fields
-        .internal_force
-        .iter()
-        .position(|f| f.iter().any(|c| !c.is_finite()))
-    {
-        status.fail(SolverError::NotFinite {
-            stage: "assembly",
-            what: format!("internal force of grid node {node}"),
-            step: step.number,
-        });
-    }
+    scratch.flush(dofs, values);
 }

@@ -6,6 +6,9 @@
 //! runs one system per kind. The systems are added by the kinds' modules
 //! (`effects::materials::MaterialModule`), never by the core.
 //!
+//! The points are split across threads (`parallel`): each point's update is independent, so the
+//! result is the same for any thread count.
+//!
 //! History: the trial history of an iterate is computed from the committed one and kept beside
 //! it ([`PointHistory::trial`]); [`commit_history`] makes it the committed one after a converged
 //! load step. A failed attempt leaves the committed history untouched, so a cut step restarts
@@ -16,6 +19,7 @@ use bevy_ecs::prelude::*;
 use crate::components::{DeformationGradient, PointId, Support, Trial};
 use crate::material::Material;
 use crate::mechanics::{increment_gradient, trial_state_with_history};
+use crate::parallel;
 use crate::resources::{GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock};
 
 /// The point's constitutive model.
@@ -57,26 +61,35 @@ pub fn update_stress<const D: usize, M: Material>(
 ) {
     let _timer = clock.time(Stage::StressUpdate);
     let none = M::History::default();
-    for (id, support, f, material, mut trial, history) in points.iter_mut() {
-        let df = increment_gradient(&support.0, |node| fields.increment[node]);
-        let committed = history.as_ref().map_or(&none, |h| &h.committed);
-        match trial_state_with_history(&material.0, committed, &f.0, &df) {
-            Ok((state, trial_history)) => {
-                trial.0 = state;
-                if let Some(mut history) = history {
-                    history.trial = trial_history;
+    let mut points: Vec<_> = points.iter_mut().collect();
+    // One part per thread (`parallel`); each keeps the first point it could not update.
+    let mut failures = vec![None; parallel::part_count(points.len())];
+    parallel::for_each_part(&mut points, &mut failures, |_, part, failure| {
+        for (id, support, f, material, trial, history) in part.iter_mut() {
+            let df = increment_gradient(&support.0, |node| fields.increment[node]);
+            let committed = history.as_ref().map_or(&none, |h| &h.committed);
+            match trial_state_with_history(&material.0, committed, &f.0, &df) {
+                Ok((state, trial_history)) => {
+                    trial.0 = state;
+                    if let Some(history) = history {
+                        history.trial = trial_history;
+                    }
+                }
+                Err(why) => {
+                    *failure = Some((id.0, why.to_string()));
+                    return;
                 }
             }
-            Err(why) => {
-                status.fail(SolverError::BadPointState {
-                    point: id.0,
-                    step: step.number,
-                    iteration: newton.iterations,
-                    why: why.to_string(),
-                });
-                return;
-            }
         }
+    });
+    // The first failing point in the points' order, whatever the thread count.
+    if let Some((point, why)) = failures.into_iter().flatten().next() {
+        status.fail(SolverError::BadPointState {
+            point,
+            step: step.number,
+            iteration: newton.iterations,
+            why,
+        });
     }
 }
 

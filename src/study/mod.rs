@@ -49,7 +49,7 @@
 //!   and `study.md` says so.
 
 mod history_plot;
-mod memory;
+pub mod memory;
 mod plot;
 mod profile;
 mod table;

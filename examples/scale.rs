@@ -1,0 +1,503 @@
+//! Benchmark: how the cost of a load step grows with the number of points, per stage, for each
+//! linear-solver backend and for 1 and 2 threads, side by side in one process.
+//!
+//! Self-weight blocks (B-spline q = 2, 2 x 2 (x 2) points per cell, rollers on the sides, base
+//! fixed: the uniaxial-strain column, so every run also prints its eq. 15 error against the
+//! semi-analytical column and a wrong answer shows), for the sizes given:
+//!
+//! ```sh
+//! cargo run --release --example scale                        # 2D 10k, 40k; 3D 10k
+//! cargo run --release --example scale -- 2:10000,40000,160000 3:10000,30000 \
+//!     --backends direct,iterative --threads 1,2 --steps 2 --chart docs/scale
+//! ```
+//!
+//! `DIM:POINTS,..` chooses the blocks (the point count is rounded to whole cells); every
+//! (size, backend, threads) combination runs `--repeat N` times (default 1), and each stage's
+//! figure is its minimum over the repetitions (the machine's load varies). Per run: seconds per load step per stage,
+//! Newton iterations, the peak resident memory of the run (`VmHWM` after resetting it, see
+//! `impm::study::memory`) in bytes per point, and the largest items of memory per point as
+//! counted from the data structures. Then the exponent p of time ∝ points^p per stage,
+//! fitted by least squares in log-log over the sizes, per backend and thread count, and the
+//! 2-thread speed-up per stage. With `--chart STEM` it draws seconds per step against points
+//! (log-log), per stage, for each backend on the largest thread count.
+//!
+//! Results are recorded in docs/performance.md (with the machine's load at the time).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use impm::resources::{Newton, Stage};
+use impm::run::{Simulation, load_scene};
+use impm::scene::LinearBackend;
+use impm::study::memory;
+use impm::study::{Series, chart};
+
+/// The scene: a square (cube) block of side 1 under its own weight.
+fn scene_text(dim: usize) -> String {
+    let (zeros, ones, cells, vertical) = match dim {
+        2 => (
+            "[0.0, 0.0]",
+            "[1.0, 1.0]",
+            "[cells, cells]",
+            "[0.0, body_force]",
+        ),
+        _ => (
+            "[0.0, 0.0, 0.0]",
+            "[1.0, 1.0, 1.0]",
+            "[cells, cells, cells]",
+            "[0.0, 0.0, body_force]",
+        ),
+    };
+    let up = dim - 1;
+    let sides = if dim == 2 {
+        "fix(|x| x[0] == 0.0 || x[0] == 1.0, [0]);".to_string()
+    } else {
+        "fix(|x| x[0] == 0.0 || x[0] == 1.0, [0]);\nfix(|x| x[1] == 0.0 || x[1] == 1.0, [1]);"
+            .to_string()
+    };
+    format!(
+        "let cells = 10;\nlet steps = 2;\nlet body_force = -10000.0;\n\
+         const soil = material(#{{ name: \"block\", E: 1.0e6, nu: 0.3, density: 1.0 }});\n\
+         grid(#{{ lower: {zeros}, upper: {ones}, cells: {cells}, basis: \"bspline\", order: 2 }});\n\
+         body(#{{ name: \"block\", material: soil, region: box({zeros}, {ones}), ppc: 2 }});\n\
+         body_force({vertical});\n\
+         fix(|x| x[{up}] == 0.0, [{up}]);\n{sides}\n\
+         load_steps(steps);\n\
+         analytic_column(#{{ axis: {up}, height: 1.0, material: soil, body_force: body_force }});\n"
+    )
+}
+
+/// One run's figures.
+#[derive(Clone)]
+struct Figures {
+    points: usize,
+    dofs: usize,
+    iterations: usize,
+    /// Seconds per load step, per stage (`Stage::ALL` order).
+    stages: Vec<f64>,
+    wall: f64,
+    error: Option<f64>,
+    peak_mib: Option<f64>,
+    baseline_mib: Option<f64>,
+    /// Bytes per point counted from the data: (item, bytes per point).
+    items: Vec<(&'static str, f64)>,
+    /// The speed-up of a perfectly parallel loop on this run's threads against one thread,
+    /// measured just before the run: what the machine's load allowed at the time.
+    ceiling: f64,
+}
+
+struct Plan {
+    blocks: Vec<(usize, Vec<usize>)>,
+    backends: Vec<LinearBackend>,
+    threads: Vec<usize>,
+    steps: usize,
+    /// Runs of each combination; each stage's figure is the minimum over them (load noise).
+    repeat: usize,
+    chart: Option<PathBuf>,
+}
+
+fn parse() -> Result<Plan, String> {
+    let mut plan = Plan {
+        blocks: Vec::new(),
+        backends: vec![LinearBackend::Direct, LinearBackend::Iterative],
+        threads: vec![1, 2],
+        steps: 2,
+        repeat: 1,
+        chart: None,
+    };
+    let list = |s: &str| -> Result<Vec<usize>, String> {
+        s.split(',')
+            .map(|v| v.trim().parse().map_err(|_| format!("not a number: '{v}'")))
+            .collect()
+    };
+    let mut args = std::env::args().skip(1);
+    while let Some(arg) = args.next() {
+        let mut value = || args.next().ok_or(format!("{arg} needs a value"));
+        match arg.as_str() {
+            "--backends" => {
+                plan.backends = value()?
+                    .split(',')
+                    .map(|b| match b {
+                        "direct" => Ok(LinearBackend::Direct),
+                        "iterative" => Ok(LinearBackend::Iterative),
+                        _ => Err(format!("backend '{b}': direct or iterative")),
+                    })
+                    .collect::<Result<_, _>>()?
+            }
+            "--threads" => plan.threads = list(&value()?)?,
+            "--steps" => plan.steps = value()?.parse().map_err(|_| "--steps N".to_string())?,
+            "--repeat" => {
+                plan.repeat = value()?.parse().map_err(|_| "--repeat N".to_string())?;
+                plan.repeat = plan.repeat.max(1);
+            }
+            "--chart" => plan.chart = Some(PathBuf::from(value()?)),
+            block => {
+                let (dim, sizes) = block.split_once(':').ok_or(format!(
+                    "'{block}': expected DIM:POINTS,.. (e.g. 2:10000,40000)"
+                ))?;
+                let dim: usize = dim.parse().map_err(|_| format!("dimension '{dim}'"))?;
+                if !(2..=3).contains(&dim) {
+                    return Err(format!("dimension {dim}: 2 or 3"));
+                }
+                plan.blocks.push((dim, list(sizes)?));
+            }
+        }
+    }
+    if plan.blocks.is_empty() {
+        plan.blocks = vec![(2, vec![10_000, 40_000]), (3, vec![10_000])];
+    }
+    Ok(plan)
+}
+
+fn run<const D: usize>(
+    scene: &Path,
+    cells: usize,
+    steps: usize,
+    backend: LinearBackend,
+    threads: usize,
+) -> Figures {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("thread pool");
+    let ceiling = ceiling(threads);
+    pool.install(|| {
+        let set = [
+            ("cells".to_string(), cells.to_string()),
+            ("steps".to_string(), steps.to_string()),
+        ];
+        let mut spec = load_scene(scene, &set).unwrap_or_else(|e| panic!("{e}"));
+        spec.solver.linear = backend;
+        let out = std::env::temp_dir().join(format!("impm-scale-{}", std::process::id()));
+        let started = memory::begin_run();
+        let mut sim = Simulation::<D>::new(&spec, &out).unwrap_or_else(|e| panic!("{e}"));
+        sim.run(|_| {}).unwrap_or_else(|e| panic!("{e}"));
+        let items = memory_items(&mut sim);
+        let used = memory::end_run(started);
+        let _ = std::fs::remove_dir_all(&out);
+        let summary = &sim.summary;
+        let (stages, wall) = summary.total_seconds();
+        let n = summary.steps.len() as f64;
+        Figures {
+            points: summary.points,
+            dofs: summary.steps.last().map_or(0, |s| s.dofs),
+            iterations: summary.total_iterations(),
+            stages: stages.seconds.iter().map(|s| s.as_secs_f64() / n).collect(),
+            wall: wall / n,
+            error: summary.final_error(),
+            peak_mib: used.peak_mib,
+            baseline_mib: used.baseline_mib,
+            items,
+            ceiling,
+        }
+    })
+}
+
+/// The largest items of memory per point, counted from the data structures after the run.
+fn memory_items<const D: usize>(sim: &mut Simulation<D>) -> Vec<(&'static str, f64)> {
+    use impm::basis::NodeWeight;
+    use impm::components::{Support, Trial};
+    let points = sim.summary.points.max(1) as f64;
+    let mut support = 0usize;
+    for s in sim.world.query::<&Support<D>>().iter(&sim.world) {
+        support += s.0.capacity() * std::mem::size_of::<NodeWeight<D>>()
+            + std::mem::size_of::<Support<D>>();
+    }
+    let trial = std::mem::size_of::<Trial<D>>() as f64;
+    let matrix = &sim.world.resource::<Newton>().matrix;
+    // values (f64) and row indices (usize) per stored entry; column pointers are per DOF.
+    let tangent = (matrix.nonzeros() * 16 + matrix.size() * 8) as f64;
+    vec![
+        ("support (weights, gradients)", support as f64 / points),
+        ("trial state", trial),
+        ("tangent (values, pattern)", tangent / points),
+    ]
+}
+
+/// The speed-up of a loop without memory traffic or synchronisation (square roots, summed)
+/// on `threads` threads against one, now: on a machine shared with other work, no stage can
+/// gain more than this.
+fn ceiling(threads: usize) -> f64 {
+    use rayon::prelude::*;
+    const N: u64 = 40_000_000;
+    let work = |range: std::ops::Range<u64>| range.map(|i| (i as f64).sqrt()).sum::<f64>();
+    let timed = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("thread pool");
+        let start = std::time::Instant::now();
+        let parts = threads as u64;
+        let sum: f64 = pool.install(|| {
+            (0..parts)
+                .into_par_iter()
+                .map(|p| work(p * N / parts..(p + 1) * N / parts))
+                .sum()
+        });
+        std::hint::black_box(sum);
+        start.elapsed().as_secs_f64()
+    };
+    if threads == 1 {
+        return 1.0;
+    }
+    timed(1) / timed(threads)
+}
+
+/// Two runs of the same problem: each stage's and the step's shortest time, the larger peak.
+fn fastest(a: Figures, b: Figures) -> Figures {
+    Figures {
+        stages: a
+            .stages
+            .iter()
+            .zip(&b.stages)
+            .map(|(x, y)| x.min(*y))
+            .collect(),
+        wall: a.wall.min(b.wall),
+        ceiling: a.ceiling.max(b.ceiling),
+        peak_mib: a.peak_mib.into_iter().chain(b.peak_mib).reduce(f64::max),
+        ..a
+    }
+}
+
+/// Least-squares slope of log y against log x.
+fn exponent(samples: &[(f64, f64)]) -> Option<f64> {
+    let logs: Vec<(f64, f64)> = samples
+        .iter()
+        .filter(|(x, y)| *x > 0.0 && *y > 0.0)
+        .map(|(x, y)| (x.ln(), y.ln()))
+        .collect();
+    if logs.len() < 2 {
+        return None;
+    }
+    let n = logs.len() as f64;
+    let (mx, my) = logs
+        .iter()
+        .fold((0.0, 0.0), |(a, b), (x, y)| (a + x / n, b + y / n));
+    let (sxy, sxx) = logs.iter().fold((0.0, 0.0), |(a, b), (x, y)| {
+        (a + (x - mx) * (y - my), b + (x - mx) * (x - mx))
+    });
+    (sxx > 0.0).then(|| sxy / sxx)
+}
+
+fn backend_name(b: LinearBackend) -> String {
+    format!("{b:?}").to_lowercase()
+}
+
+/// The stages shown (the others cost less than a percent here).
+const SHOWN: [Stage; 6] = [
+    Stage::Connectivity,
+    Stage::StressUpdate,
+    Stage::Assembly,
+    Stage::LinearSolve,
+    Stage::UpdatePoints,
+    Stage::Output,
+];
+
+fn stage_index(stage: Stage) -> usize {
+    Stage::ALL.iter().position(|s| *s == stage).unwrap()
+}
+
+fn main() {
+    let plan = parse().unwrap_or_else(|e| {
+        eprintln!("error: {e}");
+        std::process::exit(2)
+    });
+    let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
+    println!(
+        "scale: self-weight block, B-spline q = 2, 2 points per cell per axis, {} load steps; \
+         load average at start: {}",
+        plan.steps,
+        load.split_whitespace()
+            .take(3)
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
+    let dir = std::env::temp_dir().join(format!("impm-scale-scenes-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temporary folder");
+    // (dim, backend, threads) -> runs in size order
+    let mut results: BTreeMap<(usize, String, usize), Vec<Figures>> = BTreeMap::new();
+    println!(
+        "| dim | points | DOFs | backend | threads | Newton its | {} | s per step | eq. 15 error | peak MiB | B per point |",
+        SHOWN
+            .iter()
+            .map(|s| s.name())
+            .collect::<Vec<_>>()
+            .join(" | ")
+    );
+    println!("|{}", "---|".repeat(11 + SHOWN.len()));
+    for (dim, sizes) in &plan.blocks {
+        let scene = dir.join(format!("block_{dim}d.rhai"));
+        std::fs::write(&scene, scene_text(*dim)).expect("scene file");
+        for &points in sizes {
+            let per_cell = 1usize << dim;
+            let cells = ((points / per_cell) as f64).powf(1.0 / *dim as f64).round() as usize;
+            let cells = cells.max(2);
+            for &backend in &plan.backends {
+                for &threads in &plan.threads {
+                    let f = (0..plan.repeat)
+                        .map(|_| match dim {
+                            2 => run::<2>(&scene, cells, plan.steps, backend, threads),
+                            _ => run::<3>(&scene, cells, plan.steps, backend, threads),
+                        })
+                        .reduce(fastest)
+                        .expect("at least one run");
+                    let peak_bytes = f.peak_mib.map(|m| m * 1048576.0);
+                    println!(
+                        "| {dim} | {} | {} | {} | {threads} | {} | {} | {:.3} | {} | {} | {} |",
+                        f.points,
+                        f.dofs,
+                        backend_name(backend),
+                        f.iterations,
+                        SHOWN
+                            .iter()
+                            .map(|s| format!("{:.3}", f.stages[stage_index(*s)]))
+                            .collect::<Vec<_>>()
+                            .join(" | "),
+                        f.wall,
+                        f.error.map_or("-".into(), |e| format!("{e:.2e}")),
+                        f.peak_mib.map_or("-".into(), |m| format!("{m:.0}")),
+                        peak_bytes.map_or("-".into(), |b| format!("{:.0}", b / f.points as f64)),
+                    );
+                    results
+                        .entry((*dim, backend_name(backend), threads))
+                        .or_default()
+                        .push(f);
+                }
+            }
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    report(&plan, &results);
+}
+
+fn report(plan: &Plan, results: &BTreeMap<(usize, String, usize), Vec<Figures>>) {
+    println!("\nexponent p of seconds per step ∝ points^p (least squares, log-log):");
+    println!(
+        "| dim | backend | threads | {} | whole step |",
+        SHOWN
+            .iter()
+            .map(|s| s.name())
+            .collect::<Vec<_>>()
+            .join(" | ")
+    );
+    println!("|{}", "---|".repeat(4 + SHOWN.len()));
+    for ((dim, backend, threads), runs) in results {
+        let fit = |y: &dyn Fn(&Figures) -> f64| {
+            let samples: Vec<(f64, f64)> = runs.iter().map(|f| (f.points as f64, y(f))).collect();
+            exponent(&samples).map_or("-".into(), |p| format!("{p:.2}"))
+        };
+        println!(
+            "| {dim} | {backend} | {threads} | {} | {} |",
+            SHOWN
+                .iter()
+                .map(|s| fit(&|f: &Figures| f.stages[stage_index(*s)]))
+                .collect::<Vec<_>>()
+                .join(" | "),
+            fit(&|f: &Figures| f.wall)
+        );
+    }
+    if let (Some(&one), Some(&many)) = (plan.threads.first(), plan.threads.last())
+        && many != one
+    {
+        println!(
+            "\nspeed-up with {many} threads against {one} (same process, same sizes; ceiling: \
+             a perfectly parallel loop's speed-up measured just before the {many}-thread run):"
+        );
+        println!(
+            "| dim | points | backend | {} | whole step | ceiling |",
+            SHOWN
+                .iter()
+                .map(|s| s.name())
+                .collect::<Vec<_>>()
+                .join(" | ")
+        );
+        println!("|{}", "---|".repeat(5 + SHOWN.len()));
+        for ((dim, backend, threads), runs) in results {
+            if *threads != one {
+                continue;
+            }
+            let Some(other) = results.get(&(*dim, backend.clone(), many)) else {
+                continue;
+            };
+            for (a, b) in runs.iter().zip(other) {
+                println!(
+                    "| {dim} | {} | {backend} | {} | {:.2}x | {:.2}x |",
+                    a.points,
+                    SHOWN
+                        .iter()
+                        .map(|s| {
+                            let i = stage_index(*s);
+                            format!("{:.2}x", a.stages[i] / b.stages[i])
+                        })
+                        .collect::<Vec<_>>()
+                        .join(" | "),
+                    a.wall / b.wall,
+                    b.ceiling
+                );
+            }
+        }
+    }
+    println!("\nmemory per point, counted from the data (largest run of each block):");
+    for ((dim, backend, threads), runs) in results {
+        if let Some(f) = runs.last() {
+            let counted: Vec<String> = f
+                .items
+                .iter()
+                .map(|(name, bytes)| format!("{name} {bytes:.0} B"))
+                .collect();
+            let held = match (f.peak_mib, f.baseline_mib) {
+                (Some(p), Some(b)) => format!(
+                    "peak {:.0} B/point ({:.0} B/point above the baseline)",
+                    p * 1048576.0 / f.points as f64,
+                    (p - b) * 1048576.0 / f.points as f64
+                ),
+                _ => "peak not measured".into(),
+            };
+            println!(
+                "  {dim}D {} points, {backend}, {threads} threads: {held}; {}",
+                f.points,
+                counted.join(", ")
+            );
+        }
+    }
+    if let Some(stem) = &plan.chart {
+        draw(plan, results, stem);
+    }
+}
+
+fn draw(plan: &Plan, results: &BTreeMap<(usize, String, usize), Vec<Figures>>, stem: &Path) {
+    let threads = *plan.threads.last().unwrap_or(&1);
+    for (dim, _) in &plan.blocks {
+        let mut series = Vec::new();
+        for (b, backend) in plan.backends.iter().enumerate() {
+            let Some(runs) = results.get(&(*dim, backend_name(*backend), threads)) else {
+                continue;
+            };
+            for (k, stage) in SHOWN.iter().enumerate() {
+                series.push(Series {
+                    label: format!("{} {}", stage.name(), backend_name(*backend)),
+                    points: runs
+                        .iter()
+                        .map(|f| (f.points as f64, f.stages[stage_index(*stage)]))
+                        .collect(),
+                    color: k,
+                    dashed: b > 0,
+                    markers: true,
+                    line: true,
+                });
+            }
+        }
+        let path = PathBuf::from(format!("{}_{dim}d", stem.display()));
+        match chart(
+            &series,
+            "points",
+            "seconds per load step",
+            (true, true),
+            plotters::prelude::SeriesLabelPosition::UpperLeft,
+            &path,
+        ) {
+            Ok(()) => println!("chart: {}.svg", path.display()),
+            Err(e) => eprintln!("chart: {e}"),
+        }
+    }
+}
