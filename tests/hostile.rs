@@ -415,6 +415,24 @@ fn corpus() -> Vec<Case> {
             "integer division to zero",
         ),
         check(
+            &base_with("let cells = 10;", "let cells = 10;\nconst h = 1 / cells;").replace(
+                "body_force([force]);",
+                "body_force([force]);\npoint_load(|x| x[0] > 10.0 - h, [1.0]);",
+            ),
+            1,
+            "points have x[0] in [0.25, 9.75]; a coordinate computed as a division of whole numbers",
+            "integer division to zero in a point-load predicate",
+        ),
+        check(
+            &BASE
+                .replace("[0.0]", "[1.0e16]")
+                .replace("[10.0]", "[1.0e16 + 10.0]")
+                .replace("x[0] == 0.0", "x[0] == 1.0e16"),
+            1,
+            "grid line 10 of axis 0 lies at 10000000000000010, where double precision resolves only 2e0",
+            "grid at 1e16 (cells not resolved)",
+        ),
+        check(
             &base_with("body_force([force]);", "body_force([force, 1.0]);"),
             1,
             "components",

@@ -28,7 +28,7 @@ use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{GridFields, LoadStep, Stage, StageClock, Warnings};
 use crate::scene::{
     CallSpec, Located, Resolver, SceneApi, SceneBuilder, SceneSpec, ScriptError, function, numbers,
-    whole_numbers,
+    selection_ranges, whole_numbers,
 };
 
 /// One constrained component of one grid node (control point). The prescribed displacement
@@ -617,14 +617,11 @@ fn resolve_constraints(
             }
         }
         if selected == 0 {
-            let ranges: Vec<String> = (0..dim)
-                .map(|axis| format!("x[{axis}] in [{}, {}]", grid.lower[axis], grid.upper[axis]))
-                .collect();
             return Err(ScriptError::at(
                 declaration.at,
                 format!(
                     "{function}(...): the predicate selects no grid node (nodes have {}; compare with a tolerance if needed)",
-                    ranges.join(", ")
+                    selection_ranges(nodes.iter().map(Vec::as_slice))
                 ),
             ));
         }

@@ -22,6 +22,7 @@ use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{GridFields, LoadStep, Stage, StageClock};
 use crate::scene::{
     CallSpec, FieldSpec, Located, Resolver, SceneApi, SceneSpec, ScriptError, function, numbers,
+    selection_ranges,
 };
 use crate::stages::output::{PointFields, pad};
 
@@ -257,7 +258,8 @@ fn resolve_point_loads(
             return Err(ScriptError::at(
                 declaration.at,
                 format!(
-                    "{function}(...): the predicate selects no material point (it is called with the reference position of every point; points sit inside their cells, not on cell faces)"
+                    "{function}(...): the predicate selects no material point (it is called with the reference position of every point, and points have {}; points sit inside their cells, not on cell faces)",
+                    selection_ranges(positions.iter().copied())
                 ),
             ));
         }
