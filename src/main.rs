@@ -1,4 +1,5 @@
 //! The `impm` command line: run, study or check a Rhai scene.
+#![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used))]
 
 mod cli;
 
@@ -437,6 +438,9 @@ fn study_command(plan: &StudyPlan) -> Result<(), Failure> {
     let records = records?;
     if !records.is_empty() && !impm::study::has_error_measure(&records) {
         note(&format!("warning: {}", impm::study::NO_ERROR_MEASURE));
+    }
+    for warning in impm::study::non_numeric_notes(plan, &records) {
+        note(&format!("warning: {warning}"));
     }
     let failed = records
         .iter()
