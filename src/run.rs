@@ -278,7 +278,9 @@ impl<const D: usize> Simulation<D> {
                 step: number,
                 why: e,
             })?;
-        Ok(self.summary.steps.last().expect("just pushed"))
+        #[allow(clippy::expect_used, reason = "the step's record was pushed above")]
+        let record = self.summary.steps.last().expect("just pushed");
+        Ok(record)
     }
 
     /// Records a step that could not be solved, and the error to report.
