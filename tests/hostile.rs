@@ -110,6 +110,12 @@ fn corpus() -> Vec<Case> {
             fragment: "limit on its evaluation time",
         },
         check(
+            "let m = #{}; let i = 0; loop { let n = #{}; n[`k${i}`] = i; m += n; i += 1; }\n",
+            1,
+            "--limit map",
+            "map grown by merging",
+        ),
+        check(
             "fn f(x) { f(x + 1) }\nf(1);\n",
             1,
             "--limit depth",
@@ -549,11 +555,47 @@ fn corpus() -> Vec<Case> {
             "given twice",
         ),
         case(
+            "study: --set twice",
+            Some(BASE),
+            &[
+                "study", "SCENE", "--sweep", "cells=5", "--set", "force=1", "--set", "force=2",
+                "--out", "DIR/s",
+            ],
+            1,
+            "parameter 'force' is given twice (1 and 2",
+        ),
+        case(
+            "study: a word in a numeric sweep",
+            Some(BASE),
+            &["study", "SCENE", "--sweep", "cells=5,ten", "--out", "DIR/s"],
+            1,
+            "parameter 'cells' = 'ten' is not a number",
+        ),
+        case(
             "study: empty value",
             Some(BASE),
             &["study", "SCENE", "--sweep", "cells=5,,6", "--out", "DIR/s"],
             1,
             "non-empty",
+        ),
+        // piped (no terminal): one line per converged step with its figures
+        case(
+            "progress when piped",
+            Some(BASE),
+            &["run", "SCENE", "--out", "DIR/o"],
+            0,
+            "step 4/4 λ=1.0000 iterations",
+        ),
+        // a tiny first increment converges (tolerance relative to the load scale)
+        case(
+            "tiny load increment",
+            Some(&base_with(
+                "load_steps(steps);",
+                "load_factors([1e-6, 1.0]);",
+            )),
+            &["run", "SCENE", "--out", "DIR/o"],
+            0,
+            "done: 2 steps",
         ),
         // a body with no support is named at the first solve, not after the step cuts
         Case {
