@@ -53,8 +53,8 @@ enum Command {
         /// (same scene and --set values); see "Restart" in docs/restart.md.
         #[arg(long, value_name = "OUT_DIR")]
         resume: Option<PathBuf>,
-        /// Write the checkpoint (OUT_DIR/checkpoint.json) every N load steps instead of at
-        /// every output step.
+        /// Write the checkpoint (OUT_DIR/checkpoint.json and checkpoint_NNNN.bin) every N load
+        /// steps instead of at every output step.
         #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
         checkpoint_every: Option<u64>,
     },

@@ -23,12 +23,13 @@ use nalgebra::SVector;
 use rhai::{Dynamic, FnPtr, Position};
 
 use crate::components::GridNode;
+use crate::effects::declarations::selection_ranges;
 use crate::effects::surface_conditions::AXES;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{GridFields, LoadStep, Stage, StageClock, Warnings};
 use crate::scene::{
     CallSpec, Located, Resolver, SceneApi, SceneBuilder, SceneSpec, ScriptError, function, numbers,
-    selection_ranges, whole_numbers,
+    whole_numbers,
 };
 
 /// One constrained component of one grid node (control point). The prescribed displacement

@@ -15,14 +15,13 @@ use std::collections::BTreeMap;
 
 use rhai::{Dynamic, FnPtr};
 
-use super::declarations::LoadSummary;
+use super::declarations::{LoadSummary, selection_ranges};
 use crate::components::{PointId, Support};
 use crate::mechanics::spread_force;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{GridFields, LoadStep, Stage, StageClock};
 use crate::scene::{
     CallSpec, FieldSpec, Located, Resolver, SceneApi, SceneSpec, ScriptError, function, numbers,
-    selection_ranges,
 };
 use crate::stages::output::{PointFields, pad};
 

@@ -460,34 +460,6 @@ fn resolve_load_schedule(
     }
 }
 
-/// What a predicate that selected nothing could have selected, for its message: the bounding
-/// box of `positions` per axis ("x[0] in [0, 10], x[1] in [0, 50]"), and a reminder of Rhai's
-/// integer division, the usual cause of a coordinate that silently became 0.
-pub fn selection_ranges<'a>(positions: impl IntoIterator<Item = &'a [f64]>) -> String {
-    let mut lower: Vec<f64> = Vec::new();
-    let mut upper: Vec<f64> = Vec::new();
-    for position in positions {
-        if lower.is_empty() {
-            lower = position.to_vec();
-            upper = position.to_vec();
-        }
-        for (axis, &x) in position.iter().enumerate() {
-            lower[axis] = lower[axis].min(x);
-            upper[axis] = upper[axis].max(x);
-        }
-    }
-    let ranges: Vec<String> = lower
-        .iter()
-        .zip(&upper)
-        .enumerate()
-        .map(|(axis, (l, u))| format!("x[{axis}] in [{l}, {u}]"))
-        .collect();
-    format!(
-        "{}; a coordinate computed as a division of whole numbers is itself whole in the scene language (1 / 4 is 0: write 1.0 / 4)",
-        ranges.join(", ")
-    )
-}
-
 /// Calls a script predicate on a position; it must return a boolean.
 pub fn call_predicate(
     predicate: &FnPtr,

@@ -52,7 +52,7 @@ use std::sync::Arc;
 
 pub use builder::{
     BodyDeclaration, LoadSchedule, Located, MAX_NODES, MAX_SEED_CANDIDATES, MaterialHandle,
-    PointsPerCell, Region, Resolver, SceneBuilder, ensure_unset, selection_ranges,
+    PointsPerCell, Region, Resolver, SceneBuilder, ensure_unset,
 };
 pub use engine::{SceneModule, load_scene_with, load_scene_within, scene_api, scene_parameters};
 pub use error::{SceneError, ScriptError};
