@@ -6,7 +6,8 @@
 //! A lock whose process no longer exists was left by a run that was killed; it is taken over
 //! and reported ([`FolderLock::killed_run`]). Only files impm writes are removed: series files
 //! `STEM_NNNN.vtu` of a series `STEM.pvd` in the folder, the `.pvd` files, `summary.json`,
-//! `history.csv`, `checkpoint.json` and its `checkpoint_NNNN.bin`, and the temporary files of interrupted atomic writes (`.NAME.PID.N.tmp`).
+//! `history.csv`, `checkpoint.json` and its `checkpoint_NNNN.bin`, and the temporary files of
+//! interrupted atomic writes (`.NAME.PID.N.tmp`).
 
 use std::fs;
 use std::io;
