@@ -57,7 +57,7 @@ pub fn round(x: f64) -> f64 {
 }
 
 /// What a predicate that selected nothing could have selected, for its message: the range of
-/// `positions` per axis ("x[0] in [0, 10], x[1] in [0, 50]"), and a reminder of Rhai's integer
+/// `positions` per axis (`x[0] in [0, 10], x[1] in [0, 50]`), and a reminder of Rhai's integer
 /// division, the usual cause of a coordinate that silently became 0.
 pub fn selection_ranges<'a>(positions: impl Iterator<Item = &'a [f64]>) -> String {
     let (lower, upper) = coordinate_range(positions);
