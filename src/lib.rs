@@ -17,6 +17,10 @@
 //!   [`explain`] (what a scene runs), [`scene`] (Rhai), [`output`] (VTK), [`study`] (sweeps,
 //!   tables and charts).
 
+// No panics on user input or I/O state: errors instead of unwrap/expect on every path the
+// command line reaches; the few true invariants carry an #[allow] with their reason.
+#![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used))]
+
 pub mod analytic;
 pub mod basis;
 pub mod checkpoint;

@@ -1,4 +1,5 @@
 //! The `impm` command line: run, study or check a Rhai scene.
+#![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used))]
 
 mod cli;
 
@@ -52,8 +53,8 @@ enum Command {
         /// (same scene and --set values); see "Restart" in docs/restart.md.
         #[arg(long, value_name = "OUT_DIR")]
         resume: Option<PathBuf>,
-        /// Write the checkpoint (OUT_DIR/checkpoint.json) every N load steps instead of at
-        /// every output step.
+        /// Write the checkpoint (OUT_DIR/checkpoint.json and checkpoint_NNNN.bin) every N load
+        /// steps instead of at every output step.
         #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
         checkpoint_every: Option<u64>,
         /// Threads for the per-point stages (default: the machine's cores, or
@@ -457,6 +458,9 @@ fn study_command(plan: &StudyPlan) -> Result<(), Failure> {
     let records = records?;
     if !records.is_empty() && !impm::study::has_error_measure(&records) {
         note(&format!("warning: {}", impm::study::NO_ERROR_MEASURE));
+    }
+    for warning in impm::study::non_numeric_notes(plan, &records) {
+        note(&format!("warning: {warning}"));
     }
     let failed = records
         .iter()

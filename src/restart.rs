@@ -1,21 +1,31 @@
 //! Checkpoint files and resuming a run (`impm run SCENE --resume OUT_DIR`).
 //!
-//! A run that keeps checkpoints writes `OUT_DIR/checkpoint.json` atomically (the output
-//! folder's [`write_atomic`]) after the initial state and after every output step (or every N
-//! steps, `impm run --checkpoint-every N`). It holds everything the rest of the run depends on:
+//! A run that keeps checkpoints writes `OUT_DIR/checkpoint.json`, a small header, and the bulk
+//! of the state in a binary file beside it, `OUT_DIR/checkpoint_NNNN.bin` (NNNN: the steps
+//! done), after the initial state and after every output step (or every N steps, `impm run
+//! --checkpoint-every N`). The header holds everything the rest of the run depends on:
 //!
 //! ```text
 //! format, version          "impm checkpoint", FORMAT_VERSION, and the impm version that wrote it
 //! scene, scene_hash, set   the scene file, a hash of its bytes, the --set overrides (RunIdentity)
 //! steps_done               the load step the state is after (the schedule position)
-//! parts                    every owner's saved state (checkpoint::CheckpointPart): the points'
-//!                          x, u, F, V; each module's own (plastic history, traction points...)
+//! parts                    every owner's saved state (checkpoint::CheckpointPart): its name and
+//!                          how many numbers it has in the binary file, in order (the points'
+//!                          x, u, F, V; each module's own: plastic history, traction points...)
+//! data                     the binary file's name, its length in bytes and its FNV-1a hash
 //! series                   the entries of every .pvd series (checkpoint::CheckpointSeries)
 //! steps, warnings          the records: summary.json's steps (history.csv is made from them)
 //! ```
 //!
-//! Numbers are stored exactly: every `f64` as the 16 hexadecimal digits of its bits, so a
-//! resumed run continues from the very same state and writes bit-identical files. The step
+//! Numbers are stored exactly, so a resumed run continues from the very same state and writes
+//! bit-identical files: in the binary file every `f64` as the 8 little-endian bytes of its
+//! bits, the parts one after the other; in the header (the series' times) as the 16
+//! hexadecimal digits of its bits. Both files are written atomically (the output folder's
+//! [`write_atomic`]), the binary one first: a run killed between the two leaves the previous
+//! header with its own binary file, which is removed only after the new header is in place.
+//! Reading checks the binary file's length and hash against the header, so a truncated or
+//! damaged file is refused with a message instead of resuming from a wrong state. At 100 000
+//! points the pair is half the size of format 1's hexadecimal JSON (docs/restart.md). The step
 //! control needs no state of its own: `StepCutting` starts every load step afresh, so the
 //! position in the schedule is `steps_done`.
 //!
@@ -30,13 +40,18 @@ use std::path::{Path, PathBuf};
 
 use serde_json::{Value, json};
 
-use crate::output::write_atomic;
+use crate::output::{is_checkpoint_data, write_atomic};
 
 /// The checkpoint's file name in the output folder.
 pub const CHECKPOINT_FILE: &str = "checkpoint.json";
 
 /// The version of the checkpoint format; a resumed run refuses any other.
-pub const FORMAT_VERSION: u64 = 1;
+pub const FORMAT_VERSION: u64 = 2;
+
+/// The binary file of the checkpoint after `steps_done` steps (see the module docs).
+pub fn data_file_name(steps_done: usize) -> String {
+    format!("checkpoint_{steps_done:04}.bin")
+}
 
 const FORMAT_NAME: &str = "impm checkpoint";
 
@@ -127,11 +142,22 @@ impl Checkpoint {
         dir.join(CHECKPOINT_FILE)
     }
 
-    /// Writes the checkpoint into `dir` atomically.
+    /// Writes the checkpoint into `dir` atomically: the binary file of the parts, then the
+    /// header naming it; then removes the binary files of earlier checkpoints.
     pub fn write(&self, dir: &Path) -> Result<(), String> {
+        let data_name = data_file_name(self.steps_done);
+        let data_path = dir.join(&data_name);
+        let mut data =
+            Vec::with_capacity(8 * self.parts.iter().map(|(_, v)| v.len()).sum::<usize>());
+        for value in self.parts.iter().flat_map(|(_, values)| values) {
+            data.extend_from_slice(&value.to_bits().to_le_bytes());
+        }
+        write_atomic(&data_path, &data).map_err(|e| format!("{}: {e}", data_path.display()))?;
         let path = Self::path_in(dir);
-        let text = serde_json::to_string(&self.to_json()).map_err(|e| e.to_string())?;
-        write_atomic(&path, text.as_bytes()).map_err(|e| e.to_string())
+        let header = self.to_json(&data_name, &data);
+        let text = serde_json::to_string(&header).map_err(|e| e.to_string())?;
+        write_atomic(&path, text.as_bytes()).map_err(|e| format!("{}: {e}", path.display()))?;
+        remove_other_data_files(dir, &data_name)
     }
 
     /// Reads the checkpoint of `dir` and checks that `identity` may resume it.
@@ -148,14 +174,14 @@ impl Checkpoint {
         })?;
         let value: Value = serde_json::from_str(&text)
             .map_err(|e| format!("{} is not a valid checkpoint: {e}", path.display()))?;
-        let checkpoint = Self::from_json(&value, &path)?;
+        let checkpoint = Self::from_json(&value, &path, dir)?;
         match identity.differs_from(&checkpoint.identity, &path) {
             Some(why) => Err(why),
             None => Ok(checkpoint),
         }
     }
 
-    fn to_json(&self) -> Value {
+    fn to_json(&self, data_name: &str, data: &[u8]) -> Value {
         json!({
             "format": FORMAT_NAME,
             "version": FORMAT_VERSION,
@@ -166,8 +192,13 @@ impl Checkpoint {
             "steps_done": self.steps_done,
             "parts": self.parts.iter().map(|(name, values)| json!({
                 "name": name,
-                "values": hex(values),
+                "count": values.len(),
             })).collect::<Vec<_>>(),
+            "data": {
+                "file": data_name,
+                "bytes": data.len(),
+                "fnv1a": format!("{:016x}", fnv1a(data)),
+            },
             "series": self.series.iter().map(|(file, entries)| json!({
                 "file": file,
                 "entries": entries
@@ -180,7 +211,7 @@ impl Checkpoint {
         })
     }
 
-    fn from_json(value: &Value, path: &Path) -> Result<Self, String> {
+    fn from_json(value: &Value, path: &Path, dir: &Path) -> Result<Self, String> {
         let bad = |what: &str| format!("{} is not a valid checkpoint: {what}", path.display());
         if value["format"].as_str() != Some(FORMAT_NAME) {
             return Err(bad("it is not an impm checkpoint file"));
@@ -216,15 +247,33 @@ impl Checkpoint {
                 ))
             })
             .collect::<Result<_, String>>()?;
-        let parts = array(&value["parts"], "parts")?
+        let data = read_data(&value["data"], path, dir)?;
+        let mut numbers = data.chunks_exact(8).map(|bytes| {
+            let mut word = [0u8; 8];
+            word.copy_from_slice(bytes);
+            f64::from_bits(u64::from_le_bytes(word))
+        });
+        let parts: Vec<(String, Vec<f64>)> = array(&value["parts"], "parts")?
             .iter()
             .map(|part| {
                 let name = text(&part["name"], "a part's name")?;
-                let values = unhex(&text(&part["values"], "a part's values")?)
-                    .ok_or_else(|| bad(&format!("the values of part {name} are damaged")))?;
+                let count = part["count"]
+                    .as_u64()
+                    .ok_or_else(|| bad(&format!("the count of part {name} is not a count")))?;
+                let values: Vec<f64> = numbers.by_ref().take(count as usize).collect();
+                if values.len() as u64 != count {
+                    return Err(bad(&format!(
+                        "part {name} needs {count} numbers, the binary file holds fewer"
+                    )));
+                }
                 Ok((name, values))
             })
             .collect::<Result<_, String>>()?;
+        if numbers.next().is_some() {
+            return Err(bad(
+                "the binary file holds more numbers than the parts name",
+            ));
+        }
         let series = array(&value["series"], "series")?
             .iter()
             .map(|series| {
@@ -260,6 +309,61 @@ impl Checkpoint {
             warnings,
         })
     }
+}
+
+/// The binary file a checkpoint header names, checked against the length and hash it gives.
+fn read_data(data: &Value, path: &Path, dir: &Path) -> Result<Vec<u8>, String> {
+    let bad = |what: &str| format!("{} is not a valid checkpoint: {what}", path.display());
+    let name = data["file"]
+        .as_str()
+        .filter(|name| !name.contains(['/', '\\']) && name.starts_with("checkpoint_"))
+        .ok_or_else(|| bad("it names no binary file (data.file)"))?;
+    let bytes = data["bytes"]
+        .as_u64()
+        .ok_or_else(|| bad("data.bytes is not a count"))?;
+    let hash = data["fnv1a"]
+        .as_str()
+        .ok_or_else(|| bad("data.fnv1a is not a string"))?;
+    let data_path = dir.join(name);
+    let contents = std::fs::read(&data_path).map_err(|e| {
+        format!(
+            "cannot read {}, the state of the checkpoint {}: {e}; run the scene anew without --resume",
+            data_path.display(),
+            path.display()
+        )
+    })?;
+    if contents.len() as u64 != bytes {
+        return Err(format!(
+            "{} is {} bytes long, but the checkpoint {} names {bytes}: the file is truncated or \
+             damaged, so the run cannot be continued from it; run the scene anew without --resume",
+            data_path.display(),
+            contents.len(),
+            path.display()
+        ));
+    }
+    if format!("{:016x}", fnv1a(&contents)) != hash {
+        return Err(format!(
+            "{} does not have the hash the checkpoint {} names: the file is damaged, so the run \
+             cannot be continued from it; run the scene anew without --resume",
+            data_path.display(),
+            path.display()
+        ));
+    }
+    Ok(contents)
+}
+
+/// Removes the binary files of earlier checkpoints in `dir` (all but `keep`).
+fn remove_other_data_files(dir: &Path, keep: &str) -> Result<(), String> {
+    let entries = std::fs::read_dir(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let name = name.to_string_lossy();
+        if name != keep && is_checkpoint_data(&name) {
+            std::fs::remove_file(entry.path())
+                .map_err(|e| format!("{}: {e}", entry.path().display()))?;
+        }
+    }
+    Ok(())
 }
 
 /// The numbers as the hexadecimal digits of their bits, 16 per number.
@@ -350,12 +454,55 @@ mod tests {
         let why = Checkpoint::read(&dir, &other).unwrap_err();
         assert!(why.contains("the scene changed"), "{why}");
         let mut text = std::fs::read_to_string(Checkpoint::path_in(&dir)).unwrap();
-        text = text.replace("\"version\":1", "\"version\":99");
+        text = text.replace("\"version\":2", "\"version\":99");
         std::fs::write(Checkpoint::path_in(&dir), text).unwrap();
         let why = Checkpoint::read(&dir, &written.identity).unwrap_err();
         assert!(why.contains("format 99"), "{why}");
         let _ = std::fs::remove_dir_all(&dir);
         let why = Checkpoint::read(&dir, &written.identity).unwrap_err();
         assert!(why.contains("there is no checkpoint"), "{why}");
+    }
+
+    /// The binary file is checked against the header: a truncated or damaged one is refused
+    /// with its name; a run killed after writing the next binary file but before its header
+    /// still resumes the previous checkpoint, and a complete write removes the earlier file.
+    #[test]
+    fn a_truncated_or_damaged_binary_file_is_refused_and_the_previous_one_kept() {
+        let dir = std::env::temp_dir().join(format!("impm-restart-bin-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let written = sample();
+        written.write(&dir).unwrap();
+        let data = dir.join(data_file_name(3));
+        let bytes = std::fs::read(&data).unwrap();
+        assert_eq!(bytes.len(), 3 * 8);
+
+        // killed between the binary file of step 4 and its header: step 3 is still read
+        std::fs::write(dir.join(data_file_name(4)), [0u8; 16]).unwrap();
+        assert_eq!(Checkpoint::read(&dir, &written.identity).unwrap(), written);
+        let mut next = written.clone();
+        next.steps_done = 4;
+        next.write(&dir).unwrap();
+        assert!(!data.exists(), "the earlier binary file is removed");
+        assert_eq!(Checkpoint::read(&dir, &written.identity).unwrap(), next);
+        let data = dir.join(data_file_name(4));
+
+        std::fs::write(&data, &bytes[..20]).unwrap();
+        let why = Checkpoint::read(&dir, &written.identity).unwrap_err();
+        assert!(
+            why.contains("checkpoint_0004.bin is 20 bytes long") && why.contains("truncated"),
+            "{why}"
+        );
+        let mut damaged = bytes.clone();
+        damaged[5] ^= 1;
+        std::fs::write(&data, &damaged).unwrap();
+        let why = Checkpoint::read(&dir, &written.identity).unwrap_err();
+        assert!(why.contains("does not have the hash"), "{why}");
+        std::fs::remove_file(&data).unwrap();
+        let why = Checkpoint::read(&dir, &written.identity).unwrap_err();
+        assert!(
+            why.contains("cannot read") && why.contains("checkpoint_0004.bin"),
+            "{why}"
+        );
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

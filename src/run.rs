@@ -9,7 +9,7 @@
 //!     each attempt runs the step schedule (method.rs); a failed one is rolled back
 //!     records: iterations, residuals, cuts, stage times, eq. 15 error, measures   -> summary.json
 //!     a checkpoint after every output step (or every N steps), if the run keeps them
-//!                                                                   -> checkpoint.json (restart.rs)
+//!                                                                   -> checkpoint.json + .bin (restart.rs)
 //! ```
 //!
 //! A run that resumes (`impm run SCENE --resume OUT_DIR`) builds the same world, restores the
@@ -278,7 +278,9 @@ impl<const D: usize> Simulation<D> {
                 step: number,
                 why: e,
             })?;
-        Ok(self.summary.steps.last().expect("just pushed"))
+        #[allow(clippy::expect_used, reason = "the step's record was pushed above")]
+        let record = self.summary.steps.last().expect("just pushed");
+        Ok(record)
     }
 
     /// Records a step that could not be solved, and the error to report.

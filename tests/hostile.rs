@@ -110,6 +110,12 @@ fn corpus() -> Vec<Case> {
             fragment: "limit on its evaluation time",
         },
         check(
+            "let m = #{}; let i = 0; loop { let n = #{}; n[`k${i}`] = i; m += n; i += 1; }\n",
+            1,
+            "--limit map",
+            "map grown by merging",
+        ),
+        check(
             "fn f(x) { f(x + 1) }\nf(1);\n",
             1,
             "--limit depth",
@@ -415,6 +421,24 @@ fn corpus() -> Vec<Case> {
             "integer division to zero",
         ),
         check(
+            &base_with("let cells = 10;", "let cells = 10;\nconst h = 1 / cells;").replace(
+                "body_force([force]);",
+                "body_force([force]);\npoint_load(|x| x[0] > 10.0 - h, [1.0]);",
+            ),
+            1,
+            "points have x[0] in [0.25, 9.75]; a coordinate computed as a division of whole numbers",
+            "integer division to zero in a point-load predicate",
+        ),
+        check(
+            &BASE
+                .replace("[0.0]", "[1.0e16]")
+                .replace("[10.0]", "[1.0e16 + 10.0]")
+                .replace("x[0] == 0.0", "x[0] == 1.0e16"),
+            1,
+            "grid line 10 of axis 0 lies at 10000000000000010, where double precision resolves only 2e0",
+            "grid at 1e16 (cells not resolved)",
+        ),
+        check(
             &base_with("body_force([force]);", "body_force([force, 1.0]);"),
             1,
             "components",
@@ -531,11 +555,47 @@ fn corpus() -> Vec<Case> {
             "given twice",
         ),
         case(
+            "study: --set twice",
+            Some(BASE),
+            &[
+                "study", "SCENE", "--sweep", "cells=5", "--set", "force=1", "--set", "force=2",
+                "--out", "DIR/s",
+            ],
+            1,
+            "parameter 'force' is given twice (1 and 2",
+        ),
+        case(
+            "study: a word in a numeric sweep",
+            Some(BASE),
+            &["study", "SCENE", "--sweep", "cells=5,ten", "--out", "DIR/s"],
+            1,
+            "parameter 'cells' = 'ten' is not a number",
+        ),
+        case(
             "study: empty value",
             Some(BASE),
             &["study", "SCENE", "--sweep", "cells=5,,6", "--out", "DIR/s"],
             1,
             "non-empty",
+        ),
+        // piped (no terminal): one line per converged step with its figures
+        case(
+            "progress when piped",
+            Some(BASE),
+            &["run", "SCENE", "--out", "DIR/o"],
+            0,
+            "step 4/4 λ=1.0000 iterations",
+        ),
+        // a tiny first increment converges (tolerance relative to the load scale)
+        case(
+            "tiny load increment",
+            Some(&base_with(
+                "load_steps(steps);",
+                "load_factors([1e-6, 1.0]);",
+            )),
+            &["run", "SCENE", "--out", "DIR/o"],
+            0,
+            "done: 2 steps",
         ),
         // a body with no support is named at the first solve, not after the step cuts
         Case {

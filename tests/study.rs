@@ -257,3 +257,61 @@ fn a_study_without_an_error_measure_says_so_and_draws_no_error_charts() {
     assert!(rows.iter().all(|r| get(r, "status") == "completed"));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A word among the values of a parameter whose default is a number is refused before any run
+/// (it would fail its run and, before, silently took the error chart and every rate with it).
+#[test]
+fn a_word_in_a_numeric_sweep_is_refused_naming_the_parameter_and_value() {
+    let dir = temp("word");
+    let out = impm(&[
+        "study",
+        &column_script(),
+        "--sweep",
+        "cells=5,ten",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("parameter 'cells' = 'ten' is not a number"),
+        "{err}"
+    );
+    assert!(!dir.join("study.csv").exists());
+}
+
+/// When the default is an expression (the column's `ppc`), a word cannot be told from the
+/// scene: the run fails, and study.md and stderr say that the chart and rates against that
+/// parameter are left out and why.
+#[test]
+fn a_word_in_a_sweep_over_an_expression_is_reported_in_study_md_and_on_stderr() {
+    let dir = temp("word_expression");
+    let out = impm(&[
+        "study",
+        &column_script(),
+        "--sweep",
+        "ppc=2,x,3",
+        "--set",
+        "cells=5",
+        "--set",
+        "steps=1",
+        "--against",
+        "ppc",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    let note = "parameter 'ppc' took the value 'x', which is not a number";
+    assert!(err.contains(note), "{err}");
+    let md = std::fs::read_to_string(dir.join("study.md")).unwrap();
+    assert!(md.contains(note), "{md}");
+    // the failed run's message is a quoted field with commas: read the rows as text
+    let csv = std::fs::read_to_string(dir.join("study.csv")).unwrap();
+    let rows: Vec<&str> = csv.lines().skip(1).collect();
+    assert_eq!(rows.len(), 3, "{csv}");
+    assert!(rows[0].starts_with("0,2,completed,"), "{csv}");
+    assert!(rows[1].starts_with("1,x,failed,"), "{csv}");
+    assert!(rows[2].starts_with("2,3,completed,"), "{csv}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -56,6 +56,23 @@ pub fn round(x: f64) -> f64 {
     (x * 1e9).round() / 1e9
 }
 
+/// What a predicate that selected nothing could have selected, for its message: the range of
+/// `positions` per axis (`x[0] in [0, 10], x[1] in [0, 50]`), and a reminder of Rhai's integer
+/// division, the usual cause of a coordinate that silently became 0.
+pub fn selection_ranges<'a>(positions: impl Iterator<Item = &'a [f64]>) -> String {
+    let (lower, upper) = coordinate_range(positions);
+    let ranges: Vec<String> = lower
+        .iter()
+        .zip(&upper)
+        .enumerate()
+        .map(|(axis, (l, u))| format!("x[{axis}] in [{l}, {u}]"))
+        .collect();
+    format!(
+        "{}; a coordinate computed as a division of whole numbers is itself whole in the scene language (1 / 4 is 0: write 1.0 / 4)",
+        ranges.join(", ")
+    )
+}
+
 /// The smallest and largest coordinate per axis of `positions` (rounded for listings).
 pub fn coordinate_range<'a>(positions: impl Iterator<Item = &'a [f64]>) -> (Vec<f64>, Vec<f64>) {
     let (mut lower, mut upper) = (Vec::<f64>::new(), Vec::<f64>::new());

@@ -23,6 +23,7 @@ use nalgebra::SVector;
 use rhai::{Dynamic, FnPtr, Position};
 
 use crate::components::GridNode;
+use crate::effects::declarations::selection_ranges;
 use crate::effects::surface_conditions::AXES;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{GridFields, LoadStep, Stage, StageClock, Warnings};
@@ -617,14 +618,11 @@ fn resolve_constraints(
             }
         }
         if selected == 0 {
-            let ranges: Vec<String> = (0..dim)
-                .map(|axis| format!("x[{axis}] in [{}, {}]", grid.lower[axis], grid.upper[axis]))
-                .collect();
             return Err(ScriptError::at(
                 declaration.at,
                 format!(
                     "{function}(...): the predicate selects no grid node (nodes have {}; compare with a tolerance if needed)",
-                    ranges.join(", ")
+                    selection_ranges(nodes.iter().map(Vec::as_slice))
                 ),
             ));
         }

@@ -15,7 +15,7 @@ use std::collections::BTreeMap;
 
 use rhai::{Dynamic, FnPtr};
 
-use super::declarations::LoadSummary;
+use super::declarations::{LoadSummary, selection_ranges};
 use crate::components::{PointId, Support};
 use crate::mechanics::spread_force;
 use crate::plugin::{Extension, Hook, Plugin};
@@ -257,7 +257,8 @@ fn resolve_point_loads(
             return Err(ScriptError::at(
                 declaration.at,
                 format!(
-                    "{function}(...): the predicate selects no material point (it is called with the reference position of every point; points sit inside their cells, not on cell faces)"
+                    "{function}(...): the predicate selects no material point (it is called with the reference position of every point, and points have {}; points sit inside their cells, not on cell faces)",
+                    selection_ranges(positions.iter().copied())
                 ),
             ));
         }

@@ -145,6 +145,7 @@ impl<const D: usize> Mesh<D> {
     pub fn vtk_connectivity(&self) -> Vec<u64> {
         // corner order (axis 0 fastest) -> VTK order: swap corners 2 <-> 3 and 6 <-> 7
         const VTK_ORDER: [usize; 8] = [0, 1, 3, 2, 4, 5, 7, 6];
+        #[allow(clippy::expect_used, reason = "mesh_nodes holds every element's nodes")]
         let compact = |node: usize| {
             self.mesh_nodes
                 .binary_search(&node)

@@ -6,7 +6,8 @@
 //! A lock whose process no longer exists was left by a run that was killed; it is taken over
 //! and reported ([`FolderLock::killed_run`]). Only files impm writes are removed: series files
 //! `STEM_NNNN.vtu` of a series `STEM.pvd` in the folder, the `.pvd` files, `summary.json`,
-//! `history.csv`, `checkpoint.json`, and the temporary files of interrupted atomic writes (`.NAME.PID.N.tmp`).
+//! `history.csv`, `checkpoint.json` and its `checkpoint_NNNN.bin`, and the temporary files of
+//! interrupted atomic writes (`.NAME.PID.N.tmp`).
 
 use std::fs;
 use std::io;
@@ -143,11 +144,21 @@ fn series_step(name: &str, series: &[&str]) -> Option<usize> {
 
 /// Whether `name` is a file impm writes, given the series (`.pvd` stems) in its folder.
 fn is_impm_file(name: &str, series: &[&str]) -> bool {
-    if matches!(name, "summary.json" | "history.csv" | "checkpoint.json") || name.ends_with(".pvd")
+    if matches!(name, "summary.json" | "history.csv" | "checkpoint.json")
+        || name.ends_with(".pvd")
+        || is_checkpoint_data(name)
     {
         return true;
     }
     is_temporary(name) || series_step(name, series).is_some()
+}
+
+/// `checkpoint_NNNN.bin` (any number of digits), the binary file of a checkpoint
+/// (`crate::restart`).
+pub fn is_checkpoint_data(name: &str) -> bool {
+    name.strip_prefix("checkpoint_")
+        .and_then(|rest| rest.strip_suffix(".bin"))
+        .is_some_and(|digits| !digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit()))
 }
 
 /// `.NAME.PID.N.tmp`, the temporary file of an atomic write.
@@ -174,6 +185,7 @@ mod tests {
             "grid_12345.vtu",
             "particles.pvd",
             "summary.json",
+            "checkpoint_0012.bin",
             ".particles_0001.vtu.4242.0.tmp",
         ] {
             assert!(is_impm_file(name, &series), "{name}");
@@ -182,6 +194,7 @@ mod tests {
             "mesh_0001.vtu",
             "particles_final.vtu",
             "notes.txt",
+            "checkpoint_final.bin",
             ".hidden.tmp",
             "particles_0001.vtu.bak",
         ] {

@@ -52,7 +52,7 @@ mod pvd;
 mod vtu;
 
 pub use atomic::write_atomic;
-pub use folder::{FolderLock, clear_after_step, clear_earlier_run};
+pub use folder::{FolderLock, clear_after_step, clear_earlier_run, is_checkpoint_data};
 pub use pvd::PvdSeries;
 pub use vtu::{
     CellKind, Cells, Encoding, Field, VtuContents, lattice_cells, pad_points, read_vtu,

@@ -185,6 +185,10 @@ impl SceneBuilder {
     }
 
     /// Keeps a module's declaration (see [`Resolver::declarations`]).
+    #[allow(
+        clippy::expect_used,
+        reason = "the entry of TypeId::of::<T>() holds a Vec<Located<T>>"
+    )]
     pub fn declare<T: Send + Sync + 'static>(&mut self, declaration: Located<T>) {
         self.store
             .entry(TypeId::of::<T>())

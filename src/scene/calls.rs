@@ -18,6 +18,7 @@ use super::seeding::Placement;
 use super::words::{BasisWord, ModelSpec};
 use super::{GridSpec, LinearBackend, MaterialSpec, OutputSpec, SolverSpec};
 use crate::basis::BasisKind;
+use crate::basis::axis::{MIN_CELL_RESOLUTION, unresolved_grid_line};
 use crate::material::{Hencky, Material, MaterialParameters, ParameterValue};
 
 /// Registers the core's calls and the point bases (linear, B-spline).
@@ -144,6 +145,19 @@ fn declare_grid(
         return Err(format!(
             "grid(...): the extent along axis {axis} is not finite"
         ));
+    }
+    for axis in 0..dim {
+        if let Some((line, coordinate, resolution)) =
+            unresolved_grid_line(lower[axis], upper[axis], cells[axis])
+        {
+            let size = (upper[axis] - lower[axis]) / cells[axis] as f64;
+            return Err(format!(
+                "grid(...): grid line {line} of axis {axis} lies at {coordinate}, where double precision resolves only {resolution:e}, {:.1e} of the cell size {size}: positions inside a cell would keep fewer than {} significant digits and the stresses would be wrong. Place the scene near the origin (subtract {} from every coordinate along axis {axis}; the results do not depend on where the scene lies)",
+                resolution / size,
+                MIN_CELL_RESOLUTION.log10().round(),
+                lower[axis]
+            ));
+        }
     }
     let word = options.text("basis").unwrap_or_default();
     let basis = builder

@@ -87,10 +87,12 @@ impl DirectSolver {
             self.factor_values.resize(symbolic.len_val(), 0.0);
             self.cholesky = Some(symbolic);
         }
+        #[allow(clippy::expect_used, reason = "set just above when it was None")]
         let symbolic = self
             .cholesky
             .as_ref()
             .expect("symbolic factorisation built above");
+        #[allow(clippy::expect_used, reason = "set together with the factorisation")]
         let scratch = self
             .scratch
             .as_mut()
@@ -128,6 +130,7 @@ impl DirectSolver {
                 .map_err(|e| LinearSolveError::Singular(format!("LU analysis failed: {e:?}")))?;
             self.lu_symbolic = Some(symbolic);
         }
+        #[allow(clippy::expect_used, reason = "set just above when it was None")]
         let symbolic = self.lu_symbolic.clone().expect("built above");
         let lu = Lu::try_new_with_symbolic(symbolic, matrix.matrix())
             .map_err(|e| LinearSolveError::Singular(format!("LU factorisation failed: {e:?}")))?;

@@ -244,31 +244,79 @@ pub fn cross_product(sweeps: &[Sweep]) -> Vec<Vec<(String, String)>> {
     runs
 }
 
-/// Checks the plan against the scene's parameters before running anything.
+/// Checks the plan against the scene's parameters before running anything: every name is a
+/// parameter, given once (in `--sweep` or `--set`, the rule of `run` and `check`), and a
+/// parameter whose default is a number is swept over numbers only (a word among them would
+/// fail its run and take the error chart and the rates of every run with it).
 fn validate(plan: &StudyPlan) -> Result<(), String> {
     if plan.sweeps.is_empty() {
         return Err("a study needs at least one --sweep NAME=V1,V2,...".into());
     }
     let known = scene_parameters(&plan.scene).map_err(|e| e.to_string())?;
-    let mut seen: Vec<&str> = Vec::new();
-    let swept = plan.sweeps.iter().flat_map(|s| s.names.iter());
-    for name in swept.chain(plan.fixed.iter().map(|(n, _)| n)) {
-        if !known.iter().any(|p| &p.name == name) {
+    let mut seen: Vec<(&str, String)> = Vec::new();
+    let swept = plan.sweeps.iter().flat_map(|sweep| {
+        sweep.names.iter().enumerate().map(move |(k, name)| {
+            let values: Vec<&str> = sweep.values.iter().map(|tuple| tuple[k].as_str()).collect();
+            (name, values)
+        })
+    });
+    let fixed = plan
+        .fixed
+        .iter()
+        .map(|(name, value)| (name, vec![value.as_str()]));
+    for (name, values) in swept.chain(fixed) {
+        let Some(parameter) = known.iter().find(|p| &p.name == name) else {
             let names: Vec<&str> = known.iter().map(|p| p.name.as_str()).collect();
             return Err(format!(
                 "{}: there is no parameter '{name}'; the scene's parameters are: {}",
                 plan.scene.display(),
                 names.join(", ")
             ));
-        }
-        if seen.contains(&name.as_str()) {
+        };
+        let given = values.join(",");
+        if let Some((_, first)) = seen.iter().find(|(other, _)| *other == name.as_str()) {
             return Err(format!(
-                "parameter '{name}' is given twice (in --sweep or --set)"
+                "parameter '{name}' is given twice ({first} and {given}, in --sweep or --set): give each parameter once"
             ));
         }
-        seen.push(name);
+        if is_number(&parameter.default)
+            && let Some(word) = values.iter().find(|value| !is_number(value))
+        {
+            return Err(format!(
+                "parameter '{name}' = '{word}' is not a number, but the scene's {name} is one (line {}: let {name} = {}); give numbers only",
+                parameter.line, parameter.default
+            ));
+        }
+        seen.push((name, given));
     }
     Ok(())
+}
+
+/// A number as the scene language reads it (`10`, `-800.0`, `1e6`, `1_000`), finite.
+fn is_number(text: &str) -> bool {
+    let digits = text.trim().replace('_', "");
+    let unsigned = digits.trim_start_matches(['-', '+']);
+    unsigned.starts_with(|c: char| c.is_ascii_digit() || c == '.')
+        && digits.parse::<f64>().is_ok_and(f64::is_finite)
+}
+
+/// What the study leaves out because a swept parameter took a value that is not a number in
+/// some run (possible when its default is an expression): one note per such parameter, for
+/// `study.md` and the end of `impm study`.
+pub fn non_numeric_notes(plan: &StudyPlan, records: &[RunRecord]) -> Vec<String> {
+    plan.sweeps
+        .iter()
+        .flat_map(|sweep| sweep.names.iter())
+        .filter_map(|name| {
+            let values: Vec<&str> = records.iter().filter_map(|r| r.parameter(name)).collect();
+            let word = values.iter().find(|value| !is_number(value))?;
+            values.iter().any(|value| is_number(value)).then(|| {
+                format!(
+                    "parameter '{name}' took the value '{word}', which is not a number: no error chart and no convergence rates are drawn against {name}"
+                )
+            })
+        })
+        .collect()
 }
 
 /// Runs one parameter combination into `dir`.
@@ -458,10 +506,11 @@ fn write_study_files(plan: &StudyPlan, records: &[RunRecord]) -> Result<(), Stri
             "profile_errors".into(),
         ));
     }
-    write(
-        "study.md",
-        table::markdown(plan, &names, records, against.as_deref(), &charts),
-    )
+    let mut markdown = table::markdown(plan, &names, records, against.as_deref(), &charts);
+    for note in non_numeric_notes(plan, records) {
+        markdown.push_str(&format!("\nNote: {note}.\n"));
+    }
+    write("study.md", markdown)
 }
 
 /// What a study says when no run reports an error (the error charts would be empty).
