@@ -41,6 +41,8 @@ pub struct StepRecord {
     pub iterations: usize,
     /// Normalised out-of-balance force of each iterate.
     pub residuals: Vec<f64>,
+    /// Krylov iterations of each linear solve (empty for the direct backend).
+    pub linear_iterations: Vec<usize>,
     pub converged: bool,
     pub dofs: usize,
     pub seconds: StageClock,
@@ -63,6 +65,7 @@ impl StepRecord {
             load_factor,
             iterations: 0,
             residuals: Vec::new(),
+            linear_iterations: Vec::new(),
             converged: false,
             dofs: 0,
             seconds: StageClock::default(),
@@ -82,22 +85,26 @@ impl StepRecord {
             .map(|(_, value)| *value)
     }
 
-    /// Adds an attempt (a Newton solve from `from` to `to`) with its outcome.
+    /// Adds an attempt (a Newton solve from `from` to `to`) with its outcome: its Newton
+    /// iterations, residual history and Krylov iterations per linear solve.
     pub fn add_attempt(
         &mut self,
         attempt: &Attempt,
         iterations: usize,
         residuals: &[f64],
+        linear_iterations: &[usize],
         failure: Option<String>,
     ) {
         self.iterations += iterations;
         self.residuals = residuals.to_vec();
+        self.linear_iterations = linear_iterations.to_vec();
         self.converged = failure.is_none();
         self.substeps.push(SubstepRecord {
             from: attempt.from,
             to: attempt.to,
             iterations,
             residuals: residuals.to_vec(),
+            linear_iterations: linear_iterations.to_vec(),
             converged: failure.is_none(),
             failure,
         });
@@ -111,6 +118,7 @@ pub struct SubstepRecord {
     pub to: f64,
     pub iterations: usize,
     pub residuals: Vec<f64>,
+    pub linear_iterations: Vec<usize>,
     pub converged: bool,
     /// Why the attempt failed, if it did.
     pub failure: Option<String>,
@@ -166,6 +174,9 @@ fn step_json(r: &StepRecord) -> Value {
         "seconds": stage_seconds(&r.seconds),
         "wall_seconds": number(r.wall_seconds),
     });
+    if !r.linear_iterations.is_empty() {
+        v["linear_iterations"] = json!(r.linear_iterations);
+    }
     if let Some(e) = r.error {
         v["error"] = number(e);
     }
@@ -185,6 +196,9 @@ fn step_json(r: &StepRecord) -> Value {
                         "residuals": a.residuals.iter().map(|&x| number(x)).collect::<Vec<_>>(),
                         "converged": a.converged,
                     });
+                    if !a.linear_iterations.is_empty() {
+                        sub["linear_iterations"] = json!(a.linear_iterations);
+                    }
                     if let Some(f) = &a.failure {
                         sub["failure"] = Value::String(f.clone());
                     }
@@ -345,9 +359,20 @@ pub fn step_from_json(value: &Value, measures: &[&'static str]) -> Result<StepRe
             .map(|list| list.iter().map(real).collect())
             .unwrap_or_default()
     };
+    let counts = |v: &Value| -> Vec<usize> {
+        v.as_array()
+            .map(|list| {
+                list.iter()
+                    .filter_map(|n| n.as_u64())
+                    .map(|n| n as usize)
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
     let mut record = StepRecord::new(count("step")?, real(&value["load_factor"]));
     record.iterations = count("iterations")?;
     record.residuals = reals(&value["residuals"]);
+    record.linear_iterations = counts(&value["linear_iterations"]);
     record.converged = value["converged"].as_bool().unwrap_or(false);
     record.dofs = count("dofs")?;
     record.seconds = stage_clock(&value["seconds"]);
@@ -376,6 +401,7 @@ pub fn step_from_json(value: &Value, measures: &[&'static str]) -> Result<StepRe
                 to: real(&a["to"]),
                 iterations: a["iterations"].as_u64().unwrap_or(0) as usize,
                 residuals: reals(&a["residuals"]),
+                linear_iterations: counts(&a["linear_iterations"]),
                 converged: a["converged"].as_bool().unwrap_or(false),
                 failure: a["failure"].as_str().map(str::to_string),
             })
@@ -386,6 +412,7 @@ pub fn step_from_json(value: &Value, measures: &[&'static str]) -> Result<StepRe
             to: record.load_factor,
             iterations: record.iterations,
             residuals: record.residuals.clone(),
+            linear_iterations: record.linear_iterations.clone(),
             converged: record.converged,
             failure: None,
         }],
@@ -399,6 +426,7 @@ const STEP_KEYS: &[&str] = &[
     "load_factor",
     "iterations",
     "residuals",
+    "linear_iterations",
     "converged",
     "dofs",
     "seconds",

@@ -82,6 +82,8 @@ pub struct LoadStep {
 pub struct NewtonSettings {
     pub tolerance: f64,
     pub max_iterations: usize,
+    /// Inexact Newton: the linear solves' tolerance follows Eisenstat–Walker forcing terms.
+    pub inexact: bool,
 }
 
 /// When a Newton iterate has converged (`control::NormalisedResidual` by default).
@@ -110,6 +112,10 @@ pub struct Newton {
     pub residual: Vec<f64>,
     /// Normalised residual norm of each iterate (the first is before any solve).
     pub residuals: Vec<f64>,
+    /// Krylov iterations of each linear solve of the step (iterative backends only).
+    pub linear_iterations: Vec<usize>,
+    /// The forcing term of the last linear solve (inexact Newton), `None` before the step's first.
+    pub forcing: Option<f64>,
     pub converged: bool,
     /// Linear solves done in this step.
     pub iterations: usize,
@@ -124,6 +130,8 @@ impl Default for Newton {
             last_solver: SolverKind::None,
             residual: Vec::new(),
             residuals: Vec::new(),
+            linear_iterations: Vec::new(),
+            forcing: None,
             converged: false,
             iterations: 0,
         }
@@ -134,6 +142,8 @@ impl Newton {
     /// Prepares for a new load step (buffers keep their capacity).
     pub fn begin_step(&mut self) {
         self.residuals.clear();
+        self.linear_iterations.clear();
+        self.forcing = None;
         self.converged = false;
         self.iterations = 0;
     }

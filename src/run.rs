@@ -325,7 +325,13 @@ impl<const D: usize> Simulation<D> {
         let newton = self.world.resource::<Newton>();
         record.dofs = newton.matrix.size();
         let failure = outcome.as_ref().err().map(|e| e.to_string());
-        record.add_attempt(&attempt, newton.iterations, &newton.residuals, failure);
+        record.add_attempt(
+            &attempt,
+            newton.iterations,
+            &newton.residuals,
+            &newton.linear_iterations,
+            failure,
+        );
         outcome
     }
 
@@ -442,6 +448,7 @@ fn core_world<const D: usize>(spec: &SceneSpec, out_dir: &Path) -> Result<World,
     world.insert_resource(NewtonSettings {
         tolerance: spec.solver.tolerance,
         max_iterations: spec.solver.max_iterations,
+        inexact: spec.solver.inexact,
     });
     world.insert_resource(Newton {
         solver: spec.solver.linear.solver(),

@@ -717,6 +717,7 @@ fn displacements_load_factors_solver_and_output() {
             max_iterations: 12,
             max_step_cuts: 8,
             linear: impm::scene::LinearBackend::Direct,
+            inexact: false,
         }
     );
     assert_eq!(scene.output.every, 2);

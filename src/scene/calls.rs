@@ -16,7 +16,7 @@ use super::registry::{CallSpec, SceneApi};
 use super::schedule::{MAX_STEPS, equal_steps, phase_factors};
 use super::seeding::Placement;
 use super::words::{BasisWord, ModelSpec};
-use super::{GridSpec, LinearBackend, MaterialSpec, OutputSpec, SolverSpec};
+use super::{GridSpec, LinearBackend, MaterialSpec, OutputSpec, Preconditioning, SolverSpec};
 use crate::basis::BasisKind;
 use crate::basis::axis::{MIN_CELL_RESOLUTION, unresolved_grid_line};
 use crate::material::{Hencky, Material, MaterialParameters, ParameterValue};
@@ -595,12 +595,39 @@ fn solver_call() -> CallSpec {
                     Choice {
                         word: "iterative",
                         meaning: Some(
-                            "Jacobi-preconditioned CG, BiCGSTAB where the tangent is not \
-                             symmetric (relative tolerance 1e-10)",
+                            "preconditioned CG, BiCGSTAB where the tangent is not symmetric \
+                             (relative tolerance 1e-10)",
                         ),
                     },
                 ]),
                 "backend of the linear solves (default \"direct\")",
+            ),
+            OptionSpec::new(
+                "preconditioner",
+                Kind::Choice(vec![
+                    Choice {
+                        word: "multigrid",
+                        meaning: Some(
+                            "smoothed-aggregation algebraic multigrid with the rigid-body modes, \
+                             one V-cycle: iterations nearly independent of the grid",
+                        ),
+                    },
+                    Choice {
+                        word: "jacobi",
+                        meaning: Some(
+                            "the inverse diagonal: cheap, but iterations grow with the cells \
+                             along the body",
+                        ),
+                    },
+                ]),
+                "preconditioner of linear: \"iterative\" (default \"multigrid\")",
+            ),
+            OptionSpec::new(
+                "inexact",
+                Kind::Flag,
+                "inexact Newton (linear: \"iterative\"): each linear solve only as accurate as \
+                 an Eisenstat-Walker forcing term asks, loose far from the solution and tight \
+                 near it (default false)",
             ),
         ],
         |builder, options, at| {
@@ -614,11 +641,27 @@ fn solver_call() -> CallSpec {
                 max_step_cuts: options
                     .whole("max_step_cuts")
                     .unwrap_or(default.max_step_cuts),
-                linear: match options.text("linear") {
-                    Some("iterative") => LinearBackend::Iterative,
+                linear: match (options.text("linear"), options.text("preconditioner")) {
+                    (Some("iterative"), Some("jacobi")) => {
+                        LinearBackend::Iterative(Preconditioning::Jacobi)
+                    }
+                    (Some("iterative"), _) => LinearBackend::Iterative(Preconditioning::Multigrid),
+                    (_, Some(_)) => {
+                        return Err("solver(...): 'preconditioner' applies to \
+                                    linear: \"iterative\" only"
+                            .to_string());
+                    }
                     _ => LinearBackend::Direct,
                 },
+                inexact: options.flag("inexact").unwrap_or(false),
             };
+            if solver.inexact && solver.linear == LinearBackend::Direct {
+                return Err(
+                    "solver(...): 'inexact' applies to linear: \"iterative\" only \
+                            (a direct solve is exact)"
+                        .to_string(),
+                );
+            }
             builder.solver = Some(Located::new(solver, at));
             Ok(Dynamic::UNIT)
         },

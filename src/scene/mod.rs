@@ -137,6 +137,9 @@ pub struct SolverSpec {
     pub max_step_cuts: usize,
     /// The backend of the linear solves.
     pub linear: LinearBackend,
+    /// Inexact Newton: iterative solves only as accurate as Eisenstat–Walker forcing terms ask
+    /// (`solver::EisenstatWalker`).
+    pub inexact: bool,
 }
 
 impl Default for SolverSpec {
@@ -146,6 +149,7 @@ impl Default for SolverSpec {
             max_iterations: 30,
             max_step_cuts: 8,
             linear: LinearBackend::Direct,
+            inexact: false,
         }
     }
 }
@@ -156,16 +160,30 @@ pub enum LinearBackend {
     /// Sparse Cholesky / LU (`solver::DirectSolver`).
     #[default]
     Direct,
-    /// Jacobi-preconditioned CG / BiCGSTAB (`solver::KrylovSolver`).
-    Iterative,
+    /// Preconditioned CG / BiCGSTAB (`solver::KrylovSolver`).
+    Iterative(Preconditioning),
+}
+
+/// The preconditioner of the iterative backend.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Preconditioning {
+    /// Smoothed-aggregation multigrid with the rigid-body modes (`solver::Multigrid`).
+    #[default]
+    Multigrid,
+    /// The inverse diagonal (`solver::Jacobi`).
+    Jacobi,
 }
 
 impl LinearBackend {
     /// A new solver of this kind.
     pub fn solver(self) -> Box<dyn crate::solver::LinearSolver> {
+        use crate::solver::{DirectSolver, KrylovSolver};
         match self {
-            LinearBackend::Direct => Box::new(crate::solver::DirectSolver::default()),
-            LinearBackend::Iterative => Box::new(crate::solver::KrylovSolver::default()),
+            LinearBackend::Direct => Box::new(DirectSolver::default()),
+            LinearBackend::Iterative(Preconditioning::Jacobi) => Box::new(KrylovSolver::default()),
+            LinearBackend::Iterative(Preconditioning::Multigrid) => {
+                Box::new(KrylovSolver::multigrid())
+            }
         }
     }
 }

@@ -9,13 +9,13 @@
 //! end, so a drifted recursive residual cannot pass a wrong answer) with `tol` the relative
 //! tolerance
 //! (default 1e-10, well below Newton's normalised tolerance so that Newton keeps its quadratic
-//! rate; an inexact Newton with forcing terms would loosen it far from the solution). The
+//! rate; an inexact Newton loosens it for one solve, [`LinearSolver::request_tolerance`], to its
+//! forcing term, `super::EisenstatWalker`). The work vectors are kept between solves. The
 //! preconditioner is the inverse diagonal of `K` (Jacobi): cheap, parallel, and enough to show
 //! the layer working, but its iteration count grows like the square root of the condition
-//! number — roughly with the number of cells along the longest direction. A multigrid
-//! preconditioner (geometric on the background grid, or smoothed aggregation with the
-//! rigid-body modes) is what makes the count flat; it slots in here as another
-//! [`Preconditioner`].
+//! number — roughly with the number of cells along the longest direction. Smoothed-aggregation
+//! multigrid with the rigid-body modes ([`super::Multigrid`]) keeps the count nearly flat; it is
+//! another [`Preconditioner`].
 //!
 //! A solve that does not reach the tolerance in `max_iterations` fails with
 //! [`LinearSolveError::NotConverged`] (the Newton loop then cuts the step as for any failed
@@ -26,10 +26,10 @@ use super::{LinearSolveError, LinearSolver, SolverKind, SparseMatrix};
 
 /// A preconditioner `M⁻¹ ≈ K⁻¹`, rebuilt from the matrix before each solve.
 pub trait Preconditioner: Send + Sync {
-    /// Prepares `M⁻¹` for `matrix`.
-    fn setup(&mut self, matrix: &SparseMatrix) -> Result<(), LinearSolveError>;
-    /// `z = M⁻¹ r`.
-    fn apply(&self, r: &[f64], z: &mut [f64]);
+    /// Prepares `M⁻¹` for `matrix`; `symmetric` says whether `matrix` is symmetric.
+    fn setup(&mut self, matrix: &SparseMatrix, symmetric: bool) -> Result<(), LinearSolveError>;
+    /// `z = M⁻¹ r` (`&mut self`: a preconditioner may keep work vectors).
+    fn apply(&mut self, r: &[f64], z: &mut [f64]);
 }
 
 /// Jacobi: `M = diag(K)`.
@@ -39,7 +39,7 @@ pub struct Jacobi {
 }
 
 impl Preconditioner for Jacobi {
-    fn setup(&mut self, matrix: &SparseMatrix) -> Result<(), LinearSolveError> {
+    fn setup(&mut self, matrix: &SparseMatrix, _symmetric: bool) -> Result<(), LinearSolveError> {
         let (col_ptr, row_idx) = matrix.pattern();
         let values = matrix.values();
         self.inverse_diagonal.clear();
@@ -60,7 +60,7 @@ impl Preconditioner for Jacobi {
         Ok(())
     }
 
-    fn apply(&self, r: &[f64], z: &mut [f64]) {
+    fn apply(&mut self, r: &[f64], z: &mut [f64]) {
         for ((z, r), d) in z.iter_mut().zip(r).zip(&self.inverse_diagonal) {
             *z = r * d;
         }
@@ -76,16 +76,56 @@ pub struct KrylovSolver {
     preconditioner: Box<dyn Preconditioner>,
     /// Iterations of the last solve.
     pub last_iterations: usize,
+    /// A looser tolerance for the next solve only (an inexact Newton's forcing term).
+    requested: Option<f64>,
+    /// Work vectors, kept between solves so that Newton iterations do not allocate them.
+    work: Work,
+}
+
+/// The vectors of one solve (CG uses the first five).
+#[derive(Default)]
+struct Work {
+    r: Vec<f64>,
+    x: Vec<f64>,
+    z: Vec<f64>,
+    q: Vec<f64>,
+    p: Vec<f64>,
+    shadow: Vec<f64>,
+    p_hat: Vec<f64>,
+    s_hat: Vec<f64>,
+    t: Vec<f64>,
+}
+
+/// `v` as `n` zeros, keeping its allocation.
+fn zeros(v: &mut Vec<f64>, n: usize) -> &mut Vec<f64> {
+    v.clear();
+    v.resize(n, 0.0);
+    v
 }
 
 impl Default for KrylovSolver {
+    /// Jacobi-preconditioned.
     fn default() -> Self {
+        Self::with_preconditioner(Box::new(Jacobi::default()))
+    }
+}
+
+impl KrylovSolver {
+    /// A solver with the given preconditioner (default tolerances).
+    pub fn with_preconditioner(preconditioner: Box<dyn Preconditioner>) -> Self {
         Self {
             tolerance: 1e-10,
             max_iterations: 20_000,
-            preconditioner: Box::new(Jacobi::default()),
+            preconditioner,
             last_iterations: 0,
+            requested: None,
+            work: Work::default(),
         }
+    }
+
+    /// Multigrid-preconditioned ([`super::Multigrid`]).
+    pub fn multigrid() -> Self {
+        Self::with_preconditioner(Box::new(super::Multigrid::default()))
     }
 }
 
@@ -109,68 +149,73 @@ fn norm(u: &[f64]) -> f64 {
     dot(u, u).sqrt()
 }
 
+/// Checks the true residual `‖r − K x‖` of the solution `x` of `K x = r` (the recursively
+/// updated one of CG and BiCGSTAB can drift from it, most on ill-conditioned or indefinite
+/// tangents) against the tolerance, with a factor 10 of slack for round-off; `product` is
+/// work space.
+fn check_true_residual(
+    matrix: &SparseMatrix,
+    rhs: &[f64],
+    x: &[f64],
+    product: &mut [f64],
+    tolerance: f64,
+) -> Result<(), LinearSolveError> {
+    multiply(matrix, x, product);
+    let residual: f64 = rhs
+        .iter()
+        .zip(product.iter())
+        .map(|(r, p)| (r - p).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    let relative = residual / norm(rhs);
+    if relative <= 10.0 * tolerance {
+        Ok(())
+    } else {
+        Err(LinearSolveError::NotConverged(format!(
+            "the iterative solve stopped with a true residual of {relative:.2e} against a \
+             tolerance of {tolerance:.0e} (a badly conditioned or indefinite tangent); use the \
+             direct solver (solver(#{{ linear: \"direct\" }}))"
+        )))
+    }
+}
+
+fn not_converged(residual: f64, iterations: usize, tolerance: f64) -> LinearSolveError {
+    LinearSolveError::NotConverged(format!(
+        "the iterative solve reached a relative residual of {residual:.2e} after {iterations} \
+         iterations (tolerance {tolerance:.0e}); use the direct solver (solver(#{{ linear: \"direct\" }}))"
+    ))
+}
+
 impl KrylovSolver {
-    /// Checks the true residual `‖r − K x‖` of the solution `x` of `K x = r` (the recursively
-    /// updated one of CG and BiCGSTAB can drift from it, most on ill-conditioned or indefinite
-    /// tangents) against the tolerance, with a factor 10 of slack for round-off.
-    fn check_true_residual(
-        &self,
-        matrix: &SparseMatrix,
-        rhs: &[f64],
-        x: &[f64],
-    ) -> Result<(), LinearSolveError> {
-        let mut product = vec![0.0; x.len()];
-        multiply(matrix, x, &mut product);
-        let residual: f64 = rhs
-            .iter()
-            .zip(&product)
-            .map(|(r, p)| (r - p).powi(2))
-            .sum::<f64>()
-            .sqrt();
-        let relative = residual / norm(rhs);
-        if relative <= 10.0 * self.tolerance {
-            Ok(())
-        } else {
-            Err(LinearSolveError::NotConverged(format!(
-                "the iterative solve stopped with a true residual of {relative:.2e} against a \
-                 tolerance of {:.0e} (a badly conditioned or indefinite tangent); use the \
-                 direct solver (solver(#{{ linear: \"direct\" }}))",
-                self.tolerance
-            )))
-        }
-    }
-
-    fn not_converged(&self, residual: f64) -> LinearSolveError {
-        LinearSolveError::NotConverged(format!(
-            "the iterative solve reached a relative residual of {residual:.2e} after {} \
-             iterations (tolerance {:.0e}); use the direct solver (solver(#{{ linear: \"direct\" }}))",
-            self.max_iterations, self.tolerance
-        ))
-    }
-
-    /// Preconditioned conjugate gradients from `x = 0`; `rhs` becomes the solution.
+    /// Preconditioned conjugate gradients from `x = 0` to the relative residual `tolerance`;
+    /// `rhs` becomes the solution.
     fn conjugate_gradients(
         &mut self,
         matrix: &SparseMatrix,
         rhs: &mut [f64],
+        tolerance: f64,
     ) -> Result<(), LinearSolveError> {
         let n = rhs.len();
-        let target = self.tolerance * norm(rhs);
-        let mut r = rhs.to_vec();
-        let mut x = vec![0.0; n];
-        let mut z = vec![0.0; n];
-        let mut q = vec![0.0; n];
-        self.preconditioner.apply(&r, &mut z);
-        let mut p = z.clone();
-        let mut rz = dot(&r, &z);
+        let target = tolerance * norm(rhs);
+        let work = &mut self.work;
+        let r = zeros(&mut work.r, n);
+        r.copy_from_slice(rhs);
+        let x = zeros(&mut work.x, n);
+        let z = zeros(&mut work.z, n);
+        let q = zeros(&mut work.q, n);
+        self.preconditioner.apply(r, z);
+        let p = zeros(&mut work.p, n);
+        p.copy_from_slice(z);
+        let mut rz = dot(r, z);
         self.last_iterations = 0;
-        while norm(&r) > target {
+        while norm(r) > target {
             if self.last_iterations == self.max_iterations {
-                return Err(self.not_converged(norm(&r) / (target / self.tolerance)));
+                let reached = norm(r) / (target / tolerance);
+                return Err(not_converged(reached, self.max_iterations, tolerance));
             }
             self.last_iterations += 1;
-            multiply(matrix, &p, &mut q);
-            let curvature = dot(&p, &q);
+            multiply(matrix, p, q);
+            let curvature = dot(p, q);
             if curvature <= 0.0 || !curvature.is_finite() {
                 return Err(LinearSolveError::Singular(format!(
                     "conjugate gradients met a non-positive curvature {curvature:.3e} \
@@ -182,40 +227,57 @@ impl KrylovSolver {
                 x[i] += alpha * p[i];
                 r[i] -= alpha * q[i];
             }
-            self.preconditioner.apply(&r, &mut z);
-            let rz_next = dot(&r, &z);
+            self.preconditioner.apply(r, z);
+            let rz_next = dot(r, z);
             let beta = rz_next / rz;
             rz = rz_next;
             for i in 0..n {
                 p[i] = z[i] + beta * p[i];
             }
         }
-        self.check_true_residual(matrix, rhs, &x)?;
-        rhs.copy_from_slice(&x);
+        check_true_residual(matrix, rhs, x, q, tolerance)?;
+        rhs.copy_from_slice(x);
         Ok(())
     }
 
-    /// Right-preconditioned BiCGSTAB from `x = 0`; `rhs` becomes the solution.
-    fn bicgstab(&mut self, matrix: &SparseMatrix, rhs: &mut [f64]) -> Result<(), LinearSolveError> {
+    /// Right-preconditioned BiCGSTAB from `x = 0` to the relative residual `tolerance`; `rhs`
+    /// becomes the solution.
+    fn bicgstab(
+        &mut self,
+        matrix: &SparseMatrix,
+        rhs: &mut [f64],
+        tolerance: f64,
+    ) -> Result<(), LinearSolveError> {
         let n = rhs.len();
         let scale = norm(rhs);
-        let target = self.tolerance * scale;
-        let mut r = rhs.to_vec();
-        let shadow = r.clone();
-        let mut x = vec![0.0; n];
-        let (mut p, mut v) = (vec![0.0; n], vec![0.0; n]);
-        let (mut p_hat, mut s_hat, mut t) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+        let target = tolerance * scale;
+        let work = &mut self.work;
+        let r = zeros(&mut work.r, n);
+        r.copy_from_slice(rhs);
+        let shadow = zeros(&mut work.shadow, n);
+        shadow.copy_from_slice(r);
+        let x = zeros(&mut work.x, n);
+        let (p, v) = (zeros(&mut work.p, n), zeros(&mut work.q, n));
+        let (p_hat, s_hat, t) = (
+            zeros(&mut work.p_hat, n),
+            zeros(&mut work.s_hat, n),
+            zeros(&mut work.t, n),
+        );
         let (mut rho, mut alpha, mut omega) = (1.0, 1.0, 1.0);
         let breakdown = |what: &str| {
             LinearSolveError::Singular(format!("BiCGSTAB broke down ({what} is zero)"))
         };
         self.last_iterations = 0;
-        while norm(&r) > target {
+        while norm(r) > target {
             if self.last_iterations == self.max_iterations {
-                return Err(self.not_converged(norm(&r) / scale));
+                return Err(not_converged(
+                    norm(r) / scale,
+                    self.max_iterations,
+                    tolerance,
+                ));
             }
             self.last_iterations += 1;
-            let rho_next = dot(&shadow, &r);
+            let rho_next = dot(shadow, r);
             if rho_next == 0.0 || omega == 0.0 {
                 return Err(breakdown("ρ or ω"));
             }
@@ -224,9 +286,9 @@ impl KrylovSolver {
             for i in 0..n {
                 p[i] = r[i] + beta * (p[i] - omega * v[i]);
             }
-            self.preconditioner.apply(&p, &mut p_hat);
-            multiply(matrix, &p_hat, &mut v);
-            let shadow_v = dot(&shadow, &v);
+            self.preconditioner.apply(p, p_hat);
+            multiply(matrix, p_hat, v);
+            let shadow_v = dot(shadow, v);
             if shadow_v == 0.0 || !shadow_v.is_finite() {
                 return Err(breakdown("r̂·v"));
             }
@@ -236,28 +298,40 @@ impl KrylovSolver {
                 x[i] += alpha * p_hat[i];
                 r[i] -= alpha * v[i];
             }
-            if norm(&r) <= target {
+            if norm(r) <= target {
                 break;
             }
-            self.preconditioner.apply(&r, &mut s_hat);
-            multiply(matrix, &s_hat, &mut t);
-            let tt = dot(&t, &t);
+            self.preconditioner.apply(r, s_hat);
+            multiply(matrix, s_hat, t);
+            let tt = dot(t, t);
             if tt == 0.0 || !tt.is_finite() {
                 return Err(breakdown("t·t"));
             }
-            omega = dot(&t, &r) / tt;
+            omega = dot(t, r) / tt;
             for i in 0..n {
                 x[i] += omega * s_hat[i];
                 r[i] -= omega * t[i];
             }
         }
-        self.check_true_residual(matrix, rhs, &x)?;
-        rhs.copy_from_slice(&x);
+        check_true_residual(matrix, rhs, x, t, tolerance)?;
+        rhs.copy_from_slice(x);
         Ok(())
     }
 }
 
 impl LinearSolver for KrylovSolver {
+    fn last_iterations(&self) -> Option<usize> {
+        Some(self.last_iterations)
+    }
+
+    fn tolerance(&self) -> Option<f64> {
+        Some(self.tolerance)
+    }
+
+    fn request_tolerance(&mut self, relative: f64) {
+        self.requested = Some(relative);
+    }
+
     fn solve(
         &mut self,
         matrix: &SparseMatrix,
@@ -269,17 +343,21 @@ impl LinearSolver for KrylovSolver {
             matrix.size(),
             "right-hand side has the wrong length"
         );
+        let tolerance = self
+            .requested
+            .take()
+            .map_or(self.tolerance, |t| t.max(self.tolerance));
         self.last_iterations = 0;
         if matrix.size() == 0 || rhs.iter().all(|&r| r == 0.0) {
             rhs.fill(0.0);
             return Ok(SolverKind::None);
         }
-        self.preconditioner.setup(matrix)?;
+        self.preconditioner.setup(matrix, symmetric)?;
         if symmetric {
-            self.conjugate_gradients(matrix, rhs)?;
+            self.conjugate_gradients(matrix, rhs, tolerance)?;
             Ok(SolverKind::ConjugateGradients)
         } else {
-            self.bicgstab(matrix, rhs)?;
+            self.bicgstab(matrix, rhs, tolerance)?;
             Ok(SolverKind::BiCgStab)
         }
     }

@@ -24,6 +24,26 @@ pub struct SparseMatrix {
     values: Vec<f64>,
     /// Counts pattern rebuilds, so that solvers know when their analysis is stale.
     generation: u64,
+    /// Which node and component each DOF belongs to, and where the nodes are.
+    layout: DofLayout,
+}
+
+/// Where the DOFs sit: the nodes that have any (node-major, as numbered), the spatial
+/// component of each DOF and, once told ([`SparseMatrix::set_node_positions`]), the nodes'
+/// positions. Multigrid builds its aggregates and the rigid-body modes (its near-null space)
+/// from it; a solver that needs no geometry ignores it.
+#[derive(Default, Clone, Debug, PartialEq)]
+pub struct DofLayout {
+    /// Spatial dimension of the components.
+    pub dimension: usize,
+    /// The DOFs of the `b`-th node with any are `block_start[b]..block_start[b + 1]`.
+    pub block_start: Vec<usize>,
+    /// The node index of each such block.
+    pub node: Vec<usize>,
+    /// The spatial component (`0..dimension`) of each DOF.
+    pub component: Vec<u8>,
+    /// The position of each block's node (unused components zero); empty when not told.
+    pub position: Vec<[f64; 3]>,
 }
 
 impl SparseMatrix {
@@ -93,6 +113,46 @@ impl SparseMatrix {
         self.values.clear();
         self.values.resize(self.row_idx.len(), 0.0);
         self.generation += 1;
+
+        let layout = &mut self.layout;
+        layout.dimension = D;
+        layout.block_start.clear();
+        layout.node.clear();
+        layout.component.clear();
+        layout.position.clear();
+        layout.block_start.push(0);
+        for (node, dofs) in node_dofs.iter().enumerate() {
+            let before = layout.component.len();
+            for (c, &dof) in dofs.iter().enumerate() {
+                if dof != NO_DOF {
+                    debug_assert_eq!(dof as usize, layout.component.len());
+                    layout.component.push(c as u8);
+                }
+            }
+            if layout.component.len() > before {
+                layout.node.push(node);
+                layout.block_start.push(layout.component.len());
+            }
+        }
+    }
+
+    /// Records the position of every node with DOFs (see [`DofLayout`]); call after
+    /// [`SparseMatrix::rebuild_pattern`]. The pattern generation does not change.
+    pub fn set_node_positions<const D: usize>(
+        &mut self,
+        position: impl Fn(usize) -> nalgebra::SVector<f64, D>,
+    ) {
+        let layout = &mut self.layout;
+        layout.position.clear();
+        layout.position.extend(layout.node.iter().map(|&node| {
+            let x = position(node);
+            std::array::from_fn(|c| if c < D { x[c] } else { 0.0 })
+        }));
+    }
+
+    /// The DOFs' nodes, components and positions.
+    pub fn layout(&self) -> &DofLayout {
+        &self.layout
     }
 
     /// Sets every stored value to zero, keeping the pattern.

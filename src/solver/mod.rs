@@ -9,16 +9,21 @@
 //! the bordered system with two solves of `K` by default.
 //!
 //! Backends: [`DirectSolver`] (faer's sparse Cholesky / LU, the default) and [`KrylovSolver`]
-//! (preconditioned CG / BiCGSTAB with a [`Preconditioner`], Jacobi today).
+//! (preconditioned CG / BiCGSTAB with a [`Preconditioner`]: [`Jacobi`], or smoothed-aggregation
+//! [`Multigrid`] whose iteration count stays nearly flat under refinement).
 
 mod direct;
+mod forcing;
 mod krylov;
 mod matrix;
 pub mod modes;
+mod multigrid;
 
 pub use direct::DirectSolver;
+pub use forcing::EisenstatWalker;
 pub use krylov::{Jacobi, KrylovSolver, Preconditioner, multiply};
-pub use matrix::{NO_DOF, NO_ENTRY, SparseMatrix};
+pub use matrix::{DofLayout, NO_DOF, NO_ENTRY, SparseMatrix};
+pub use multigrid::Multigrid;
 
 /// Which factorisation solved a system.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -64,6 +69,21 @@ pub trait LinearSolver: Send + Sync {
         symmetric: bool,
         rhs: &mut [f64],
     ) -> Result<SolverKind, LinearSolveError>;
+
+    /// Iterations of the last solve, for an iterative solver (`None` for a direct one).
+    fn last_iterations(&self) -> Option<usize> {
+        None
+    }
+
+    /// The relative residual an iterative solver stops at (`None` for a direct one).
+    fn tolerance(&self) -> Option<f64> {
+        None
+    }
+
+    /// Lets the next solve stop at the relative residual `relative` (an inexact Newton's
+    /// forcing term) if that is looser than the solver's own tolerance; a direct solver ignores
+    /// it.
+    fn request_tolerance(&mut self, _relative: f64) {}
 
     /// Solves the bordered system of arc-length control,
     ///

@@ -4,12 +4,12 @@
 //! components (`GridFields::constrained`, set by modules at `Hook::Constraints`) and inactive
 //! nodes get no DOF (`NO_DOF`), which eliminates Dirichlet conditions from the system. Two
 //! nodes couple when a point's support or a module's coupling group (`GridFields::couplings`)
-//! holds both.
+//! holds both. The matrix is told where its DOFs' nodes are (`solver::DofLayout`).
 
 use bevy_ecs::prelude::*;
 
 use crate::components::Support;
-use crate::resources::{GridFields, Newton, Stage, StageClock};
+use crate::resources::{Grid, GridFields, Newton, Stage, StageClock};
 use crate::solver::NO_DOF;
 
 pub fn number_dofs<const D: usize>(
@@ -18,6 +18,7 @@ pub fn number_dofs<const D: usize>(
     mut clock: ResMut<StageClock>,
     mut support_nodes: Local<(Vec<usize>, Vec<usize>)>,
     points: Query<&Support<D>>,
+    grid: Res<Grid<D>>,
 ) {
     let _timer = clock.time(Stage::Dofs);
     let fields = &mut *fields;
@@ -56,6 +57,10 @@ pub fn number_dofs<const D: usize>(
     newton
         .matrix
         .rebuild_pattern(fields.dof_count, &fields.dofs, supports);
+    // The nodes' positions, for solvers that use the geometry (multigrid's rigid-body modes).
+    newton
+        .matrix
+        .set_node_positions(|node| grid.0.node_position(node));
     newton.residual.clear();
     newton.residual.resize(fields.dof_count, 0.0);
 }

@@ -10,8 +10,10 @@
 //! `control::NormalisedResidual`
 //!
 //! ) falls below the tolerance, or fails after `max_iterations` linear solves. The solve is the
-//! linear-solver layer's (`solver`), told whether the tangent is symmetric. The first residual
-//! of a step is the load increment; the residual history is kept for the summary.
+//! linear-solver layer's (`solver`), told whether the tangent is symmetric; with
+//! `solver(#{ inexact: true })` an iterative solve stops at the Eisenstat–Walker forcing term
+//! (`solver::EisenstatWalker`). The first residual of a step is the load increment; the
+//! residual history and the Krylov iterations of each solve are kept for the summary.
 
 use bevy_ecs::prelude::*;
 
@@ -23,6 +25,7 @@ use crate::resources::{
     Convergence, GridFields, LoadStep, Newton, NewtonSettings, RunStatus, SolverError, Stage,
     StageClock,
 };
+use crate::solver::EisenstatWalker;
 use crate::solver::modes::{is_zero_energy, rigid_modes, span_has_zero_energy};
 use crate::solver::{NO_DOF, SparseMatrix};
 
@@ -100,6 +103,7 @@ pub fn solve_linear_system<const D: usize>(
     points: Query<(&BodyIndex, &Support<D>)>,
     grid: Res<Grid<D>>,
     names: Option<Res<BodyNames>>,
+    settings: Res<NewtonSettings>,
 ) {
     let _timer = clock.time(Stage::LinearSolve);
     let newton = &mut *newton;
@@ -117,11 +121,28 @@ pub fn solve_linear_system<const D: usize>(
         return;
     }
     newton.iterations += 1;
+    if settings.inexact
+        && let Some(eta_min) = newton.solver.tolerance()
+    {
+        let eta = EisenstatWalker::default().forcing_term(
+            &newton.residuals,
+            newton.forcing,
+            settings.tolerance,
+            eta_min,
+        );
+        newton.forcing = Some(eta);
+        newton.solver.request_tolerance(eta);
+    }
     match newton
         .solver
         .solve(&newton.matrix, newton.symmetric, &mut newton.residual)
     {
-        Ok(kind) => newton.last_solver = kind,
+        Ok(kind) => {
+            newton.last_solver = kind;
+            if let Some(iterations) = newton.solver.last_iterations() {
+                newton.linear_iterations.push(iterations);
+            }
+        }
         Err(why) => {
             status.fail(match not_held(false) {
                 Some((body, modes)) => SolverError::NotHeld {
