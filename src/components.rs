@@ -76,7 +76,7 @@ pub struct GridNode<const D: usize> {
 /// evaluates the material at `F = Δf̃ F^n` with `Δf̃` this increment, while the spatial
 /// gradients `g = Δf⁻ᵀ ∇_n N` stay those of the point's own `Δf`
 /// (`mechanics::trial_state_with_modified_increment`); the G2P update stores that `F` as the
-/// point's. A
-/// module that sets it adds the tangent terms the modification brings (at `Hook::AfterAssembly`).
+/// point's. A module that sets it adds the tangent terms the modification brings (at
+/// `Hook::AfterAssembly`).
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct ModifiedIncrement<const D: usize>(pub SMatrix<f64, D, D>);
