@@ -69,3 +69,14 @@ pub struct GridNode<const D: usize> {
     pub index: usize,
     pub position: SVector<f64, D>,
 }
+
+/// The increment of deformation the point's material sees in the current Newton iterate when
+/// it is not the point's own `Δf = I + Σ Δu_i ⊗ ∇_n N_i`: set by a module at `Hook::Kinematics`
+/// (F-bar averages the volume change over the points of a cell). The stress update then
+/// evaluates the material at `F = Δf̃ F^n` with `Δf̃` this increment, while the spatial
+/// gradients `g = Δf⁻ᵀ ∇_n N` stay those of the point's own `Δf`
+/// (`mechanics::trial_state_with_modified_increment`); the G2P update stores that `F` as the
+/// point's. A module that sets it adds the tangent terms the modification brings (at
+/// `Hook::AfterAssembly`).
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct ModifiedIncrement<const D: usize>(pub SMatrix<f64, D, D>);

@@ -331,6 +331,33 @@ pub fn trial_state_with_history<const D: usize, M: Material>(
     Ok((state, response.history))
 }
 
+/// [`trial_state_with_history`] with the material evaluated at a modified increment
+/// `seen_increment` (`F = Δf̃ F^n`, e.g. F-bar's `Δf̄`), while the state maps gradients with the
+/// point's own increment `own_increment` (`g = Δf⁻ᵀ ∇_n N`: the current configuration is the
+/// displacement field's). See `components::ModifiedIncrement`.
+pub fn trial_state_with_modified_increment<const D: usize, M: Material>(
+    material: &M,
+    committed: &M::History,
+    previous_deformation_gradient: &SMatrix<f64, D, D>,
+    own_increment: &SMatrix<f64, D, D>,
+    seen_increment: &SMatrix<f64, D, D>,
+) -> Result<(TrialState<D>, M::History), KinematicsError> {
+    if own_increment.iter().any(|v| !v.is_finite()) {
+        return Err(KinematicsError::SingularIncrement);
+    }
+    let (mut state, history) = trial_state_with_history(
+        material,
+        committed,
+        previous_deformation_gradient,
+        seen_increment,
+    )?;
+    state.increment_inverse = embed(own_increment)
+        .try_inverse()
+        .map(|inv| block::<D>(&inv))
+        .ok_or(KinematicsError::SingularIncrement)?;
+    Ok((state, history))
+}
+
 /// [`trial_state_with_history`] for a model without history (Hencky elasticity).
 pub fn trial_state<const D: usize, M: Material<History = ()>>(
     material: &M,

@@ -6,7 +6,8 @@
 //!   2. Dofs           constrained components, then DOF numbers and the sparsity pattern (Hook::Constraints)
 //!   3. Loads          f_ext at λ_{n+1}; prescribed increments                (Hook::Loads)
 //!   4. Solve          Newton until ‖f_ext − f_int‖ is small:                NewtonSchedule
-//!        a. StressUpdate   Δf, F = Δf F^n, τ and its tangent per point     (Hook::StressUpdate: one system per material kind)
+//!        a. StressUpdate   Δf, F = Δf F^n, τ and its tangent per point     (Hook::Kinematics before it: what the material sees;
+//!                                                                           Hook::StressUpdate: one system per material kind)
 //!        b. Assembly       f_int = Σ_p V0 τ g_i, consistent K              (Hook::BeforeAssembly, Hook::AfterAssembly)
 //!        c. Convergence    r = f_ext − f_int at the free DOFs
 //!        d. LinearSolve    K δ = r, Δu += δ
@@ -84,12 +85,13 @@ pub enum NewtonSystems {
 /// | hook | schedule, place | built-in users |
 /// |------|-----------------|----------------|
 /// | `Basis` | step, connectivity: the one system that evaluates the basis at the points | point basis (default), point domains (GIMP, CPDI, domain-averaged B-splines), FEM elements |
-/// | `Connectivity` | step, connectivity, after the basis | ghost faces |
+/// | `Connectivity` | step, connectivity, after the basis; node groups coupled in the tangent (`GridFields::couplings`) | ghost faces, F-bar cells |
 /// | `Constraints` | step, before DOF numbering: constrained components, extra couplings | grid constraints (`fix`, `displace`) |
 /// | `Loads` | step, external forces and prescribed increments of the step | body force, point loads, tractions, prescribed displacements |
+/// | `Kinematics` | Newton, before the stress update: the increment of deformation a material sees, when not the point's own (`components::ModifiedIncrement`), e.g. averaged over the points of a cell | F-bar |
 /// | `StressUpdate` | Newton: trial stress and tangent of every point | one system per material kind |
 /// | `BeforeAssembly` | Newton, after the stress update | (plugins) |
-/// | `AfterAssembly` | Newton, after assembly: contributions to f_int and K | ghost penalty |
+/// | `AfterAssembly` | Newton, after assembly: contributions to f_int and K, also blocks between the nodes of a coupling group | ghost penalty, F-bar |
 /// | `PointUpdate` | step, after the G2P update: state that follows the material | traction points, FEM mesh, material history |
 /// | `AfterStep` | step, after the point update, before output | stress recovery |
 /// | `PointFields` | output, before the particle file: extra point fields | point loads, stress recovery |
@@ -106,6 +108,7 @@ pub enum Hook {
     Connectivity,
     Constraints,
     Loads,
+    Kinematics,
     StressUpdate,
     BeforeAssembly,
     AfterAssembly,
@@ -118,11 +121,12 @@ pub enum Hook {
 }
 
 impl Hook {
-    pub const ALL: [Hook; 13] = [
+    pub const ALL: [Hook; 14] = [
         Hook::Basis,
         Hook::Connectivity,
         Hook::Constraints,
         Hook::Loads,
+        Hook::Kinematics,
         Hook::StressUpdate,
         Hook::BeforeAssembly,
         Hook::AfterAssembly,
@@ -143,7 +147,7 @@ impl Hook {
             | Hook::Loads
             | Hook::PointUpdate
             | Hook::AfterStep => StepSchedule.intern(),
-            Hook::StressUpdate | Hook::BeforeAssembly | Hook::AfterAssembly => {
+            Hook::Kinematics | Hook::StressUpdate | Hook::BeforeAssembly | Hook::AfterAssembly => {
                 NewtonSchedule.intern()
             }
             Hook::PointFields | Hook::GridOutput | Hook::Output => OutputSchedule.intern(),
@@ -217,6 +221,7 @@ fn newton_schedule<const D: usize>() -> Schedule {
     );
     schedule.configure_sets(
         (
+            Hook::Kinematics.before(StressUpdate),
             Hook::StressUpdate.in_set(StressUpdate),
             Hook::BeforeAssembly.after(StressUpdate).before(Assembly),
             Hook::AfterAssembly.in_set(Assembly).after(assemble::<D>),

@@ -24,7 +24,8 @@ pub struct GridFields<const D: usize> {
     /// through the grid reset, so that the initial output shows them): they get no DOF.
     pub constrained: Vec<[bool; D]>,
     /// Groups of nodes coupled in the tangent beyond the points' supports (e.g. the two cells
-    /// of a ghost-penalty face), added by modules at `Hook::Connectivity`.
+    /// of a ghost-penalty face, the points of an F-bar cell), added by modules at
+    /// `Hook::Connectivity`; their blocks are added at `Hook::AfterAssembly`.
     pub couplings: Vec<Vec<usize>>,
     /// DOF number of each component (`NO_DOF` if fixed or inactive).
     pub dofs: Vec<[u32; D]>,

@@ -357,6 +357,9 @@ fn schedules_hold_only_the_effects_a_scene_uses() {
         "ghost_penalty::assemble_ghost_penalty",
         "stress_recovery::recover_stress",
         "grid_constraints::check_prescribed_motion",
+        "fbar::group_points_by_cell",
+        "fbar::average_volume_change",
+        "fbar::assemble_fbar_tangent",
     ]) {
         assert!(
             left_out.iter().any(|s| s == system),
@@ -374,8 +377,9 @@ fn schedules_hold_only_the_effects_a_scene_uses() {
             assert!(left_out.contains(&name), "{name}: {left_out:?}");
         }
     }
-    // the optional systems above, the recovered-stress output field and the plastic systems
-    assert_eq!(left_out.len(), OPTIONAL.len() + 6 + 9, "{left_out:?}");
+    // the optional systems above, the recovered-stress output field, F-bar and the plastic
+    // systems
+    assert_eq!(left_out.len(), OPTIONAL.len() + 6 + 3 + 9, "{left_out:?}");
 }
 
 /// The complete scene of docs/scene-api.md, written from the documentation alone, runs.

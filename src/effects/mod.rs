@@ -14,6 +14,7 @@
 //! | `grid_constraints.rs` | `fix` and `displace` on grid nodes |
 //! | `surface_conditions.rs` | prescribed displacements and supports on material surfaces |
 //! | `ghost_penalty.rs` | stabilisation of nearly empty cells |
+//! | `fbar.rs` | F-bar: the volume change averaged over the points of a cell (`body(#{ fbar: true })`) |
 //! | `stress_recovery.rs` | moving-least-squares stress recovery |
 //! | `probes.rs` | displacement, stress and F at material reference positions (`probe`) |
 //! | `history.rs` | named columns of history.csv from the measured quantities (`record`) |
@@ -21,6 +22,7 @@
 pub mod body_force;
 pub mod carried_points;
 pub mod declarations;
+pub mod fbar;
 pub mod fem_mesh;
 pub mod ghost_penalty;
 pub mod grid_constraints;
@@ -53,6 +55,7 @@ pub fn built_in() -> ModuleSet {
         .with(grid_constraints::PrescribedDisplacementsModule)
         .with(surface_conditions::SurfaceConditionsModule)
         .with(ghost_penalty::GhostPenaltyModule)
+        .with(fbar::FbarModule)
         .with(stress_recovery::StressRecoveryModule)
         .with(probes::ProbesModule)
         .with(history::HistoryModule)

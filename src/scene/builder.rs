@@ -245,6 +245,18 @@ impl Resolver<'_> {
             .map(|(_, options)| options)
     }
 
+    /// The options of every call of `name` (e.g. each `body`), in call order.
+    pub fn every_call_options<'s>(
+        &'s self,
+        name: &'s str,
+    ) -> impl Iterator<Item = &'s Located<Options>> + 's {
+        self.builder
+            .call_options
+            .iter()
+            .filter(move |(call, _)| *call == name)
+            .map(|(_, options)| options)
+    }
+
     /// "the grid is 2-dimensional (declared at line 3)".
     pub fn grid_note(&self) -> String {
         let line = self

@@ -4,13 +4,19 @@
 //! Isochoric flow asks every material point to keep its volume, and a low-order displacement
 //! field (linear MPM, GIMP, CPDI, B-splines of order 2–3 sampled at the points, linear FEM)
 //! cannot deform at constant volume at every point: the body is too stiff and limit loads come
-//! out too high, converging slowly with refinement. The cure, an F-bar treatment (Coombs et al.
-//! 2018), is not implemented yet, so the run says so rather than exiting with a limit load
-//! that looks converged. Measured on the shipped Tresca strip footing (E/s_u = 1000, ν = 0.3,
-//! quadratic B-splines, δ/B = 0.05): q/s_u = 7.83, 6.74, 6.09, 5.77 at 4, 8, 16, 32 cells
-//! across the footing against Prandtl's 2 + π = 5.14 (docs/plasticity.md).
+//! out too high, converging slowly with refinement. The cure is F-bar (Coombs et al. 2018,
+//! `body(#{ .., fbar: true })`, `effects/fbar.rs`): a body of such a material without it gets a
+//! warning rather than a limit load that looks converged. Measured on the shipped Tresca strip
+//! footing (E/s_u = 1000, ν = 0.3, quadratic B-splines, δ/B = 0.05) without F-bar: q/s_u =
+//! 7.83, 6.74, 6.09, 5.77 at 4, 8, 16, 32 cells across the footing against Prandtl's
+//! 2 + π = 5.14 (docs/plasticity.md, which has the F-bar figures).
 
 use super::SceneSpec;
+
+/// The bodies (indices into `SceneSpec::bodies`) that a module treats against volumetric
+/// locking (F-bar): they get no locking warning.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct LockingTreated(pub Vec<usize>);
 
 /// The material models whose plastic flow is isochoric.
 const ISOCHORIC_MODELS: [&str; 1] = ["von_mises"];
@@ -18,21 +24,24 @@ const ISOCHORIC_MODELS: [&str; 1] = ["von_mises"];
 /// One warning per material with isochoric plastic flow that a body uses.
 pub fn locking_warnings(spec: &SceneSpec) -> Vec<String> {
     let mut warnings = Vec::new();
+    let treated = spec.part::<LockingTreated>().map_or(&[][..], |t| &t.0[..]);
     for (index, material) in spec.materials.iter().enumerate() {
         let bodies: Vec<&str> = spec
             .bodies
             .iter()
-            .filter(|b| b.material == index)
-            .map(|b| b.name.as_str())
+            .enumerate()
+            .filter(|(b, body)| body.material == index && !treated.contains(b))
+            .map(|(_, body)| body.name.as_str())
             .collect();
         if bodies.is_empty() || !ISOCHORIC_MODELS.contains(&material.model.as_str()) {
             continue;
         }
         warnings.push(format!(
-            "material '{}' ({}) flows plastically at constant volume: without F-bar (not yet in \
-             impm) the bodies {bodies:?} lock volumetrically, so limit loads come out too high \
-             and converge slowly with refinement (Prandtl's footing with quadratic B-splines: \
-             +52% at 4 cells across the footing, +12% at 32; see docs/plasticity.md)",
+            "material '{}' ({}) flows plastically at constant volume: without F-bar the bodies \
+             {bodies:?} lock volumetrically, so limit loads come out too high and converge slowly \
+             with refinement (Prandtl's footing with quadratic B-splines: +52% at 4 cells across \
+             the footing, +12% at 32); set `fbar: true` in their body(..) calls (see \
+             docs/plasticity.md)",
             material.name, material.model
         ));
     }

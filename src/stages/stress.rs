@@ -1,6 +1,9 @@
 //! Newton stage 1: the trial state of every point for the current displacement increment:
 //! Δf = I + Σ Δu_i ⊗ ∇_n N_i, F = Δf F^n, and the material's stress and tangent (`mechanics`).
 //!
+//! A point with a [`ModifiedIncrement`] (set at `Hook::Kinematics`, e.g. by F-bar) is evaluated
+//! at that increment instead of its own, its spatial gradients still from its own `Δf`.
+//!
 //! One system per material kind ([`update_stress`] monomorphised for `M`), each over the points
 //! of that kind only: the hot loop knows its model at compile time, and a scene that mixes kinds
 //! runs one system per kind. The systems are added by the kinds' modules
@@ -16,9 +19,11 @@
 
 use bevy_ecs::prelude::*;
 
-use crate::components::{DeformationGradient, PointId, Support, Trial};
+use crate::components::{DeformationGradient, ModifiedIncrement, PointId, Support, Trial};
 use crate::material::Material;
-use crate::mechanics::{increment_gradient, trial_state_with_history};
+use crate::mechanics::{
+    increment_gradient, trial_state_with_history, trial_state_with_modified_increment,
+};
 use crate::parallel;
 use crate::resources::{GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock};
 
@@ -57,6 +62,7 @@ pub fn update_stress<const D: usize, M: Material>(
         &PointMaterial<M>,
         &mut Trial<D>,
         Option<&mut PointHistory<M>>,
+        Option<&ModifiedIncrement<D>>,
     )>,
 ) {
     let _timer = clock.time(Stage::StressUpdate);
@@ -65,10 +71,16 @@ pub fn update_stress<const D: usize, M: Material>(
     // One part per thread (`parallel`); each keeps the first point it could not update.
     let mut failures = vec![None; parallel::part_count(points.len())];
     parallel::for_each_part(&mut points, &mut failures, |_, part, failure| {
-        for (id, support, f, material, trial, history) in part.iter_mut() {
+        for (id, support, f, material, trial, history, modified) in part.iter_mut() {
             let df = increment_gradient(&support.0, |node| fields.increment[node]);
             let committed = history.as_ref().map_or(&none, |h| &h.committed);
-            match trial_state_with_history(&material.0, committed, &f.0, &df) {
+            let evaluated = match modified {
+                None => trial_state_with_history(&material.0, committed, &f.0, &df),
+                Some(seen) => {
+                    trial_state_with_modified_increment(&material.0, committed, &f.0, &df, &seen.0)
+                }
+            };
+            match evaluated {
                 Ok((state, trial_history)) => {
                     trial.0 = state;
                     if let Some(history) = history {
