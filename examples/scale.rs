@@ -8,7 +8,7 @@
 //! ```sh
 //! cargo run --release --example scale                        # 2D 10k, 40k; 3D 10k
 //! cargo run --release --example scale -- 2:10000,40000,160000 3:10000,30000 \
-//!     --backends direct,iterative --threads 1,2 --steps 2 --chart docs/scale
+//!     --backends direct,multigrid,jacobi --threads 1,2 --steps 2 --chart docs/scale
 //! ```
 //!
 //! `DIM:POINTS,..` chooses the blocks (the point count is rounded to whole cells); every
@@ -28,7 +28,7 @@ use std::path::{Path, PathBuf};
 
 use impm::resources::{Newton, Stage};
 use impm::run::{Simulation, load_scene};
-use impm::scene::LinearBackend;
+use impm::scene::{LinearBackend, Preconditioning};
 use impm::study::memory;
 use impm::study::{Series, chart};
 
@@ -99,7 +99,10 @@ struct Plan {
 fn parse() -> Result<Plan, String> {
     let mut plan = Plan {
         blocks: Vec::new(),
-        backends: vec![LinearBackend::Direct, LinearBackend::Iterative],
+        backends: vec![
+            LinearBackend::Direct,
+            LinearBackend::Iterative(Preconditioning::Multigrid),
+        ],
         threads: vec![1, 2],
         steps: 2,
         repeat: 1,
@@ -119,8 +122,13 @@ fn parse() -> Result<Plan, String> {
                     .split(',')
                     .map(|b| match b {
                         "direct" => Ok(LinearBackend::Direct),
-                        "iterative" => Ok(LinearBackend::Iterative),
-                        _ => Err(format!("backend '{b}': direct or iterative")),
+                        "iterative" | "multigrid" => {
+                            Ok(LinearBackend::Iterative(Preconditioning::Multigrid))
+                        }
+                        "jacobi" => Ok(LinearBackend::Iterative(Preconditioning::Jacobi)),
+                        _ => Err(format!(
+                            "backend '{b}': direct, multigrid (= iterative) or jacobi"
+                        )),
                     })
                     .collect::<Result<_, _>>()?
             }
@@ -280,7 +288,11 @@ fn exponent(samples: &[(f64, f64)]) -> Option<f64> {
 }
 
 fn backend_name(b: LinearBackend) -> String {
-    format!("{b:?}").to_lowercase()
+    match b {
+        LinearBackend::Direct => "direct".into(),
+        LinearBackend::Iterative(Preconditioning::Multigrid) => "cg+multigrid".into(),
+        LinearBackend::Iterative(Preconditioning::Jacobi) => "cg+jacobi".into(),
+    }
 }
 
 /// The stages shown (the others cost less than a percent here).
