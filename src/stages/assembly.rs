@@ -123,6 +123,7 @@ pub fn assemble<const D: usize>(
     // added in order afterwards, so a given thread count gives bit-identical sums.
     parts.resize_with(parallel::part_count(points.len()), Default::default);
     newton.matrix.with_values_apart(|system, values| {
+        #[allow(clippy::expect_used, reason = "parallel::part_count is at least 1")]
         let (first, others) = parts.split_first_mut().expect("at least one part");
         for part in others.iter_mut() {
             part.internal_force
