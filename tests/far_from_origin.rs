@@ -29,8 +29,10 @@ traction(#{ on: [[shift, shift + height], [shift + width, shift + height]], trac
 load_steps(4);
 "#;
 
-fn scene_file() -> PathBuf {
-    let dir = common::temp_dir("far", "scene");
+/// The scene written into a folder of the test's own (`test`): the tests run in parallel and
+/// each clears its folder first, so a shared one could vanish under another test.
+fn scene_file(test: &str) -> PathBuf {
+    let dir = common::temp_dir("far", &format!("scene-{test}"));
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("shifted_column.rhai");
     std::fs::write(&path, SHIFTED_COLUMN).unwrap();
@@ -73,7 +75,7 @@ fn relative_difference(origin: &[[f64; 3]], shifted: &[[f64; 3]]) -> f64 {
 
 #[test]
 fn a_scene_moved_by_a_million_gives_the_same_stresses() {
-    let scene = scene_file();
+    let scene = scene_file("moved");
     let bases = [
         ("bspline", "3", "4"),
         ("gimp", "1", "2"),
@@ -105,7 +107,7 @@ fn a_scene_moved_by_a_million_gives_the_same_stresses() {
 /// `ulp(x) / h` up to the farthest grid the scene accepts.
 #[test]
 fn round_off_far_out_stays_proportional_to_the_spacing_of_doubles() {
-    let scene = scene_file();
+    let scene = scene_file("round_off");
     let set = |shift| vec![("shift", shift)];
     let origin = final_stresses(&scene, &set("0.0"));
     for shift in ["1.0e8", "1.0e10"] {
@@ -128,7 +130,7 @@ fn round_off_far_out_stays_proportional_to_the_spacing_of_doubles() {
 /// axis, the grid line and what to do; it used to run to exit 0 with wrong stresses.
 #[test]
 fn a_grid_too_far_out_for_its_cells_is_refused_with_the_grid_line() {
-    let scene = scene_file();
+    let scene = scene_file("refused");
     for shift in ["1.0e11", "1.0e16"] {
         let error = load_scene(&scene, &common::overrides(&[("shift", shift)]))
             .err()
