@@ -374,9 +374,18 @@ fn lock_output_folder(dir: &Path) -> Result<FolderLock, Failure> {
 fn run_failure(error: &RunError, out_dir: &Path, resume: &str) -> String {
     let summary = out_dir.join("summary.json");
     let mut kept = if summary.is_file() {
+        // a full disk can keep the failure from being recorded: say so rather than leave
+        // "running" unexplained
+        let unrecorded = std::fs::read_to_string(&summary)
+            .is_ok_and(|text| text.contains("\"status\": \"running\""));
         format!(
-            "\nresults up to the last completed step are in {} (summary.json says how far it got)",
-            out_dir.display()
+            "\nresults up to the last completed step are in {} (summary.json says how far it got{})",
+            out_dir.display(),
+            if unrecorded {
+                "; it could not be updated after the failure, so its status still says running"
+            } else {
+                ""
+            }
         )
     } else {
         String::new()

@@ -347,16 +347,17 @@ impl<'w, const D: usize> Extension<'w, D> {
     }
 
     /// Adds a quantity measured after every converged step (a key of the step's record in
-    /// `summary.json`, e.g. `error_recovered`).
+    /// `summary.json`, e.g. `error_recovered`, or a name made from the scene's, such as
+    /// `top_reaction_y`).
     pub fn add_measure(
         &mut self,
-        name: &'static str,
+        name: impl Into<String>,
         measure: impl Fn(&mut World, f64) -> Option<f64> + Send + Sync + 'static,
     ) -> &mut Self {
         self.world
             .get_resource_or_init::<StepMeasures>()
             .0
-            .push((name, Box::new(measure)));
+            .push((name.into(), Box::new(measure)));
         self
     }
 

@@ -19,12 +19,12 @@ pub type Measure = Box<dyn Fn(&mut World, f64) -> Option<f64> + Send + Sync>;
 
 /// The measures of the run, by name; each becomes a key of the step's record.
 #[derive(Resource, Default)]
-pub struct StepMeasures(pub Vec<(&'static str, Measure)>);
+pub struct StepMeasures(pub Vec<(String, Measure)>);
 
 /// The values of the step's measures computed so far, in order: a measure may read the ones
 /// added before it (e.g. `record(...)` rescales a reaction into a named column).
 #[derive(Resource, Default, Debug)]
-pub struct MeasuredValues(pub Vec<(&'static str, f64)>);
+pub struct MeasuredValues(pub Vec<(String, f64)>);
 
 impl MeasuredValues {
     pub fn get(&self, name: &str) -> Option<f64> {
@@ -50,7 +50,7 @@ pub struct StepRecord {
     /// Eq. 15 error after the step, if the scene has an analytic solution.
     pub error: Option<f64>,
     /// The modules' measures after the step (see [`StepMeasures`]).
-    pub measures: Vec<(&'static str, f64)>,
+    pub measures: Vec<(String, f64)>,
     /// How many times the step was cut (halved) after a failed Newton solve.
     pub cuts: usize,
     /// Every attempt in order, failed ones included (one entry when the step was not cut).
@@ -181,7 +181,7 @@ fn step_json(r: &StepRecord) -> Value {
         v["error"] = number(e);
     }
     for (name, value) in &r.measures {
-        v[*name] = number(*value);
+        v[name.as_str()] = number(*value);
     }
     v["cuts"] = json!(r.cuts);
     if r.substeps.len() > 1 {
@@ -302,7 +302,7 @@ impl Summary {
         }
         if let Some(last) = self.steps.last() {
             for (name, value) in &last.measures {
-                v[*name] = number(*value);
+                v[name.as_str()] = number(*value);
             }
         }
         if let Some(f) = &self.failure {
@@ -346,7 +346,7 @@ impl Summary {
 /// A step's record read back from its `summary.json` form ([`Summary::steps_json`]), as a
 /// resumed run restores the steps done before. `measures` are the names of the run's measures
 /// in the order they are taken; the record's measures come back in that order.
-pub fn step_from_json(value: &Value, measures: &[&'static str]) -> Result<StepRecord, String> {
+pub fn step_from_json(value: &Value, measures: &[String]) -> Result<StepRecord, String> {
     let count = |key: &str| {
         value[key]
             .as_u64()
@@ -379,15 +379,15 @@ pub fn step_from_json(value: &Value, measures: &[&'static str]) -> Result<StepRe
     record.wall_seconds = real(&value["wall_seconds"]);
     record.error = value.get("error").map(real);
     record.cuts = count("cuts")?;
-    for &name in measures {
+    for name in measures {
         if let Some(v) = value.get(name) {
-            record.measures.push((name, real(v)));
+            record.measures.push((name.clone(), real(v)));
         }
     }
     let object = value.as_object().ok_or("a step is not an object")?;
     if let Some(unknown) = object
         .keys()
-        .find(|key| !STEP_KEYS.contains(&key.as_str()) && !measures.contains(&key.as_str()))
+        .find(|key| !STEP_KEYS.contains(&key.as_str()) && !measures.contains(key))
     {
         return Err(format!(
             "a step has the measure {unknown}, which this run does not take"
@@ -454,7 +454,7 @@ pub fn history_csv(steps: &[StepRecord]) -> String {
     }
     for step in steps {
         for (name, _) in &step.measures {
-            if !names.contains(name) {
+            if !names.contains(&name.as_str()) {
                 names.push(name);
             }
         }

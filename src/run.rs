@@ -195,10 +195,10 @@ impl<const D: usize> Simulation<D> {
             steps_done: checkpoint.steps_done,
             parts: checkpoint.parts,
         })?;
-        let measures: Vec<&'static str> = self
+        let measures: Vec<String> = self
             .world
             .get_resource::<StepMeasures>()
-            .map(|m| m.0.iter().map(|(name, _)| *name).collect())
+            .map(|m| m.0.iter().map(|(name, _)| name.clone()).collect())
             .unwrap_or_default();
         self.summary.steps = checkpoint
             .steps
@@ -390,7 +390,7 @@ impl<const D: usize> Simulation<D> {
     }
 
     /// The modules' measures at load factor `factor`.
-    fn measures(&mut self, factor: f64) -> Vec<(&'static str, f64)> {
+    fn measures(&mut self, factor: f64) -> Vec<(String, f64)> {
         let Some(measures) = self.world.remove_resource::<StepMeasures>() else {
             return Vec::new();
         };
@@ -400,7 +400,7 @@ impl<const D: usize> Simulation<D> {
                 self.world
                     .resource_mut::<MeasuredValues>()
                     .0
-                    .push((name, value));
+                    .push((name.clone(), value));
             }
         }
         self.world.insert_resource(measures);

@@ -30,6 +30,13 @@ fn temp_dir(tag: &str) -> PathBuf {
     common::temp_dir("fem", tag)
 }
 
+/// A path for a scene file of its own (in a fresh folder).
+fn scene_path(tag: &str) -> PathBuf {
+    let dir = common::temp_dir("fem-scene", tag);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir.join("scene.rhai")
+}
+
 /// A shipped column scene with `basis = fem` and the given overrides.
 fn column_scene(file: &str, set: &[(&str, &str)]) -> SceneSpec {
     let mut set = set.to_vec();
@@ -235,10 +242,10 @@ fn block_scene(dim: usize, tag: &str) -> SceneSpec {
          body(#{{ name: \"block\", material: m, region: box([{zeros}], [{twos}]), ppc: 2 }});\n\
          load_factors([0.5, 1.0]);\n"
     );
-    let path = std::env::temp_dir().join(format!("impm-fem-{tag}-{}.rhai", std::process::id()));
+    let path = scene_path(tag);
     std::fs::write(&path, text).unwrap();
     let spec = load_scene(&path, &[]).unwrap();
-    let _ = std::fs::remove_file(&path);
+    let _ = std::fs::remove_dir_all(path.parent().unwrap());
     spec
 }
 
@@ -393,10 +400,10 @@ fn deformed_world(tag: &str) -> Simulation<2> {
                 body_force([0.0, -40.0]);\n\
                 fix(|x| x[1] == 0.0, [0, 1]);\n\
                 load_factors([1.0, 2.0]);\n";
-    let path = std::env::temp_dir().join(format!("impm-fem-{tag}-{}.rhai", std::process::id()));
+    let path = scene_path(tag);
     std::fs::write(&path, text).unwrap();
     let spec = load_scene(&path, &[]).unwrap();
-    let _ = std::fs::remove_file(&path);
+    let _ = std::fs::remove_dir_all(path.parent().unwrap());
     let mut sim = Simulation::<2>::new(&spec, &temp_dir(tag)).unwrap();
     // move the four interior nodes of the 3x3-element body (vertices (1..=2, 1..=2))
     move_reference_nodes(&mut sim.world, |node, _| {
@@ -508,7 +515,8 @@ fn fem_schedules_have_no_ambiguities_and_newton_converges_quadratically() {
         "column_2d.rhai",
         &[("ppc", "2"), ("cells", "10"), ("body_force", "-8000")],
     );
-    let mut sim = Simulation::<2>::new(&spec, &temp_dir("ambiguity")).unwrap();
+    let out = temp_dir("ambiguity");
+    let mut sim = Simulation::<2>::new(&spec, &out).unwrap();
     common::assert_schedules_unambiguous(&mut sim);
     sim.run(|_| {}).unwrap();
     let mut checked = 0;
@@ -529,7 +537,7 @@ fn fem_schedules_have_no_ambiguities_and_newton_converges_quadratically() {
             .iter(&sim.world)
             .all(|p| p.xi.iter().all(|x| x.abs() < 1.0))
     );
-    let _ = std::fs::remove_dir_all(temp_dir("ambiguity"));
+    let _ = std::fs::remove_dir_all(out);
 }
 
 #[test]
@@ -539,7 +547,7 @@ fn scenes_must_be_body_fitted_for_fem() {
                 const m = material(#{ name: \"m\", E: 1e6, nu: 0.3, density: 1.0 });\n\
                 body(#{ name: \"block\", material: m, region: box([0.0, 0.0], [2.5, 2.0]), ppc: 2 });\n\
                 load_steps(1);\n";
-    let path = std::env::temp_dir().join(format!("impm-fem-partial-{}.rhai", std::process::id()));
+    let path = scene_path("partial");
     std::fs::write(&path, text).unwrap();
     let error = load_scene(&path, &[]).unwrap_err();
     assert_eq!(error.line, Some(4), "{error}");
@@ -563,5 +571,5 @@ fn scenes_must_be_body_fitted_for_fem() {
     let error = load_scene(&path, &[("cells".into(), "8".into())]).unwrap_err();
     assert_eq!(error.line, Some(6), "{error}");
     assert!(error.message.contains("ghost_penalty"), "{error}");
-    let _ = std::fs::remove_file(&path);
+    let _ = std::fs::remove_dir_all(path.parent().unwrap());
 }

@@ -1,6 +1,8 @@
 //! Loads and boundary conditions of the scene API, solved end to end and compared with exact
 //! solutions or with invariants (resultants, equilibrium of reactions).
 
+mod common;
+
 use std::path::{Path, PathBuf};
 
 use impm::components::Position;
@@ -12,8 +14,7 @@ use impm::run::load_scene;
 use impm::scene::SceneSpec;
 
 fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("impm-loads-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
+    let dir = common::temp_dir("loads", name);
     std::fs::create_dir_all(&dir).unwrap();
     dir
 }

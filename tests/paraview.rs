@@ -5,6 +5,8 @@
 //! picture); where they are not installed the test prints why it is skipped and passes
 //! (`.ci/run` installs them).
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -24,12 +26,7 @@ fn root() -> &'static Path {
 
 /// Runs a shipped scene with overrides into a fresh folder.
 fn run(scene: &str, overrides: &[(&str, &str)]) -> PathBuf {
-    let out = std::env::temp_dir().join(format!(
-        "impm-paraview-{}-{}",
-        scene.trim_end_matches(".rhai"),
-        std::process::id()
-    ));
-    let _ = std::fs::remove_dir_all(&out);
+    let out = common::temp_dir("paraview", scene.trim_end_matches(".rhai"));
     let overrides: Vec<(String, String)> = overrides
         .iter()
         .map(|(k, v)| (k.to_string(), v.to_string()))

@@ -1,6 +1,8 @@
 //! The plugin API: systems added at each hook run where the hook says, show up in the
 //! explained schedules, and an ambiguous plugin is a clear build error.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 
 use bevy_ecs::prelude::*;
@@ -14,9 +16,7 @@ use impm::run::load_scene;
 use impm::stages::output::OutputPlan;
 
 fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("impm-plugin-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
+    common::temp_dir("plugin", name)
 }
 
 /// What each hook saw, in the order the hooks ran.

@@ -1,6 +1,8 @@
 //! Tests of the scene language through whole scripts: the core's calls and the built-in
 //! modules' (every module's scene words are registered as in a run).
 
+mod common;
+
 use std::path::{Path, PathBuf};
 
 use impm::basis::{BasisKind, GimpDomain};
@@ -22,7 +24,7 @@ fn shipped(name: &str) -> PathBuf {
 
 /// Writes an inline script to a per-process temporary directory.
 fn inline_script(name: &str, text: &str) -> PathBuf {
-    let directory = std::env::temp_dir().join(format!("impm-scene-tests-{}", std::process::id()));
+    let directory = common::temp_dir("scene-tests", name);
     std::fs::create_dir_all(&directory).unwrap();
     let path = directory.join(format!("{name}.rhai"));
     std::fs::write(&path, text).unwrap();

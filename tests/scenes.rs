@@ -1,6 +1,8 @@
 //! The shipped scenes: each opens with what it demonstrates and the command that runs it, each
 //! runs, and each schedule holds exactly the systems of the effects the scene uses.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 
 use impm::effects;
@@ -34,9 +36,7 @@ fn load(name: &str, overrides: &[(&str, &str)]) -> SceneSpec {
 }
 
 fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("impm-scenes-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
+    common::temp_dir("scenes", name)
 }
 
 #[test]

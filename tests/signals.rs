@@ -315,3 +315,98 @@ fn full_stdout_and_stderr_do_not_panic() {
     assert!(String::from_utf8_lossy(&out.stdout).contains("done: 2 steps"));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The files a `.pvd` series lists, in order.
+fn listed_in(pvd: &Path) -> Vec<String> {
+    let text = std::fs::read_to_string(pvd).unwrap();
+    text.split("file=\"")
+        .skip(1)
+        .filter_map(|rest| rest.split('"').next())
+        .map(str::to_string)
+        .collect()
+}
+
+/// A full disk: the output folder is a small `tmpfs` mounted in a user and mount namespace of
+/// the test's own (`unshare -rm`, which needs no privileges where the kernel allows user
+/// namespaces), so the run fills it after a few steps. What the run wrote is copied out of the
+/// namespace before it ends. Skipped, saying why, where such a mount cannot be made.
+#[test]
+fn a_full_disk_ends_the_run_naming_the_file_and_keeps_the_steps_done_readable() {
+    let dir = common::temp_dir("signals", "full-disk");
+    let (disk, kept) = (dir.join("disk"), dir.join("kept"));
+    std::fs::create_dir_all(&disk).unwrap();
+    std::fs::create_dir_all(&kept).unwrap();
+    let probe = Command::new("unshare")
+        .args(["-rm", "sh", "-c", "mount -t tmpfs -o size=4k tmpfs \"$0\""])
+        .arg(&disk)
+        .output();
+    match probe {
+        Ok(probe) if probe.status.success() => {}
+        Ok(probe) => {
+            eprintln!(
+                "skipped: no tmpfs can be mounted in a user namespace here: {}",
+                String::from_utf8_lossy(&probe.stderr)
+            );
+            return;
+        }
+        Err(e) => {
+            eprintln!("skipped: `unshare` (util-linux) cannot run: {e}");
+            return;
+        }
+    }
+    // $0 impm, $1 the small disk, $2 the scene, $3 where to keep what was written
+    let script = "mount -t tmpfs -o size=160k tmpfs \"$1\" || exit 99; \
+                  \"$0\" run \"$2\" --set cells=5 --set steps=40 --out \"$1\"; status=$?; \
+                  cp -a \"$1\"/. \"$3\"/; exit $status";
+    let out = Command::new("unshare")
+        .args(["-rm", "sh", "-c", script, env!("CARGO_BIN_EXE_impm")])
+        .arg(&disk)
+        .arg(common::column_script())
+        .arg(&kept)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    // the message names the file and says what to do
+    assert!(
+        err.contains(&format!("writing {}/", disk.display()))
+            && err
+                .contains("no space left on the device: free space, or write elsewhere with --out"),
+        "{err}"
+    );
+    // every series lists complete, readable steps only, the same ones summary.json records
+    let particles = listed_in(&kept.join("particles.pvd"));
+    assert!(
+        (3..41).contains(&particles.len()),
+        "the disk filled after {} output steps (expected a few): {err}",
+        particles.len()
+    );
+    for series in ["particles.pvd", "grid.pvd", "nodes.pvd"] {
+        let files = listed_in(&kept.join(series));
+        assert_eq!(files.len(), particles.len(), "{series}");
+        for file in files {
+            assert!(
+                impm::output::read_vtu(&kept.join(&file)).is_ok(),
+                "{series} lists {file}, which does not read"
+            );
+        }
+    }
+    all_vtu_readable(&kept);
+    let summary = summary(&kept);
+    assert_eq!(
+        summary["steps"].as_array().map(Vec::len),
+        Some(particles.len() - 1),
+        "summary.json records other steps than particles.pvd lists"
+    );
+    // the failure is recorded, or the message says it could not be
+    if summary["status"] == "running" {
+        assert!(
+            err.contains("could not be updated after the failure"),
+            "{err}"
+        );
+    } else {
+        assert_eq!(summary["status"], "failed");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -22,9 +22,7 @@ use impm::solver::NO_DOF;
 use impm::stages::{evaluate_basis, number_dofs, reset_grid, update_points, update_stress};
 
 fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("impm-world-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
+    common::temp_dir("world", name)
 }
 
 /// A 2D block of 2x2 points per cell on a `cells`-cell grid, fixed at y = 0, under gravity.

@@ -1,6 +1,8 @@
 //! Progress of a run or a study: on a terminal an `indicatif` bar with the step, λ, Newton
 //! iterations, residual, elapsed time and ETA; otherwise (CI, a cluster job log) one line per
-//! converged step with the same figures. Both on stderr.
+//! converged step with the same figures. Both on stderr. The bar is cleared when the run ends
+//! (it left its line without a line break, so the summary printed next ran on from the bar's
+//! end), so the last lines on the screen are the summary (`tests/progress.rs`).
 
 use std::io::IsTerminal;
 use std::time::{Duration, Instant};
@@ -83,9 +85,10 @@ impl Progress {
         }
     }
 
+    /// Clears the bar: what follows (the summary, an error) starts on a clean line.
     pub fn finish(&mut self) {
         if let Some(bar) = self.bar.take() {
-            bar.abandon();
+            bar.finish_and_clear();
         }
     }
 

@@ -222,9 +222,7 @@ impl Plugin for GridConstraintsModule {
             .map_or(Vec::new(), |d| d.0.clone());
         for (index, declaration) in declared.iter().enumerate() {
             for (axis, axis_name) in AXES.iter().enumerate().take(D) {
-                let key: &'static str = Box::leak(
-                    format!("{}_reaction_{axis_name}", declaration.name).into_boxed_str(),
-                );
+                let key = format!("{}_reaction_{axis_name}", declaration.name);
                 simulation.add_measure(key, move |world, _| {
                     Some(
                         world
@@ -236,8 +234,7 @@ impl Plugin for GridConstraintsModule {
             }
         }
         for (axis, axis_name) in AXES.iter().enumerate().take(D) {
-            let key: &'static str =
-                Box::leak(format!("external_force_{axis_name}").into_boxed_str());
+            let key = format!("external_force_{axis_name}");
             simulation.add_measure(key, move |world, _| {
                 Some(world.get_resource::<GridReactions<D>>()?.external[axis])
             });

@@ -187,19 +187,20 @@ impl Plugin for HistoryModule {
             .spec()
             .part::<Records>()
             .map_or(Vec::new(), |r| r.0.clone());
-        let measured: Vec<&'static str> = simulation
+        let measured: Vec<String> = simulation
             .world()
             .get_resource::<StepMeasures>()
-            .map_or(Vec::new(), |m| m.0.iter().map(|(name, _)| *name).collect());
+            .map_or(Vec::new(), |m| {
+                m.0.iter().map(|(name, _)| name.clone()).collect()
+            });
         for record in records {
             let (quantity, scale) = (record.quantity.clone(), record.scale);
-            // measure names live as long as the run's records
-            let name: &'static str = Box::leak(record.name.clone().into_boxed_str());
+            let name = record.name.clone();
             if quantity == LOAD_FACTOR {
                 simulation.add_measure(name, move |_, factor| Some(scale * factor));
                 continue;
             }
-            if !measured.contains(&record.quantity.as_str()) {
+            if !measured.contains(&record.quantity) {
                 let line = record
                     .line
                     .map(|l| format!("line {l}: "))
@@ -224,7 +225,7 @@ impl Plugin for HistoryModule {
 /// `QUANTITY_error` of the scene's reference value; an error if nothing records the quantity.
 fn add_reference_error<const D: usize>(
     simulation: &mut Extension<'_, D>,
-    measured: &[&'static str],
+    measured: &[String],
     reference: ReferenceSpec,
 ) {
     let records: Vec<String> = simulation
@@ -232,9 +233,8 @@ fn add_reference_error<const D: usize>(
         .part::<Records>()
         .map_or(Vec::new(), |r| r.0.iter().map(|r| r.name.clone()).collect());
     let quantity = reference.quantity.clone();
-    let known = quantity == LOAD_FACTOR
-        || measured.contains(&quantity.as_str())
-        || records.contains(&quantity);
+    let known =
+        quantity == LOAD_FACTOR || measured.contains(&quantity) || records.contains(&quantity);
     if !known {
         let line = reference
             .line
@@ -244,16 +244,14 @@ fn add_reference_error<const D: usize>(
             "{line}reference(...): '{quantity}' is not recorded; the recorded quantities are: {LOAD_FACTOR}, {}",
             measured
                 .iter()
-                .map(|m| m.to_string())
+                .cloned()
                 .chain(records)
                 .collect::<Vec<_>>()
                 .join(", ")
         ));
         return;
     }
-    // measure names live as long as the run's records
-    let name: &'static str = Box::leak(reference.error_name().into_boxed_str());
-    simulation.add_measure(name, move |world, factor| {
+    simulation.add_measure(reference.error_name(), move |world, factor| {
         let value = if quantity == LOAD_FACTOR {
             factor
         } else {

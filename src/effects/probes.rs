@@ -183,7 +183,7 @@ impl Plugin for ProbesModule {
             let weights = std::sync::Arc::new(weights);
             for (axis, axis_name) in AXES.iter().enumerate().take(D) {
                 let weights = weights.clone();
-                let key = leak(format!("{}_displacement_{axis_name}", probe.name));
+                let key = format!("{}_displacement_{axis_name}", probe.name);
                 simulation.add_measure(key, move |world, _| {
                     let mut value = 0.0;
                     for &(entity, w) in weights.iter() {
@@ -197,7 +197,7 @@ impl Plugin for ProbesModule {
             if probe.stress {
                 for (a, b) in stress_components(D) {
                     let weights = weights.clone();
-                    let key = leak(format!("{}_stress_{}{}", probe.name, AXES[a], AXES[b]));
+                    let key = format!("{}_stress_{}{}", probe.name, AXES[a], AXES[b]);
                     simulation.add_measure(key, move |world, _| {
                         let mut value = 0.0;
                         for &(entity, w) in weights.iter() {
@@ -211,7 +211,7 @@ impl Plugin for ProbesModule {
                 for (a, row) in AXES.iter().enumerate().take(D) {
                     for (b, column) in AXES.iter().enumerate().take(D) {
                         let weights = weights.clone();
-                        let key = leak(format!("{}_F_{row}{column}", probe.name));
+                        let key = format!("{}_F_{row}{column}", probe.name);
                         simulation.add_measure(key, move |world, _| {
                             let mut value = 0.0;
                             for &(entity, w) in weights.iter() {
@@ -224,11 +224,6 @@ impl Plugin for ProbesModule {
             }
         }
     }
-}
-
-/// Measure names live as long as the run's records: a few per probe.
-fn leak(name: String) -> &'static str {
-    Box::leak(name.into_boxed_str())
 }
 
 /// The recorded stress components: the three normal ones (the out-of-plane σ_zz of plane strain

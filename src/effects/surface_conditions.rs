@@ -402,9 +402,7 @@ fn add_condition_measures<const D: usize>(
     ];
     for (what, quantity) in quantities {
         for (axis, axis_name) in AXES.iter().enumerate().take(D) {
-            // measure names live as long as the run's records: a few per condition
-            let key: &'static str =
-                Box::leak(format!("{name}_{what}_{axis_name}").into_boxed_str());
+            let key = format!("{name}_{what}_{axis_name}");
             simulation.add_measure(key, move |world, _| {
                 let set = world.get_resource::<SurfaceConditionSet<D>>()?;
                 Some(quantity(set.0.get(index)?)[axis])

@@ -19,13 +19,20 @@
 //! is confined to the scene's own folder ([`ConfinedResolver`]). The time limit backs up the
 //! others: Rhai checks the size of a map or array by walking it, so a loop growing one item at
 //! a time slows down quadratically long before the operation limit.
+//!
+//! Rhai does not check a map's size when an index assignment adds a key (`m[k] = v` checks the
+//! new value, not the map), so the map limit is also checked where the script reads a variable
+//! ([`check_map_size`], through `Engine::on_var`): a loop adding keys one by one reads its map
+//! on every turn and ends one key past the limit, at the line that reads it. The check counts
+//! the entries of the map and of the maps nested in it (as Rhai's own size check does), not
+//! those inside arrays; it costs a scope lookup per variable read.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use rhai::module_resolvers::FileModuleResolver;
-use rhai::{Dynamic, Engine, EvalAltResult, Module, ModuleResolver, Position, Shared};
+use rhai::{Dynamic, Engine, EvalAltResult, Map, Module, ModuleResolver, Position, Shared};
 
 /// The value a script ends with when it runs out of time.
 pub const TIME_LIMIT: &str = "the time limit";
@@ -141,6 +148,13 @@ impl SceneLimits {
         engine.set_max_string_size(self.string);
         engine.set_max_array_size(self.array);
         engine.set_max_map_size(self.map);
+        let map_limit = self.map;
+        // `on_var` is marked deprecated only as "volatile" (Rhai's note: "This API is NOT
+        // deprecated"); returning `None` leaves the variable to the normal lookup.
+        #[allow(deprecated)]
+        engine.on_var(move |name, _, context| {
+            check_map_size(context.scope().get(name), map_limit).map(|()| None)
+        });
         engine.set_max_call_levels(self.depth);
         engine.set_module_resolver(ConfinedResolver::new(folder));
     }
@@ -192,6 +206,35 @@ impl SceneLimits {
         }
         Ok(())
     }
+}
+
+/// Refuses a variable's value that is a map of more than `limit` entries (its own and those of
+/// the maps nested in it), with the error Rhai gives when its own map size check fails.
+fn check_map_size(value: Option<&Dynamic>, limit: usize) -> Result<(), Box<EvalAltResult>> {
+    match value {
+        Some(value) if map_entries(value, limit) > limit => Err(EvalAltResult::ErrorDataTooLarge(
+            "Size of object map".to_string(),
+            Position::NONE,
+        )
+        .into()),
+        _ => Ok(()),
+    }
+}
+
+/// Entries of `value` if it is a map, counting the maps nested in it; stops counting past
+/// `limit`.
+fn map_entries(value: &Dynamic, limit: usize) -> usize {
+    let Some(map) = value.read_lock::<Map>() else {
+        return 0;
+    };
+    let mut entries = map.len();
+    for nested in map.values() {
+        if entries > limit {
+            break;
+        }
+        entries += map_entries(nested, limit - entries);
+    }
+    entries
 }
 
 /// Grid functions nonzero at a point of a basis of order `order` in dimension `dim`,

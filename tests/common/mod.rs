@@ -4,6 +4,7 @@
 #![allow(clippy::needless_range_loop)] // matrix indices read best as indices
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use bevy_ecs::prelude::World;
 use bevy_ecs::schedule::ScheduleLabel;
@@ -37,9 +38,17 @@ pub fn column_script() -> String {
     shipped_scene("column_1d.rhai").display().to_string()
 }
 
-/// A fresh (removed, not yet created) folder under the system's temporary folder.
+/// Numbers the folders of [`temp_dir`] within one test process.
+static TEMP_DIRS: AtomicUsize = AtomicUsize::new(0);
+
+/// A fresh (removed, not yet created) folder under the system's temporary folder, unique to
+/// this call: the process id tells concurrent test binaries apart and a process-wide counter
+/// the tests of one binary, which run in parallel threads (two tests with one `tag` would
+/// otherwise share, and clear, one folder).
 pub fn temp_dir(prefix: &str, tag: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("impm-{prefix}-{tag}-{}", std::process::id()));
+    let call = TEMP_DIRS.fetch_add(1, Ordering::Relaxed);
+    let dir =
+        std::env::temp_dir().join(format!("impm-{prefix}-{tag}-{}-{call}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     dir
 }
