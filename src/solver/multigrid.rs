@@ -26,13 +26,13 @@
 //!    smoothed prolongator below widens an aggregate by `q` nodes on each side; with `w`
 //!    nodes a side, two coarse blocks `J − I` apart couple when `w (J − I) ≤ w + 3q − 1`
 //!    (q = 2: `J − I ≤ 2` for `w = 3` or `4`, but `≤ 3` for `w = 2`). So `w = 4` keeps the coarse
-//!    stencil `5^D` blocks wide at every level while each level has `2·4^D / (D + 1)` times
-//!    fewer unknowns than the one below (`4^D` nodes of `D` DOFs become the `D(D+1)/2`
+//!    stencil `5^D` blocks wide at every level while each level has about `2·4^D / (D + 1)`
+//!    times fewer unknowns than the one below (`4^D` nodes of `D` DOFs become the `D(D+1)/2`
 //!    rigid-body modes: 32× in 3D, 10.7× in 2D): operator complexity 1.03 in 3D and 1.15 in
 //!    2D on the self-weight blocks (`examples/multigrid_setup.rs`, `docs/performance.md`),
 //!    against 1.09 and 1.27 for `w = 3` with one or two fewer CG iterations. The
 //!    nearest-ring aggregates this module used first coarsened 3D by 2× per level (6 916 →
-//!    3 444 DOFs at 12 cells), and its setup took 17 s of a 10k-point step. Without
+//!    3 444 DOFs at 12 cells), and its setup was most of a 17 s 10k-point step. Without
 //!    positions, algebraic aggregation: `‖A_IJ‖_F ≥ θ √(‖A_II‖_F ‖A_JJ‖_F)`, `θ = 0.08`,
 //!    strong neighbours; greedy: a block whose strong neighbours are all free forms an
 //!    aggregate with them; the rest join the aggregate of their strongest neighbour, or form
@@ -56,7 +56,9 @@
 //! solves. It is a symmetric positive definite operator whatever tangent it was built from, so
 //! CG stays correct; only the iteration count could change, and on the self-weight blocks it
 //! does not (2D 160k points: 19, 18, 18 iterations kept against 19, 18, 17 rebuilt; the setup
-//! was 40–60 % of the linear solves when redone at every iteration). With it off, the
+//! was 40–55 % of the linear solves when redone at every iteration). Where the tangent changes
+//! much within a step (a body yielding) the count may grow (no scene word turns reuse off yet;
+//! the field does, through the library). With it off, the
 //! aggregates and `T` (which depend on the pattern and the positions only) are kept and `P`,
 //! the coarse operators and the coarsest factor are rebuilt from each tangent.
 //!
@@ -69,9 +71,9 @@
 //!
 //! **Cycle**: a V-cycle with one forward Gauss–Seidel sweep before the coarse correction and
 //! one backward sweep after it (the forward one starts from zero, so it reads only the lower
-//! triangle; the row products keep four partial sums, `sparse_dot`). The backward sweep is the adjoint of the forward one, so for a
-//! symmetric positive definite `A` the cycle is a symmetric positive definite operator: a valid
-//! CG preconditioner.
+//! triangle; the row products keep four partial sums, `sparse_dot`). The backward sweep is the
+//! adjoint of the forward one, so for a symmetric positive definite `A` the cycle is a
+//! symmetric positive definite operator: a valid CG preconditioner.
 
 use faer::linalg::solvers::SolveCore;
 use faer::sparse::linalg::matmul::sparse_sparse_matmul;
