@@ -344,6 +344,9 @@ fn run_command(
     if let Some(e) = summary.final_error() {
         line += &format!(", error (eq. 15) {e:.3e}");
     }
+    if let Some(hierarchy) = summary.steps.last().and_then(|s| s.multigrid.as_ref()) {
+        line += &format!("\nmultigrid (last step): {hierarchy}");
+    }
     say(&format!(
         "{line}\nresults: {}/particles.pvd (open in ParaView)\n",
         out_dir.display()

@@ -12,6 +12,7 @@ use serde_json::{Map, Value, json};
 use crate::control::Attempt;
 use crate::resources::{Stage, StageClock};
 use crate::scene::SceneSpec;
+use crate::solver::Hierarchy;
 
 /// A quantity a module measures after every converged step, from the world and the load
 /// factor (`None` when it does not apply).
@@ -43,6 +44,8 @@ pub struct StepRecord {
     pub residuals: Vec<f64>,
     /// Krylov iterations of each linear solve (empty for the direct backend).
     pub linear_iterations: Vec<usize>,
+    /// The multigrid preconditioner's levels at the step's last linear solve, if it has one.
+    pub multigrid: Option<Hierarchy>,
     pub converged: bool,
     pub dofs: usize,
     pub seconds: StageClock,
@@ -66,6 +69,7 @@ impl StepRecord {
             iterations: 0,
             residuals: Vec::new(),
             linear_iterations: Vec::new(),
+            multigrid: None,
             converged: false,
             dofs: 0,
             seconds: StageClock::default(),
@@ -176,6 +180,14 @@ fn step_json(r: &StepRecord) -> Value {
     });
     if !r.linear_iterations.is_empty() {
         v["linear_iterations"] = json!(r.linear_iterations);
+    }
+    if let Some(h) = &r.multigrid {
+        v["multigrid"] = json!({
+            "rows": h.rows,
+            "nonzeros": h.nonzeros,
+            "grid_complexity": number(h.grid_complexity()),
+            "operator_complexity": number(h.operator_complexity()),
+        });
     }
     if let Some(e) = r.error {
         v["error"] = number(e);
@@ -373,6 +385,10 @@ pub fn step_from_json(value: &Value, measures: &[String]) -> Result<StepRecord, 
     record.iterations = count("iterations")?;
     record.residuals = reals(&value["residuals"]);
     record.linear_iterations = counts(&value["linear_iterations"]);
+    record.multigrid = value.get("multigrid").map(|m| Hierarchy {
+        rows: counts(&m["rows"]),
+        nonzeros: counts(&m["nonzeros"]),
+    });
     record.converged = value["converged"].as_bool().unwrap_or(false);
     record.dofs = count("dofs")?;
     record.seconds = stage_clock(&value["seconds"]);
@@ -427,6 +443,7 @@ const STEP_KEYS: &[&str] = &[
     "iterations",
     "residuals",
     "linear_iterations",
+    "multigrid",
     "converged",
     "dofs",
     "seconds",

@@ -324,6 +324,7 @@ impl<const D: usize> Simulation<D> {
         let outcome = self.take_failure();
         let newton = self.world.resource::<Newton>();
         record.dofs = newton.matrix.size();
+        record.multigrid = newton.solver.hierarchy();
         let failure = outcome.as_ref().err().map(|e| e.to_string());
         record.add_attempt(
             &attempt,

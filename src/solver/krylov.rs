@@ -30,6 +30,10 @@ pub trait Preconditioner: Send + Sync {
     fn setup(&mut self, matrix: &SparseMatrix, symmetric: bool) -> Result<(), LinearSolveError>;
     /// `z = M⁻¹ r` (`&mut self`: a preconditioner may keep work vectors).
     fn apply(&mut self, r: &[f64], z: &mut [f64]);
+    /// The levels of a multigrid preconditioner after its last setup (`None` for others).
+    fn hierarchy(&self) -> Option<super::Hierarchy> {
+        None
+    }
 }
 
 /// Jacobi: `M = diag(K)`.
@@ -320,6 +324,10 @@ impl KrylovSolver {
 }
 
 impl LinearSolver for KrylovSolver {
+    fn hierarchy(&self) -> Option<super::Hierarchy> {
+        self.preconditioner.hierarchy()
+    }
+
     fn last_iterations(&self) -> Option<usize> {
         Some(self.last_iterations)
     }

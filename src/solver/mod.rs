@@ -23,7 +23,7 @@ pub use direct::DirectSolver;
 pub use forcing::EisenstatWalker;
 pub use krylov::{Jacobi, KrylovSolver, Preconditioner, multiply};
 pub use matrix::{DofLayout, NO_DOF, NO_ENTRY, SparseMatrix};
-pub use multigrid::Multigrid;
+pub use multigrid::{Hierarchy, Multigrid};
 
 /// Which factorisation solved a system.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -72,6 +72,11 @@ pub trait LinearSolver: Send + Sync {
 
     /// Iterations of the last solve, for an iterative solver (`None` for a direct one).
     fn last_iterations(&self) -> Option<usize> {
+        None
+    }
+
+    /// The levels of a multigrid preconditioner after the last solve (`None` without one).
+    fn hierarchy(&self) -> Option<Hierarchy> {
         None
     }
 
