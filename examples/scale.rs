@@ -9,7 +9,13 @@
 //! cargo run --release --example scale                        # 2D 10k, 40k; 3D 10k
 //! cargo run --release --example scale -- 2:10000,40000,160000 3:10000,30000 \
 //!     --backends direct,multigrid,jacobi --threads 1,2 --steps 2 --chart docs/scale
+//! cargo run --release --features petsc --example scale -- 2:40000 \
+//!     --backends direct,multigrid,jacobi,petsc-gamg,petsc-hypre --threads 1
 //! ```
+//!
+//! `petsc-gamg` and `petsc-hypre` (builds with the feature `petsc`) are PETSc's CG with its
+//! smoothed-aggregation multigrid (GAMG, given the rigid-body modes) and with hypre's
+//! BoomerAMG, at the built-in solvers' relative tolerance 1e-10.
 //!
 //! `DIM:POINTS,..` chooses the blocks (the point count is rounded to whole cells); every
 //! (size, backend, threads) combination runs `--repeat N` times (default 1), and each stage's
@@ -88,7 +94,7 @@ struct Figures {
 
 struct Plan {
     blocks: Vec<(usize, Vec<usize>)>,
-    backends: Vec<LinearBackend>,
+    backends: Vec<Backend>,
     threads: Vec<usize>,
     steps: usize,
     /// Runs of each combination; each stage's figure is the minimum over them (load noise).
@@ -99,10 +105,7 @@ struct Plan {
 fn parse() -> Result<Plan, String> {
     let mut plan = Plan {
         blocks: Vec::new(),
-        backends: vec![
-            LinearBackend::Direct,
-            LinearBackend::Iterative(Preconditioning::Multigrid),
-        ],
+        backends: vec![Backend::builtin(LinearBackend::Direct, "direct"), MULTIGRID],
         threads: vec![1, 2],
         steps: 2,
         repeat: 1,
@@ -121,13 +124,28 @@ fn parse() -> Result<Plan, String> {
                 plan.backends = value()?
                     .split(',')
                     .map(|b| match b {
-                        "direct" => Ok(LinearBackend::Direct),
-                        "iterative" | "multigrid" => {
-                            Ok(LinearBackend::Iterative(Preconditioning::Multigrid))
+                        "direct" => Ok(Backend::builtin(LinearBackend::Direct, "direct")),
+                        "iterative" | "multigrid" => Ok(MULTIGRID),
+                        "jacobi" => Ok(Backend::builtin(
+                            LinearBackend::Iterative(Preconditioning::Jacobi),
+                            "cg+jacobi",
+                        )),
+                        "petsc-gamg" | "petsc-hypre" if !cfg!(feature = "petsc") => {
+                            Err(format!("backend '{b}': {}", impm::scene::WITHOUT_PETSC))
                         }
-                        "jacobi" => Ok(LinearBackend::Iterative(Preconditioning::Jacobi)),
+                        "petsc-gamg" => Ok(Backend {
+                            linear: LinearBackend::Petsc,
+                            petsc_options: "-ksp_type cg -pc_type gamg",
+                            name: "petsc cg+gamg",
+                        }),
+                        "petsc-hypre" => Ok(Backend {
+                            linear: LinearBackend::Petsc,
+                            petsc_options: "-ksp_type cg -pc_type hypre",
+                            name: "petsc cg+boomeramg",
+                        }),
                         _ => Err(format!(
-                            "backend '{b}': direct, multigrid (= iterative) or jacobi"
+                            "backend '{b}': direct, multigrid (= iterative), jacobi, petsc-gamg \
+                             or petsc-hypre"
                         )),
                     })
                     .collect::<Result<_, _>>()?
@@ -161,7 +179,7 @@ fn run<const D: usize>(
     scene: &Path,
     cells: usize,
     steps: usize,
-    backend: LinearBackend,
+    backend: Backend,
     threads: usize,
 ) -> Figures {
     let pool = rayon::ThreadPoolBuilder::new()
@@ -175,7 +193,8 @@ fn run<const D: usize>(
             ("steps".to_string(), steps.to_string()),
         ];
         let mut spec = load_scene(scene, &set).unwrap_or_else(|e| panic!("{e}"));
-        spec.solver.linear = backend;
+        spec.solver.linear = backend.linear;
+        spec.solver.petsc_options = backend.petsc_options.to_string();
         let out = std::env::temp_dir().join(format!("impm-scale-{}", std::process::id()));
         let started = memory::begin_run();
         let mut sim = Simulation::<D>::new(&spec, &out).unwrap_or_else(|e| panic!("{e}"));
@@ -287,12 +306,32 @@ fn exponent(samples: &[(f64, f64)]) -> Option<f64> {
     (sxx > 0.0).then(|| sxy / sxx)
 }
 
-fn backend_name(b: LinearBackend) -> String {
-    match b {
-        LinearBackend::Direct => "direct".into(),
-        LinearBackend::Iterative(Preconditioning::Multigrid) => "cg+multigrid".into(),
-        LinearBackend::Iterative(Preconditioning::Jacobi) => "cg+jacobi".into(),
+/// A linear-solver backend as the scene's `solver(...)` chooses it, with its name in the tables.
+#[derive(Clone, Copy)]
+struct Backend {
+    linear: LinearBackend,
+    /// `petsc_options` (PETSc's backend only).
+    petsc_options: &'static str,
+    name: &'static str,
+}
+
+impl Backend {
+    const fn builtin(linear: LinearBackend, name: &'static str) -> Self {
+        Self {
+            linear,
+            petsc_options: "",
+            name,
+        }
     }
+}
+
+const MULTIGRID: Backend = Backend::builtin(
+    LinearBackend::Iterative(Preconditioning::Multigrid),
+    "cg+multigrid",
+);
+
+fn backend_name(b: Backend) -> String {
+    b.name.into()
 }
 
 /// The stages shown (the others cost less than a percent here).

@@ -61,6 +61,11 @@ enum Command {
         /// RAYON_NUM_THREADS); results are bit-identical for a given count.
         #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
         threads: Option<u64>,
+        /// Options for PETSc's options database, for scenes with solver(#{ linear: "petsc" })
+        /// (applied after the scene's petsc_options, so they win), e.g.
+        /// --petsc-options "-ksp_monitor -pc_type hypre". Builds with the feature `petsc` only.
+        #[arg(long, value_name = "OPTIONS", allow_hyphen_values = true)]
+        petsc_options: Option<String>,
     },
     /// Run a scene over the cross product of parameter values; write study.csv, study.md and
     /// charts of error against cells and against wall time.
@@ -175,8 +180,10 @@ fn run(cli: Cli) -> Result<(), Failure> {
             resume,
             checkpoint_every,
             threads,
+            petsc_options,
         } => {
             use_threads(threads)?;
+            use_petsc_options(petsc_options.as_deref())?;
             let restart = RunRestart {
                 resume,
                 every: checkpoint_every.map(|n| n as usize),
@@ -228,6 +235,24 @@ fn run(cli: Cli) -> Result<(), Failure> {
 fn use_threads(threads: Option<u64>) -> Result<(), Failure> {
     match threads {
         Some(n) => Ok(impm::parallel::use_threads(n as usize)?),
+        None => Ok(()),
+    }
+}
+
+/// `--petsc-options`: PETSc's options for every PETSc solver of the run; refused by a build
+/// without PETSc.
+fn use_petsc_options(options: Option<&str>) -> Result<(), Failure> {
+    match options {
+        #[cfg(feature = "petsc")]
+        Some(options) => {
+            impm::solver::set_petsc_command_line_options(options);
+            Ok(())
+        }
+        #[cfg(not(feature = "petsc"))]
+        Some(_) => Err(Failure::Message(format!(
+            "--petsc-options: {}",
+            impm::scene::WITHOUT_PETSC
+        ))),
         None => Ok(()),
     }
 }

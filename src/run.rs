@@ -452,7 +452,7 @@ fn core_world<const D: usize>(spec: &SceneSpec, out_dir: &Path) -> Result<World,
         inexact: spec.solver.inexact,
     });
     world.insert_resource(Newton {
-        solver: spec.solver.linear.solver(),
+        solver: spec.solver.linear_solver(),
         ..Newton::default()
     });
     world.insert_resource(Convergence::default());

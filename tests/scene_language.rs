@@ -720,6 +720,7 @@ fn displacements_load_factors_solver_and_output() {
             max_step_cuts: 8,
             linear: impm::scene::LinearBackend::Direct,
             inexact: false,
+            petsc_options: String::new(),
         }
     );
     assert_eq!(scene.output.every, 2);

@@ -8,7 +8,7 @@
 
 mod common;
 
-use common::{overrides, shipped_scene, temp_dir};
+use common::{overrides, shipped_scene, stress_difference, temp_dir};
 use impm::resources::Newton;
 use impm::run::{Simulation, load_scene};
 use impm::scene::{LinearBackend, Preconditioning};
@@ -67,19 +67,6 @@ fn run<const D: usize>(
         sim.stress_profile(D - 1),
         kind,
     )
-}
-
-/// Largest stress difference relative to the largest stress.
-fn stress_difference(a: &[(f64, f64)], b: &[(f64, f64)]) -> f64 {
-    assert_eq!(a.len(), b.len());
-    let scale = b.iter().map(|p| p.1.abs()).fold(0.0, f64::max);
-    a.iter()
-        .zip(b)
-        .map(|(p, q)| {
-            assert_eq!(p.0, q.0);
-            (p.1 - q.1).abs() / scale
-        })
-        .fold(0.0, f64::max)
 }
 
 #[test]

@@ -599,8 +599,24 @@ fn solver_call() -> CallSpec {
                              (relative tolerance 1e-10)",
                         ),
                     },
+                    Choice {
+                        word: "petsc",
+                        meaning: Some(
+                            "PETSc's solvers (builds with the cargo feature `petsc` only): CG, \
+                             GMRES where the tangent is not symmetric, with algebraic multigrid \
+                             (GAMG) given the rigid-body modes; relative tolerance 1e-10, both \
+                             changed by `petsc_options`",
+                        ),
+                    },
                 ]),
                 "backend of the linear solves (default \"direct\")",
+            ),
+            OptionSpec::new(
+                "petsc_options",
+                Kind::Text,
+                "options for PETSc's options database (linear: \"petsc\"), in PETSc's \
+                 command-line syntax, e.g. \"-ksp_type cg -pc_type gamg\" or \"-pc_type hypre\"; \
+                 `impm run --petsc-options` adds to them and wins",
             ),
             OptionSpec::new(
                 "preconditioner",
@@ -651,10 +667,23 @@ fn solver_call() -> CallSpec {
                                     linear: \"iterative\" only"
                             .to_string());
                     }
+                    (Some("petsc"), _) if cfg!(feature = "petsc") => LinearBackend::Petsc,
+                    (Some("petsc"), _) => {
+                        return Err(format!(
+                            "solver(...): linear: \"petsc\" needs PETSc, but {}",
+                            super::WITHOUT_PETSC
+                        ));
+                    }
                     _ => LinearBackend::Direct,
                 },
                 inexact: options.flag("inexact").unwrap_or(false),
+                petsc_options: options.text("petsc_options").unwrap_or("").to_string(),
             };
+            if options.text("petsc_options").is_some() && solver.linear != LinearBackend::Petsc {
+                return Err(
+                    "solver(...): 'petsc_options' applies to linear: \"petsc\" only".to_string(),
+                );
+            }
             if solver.inexact && solver.linear == LinearBackend::Direct {
                 return Err(
                     "solver(...): 'inexact' applies to linear: \"iterative\" only \

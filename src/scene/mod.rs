@@ -140,6 +140,20 @@ pub struct SolverSpec {
     /// Inexact Newton: iterative solves only as accurate as Eisenstat–Walker forcing terms ask
     /// (`solver::EisenstatWalker`).
     pub inexact: bool,
+    /// Options for PETSc's options database (`linear: "petsc"`), e.g. `-ksp_type cg -pc_type
+    /// gamg`; empty for PETSc's defaults as the backend sets them.
+    pub petsc_options: String,
+}
+
+impl SolverSpec {
+    /// A new solver of the chosen backend, with its options.
+    pub fn linear_solver(&self) -> Box<dyn crate::solver::LinearSolver> {
+        match self.linear {
+            #[cfg(feature = "petsc")]
+            LinearBackend::Petsc => Box::new(crate::solver::PetscSolver::new(&self.petsc_options)),
+            other => other.solver(),
+        }
+    }
 }
 
 impl Default for SolverSpec {
@@ -150,6 +164,7 @@ impl Default for SolverSpec {
             max_step_cuts: 8,
             linear: LinearBackend::Direct,
             inexact: false,
+            petsc_options: String::new(),
         }
     }
 }
@@ -162,6 +177,9 @@ pub enum LinearBackend {
     Direct,
     /// Preconditioned CG / BiCGSTAB (`solver::KrylovSolver`).
     Iterative(Preconditioning),
+    /// PETSc's KSP and preconditioners (`solver::PetscSolver`); only in a build with the cargo
+    /// feature `petsc`, scenes asking for it elsewhere are refused when they load.
+    Petsc,
 }
 
 /// The preconditioner of the iterative backend.
@@ -184,9 +202,37 @@ impl LinearBackend {
             LinearBackend::Iterative(Preconditioning::Multigrid) => {
                 Box::new(KrylovSolver::multigrid())
             }
+            #[cfg(feature = "petsc")]
+            LinearBackend::Petsc => Box::new(crate::solver::PetscSolver::new("")),
+            #[cfg(not(feature = "petsc"))]
+            LinearBackend::Petsc => Box::new(WithoutPetsc),
         }
     }
 }
+
+/// `linear: "petsc"` in a build without PETSc (reached only by building a [`SolverSpec`] in
+/// code: scenes asking for it are refused when they load): every solve fails, saying so.
+#[cfg(not(feature = "petsc"))]
+struct WithoutPetsc;
+
+#[cfg(not(feature = "petsc"))]
+impl crate::solver::LinearSolver for WithoutPetsc {
+    fn solve(
+        &mut self,
+        _matrix: &crate::solver::SparseMatrix,
+        _symmetric: bool,
+        _rhs: &mut [f64],
+    ) -> Result<crate::solver::SolverKind, crate::solver::LinearSolveError> {
+        Err(crate::solver::LinearSolveError::Backend(
+            WITHOUT_PETSC.to_string(),
+        ))
+    }
+}
+
+/// What a build without the cargo feature `petsc` says when PETSc is asked for.
+pub const WITHOUT_PETSC: &str = "this build of impm has no PETSc: rebuild with \
+                                 `cargo build --release --features petsc` (see README.md, \
+                                 \"Running on a cluster\")";
 
 /// Which steps and fields are written.
 #[derive(Clone, Debug, PartialEq)]

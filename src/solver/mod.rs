@@ -10,7 +10,8 @@
 //!
 //! Backends: [`DirectSolver`] (faer's sparse Cholesky / LU, the default) and [`KrylovSolver`]
 //! (preconditioned CG / BiCGSTAB with a [`Preconditioner`]: [`Jacobi`], or smoothed-aggregation
-//! [`Multigrid`] whose iteration count stays nearly flat under refinement).
+//! [`Multigrid`] whose iteration count stays nearly flat under refinement); with the cargo
+//! feature `petsc`, `PetscSolver` (PETSc's KSP and preconditioners, GAMG by default).
 
 mod direct;
 mod forcing;
@@ -18,12 +19,16 @@ mod krylov;
 mod matrix;
 pub mod modes;
 mod multigrid;
+#[cfg(feature = "petsc")]
+mod petsc;
 
 pub use direct::DirectSolver;
 pub use forcing::EisenstatWalker;
 pub use krylov::{Jacobi, KrylovSolver, Preconditioner, multiply};
 pub use matrix::{DofLayout, NO_DOF, NO_ENTRY, SparseMatrix};
 pub use multigrid::{Hierarchy, Multigrid};
+#[cfg(feature = "petsc")]
+pub use petsc::{PetscSolver, set_command_line_options as set_petsc_command_line_options};
 
 /// Which factorisation solved a system.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -36,6 +41,8 @@ pub enum SolverKind {
     ConjugateGradients,
     /// Preconditioned BiCGSTAB ([`KrylovSolver`], non-symmetric tangents).
     BiCgStab,
+    /// PETSc's KSP with its preconditioner (`PetscSolver`, feature `petsc`).
+    Petsc,
 }
 
 /// A failure of the linear solve.
@@ -46,6 +53,8 @@ pub enum LinearSolveError {
     Singular(String),
     /// An iterative solve did not reach its tolerance.
     NotConverged(String),
+    /// The backend failed for a reason of its own (a PETSc error code, with the function).
+    Backend(String),
 }
 
 impl std::fmt::Display for LinearSolveError {
@@ -54,7 +63,9 @@ impl std::fmt::Display for LinearSolveError {
             LinearSolveError::Singular(why) => {
                 write!(f, "the tangent stiffness is singular ({why})")
             }
-            LinearSolveError::NotConverged(why) => write!(f, "{why}"),
+            LinearSolveError::NotConverged(why) | LinearSolveError::Backend(why) => {
+                write!(f, "{why}")
+            }
         }
     }
 }

@@ -184,3 +184,17 @@ pub fn assert_schedules_unambiguous<const D: usize>(sim: &mut Simulation<D>) {
         });
     }
 }
+
+/// Largest difference between two stress profiles (`(position, stress)` pairs at the same
+/// positions) relative to the largest stress of `b`.
+pub fn stress_difference(a: &[(f64, f64)], b: &[(f64, f64)]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    let scale = b.iter().map(|p| p.1.abs()).fold(0.0, f64::max);
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| {
+            assert_eq!(p.0, q.0);
+            (p.1 - q.1).abs() / scale
+        })
+        .fold(0.0, f64::max)
+}

@@ -1,0 +1,276 @@
+//! The PETSc backend (`solver(#{ linear: "petsc" })`, cargo feature `petsc`).
+//!
+//! With the feature: PETSc's CG with GAMG (the rigid-body modes as its near-null space) and
+//! with hypre's BoomerAMG reproduces the direct solve's runs of the 2D and 3D columns and a 3D
+//! block — the same eq. 15 error, every point's stress to 1e-8 of the largest, the same Newton
+//! iterations — with a tight linear tolerance (`-ksp_rtol 1e-12`); a non-symmetric tangent
+//! (Nitsche) goes to GMRES and gives the LU run; a KSP that stops short (`-ksp_max_it 1`, from
+//! the scene or from `--petsc-options`) is a failed solve with PETSc's reason, never an answer;
+//! a PETSc error (an unknown KSP type) names the PETSc function and PETSc's message; an option
+//! PETSc did not use (misspelled) is refused by name.
+//!
+//! Without the feature: a scene asking for PETSc and `--petsc-options` are refused, saying how
+//! to rebuild, with the scene's file and line.
+
+mod common;
+
+use std::path::PathBuf;
+
+use common::{impm, shipped_scene, temp_dir};
+
+/// A shipped scene with `solver_call` appended, written to a fresh folder; its path and the
+/// number of its lines (the line of the call).
+fn scene_with(script: &str, solver_call: &str, tag: &str) -> (PathBuf, usize) {
+    let base = std::fs::read_to_string(shipped_scene(script)).unwrap();
+    let text = format!("{base}\n{solver_call}\n");
+    let dir = temp_dir("petsc", tag);
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join(script);
+    std::fs::write(&path, &text).unwrap();
+    (path, text.lines().count())
+}
+
+#[cfg(not(feature = "petsc"))]
+#[test]
+fn a_build_without_petsc_refuses_it_and_says_how_to_rebuild() {
+    let (path, line) = scene_with(
+        "column_1d.rhai",
+        "solver(#{ linear: \"petsc\" });",
+        "without",
+    );
+    let message = impm::run::load_scene(&path, &[]).unwrap_err().to_string();
+    assert!(message.contains(&format!(":{line}:")), "{message}");
+    assert!(message.contains("--features petsc"), "{message}");
+    let column = shipped_scene("column_1d.rhai").display().to_string();
+    let out = temp_dir("petsc", "without-cli");
+    let run = impm(&[
+        "run",
+        &column,
+        "--out",
+        &out.display().to_string(),
+        "--petsc-options",
+        "-ksp_monitor",
+    ]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success());
+    assert!(
+        stderr.contains("--petsc-options") && stderr.contains("--features petsc"),
+        "{stderr}"
+    );
+    let _ = std::fs::remove_dir_all(path.parent().unwrap());
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[cfg(feature = "petsc")]
+mod with_petsc {
+    use super::*;
+    use common::{overrides, stress_difference};
+    use impm::resources::Newton;
+    use impm::run::{Simulation, load_scene};
+    use impm::scene::LinearBackend;
+    use impm::solver::{DirectSolver, LinearSolver, SolverKind};
+
+    /// A run's per-step Newton iterations, its per-step Krylov iterations, its final eq. 15
+    /// error (if any), the points' stress profile along the last axis and how the last system
+    /// was solved.
+    struct Outcome {
+        newton: Vec<usize>,
+        krylov: Vec<Vec<usize>>,
+        error: Option<f64>,
+        stress: Vec<(f64, f64)>,
+        kind: SolverKind,
+    }
+
+    /// Runs the scene at `path`, with its own solver or with `solver`.
+    fn run<const D: usize>(
+        path: &std::path::Path,
+        set: &[(&str, &str)],
+        tag: &str,
+        solver: Option<Box<dyn LinearSolver>>,
+    ) -> Result<Outcome, String> {
+        let spec = load_scene(path, &overrides(set)).map_err(|e| e.to_string())?;
+        let dir = temp_dir("petsc-run", tag);
+        let mut sim = Simulation::<D>::new(&spec, &dir).map_err(|e| e.to_string())?;
+        if let Some(solver) = solver {
+            sim.world.resource_mut::<Newton>().solver = solver;
+        }
+        let result = sim.run(|_| {});
+        let _ = std::fs::remove_dir_all(&dir);
+        result.map_err(|e| e.to_string())?;
+        let steps = &sim.summary.steps;
+        Ok(Outcome {
+            newton: steps.iter().map(|s| s.iterations).collect(),
+            krylov: steps.iter().map(|s| s.linear_iterations.clone()).collect(),
+            error: sim.summary.final_error(),
+            stress: sim.stress_profile(D - 1),
+            kind: sim.world.resource::<Newton>().last_solver,
+        })
+    }
+
+    /// The scene's PETSc runs against its direct run.
+    fn compare<const D: usize>(script: &str, set: &[(&str, &str)], options: &[&str]) {
+        let direct = Box::new(DirectSolver::default()) as Box<dyn LinearSolver>;
+        let reference = run::<D>(
+            &shipped_scene(script),
+            set,
+            &format!("{script}-direct"),
+            Some(direct),
+        )
+        .unwrap();
+        for (k, options) in options.iter().enumerate() {
+            let call = format!("solver(#{{ linear: \"petsc\", petsc_options: \"{options}\" }});");
+            let (path, _) = scene_with(script, &call, &format!("{script}-{k}"));
+            assert_eq!(
+                load_scene(&path, &overrides(set)).unwrap().solver.linear,
+                LinearBackend::Petsc
+            );
+            let petsc = run::<D>(&path, set, &format!("{script}-petsc{k}"), None)
+                .unwrap_or_else(|e| panic!("{script} {options}: {e}"));
+            let _ = std::fs::remove_dir_all(path.parent().unwrap());
+            let difference = stress_difference(&petsc.stress, &reference.stress);
+            eprintln!(
+                "{script} with {options}: Newton {:?} (direct {:?}), Krylov {:?}, eq. 15 \
+                 error {:?} (direct {:?}), stress difference {difference:.1e}",
+                petsc.newton, reference.newton, petsc.krylov, petsc.error, reference.error
+            );
+            assert_eq!(petsc.kind, SolverKind::Petsc);
+            assert_eq!(petsc.newton, reference.newton, "{script} {options}");
+            assert!(
+                petsc.krylov.iter().flatten().all(|&k| k >= 1),
+                "{:?}",
+                petsc.krylov
+            );
+            if let (Some(a), Some(b)) = (petsc.error, reference.error) {
+                assert!((a - b).abs() <= 1e-6 * b, "{script} {options}: {a} {b}");
+            }
+            assert_eq!(petsc.error.is_some(), reference.error.is_some());
+            assert!(difference < 1e-8, "{script} {options}: {difference:e}");
+        }
+    }
+
+    const GAMG: &str = "-ksp_type cg -pc_type gamg -ksp_rtol 1e-12";
+    const HYPRE: &str = "-ksp_type cg -pc_type hypre -ksp_rtol 1e-12";
+
+    #[test]
+    fn cg_with_gamg_or_boomeramg_reproduces_the_direct_2d_column() {
+        compare::<2>(
+            "column_2d.rhai",
+            &[("cells", "16"), ("steps", "5")],
+            &[GAMG, HYPRE],
+        );
+    }
+
+    #[test]
+    fn cg_with_gamg_reproduces_the_direct_3d_column_and_block() {
+        compare::<3>("column_3d.rhai", &[("cells", "8"), ("steps", "3")], &[GAMG]);
+        compare::<3>("block_3d.rhai", &[("cells", "4"), ("steps", "2")], &[GAMG]);
+    }
+
+    /// Nitsche's surface condition: a non-symmetric tangent, solved by the default GMRES.
+    #[test]
+    fn a_non_symmetric_tangent_goes_to_gmres_and_gives_the_lu_run() {
+        compare::<2>(
+            "stretch_phases.rhai",
+            &[("up", "2"), ("down", "2")],
+            &["-ksp_rtol 1e-12"],
+        );
+    }
+
+    #[test]
+    fn a_krylov_solve_stopped_short_fails_with_petscs_reason() {
+        let call = "solver(#{ linear: \"petsc\", petsc_options: \"-ksp_max_it 1\", \
+                    max_step_cuts: 1 });";
+        let (path, _) = scene_with("column_2d.rhai", call, "max-it");
+        let error = run::<2>(&path, &[("cells", "8"), ("steps", "1")], "max-it", None)
+            .err()
+            .expect("one CG iteration cannot solve the column");
+        assert!(
+            error.contains("DIVERGED_ITS") && error.contains("did not converge"),
+            "{error}"
+        );
+        // the same from the command line, over a scene that would converge
+        let (path, _) = scene_with(
+            "column_2d.rhai",
+            "solver(#{ linear: \"petsc\", max_step_cuts: 1 });",
+            "max-it-cli",
+        );
+        let out = path.parent().unwrap().join("out").display().to_string();
+        let out_short = path.parent().unwrap().join("short").display().to_string();
+        let path = path.display().to_string();
+        let set = ["--set", "cells=8", "--set", "steps=1"];
+        let good = impm(&[&["run", &path, "--out", &out][..], &set].concat());
+        assert!(
+            good.status.success(),
+            "{}",
+            String::from_utf8_lossy(&good.stderr)
+        );
+        let short = impm(
+            &[
+                &[
+                    "run",
+                    &path,
+                    "--out",
+                    &out_short,
+                    "--petsc-options",
+                    "-ksp_max_it 1",
+                ][..],
+                &set,
+            ]
+            .concat(),
+        );
+        let stderr = String::from_utf8_lossy(&short.stderr);
+        assert!(!short.status.success());
+        assert!(stderr.contains("DIVERGED_ITS"), "{stderr}");
+        let _ = std::fs::remove_dir_all(std::path::Path::new(&path).parent().unwrap());
+    }
+
+    #[test]
+    fn a_petsc_error_names_the_function_and_petscs_message() {
+        let call = "solver(#{ linear: \"petsc\", petsc_options: \"-ksp_type no_such_method\", \
+                    max_step_cuts: 0 });";
+        let (path, _) = scene_with("column_2d.rhai", call, "unknown-type");
+        let error = run::<2>(
+            &path,
+            &[("cells", "4"), ("steps", "1")],
+            "unknown-type",
+            None,
+        )
+        .err()
+        .expect("an unknown KSP type fails");
+        let _ = std::fs::remove_dir_all(path.parent().unwrap());
+        assert!(
+            error.contains("KSPSetFromOptions") && error.contains("no_such_method"),
+            "{error}"
+        );
+    }
+
+    /// PETSc ignores options nobody reads; the backend refuses them after its first solve.
+    #[test]
+    fn a_misspelled_option_is_refused_by_name() {
+        let call = "solver(#{ linear: \"petsc\", petsc_options: \"-ksp_typ gmres -pc_type gamg\", \
+                    max_step_cuts: 0 });";
+        let (path, _) = scene_with("column_2d.rhai", call, "misspelled");
+        let error = run::<2>(&path, &[("cells", "4"), ("steps", "1")], "misspelled", None)
+            .err()
+            .expect("a misspelled option fails");
+        let _ = std::fs::remove_dir_all(path.parent().unwrap());
+        assert!(
+            error.contains("did not use the option(s) -ksp_typ"),
+            "{error}"
+        );
+        assert!(!error.contains("-pc_type"), "{error}");
+    }
+
+    #[test]
+    fn petsc_options_belong_to_linear_petsc() {
+        let call = "solver(#{ linear: \"direct\", petsc_options: \"-ksp_monitor\" });";
+        let (path, line) = scene_with("column_1d.rhai", call, "options-without-petsc");
+        let message = load_scene(&path, &[]).unwrap_err().to_string();
+        let _ = std::fs::remove_dir_all(path.parent().unwrap());
+        assert!(message.contains(&format!(":{line}:")), "{message}");
+        assert!(
+            message.contains("applies to linear: \"petsc\""),
+            "{message}"
+        );
+    }
+}
