@@ -243,26 +243,8 @@ fn initial_stresses_a_model_cannot_carry_and_bad_held_options_are_rejected() {
 #[test]
 fn the_weight_does_not_change_the_tresca_footings_limit_pressure() {
     let prandtl = 2.0 + std::f64::consts::PI;
-    let curve = |cells: &str, weight: &str| -> Vec<f64> {
-        let sim = common::run_shipped::<2>(
-            "strip_footing.rhai",
-            &[
-                ("material", "tresca"),
-                ("su", "10"),
-                ("basis", "linear"),
-                ("cells", cells),
-                ("fbar", "true"),
-                ("weight", weight),
-                ("settlement", "0.05"),
-                ("steps", "10"),
-            ],
-        );
-        assert_eq!(sim.summary.steps.len(), 10);
-        sim.summary
-            .steps
-            .iter()
-            .map(|step| step.measure("footing_pressure").unwrap() / 10.0)
-            .collect()
+    let curve = |cells: &str, weight: &str| {
+        common::tresca_footing_linear(&[("cells", cells), ("fbar", "true"), ("weight", weight)])
     };
     let largest = |curve: &[f64]| curve.iter().copied().fold(f64::MIN, f64::max);
     let mut limits = Vec::new();

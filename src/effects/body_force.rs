@@ -16,14 +16,13 @@ use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 use rhai::Dynamic;
 
-use super::declarations::LoadSummary;
+use super::declarations::{LoadSummary, held_option};
 use crate::components::{Mass, Support};
 use crate::mechanics::spread_force;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{GridFields, LoadStep, Ramp, Stage, StageClock};
 use crate::scene::{
-    CallSpec, Kind, Located, OptionSpec, Options, Resolver, SceneApi, SceneSpec, ScriptError,
-    numbers,
+    CallSpec, Located, Options, Resolver, SceneApi, SceneSpec, ScriptError, numbers,
 };
 
 /// The scene's body force per unit mass at load factor 1 (one entry per axis).
@@ -170,15 +169,6 @@ pub fn apply_body_force<const D: usize>(
             &mut fields.external_force,
         );
     }
-}
-
-/// The option of a load that can be held (`traction`, `point_load_at`, `body_force`): `held`.
-pub fn held_option() -> OptionSpec {
-    OptionSpec::new(
-        "held",
-        Kind::Flag,
-        "true: applied in full from the first load step on instead of following the load factor (default false)",
-    )
 }
 
 /// Declares the scene's body force (once) from its components and how it follows the schedule.

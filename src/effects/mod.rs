@@ -14,7 +14,7 @@
 //! | `grid_constraints.rs` | `fix` and `displace` on grid nodes |
 //! | `surface_conditions.rs` | prescribed displacements and supports on material surfaces |
 //! | `ghost_penalty.rs` | stabilisation of nearly empty cells |
-//! | `fbar.rs` | F-bar: the volume change averaged over the points of a cell (`body(#{ fbar: true })`) |
+//! | `fbar.rs` | F-bar: the volume change averaged over the points of a cell (`body(#{ fbar: true })`) or of the cells around it (`"patch"`) |
 //! | `stress_recovery.rs` | moving-least-squares stress recovery |
 //! | `probes.rs` | displacement, stress and F at material reference positions (`probe`) |
 //! | `history.rs` | named columns of history.csv from the measured quantities (`record`) |

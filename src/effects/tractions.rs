@@ -51,9 +51,8 @@ use nalgebra::SVector;
 
 use rhai::Dynamic;
 
-use super::body_force::held_option;
 use super::carried_points::{CarriedPoint, restore_positions, save_positions};
-use super::declarations::LoadSummary;
+use super::declarations::{LoadSummary, held_option};
 use super::probes::material_point_near;
 use crate::basis::{BasisKind, BasisScratch, NodeWeight};
 use crate::checkpoint::CheckpointPart;
