@@ -78,6 +78,34 @@ pub struct LoadStep {
     pub completes_step: bool,
 }
 
+impl LoadStep {
+    /// The factor a load of the given [`Ramp`] is applied with in this step: the step's load
+    /// factor λ, or 1 for a held load.
+    pub fn factor_of(&self, ramp: Ramp) -> f64 {
+        match ramp {
+            Ramp::Schedule => self.factor,
+            Ramp::Held => 1.0,
+        }
+    }
+}
+
+/// How a load follows the load schedule: ramped with the load factor λ (the default), or held
+/// at its full value from the first step on (`held: true` in scenes: the weight that balances
+/// a geostatic initial stress while a footing is pushed).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Ramp {
+    #[default]
+    Schedule,
+    Held,
+}
+
+impl Ramp {
+    /// `Held` when `held`, else `Schedule`.
+    pub fn held_if(held: bool) -> Self {
+        if held { Self::Held } else { Self::Schedule }
+    }
+}
+
 /// Solver controls.
 #[derive(Resource, Clone, Copy, Debug, PartialEq)]
 pub struct NewtonSettings {

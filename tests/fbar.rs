@@ -29,10 +29,11 @@ fn scene(tag: &str, text: &str, set: &[(&str, &str)]) -> impm::scene::SceneSpec 
     spec
 }
 
-/// A block of `material` (`model: ..` and its parameters) with `fbar` on or off: `D`
+/// A block of `material` (`model: ..` and its parameters) with `fbar` (`true`, `false`,
+/// `"patch"`, as the option's value): `D`
 /// dimensions, `cells` cells per axis on `[0, cells]^D`, the body on `[0, cells − 1]^D` with
 /// 2 points per cell and direction, the base fixed.
-fn block_scene<const D: usize>(basis: &str, material: &str, fbar: bool) -> String {
+fn block_scene<const D: usize>(basis: &str, material: &str, fbar: &str) -> String {
     let cells = if D == 3 { 3 } else { 4 };
     let list = |v: f64| vec![format!("{v:.1}"); D].join(", ");
     let basis = match basis {
@@ -167,9 +168,13 @@ fn distorting<const D: usize>(wobble: f64) -> impl Fn(&SVector<f64, D>) -> SVect
 /// assembled internal force, to 1e-6 of the largest entry; the F-bar terms are not negligible
 /// (the tangent without them is off by more than 1e-3 of the largest entry, so the check can
 /// fail), and the modified increments differ from the points' own.
-fn check_tangent<const D: usize, M: Material>(basis: &str, material: &str) -> (f64, usize) {
-    let tag = format!("tangent{D}{basis}{}", M::MODEL);
-    let text = block_scene::<D>(basis, material, true);
+fn check_tangent<const D: usize, M: Material>(
+    basis: &str,
+    material: &str,
+    fbar: &str,
+) -> (f64, usize) {
+    let tag = format!("tangent{D}{basis}{}{}", M::MODEL, fbar.replace('"', ""));
+    let text = block_scene::<D>(basis, material, fbar);
     let mut sim = prepared::<D>(&tag, &text, &distorting::<D>(0.015));
     let f0 = internal_force::<D, M>(&mut sim, true);
     assert!(f0.iter().all(|v| v.is_finite()));
@@ -221,7 +226,7 @@ fn check_tangent<const D: usize, M: Material>(basis: &str, material: &str) -> (f
         })
         .count();
     eprintln!(
-        "F-bar tangent {D}D {basis} {}: {n} DOFs, max |K − K_fd| / max |K| = {:.1e}, F-bar terms {:.1e} of max |K|, {modified} points modified",
+        "F-bar ({fbar}) tangent {D}D {basis} {}: {n} DOFs, max |K − K_fd| / max |K| = {:.1e}, F-bar terms {:.1e} of max |K|, {modified} points modified",
         M::MODEL,
         worst / scale,
         fbar_part / scale
@@ -250,17 +255,28 @@ const PLASTIC: &str = "model: \"von_mises\", sigma_y: 2.0, H: 50.0";
 #[test]
 fn fbar_tangent_matches_finite_differences_2d() {
     for basis in ["linear", "gimp", "bspline2"] {
-        check_tangent::<2, Hencky>(basis, ELASTIC);
-        check_tangent::<2, VonMises>(basis, PLASTIC);
+        check_tangent::<2, Hencky>(basis, ELASTIC, "true");
+        check_tangent::<2, VonMises>(basis, PLASTIC, "true");
     }
 }
 
 #[test]
 fn fbar_tangent_matches_finite_differences_3d() {
     for basis in ["linear", "gimp", "bspline2"] {
-        check_tangent::<3, Hencky>(basis, ELASTIC);
-        check_tangent::<3, VonMises>(basis, PLASTIC);
+        check_tangent::<3, Hencky>(basis, ELASTIC, "true");
+        check_tangent::<3, VonMises>(basis, PLASTIC, "true");
     }
+}
+
+/// The same checks with the average over the patch of 3^D cells (`fbar: "patch"`): groups
+/// overlap, and a point's volume change depends on the points of the neighbouring cells.
+#[test]
+fn patch_fbar_tangent_matches_finite_differences() {
+    for basis in ["bspline2", "linear"] {
+        check_tangent::<2, Hencky>(basis, ELASTIC, "\"patch\"");
+        check_tangent::<2, VonMises>(basis, PLASTIC, "\"patch\"");
+    }
+    check_tangent::<3, VonMises>("bspline2", PLASTIC, "\"patch\"");
 }
 
 /// The plastic checks above flow: with the same increment, most von Mises points yield.
@@ -268,7 +284,7 @@ fn fbar_tangent_matches_finite_differences_3d() {
 fn the_plastic_tangent_checks_flow() {
     for basis in ["linear", "bspline2"] {
         let flowing = plastic_points::<2>(|| {
-            let text = block_scene::<2>(basis, PLASTIC, true);
+            let text = block_scene::<2>(basis, PLASTIC, "true");
             let mut sim = prepared::<2>(&format!("flow{basis}"), &text, &distorting::<2>(0.015));
             internal_force::<2, VonMises>(&mut sim, true);
             sim
@@ -295,8 +311,8 @@ fn a_uniform_deformation_gives_the_standard_answer() {
             a * x
         };
         let mut answers = Vec::new();
-        for fbar in [false, true] {
-            let tag = format!("uniform{D}{basis}{}{fbar}", M::MODEL);
+        for fbar in ["false", "true", "\"patch\""] {
+            let tag = format!("uniform{D}{basis}{}{}", M::MODEL, fbar.replace('"', ""));
             let mut sim = prepared::<D>(&tag, &block_scene::<D>(basis, material, fbar), &affine);
             let f = internal_force::<D, M>(&mut sim, true);
             let mut stresses: Vec<(u32, nalgebra::Matrix3<f64>)> = sim
@@ -309,26 +325,27 @@ fn a_uniform_deformation_gives_the_standard_answer() {
             answers.push((f, stresses));
         }
         let (f0, s0) = &answers[0];
-        let (f1, s1) = &answers[1];
-        let f_scale = f0.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        let f_diff = f0
-            .iter()
-            .zip(f1)
-            .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
-        let s_scale = s0.iter().fold(0.0f64, |m, (_, s)| m.max(s.amax()));
-        let s_diff = s0
-            .iter()
-            .zip(s1)
-            .fold(0.0f64, |m, ((_, a), (_, b))| m.max((a - b).amax()));
-        eprintln!(
-            "uniform {D}D {basis} {}: |Δf_int| {:.1e}, |Δτ| {:.1e} (relative)",
-            M::MODEL,
-            f_diff / f_scale,
-            s_diff / s_scale
-        );
-        assert!(f_scale > 0.0 && s_scale > 0.0);
-        assert!(f_diff < 1e-12 * f_scale, "{f_diff:e} of {f_scale:e}");
-        assert!(s_diff < 1e-12 * s_scale, "{s_diff:e} of {s_scale:e}");
+        for ((f1, s1), averaging) in answers[1..].iter().zip(["cell", "patch"]) {
+            let f_scale = f0.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let f_diff = f0
+                .iter()
+                .zip(f1)
+                .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+            let s_scale = s0.iter().fold(0.0f64, |m, (_, s)| m.max(s.amax()));
+            let s_diff = s0
+                .iter()
+                .zip(s1)
+                .fold(0.0f64, |m, ((_, a), (_, b))| m.max((a - b).amax()));
+            eprintln!(
+                "uniform {D}D {basis} {} ({averaging}): |Δf_int| {:.1e}, |Δτ| {:.1e} (relative)",
+                M::MODEL,
+                f_diff / f_scale,
+                s_diff / s_scale
+            );
+            assert!(f_scale > 0.0 && s_scale > 0.0);
+            assert!(f_diff < 1e-12 * f_scale, "{f_diff:e} of {f_scale:e}");
+            assert!(s_diff < 1e-12 * s_scale, "{s_diff:e} of {s_scale:e}");
+        }
     }
     for basis in ["linear", "gimp", "bspline2"] {
         compare::<2, Hencky>(basis, ELASTIC);
@@ -392,21 +409,8 @@ fn newton_converges_quadratically_with_fbar() {
 fn fbar_unlocks_the_tresca_footing() {
     let prandtl = 2.0 + std::f64::consts::PI;
     let last = |cells: &str, fbar: &str| {
-        let sim = common::run_shipped::<2>(
-            "strip_footing.rhai",
-            &[
-                ("material", "tresca"),
-                ("su", "10"),
-                ("basis", "linear"),
-                ("cells", cells),
-                ("fbar", fbar),
-                ("settlement", "0.05"),
-                ("steps", "10"),
-            ],
-        );
-        let step = sim.summary.steps.last().unwrap();
-        assert_eq!(sim.summary.steps.len(), 10);
-        step.measure("footing_pressure").unwrap() / 10.0
+        let curve = common::tresca_footing_linear(&[("cells", cells), ("fbar", fbar)]);
+        curve[curve.len() - 1]
     };
     let locked = last("4", "false");
     let (coarse, fine) = (last("4", "true"), last("8", "true"));
@@ -419,10 +423,11 @@ fn fbar_unlocks_the_tresca_footing() {
 }
 
 /// A von Mises body with F-bar gets no locking warning; without F-bar the warning names the
-/// option. F-bar on linear FEM is rejected with the body's line.
+/// option, and neither with `fbar: "patch"`. F-bar on linear FEM and an unknown `fbar` value
+/// are rejected with the body's line.
 #[test]
 fn the_locking_warning_points_to_fbar_and_fem_rejects_it() {
-    let text = |fbar: bool, basis: &str| {
+    let text = |fbar: &str, basis: &str| {
         format!(
             "grid(#{{ lower: [0.0, 0.0], upper: [2.0, 2.0], cells: [2, 2], basis: \"{basis}\" }});\n\
              const m = material(#{{ name: \"clay\", model: \"von_mises\", E: 1000.0, nu: 0.3, s_u: 1.0, density: 1.0 }});\n\
@@ -431,16 +436,25 @@ fn the_locking_warning_points_to_fbar_and_fem_rejects_it() {
              load_steps(1);\n"
         )
     };
-    let warned = impm::scene::locking_warnings(&scene("warned", &text(false, "linear"), &[]));
+    let warned = impm::scene::locking_warnings(&scene("warned", &text("false", "linear"), &[]));
     assert_eq!(warned.len(), 1);
     assert!(warned[0].contains("fbar: true"), "{}", warned[0]);
-    let treated = impm::scene::locking_warnings(&scene("treated", &text(true, "linear"), &[]));
-    assert!(treated.is_empty(), "{treated:?}");
+    for fbar in ["true", "\"cell\"", "\"patch\""] {
+        let treated = impm::scene::locking_warnings(&scene("treated", &text(fbar, "linear"), &[]));
+        assert!(treated.is_empty(), "{fbar}: {treated:?}");
+    }
     let dir = common::temp_dir("fbar-scene", "fem");
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("fem.rhai");
-    std::fs::write(&path, text(true, "fem")).unwrap();
+    std::fs::write(&path, text("true", "fem")).unwrap();
+    let error = impm::run::load_scene(&path, &[]).unwrap_err().to_string();
+    assert!(error.contains(":3") && error.contains("fbar"), "{error}");
+    std::fs::write(&path, text("\"wide\"", "linear")).unwrap();
     let error = impm::run::load_scene(&path, &[]).unwrap_err().to_string();
     let _ = std::fs::remove_dir_all(&dir);
-    assert!(error.contains(":3") && error.contains("fbar"), "{error}");
+    eprintln!("{error}");
+    assert!(
+        error.contains(":3") && error.contains("\"patch\"") && error.contains("wide"),
+        "{error}"
+    );
 }

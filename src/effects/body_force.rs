@@ -6,21 +6,33 @@
 //!
 //! with b the body force per unit mass at load factor 1 (`body_force([..])` in scenes). The basis
 //! values of a point sum to one (partition of unity), so the resultant is exactly λ b Σ_p m_p.
+//!
+//! `body_force([..], #{ held: true })` holds the force at its full value from the first load
+//! step on (λ replaced by 1, [`Ramp::Held`]) while the other loads follow the schedule: the
+//! weight of soil that starts from its geostatic stress (`initial_stress`) before a footing is
+//! pushed into it.
 
 use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 use rhai::Dynamic;
 
-use super::declarations::LoadSummary;
+use super::declarations::{LoadSummary, held_option};
 use crate::components::{Mass, Support};
 use crate::mechanics::spread_force;
 use crate::plugin::{Extension, Hook, Plugin};
-use crate::resources::{GridFields, LoadStep, Stage, StageClock};
-use crate::scene::{CallSpec, Located, Resolver, SceneApi, SceneSpec, ScriptError, numbers};
+use crate::resources::{GridFields, LoadStep, Ramp, Stage, StageClock};
+use crate::scene::{
+    CallSpec, Located, Options, Resolver, SceneApi, SceneSpec, ScriptError, numbers,
+};
 
 /// The scene's body force per unit mass at load factor 1 (one entry per axis).
 #[derive(Clone, Debug, PartialEq)]
 pub struct BodyForceSpec(pub Vec<f64>);
+
+/// How the scene's body force follows the load schedule (a part of the scene and a resource;
+/// absent: it follows the schedule).
+#[derive(Resource, Clone, Copy, Debug, Default, PartialEq)]
+pub struct BodyForceRamp(pub Ramp);
 
 /// Where the scene declared its body force (for `impm check`).
 #[derive(Clone, Debug, PartialEq)]
@@ -45,19 +57,17 @@ impl Plugin for BodyForceModule {
             "body_force([b0, ..])",
             "body force per unit mass at load factor 1, one entry per axis (call once)",
             1,
+            |builder, args, at| declare_body_force(builder, &args[0], Ramp::Schedule, at),
+        ));
+        api.call(CallSpec::args(
+            "body_force",
+            "body_force([b0, ..], #{ held: bool })",
+            "the same; with `held: true` the force is applied in full from the first load step on instead of following the load factor (the weight of soil that starts from its geostatic stress, `initial_stress`, while other loads ramp)",
+            2,
             |builder, args, at| {
-                if let Some(previous) = builder.declared::<BodyForceSpec>().first() {
-                    return Err(format!(
-                        "body_force(...) was already called{}; call it once",
-                        previous.line_note()
-                    ));
-                }
-                let force = numbers(&args[0], "body_force(...): the force per unit mass")?;
-                if force.is_empty() {
-                    return Err("body_force(...) needs one component per axis, got []".to_string());
-                }
-                builder.declare(Located::new(BodyForceSpec(force), at));
-                Ok(Dynamic::UNIT)
+                let options = Options::read("body_force", &args[1], &[held_option()], None)?;
+                let ramp = Ramp::held_if(options.flag("held").unwrap_or(false));
+                declare_body_force(builder, &args[0], ramp, at)
             },
         ));
     }
@@ -78,6 +88,9 @@ impl Plugin for BodyForceModule {
         }
         scene.spec.set_part(declared.value);
         scene.spec.set_part(BodyForceLine(declared.at.line()));
+        if let Some(ramp) = scene.declarations::<BodyForceRamp>().first() {
+            scene.spec.set_part(ramp.value);
+        }
         Ok(())
     }
 
@@ -103,9 +116,15 @@ impl Plugin for BodyForceModule {
                 .map(|p| &p.position[..]),
             b.0.iter().map(|c| c * mass).collect(),
         );
+        let held = spec.part::<BodyForceRamp>().map(|r| r.0) == Some(Ramp::Held);
         Some(format!(
-            "{:?} per unit mass at load factor 1\n    {}",
+            "{:?} per unit mass {}\n    {}",
             b.0,
+            if held {
+                "held in full from the first step"
+            } else {
+                "at load factor 1"
+            },
             summary.describe()
         ))
     }
@@ -124,19 +143,25 @@ impl Plugin for BodyForceModule {
             let force = SVector::<f64, D>::from_fn(|a, _| b.0[a]);
             simulation.world().insert_resource(BodyForce(force));
         }
+        if let Some(ramp) = simulation.spec().part::<BodyForceRamp>().copied() {
+            simulation.world().insert_resource(ramp);
+        }
         simulation.add_systems(Hook::Loads, apply_body_force::<D>);
     }
 }
 
+/// f_ext,i += λ m_p b N_i(x_p) (λ = 1 for a held body force) over every material point.
 pub fn apply_body_force<const D: usize>(
     body_force: Res<BodyForce<D>>,
+    ramp: Option<Res<BodyForceRamp>>,
     step: Res<LoadStep>,
     mut fields: ResMut<GridFields<D>>,
     mut clock: ResMut<StageClock>,
     points: Query<(&Mass, &Support<D>)>,
 ) {
     let _timer = clock.time(Stage::Loads);
-    let acceleration = body_force.0 * step.factor;
+    let ramp = ramp.map_or(Ramp::Schedule, |r| r.0);
+    let acceleration = body_force.0 * step.factor_of(ramp);
     for (mass, support) in points.iter() {
         spread_force(
             &(acceleration * mass.0),
@@ -144,4 +169,28 @@ pub fn apply_body_force<const D: usize>(
             &mut fields.external_force,
         );
     }
+}
+
+/// Declares the scene's body force (once) from its components and how it follows the schedule.
+fn declare_body_force(
+    builder: &mut crate::scene::SceneBuilder,
+    components: &Dynamic,
+    ramp: Ramp,
+    at: rhai::Position,
+) -> Result<Dynamic, String> {
+    if let Some(previous) = builder.declared::<BodyForceSpec>().first() {
+        return Err(format!(
+            "body_force(...) was already called{}; call it once",
+            previous.line_note()
+        ));
+    }
+    let force = numbers(components, "body_force(...): the force per unit mass")?;
+    if force.is_empty() {
+        return Err("body_force(...) needs one component per axis, got []".to_string());
+    }
+    builder.declare(Located::new(BodyForceSpec(force), at));
+    if ramp == Ramp::Held {
+        builder.declare(Located::new(BodyForceRamp(ramp), at));
+    }
+    Ok(Dynamic::UNIT)
 }

@@ -1,7 +1,19 @@
 //! What `impm check` says of a load declaration: its line, what it selects (how many points,
 //! their coordinate range) and the total force at load factor 1, so that a user verifies the
 //! loads before solving. Each load module keeps a [`LoadSummary`] per declaration in its part
-//! of the scene and prints them in its `describe`.
+//! of the scene and prints them in its `describe`. Also the `held` option the loads share.
+
+use crate::scene::{Kind, OptionSpec};
+
+/// The option of a load that can be held (`traction`, `point_load_at`, `body_force`): `held`
+/// (`resources::Ramp`).
+pub fn held_option() -> OptionSpec {
+    OptionSpec::new(
+        "held",
+        Kind::Flag,
+        "true: applied in full from the first load step on instead of following the load factor (default false)",
+    )
+}
 
 /// One load declaration as `impm check` lists it.
 #[derive(Clone, Debug, PartialEq)]

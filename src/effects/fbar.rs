@@ -23,6 +23,16 @@
 //! block is modified, with the exponent 1/2: the out-of-plane stretch stays 1; in 1D `Δf̄ = Δj̄`.
 //! A uniform deformation of a group (every `Δj_q` equal) gives `Δf̄ = Δf`: the standard answer.
 //!
+//! # Patch averaging (`fbar: "patch"`)
+//! `fbar: true` (or `"cell"`) averages over the points of the point's own cell, as Coombs et
+//! al. do for linear and GIMP bases. A B-spline of order `q` spreads a point's support over
+//! `(q + 1)^D` cells, so with `fbar: "patch"` the average `Δj̄_c` of the points of cell `c` is
+//! taken over the body's points in the patch of `3^D` cells around `c` (`c` and its
+//! neighbours: `(q + 1)^D` for `q = 2`), a wider, overlapping average: the points of `c` (the
+//! group's *members*) get the patch's `Δj̄`, the patch's points (its *sources*) enter the
+//! average. Everything below holds with the sums over the sources and the rank-one terms
+//! added for the members only. A uniform deformation still gives the standard answer.
+//!
 //! # Internal force and consistent tangent
 //! The internal force keeps the form of `mechanics`, `f_int,i = Σ_p V0_p τ̄_p g_i` with `τ̄_p`
 //! the Kirchhoff stress at `F̄_p` and `g_i = Δf_p⁻ᵀ ∇_n N_i` the gradient in the current
@@ -49,7 +59,7 @@
 //!
 //! # Systems and seams
 //! * [`group_points_by_cell`] (`Hook::Connectivity`): the groups of the step and, for each group
-//!   of more than one point, the union of its points' supports as a coupling group
+//!   of more than one source, the union of its sources' supports as a coupling group
 //!   (`GridFields::couplings`: the sparsity pattern then holds every pair of its nodes);
 //! * [`average_volume_change`] (`Hook::Kinematics`): `Δj̄` and every point's `Δf̄`;
 //! * [`assemble_fbar_tangent`] (`Hook::AfterAssembly`): the rank-one terms above, summed per
@@ -69,31 +79,47 @@ use crate::resources::{
 };
 use crate::scene::{Kind, LockingTreated, OptionSpec, Resolver, SceneApi, SceneSpec, ScriptError};
 
-/// The bodies (indices into `SceneSpec::bodies`) with `fbar: true`.
-#[derive(Clone, Debug, PartialEq)]
-pub struct FbarSpec {
-    pub bodies: Vec<usize>,
+/// Over which points an F-bar body averages the volume change of a cell's points.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum FbarAveraging {
+    /// The body's points in the cell (`fbar: true` or `"cell"`).
+    #[default]
+    Cell,
+    /// The body's points in the `3^D` cells around the cell (`fbar: "patch"`).
+    Patch,
 }
 
-/// Marks the points of F-bar bodies.
-#[derive(Component, Clone, Copy, Debug, PartialEq)]
-pub struct FbarPoint;
+/// The bodies (indices into `SceneSpec::bodies`) with F-bar, and how each averages.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FbarSpec {
+    pub bodies: Vec<(usize, FbarAveraging)>,
+}
 
-/// The F-bar points of one body in one background cell.
+/// Marks the points of F-bar bodies, with their body's averaging.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct FbarPoint(pub FbarAveraging);
+
+/// The F-bar points of one body in one background cell (the members) and the points their
+/// volume change is averaged over (the sources: the members first, then, for a patch, the
+/// body's points in the neighbouring cells).
 #[derive(Clone, Debug, Default)]
 pub struct FbarGroup {
-    pub points: Vec<Entity>,
-    /// The union of the points' support nodes, sorted.
+    /// Indices into [`FbarCells::points`]; the first `members` are the cell's own points.
+    pub sources: Vec<usize>,
+    pub members: usize,
+    /// The union of the sources' support nodes, sorted.
     pub nodes: Vec<usize>,
-    /// For each point, the position in `nodes` of each of its support entries.
+    /// For each source, the position in `nodes` of each of its support entries.
     pub local: Vec<Vec<usize>>,
-    /// `α_q = V_q^n Δj_q / Σ_r V_r^n Δj_r` of the current iterate, per point.
+    /// `α_q = V_q^n Δj_q / Σ_r V_r^n Δj_r` of the current iterate, per source.
     pub weights: Vec<f64>,
 }
 
-/// The groups of the current load step.
+/// The F-bar points and groups of the current load step.
 #[derive(Resource, Clone, Debug, Default)]
 pub struct FbarCells {
+    /// Every F-bar point, ordered by body, cell and point id.
+    pub points: Vec<Entity>,
     pub groups: Vec<FbarGroup>,
 }
 
@@ -114,8 +140,10 @@ impl Plugin for FbarModule {
             "body",
             OptionSpec::new(
                 "fbar",
-                Kind::Flag,
-                "F-bar against volumetric locking (Coombs et al. 2018): each point's volume change is the volume-weighted average over the body's points in its background cell (default false; MPM bases only; makes the tangent non-symmetric)",
+                Kind::Value {
+                    what: "true | false | \"cell\" | \"patch\"",
+                },
+                "F-bar against volumetric locking (Coombs et al. 2018): each point's volume change is the volume-weighted average over the body's points in its background cell (`true` or \"cell\"), or in the 3^D cells around it (\"patch\", for B-splines of order 2; experimental: Newton does not converge on the plastic strip footing, docs/plasticity.md); default false; MPM bases only; makes the tangent non-symmetric",
             ),
         );
     }
@@ -123,9 +151,16 @@ impl Plugin for FbarModule {
     fn resolve(&self, scene: &mut Resolver) -> Result<(), ScriptError> {
         let mut bodies = Vec::new();
         for options in scene.every_call_options("body") {
-            if options.value.flag("fbar") != Some(true) {
-                continue;
-            }
+            let averaging = match options.value.value("fbar") {
+                None => continue,
+                Some(value) => match fbar_averaging(value) {
+                    Ok(Some(averaging)) => averaging,
+                    Ok(None) => continue,
+                    Err(why) => {
+                        return Err(ScriptError::at(options.at, format!("body(...): {why}")));
+                    }
+                },
+            };
             if scene.spec.grid.basis == BasisKind::Fem {
                 return Err(ScriptError::at(
                     options.at,
@@ -134,11 +169,12 @@ impl Plugin for FbarModule {
             }
             let name = options.value.text("name").unwrap_or_default();
             if let Some(index) = scene.spec.bodies.iter().position(|b| b.name == name) {
-                bodies.push(index);
+                bodies.push((index, averaging));
             }
         }
         if !bodies.is_empty() {
-            scene.spec.set_part(LockingTreated(bodies.clone()));
+            let treated = bodies.iter().map(|&(body, _)| body).collect();
+            scene.spec.set_part(LockingTreated(treated));
             scene.spec.set_part(FbarSpec { bodies });
         }
         Ok(())
@@ -147,10 +183,13 @@ impl Plugin for FbarModule {
     fn describe(&self, spec: &SceneSpec) -> Option<String> {
         let spec_bodies = &spec.bodies;
         spec.part::<FbarSpec>().map(|f| {
-            let names: Vec<&str> = f
+            let names: Vec<String> = f
                 .bodies
                 .iter()
-                .map(|&b| spec_bodies[b].name.as_str())
+                .map(|&(b, averaging)| match averaging {
+                    FbarAveraging::Cell => spec_bodies[b].name.clone(),
+                    FbarAveraging::Patch => format!("{} (patch)", spec_bodies[b].name),
+                })
                 .collect();
             format!("bodies {}", names.join(", "))
         })
@@ -170,21 +209,26 @@ impl Plugin for FbarModule {
             simulation.fail(NOT_WITH_FEM);
             return;
         }
-        let bodies = spec.part::<FbarSpec>().map_or(Vec::new(), |f| {
-            f.bodies.iter().map(|&b| b as u32).collect::<Vec<_>>()
-        });
+        let bodies = spec
+            .part::<FbarSpec>()
+            .map_or(Vec::new(), |f| f.bodies.clone());
         simulation.nonsymmetric_tangent();
         let world = simulation.world();
-        let points: Vec<Entity> = world
+        let points: Vec<(Entity, FbarAveraging)> = world
             .query::<(Entity, &BodyIndex)>()
             .iter(world)
-            .filter(|(_, body)| bodies.contains(&body.0))
-            .map(|(entity, _)| entity)
+            .filter_map(|(entity, body)| {
+                let &(_, averaging) = bodies.iter().find(|(b, _)| *b == body.0 as usize)?;
+                Some((entity, averaging))
+            })
             .collect();
-        world.insert_batch(points.into_iter().map(|entity| {
+        world.insert_batch(points.into_iter().map(|(entity, averaging)| {
             (
                 entity,
-                (FbarPoint, ModifiedIncrement::<D>(SMatrix::identity())),
+                (
+                    FbarPoint(averaging),
+                    ModifiedIncrement::<D>(SMatrix::identity()),
+                ),
             )
         }));
         world.insert_resource(FbarCells::default());
@@ -195,7 +239,8 @@ impl Plugin for FbarModule {
     }
 }
 
-/// The groups of the step (points of one body in one cell) and their coupling groups.
+/// The groups of the step (points of one body in one cell, with their sources) and their
+/// coupling groups.
 #[allow(clippy::type_complexity)]
 pub fn group_points_by_cell<const D: usize>(
     grid: Res<Grid<D>>,
@@ -204,13 +249,23 @@ pub fn group_points_by_cell<const D: usize>(
     mut fields: ResMut<GridFields<D>>,
     mut status: ResMut<RunStatus>,
     mut clock: ResMut<StageClock>,
-    points: Query<(Entity, &PointId, &BodyIndex, &Position<D>, &Support<D>), With<FbarPoint>>,
+    points: Query<
+        (
+            Entity,
+            &PointId,
+            &BodyIndex,
+            &Position<D>,
+            &Support<D>,
+            &FbarPoint,
+        ),
+        With<FbarPoint>,
+    >,
 ) {
     let _timer = clock.time(Stage::Connectivity);
     let mut keyed = Vec::with_capacity(points.iter().len());
-    for (entity, id, body, x, _) in points.iter() {
+    for (entity, id, body, x, _, averaging) in points.iter() {
         match grid.0.cell_of(&x.0) {
-            Ok(cell) => keyed.push((body.0, grid.0.cell_index(cell), id.0, entity)),
+            Ok(cell) => keyed.push((body.0, grid.0.cell_index(cell), id.0, entity, averaging.0)),
             Err(_) => {
                 status.fail(SolverError::BadPointState {
                     point: id.0,
@@ -222,37 +277,74 @@ pub fn group_points_by_cell<const D: usize>(
             }
         }
     }
-    keyed.sort_unstable_by_key(|&(body, cell, id, _)| (body, cell, id));
-    cells.groups.clear();
+    keyed.sort_unstable_by_key(|&(body, cell, id, ..)| (body, cell, id));
+    let cells = &mut *cells;
+    cells.points.clear();
+    cells.points.extend(keyed.iter().map(|k| k.3));
+    // the range of `keyed` of each (body, cell)
+    let mut runs: Vec<((u32, usize), std::ops::Range<usize>)> = Vec::new();
+    let mut start = 0;
     for run in keyed.chunk_by(|a, b| (a.0, a.1) == (b.0, b.1)) {
-        let mut group = FbarGroup::default();
-        for &(_, _, _, entity) in run {
-            group.points.push(entity);
-            if let Ok((.., support)) = points.get(entity) {
+        runs.push(((run[0].0, run[0].1), start..start + run.len()));
+        start += run.len();
+    }
+    let per_axis = grid.0.cells_per_axis();
+    cells.groups.clear();
+    for ((body, cell), members) in &runs {
+        let mut group = FbarGroup {
+            sources: members.clone().collect(),
+            members: members.len(),
+            ..FbarGroup::default()
+        };
+        if keyed[members.start].4 == FbarAveraging::Patch {
+            let centre = grid.0.cell_multi_index(*cell);
+            for offset in 0..3usize.pow(D as u32) {
+                let mut neighbour = [0; D];
+                let mut inside = true;
+                let mut code = offset;
+                for a in 0..D {
+                    let shifted = centre[a] as isize + (code % 3) as isize - 1;
+                    code /= 3;
+                    inside &= shifted >= 0 && (shifted as usize) < per_axis[a];
+                    neighbour[a] = shifted.max(0) as usize;
+                }
+                let index = grid.0.cell_index(neighbour);
+                if !inside || index == *cell {
+                    continue;
+                }
+                if let Ok(found) = runs.binary_search_by_key(&(*body, index), |(key, _)| *key) {
+                    group.sources.extend(runs[found].1.clone());
+                }
+            }
+        }
+        for &source in &group.sources {
+            if let Ok((.., support, _)) = points.get(cells.points[source]) {
                 group.nodes.extend(support.0.iter().map(|w| w.node));
             }
         }
         group.nodes.sort_unstable();
         group.nodes.dedup();
-        for &entity in &group.points {
-            let local = points.get(entity).map_or(Vec::new(), |(.., support)| {
-                support
-                    .0
-                    .iter()
-                    .map(|w| group.nodes.binary_search(&w.node).unwrap_or(0))
-                    .collect()
-            });
+        for &source in &group.sources {
+            let local = points
+                .get(cells.points[source])
+                .map_or(Vec::new(), |(.., support, _)| {
+                    support
+                        .0
+                        .iter()
+                        .map(|w| group.nodes.binary_search(&w.node).unwrap_or(0))
+                        .collect()
+                });
             group.local.push(local);
         }
-        group.weights = vec![0.0; group.points.len()];
-        if group.points.len() > 1 {
+        group.weights = vec![0.0; group.sources.len()];
+        if group.sources.len() > 1 {
             fields.couplings.push(group.nodes.clone());
         }
         cells.groups.push(group);
     }
 }
 
-/// `Δj̄` of every group and `Δf̄` of its points for the current increments (module docs).
+/// `Δj̄` of every group and `Δf̄` of its members for the current increments (module docs).
 #[allow(clippy::too_many_arguments)] // a system: its parameters are what it reads and writes
 pub fn average_volume_change<const D: usize>(
     fields: Res<GridFields<D>>,
@@ -265,36 +357,41 @@ pub fn average_volume_change<const D: usize>(
     mut points: Query<(&PointId, &Support<D>, &Volume, &mut ModifiedIncrement<D>)>,
 ) {
     let _timer = clock.time(Stage::StressUpdate);
-    for group in cells.groups.iter_mut() {
-        increments.clear();
-        for &entity in &group.points {
-            let Ok((id, support, volume, _)) = points.get(entity) else {
-                continue;
-            };
-            let df = increment_gradient(&support.0, |node| fields.increment[node]);
-            let dj = embed(&df).determinant();
-            if !(dj.is_finite() && dj > 0.0) {
-                status.fail(SolverError::BadPointState {
-                    point: id.0,
-                    step: step.number,
-                    iteration: newton.iterations,
-                    why: format!("F-bar: non-positive or non-finite det Δf = {dj:e}"),
-                });
-                return;
-            }
-            increments.push((df, dj, volume.0));
+    let cells = &mut *cells;
+    increments.clear();
+    for &entity in &cells.points {
+        let Ok((id, support, volume, _)) = points.get(entity) else {
+            increments.push((SMatrix::identity(), 1.0, 0.0));
+            continue;
+        };
+        let df = increment_gradient(&support.0, |node| fields.increment[node]);
+        let dj = embed(&df).determinant();
+        if !(dj.is_finite() && dj > 0.0) {
+            status.fail(SolverError::BadPointState {
+                point: id.0,
+                step: step.number,
+                iteration: newton.iterations,
+                why: format!("F-bar: non-positive or non-finite det Δf = {dj:e}"),
+            });
+            return;
         }
-        let volume: f64 = increments.iter().map(|(_, _, v)| v).sum();
-        let changed: f64 = increments.iter().map(|(_, dj, v)| v * dj).sum();
-        let average = changed / volume;
-        for ((&entity, weight), (df, dj, v)) in group
-            .points
+        increments.push((df, dj, volume.0));
+    }
+    for group in cells.groups.iter_mut() {
+        let volume: f64 = group.sources.iter().map(|&q| increments[q].2).sum();
+        let changed: f64 = group
+            .sources
             .iter()
-            .zip(group.weights.iter_mut())
-            .zip(increments.iter())
-        {
+            .map(|&q| increments[q].2 * increments[q].1)
+            .sum();
+        let average = changed / volume;
+        for (weight, &q) in group.weights.iter_mut().zip(&group.sources) {
+            let (_, dj, v) = increments[q];
             *weight = v * dj / changed;
-            if let Ok((.., mut seen)) = points.get_mut(entity) {
+        }
+        for &q in &group.sources[..group.members] {
+            let (df, dj, _) = increments[q];
+            if let Ok((.., mut seen)) = points.get_mut(cells.points[q]) {
                 seen.0 = df * (average / dj).powf(1.0 / D as f64);
             }
         }
@@ -323,12 +420,12 @@ pub fn assemble_fbar_tangent<const D: usize>(
 ) {
     let _timer = clock.time(Stage::Assembly);
     let scratch = &mut *scratch;
-    for group in cells.groups.iter().filter(|g| g.points.len() > 1) {
+    for group in cells.groups.iter().filter(|g| g.sources.len() > 1) {
         let n = group.nodes.len();
         scratch.averaged.clear();
         scratch.averaged.resize(n, SVector::zeros());
-        for ((&entity, local), alpha) in group.points.iter().zip(&group.local).zip(&group.weights) {
-            let Ok((support, trial, _)) = points.get(entity) else {
+        for ((&q, local), alpha) in group.sources.iter().zip(&group.local).zip(&group.weights) {
+            let Ok((support, trial, _)) = points.get(cells.points[q]) else {
                 continue;
             };
             for (w, &l) in support.0.iter().zip(local) {
@@ -337,8 +434,9 @@ pub fn assemble_fbar_tangent<const D: usize>(
         }
         scratch.blocks.clear();
         scratch.blocks.resize(n * n, SMatrix::zeros());
-        for (&entity, local) in group.points.iter().zip(&group.local) {
-            let Ok((support, trial, v0)) = points.get(entity) else {
+        let members = group.sources[..group.members].iter().zip(&group.local);
+        for (&q, local) in members {
+            let Ok((support, trial, v0)) = points.get(cells.points[q]) else {
                 continue;
             };
             let state = &trial.0;
@@ -388,4 +486,19 @@ fn volumetric_projection<const D: usize>(
         }
         sum / D as f64
     })
+}
+
+/// The averaging of a `fbar` option's value: `true` or `"cell"`, `"patch"`; `false`: none.
+fn fbar_averaging(value: &rhai::Dynamic) -> Result<Option<FbarAveraging>, String> {
+    if let Ok(flag) = value.as_bool() {
+        return Ok(flag.then_some(FbarAveraging::Cell));
+    }
+    match value.clone().into_string().as_deref() {
+        Ok("cell") => Ok(Some(FbarAveraging::Cell)),
+        Ok("patch") => Ok(Some(FbarAveraging::Patch)),
+        _ => Err(format!(
+            "option 'fbar' must be true, false, \"cell\" or \"patch\", got {}",
+            crate::scene::describe(value)
+        )),
+    }
 }

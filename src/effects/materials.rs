@@ -14,7 +14,8 @@ use std::marker::PhantomData;
 use bevy_ecs::prelude::*;
 
 use crate::checkpoint::{self, CheckpointPart};
-use crate::components::{BodyIndex, PointId};
+use crate::components::{BodyIndex, PointId, ReferencePosition, Trial};
+use crate::effects::initial_stress::InitialStressSpec;
 use crate::material::HistoryValues;
 use crate::material::Material;
 use crate::plugin::{Extension, Hook, Plugin};
@@ -117,9 +118,15 @@ impl<M: Material> Plugin for MaterialModule<M> {
         } else {
             world.insert_batch(
                 points
-                    .into_iter()
-                    .map(|(entity, model)| (entity, PointMaterial(model))),
+                    .iter()
+                    .map(|(entity, model)| (*entity, PointMaterial(model.clone()))),
             );
+        }
+        if let Some(initial) = spec.part::<InitialStressSpec>()
+            && let Err(why) = apply_initial_stress::<D, M>(world, &points, initial)
+        {
+            simulation.fail(why);
+            return;
         }
         simulation.add_systems(Hook::StressUpdate, update_stress::<D, M>);
         if M::HAS_HISTORY {
@@ -135,6 +142,40 @@ impl<M: Material> Plugin for MaterialModule<M> {
             simulation.add_systems(Hook::PointFields, history_fields::<M>);
         }
     }
+}
+
+/// Gives the model's points (`points`) the geostatic stress of `initial` (`initial_stress`):
+/// the history `history_from_stress(σ)` (committed and trial, where the points have a
+/// `PointHistory`) and the stress of their initial state. An error names the call's line.
+fn apply_initial_stress<const D: usize, M: Material>(
+    world: &mut World,
+    points: &[(Entity, M)],
+    initial: &InitialStressSpec,
+) -> Result<(), String> {
+    for (entity, model) in points {
+        let Some(z) = world
+            .get::<ReferencePosition<D>>(*entity)
+            .map(|x| x.0[D - 1])
+        else {
+            continue;
+        };
+        let stress = initial.stress_at(z, D);
+        let history = model.history_from_stress(&stress).map_err(|why| {
+            format!(
+                "initial_stress(...){}: the point at height {z} (model '{}'): {why}",
+                initial.line_note,
+                M::MODEL
+            )
+        })?;
+        if let Some(mut trial) = world.get_mut::<Trial<D>>(*entity) {
+            trial.0.kirchhoff = stress;
+        }
+        if let Some(mut point) = world.get_mut::<PointHistory<M>>(*entity) {
+            point.trial = history.clone();
+            point.committed = history;
+        }
+    }
+    Ok(())
 }
 
 /// The committed history of the model's points: (point id, values) records in id order.

@@ -14,10 +14,11 @@
 //! | `grid_constraints.rs` | `fix` and `displace` on grid nodes |
 //! | `surface_conditions.rs` | prescribed displacements and supports on material surfaces |
 //! | `ghost_penalty.rs` | stabilisation of nearly empty cells |
-//! | `fbar.rs` | F-bar: the volume change averaged over the points of a cell (`body(#{ fbar: true })`) |
+//! | `fbar.rs` | F-bar: the volume change averaged over the points of a cell (`body(#{ fbar: true })`) or of the cells around it (`"patch"`) |
 //! | `stress_recovery.rs` | moving-least-squares stress recovery |
 //! | `probes.rs` | displacement, stress and F at material reference positions (`probe`) |
 //! | `history.rs` | named columns of history.csv from the measured quantities (`record`) |
+//! | `initial_stress.rs` | geostatic `K0` initial stresses (`initial_stress`), applied by the materials' modules |
 
 pub mod body_force;
 pub mod carried_points;
@@ -27,6 +28,7 @@ pub mod fem_mesh;
 pub mod ghost_penalty;
 pub mod grid_constraints;
 pub mod history;
+pub mod initial_stress;
 pub mod materials;
 pub mod point_domains;
 pub mod point_loads;
@@ -59,4 +61,5 @@ pub fn built_in() -> ModuleSet {
         .with(stress_recovery::StressRecoveryModule)
         .with(probes::ProbesModule)
         .with(history::HistoryModule)
+        .with(initial_stress::InitialStressModule)
 }

@@ -15,6 +15,9 @@
 //! point (its host is the material point nearest to X). A point load on a material point
 //! (`point_load`) is the special case X = X_p.
 //!
+//! Both take `held: true` to apply the load in full from the first load step on (λ replaced by
+//! 1, `resources::Ramp::Held`) while the other loads follow the schedule.
+//!
 //! Systems, added only when a scene declares tractions:
 //!
 //! * [`apply_tractions`] (`Hook::Loads`): evaluate the basis at x_s and spread λ h_s A_s over
@@ -49,7 +52,7 @@ use nalgebra::SVector;
 use rhai::Dynamic;
 
 use super::carried_points::{CarriedPoint, restore_positions, save_positions};
-use super::declarations::LoadSummary;
+use super::declarations::{LoadSummary, held_option};
 use super::probes::material_point_near;
 use crate::basis::{BasisKind, BasisScratch, NodeWeight};
 use crate::checkpoint::CheckpointPart;
@@ -57,7 +60,9 @@ use crate::components::{DeformationGradient, Position, ReferencePosition, Suppor
 use crate::mechanics::spread_over_active;
 use crate::output::{Field, PvdSeries, vertex_cells, write_vtu};
 use crate::plugin::{Extension, Hook, Plugin};
-use crate::resources::{Grid, GridFields, LoadStep, RunStatus, SolverError, Stage, StageClock};
+use crate::resources::{
+    Grid, GridFields, LoadStep, Ramp, RunStatus, SolverError, Stage, StageClock,
+};
 use crate::scene::{
     CallSpec, Kind, Located, OptionSpec, Options, Resolver, SceneApi, SceneSpec, ScriptError,
     seed_surface,
@@ -82,6 +87,8 @@ pub struct TractionPoint<const D: usize> {
     pub offset: SVector<f64, D>,
     pub area: f64,
     pub traction: SVector<f64, D>,
+    /// Ramped with the load factor, or held in full from the first step (`held: true`).
+    pub ramp: Ramp,
     /// The basis at `position` for this load step.
     pub support: Vec<NodeWeight<D>>,
 }
@@ -97,6 +104,8 @@ pub struct TractionPointSpec {
     pub area: f64,
     pub traction: Vec<f64>,
     pub host: usize,
+    /// Ramped with the load factor, or held in full from the first step (`held: true`).
+    pub ramp: Ramp,
 }
 
 /// The traction points of every `traction(...)` of the scene.
@@ -109,6 +118,7 @@ struct TractionDeclaration {
     corners: Vec<Vec<f64>>,
     traction: Vec<f64>,
     per_cell: usize,
+    ramp: Ramp,
 }
 
 /// `point_load_at(...)`: a force at a reference position, carried by a load point.
@@ -116,6 +126,7 @@ struct TractionDeclaration {
 struct PointLoadAtDeclaration {
     at: Vec<f64>,
     force: Vec<f64>,
+    ramp: Ramp,
 }
 
 /// The load points of the scene's `point_load_at(...)`: traction points of unit area whose
@@ -170,6 +181,7 @@ impl Plugin for TractionsModule {
                     },
                     "traction points per cell crossed (default 2)",
                 ),
+                held_option(),
             ],
             |builder, options: &Options, at| {
                 builder.declare(Located::new(
@@ -177,6 +189,7 @@ impl Plugin for TractionsModule {
                         corners: options.points("on").unwrap_or_default().to_vec(),
                         traction: options.numbers("traction").unwrap_or_default().to_vec(),
                         per_cell: options.whole("per_cell").unwrap_or(2),
+                        ramp: Ramp::held_if(options.flag("held").unwrap_or(false)),
                     },
                     at,
                 ));
@@ -193,12 +206,14 @@ impl Plugin for TractionsModule {
                     "the reference position, one entry per axis (in or on the body, within a cell of its material points)",
                 ),
                 OptionSpec::required("force", Kind::Numbers, "the force P, one entry per axis"),
+                held_option(),
             ],
             |builder, options: &Options, at| {
                 builder.declare(Located::new(
                     PointLoadAtDeclaration {
                         at: options.numbers("at").unwrap_or_default().to_vec(),
                         force: options.numbers("force").unwrap_or_default().to_vec(),
+                        ramp: Ramp::held_if(options.flag("held").unwrap_or(false)),
                     },
                     at,
                 ));
@@ -334,6 +349,7 @@ fn spawn_traction_points<const D: usize>(simulation: &mut Extension<'_, D>) -> R
             offset: position - host_position,
             area: point.area,
             traction: vector(&point.traction, "traction")?,
+            ramp: point.ramp,
             support: Vec::new(),
         });
     }
@@ -396,7 +412,7 @@ pub fn apply_tractions<const D: usize>(
                 return;
             };
             point.support = host_weights(&host.0, &(point.position - x.0));
-            let force = point.traction * (point.area * step.factor);
+            let force = point.traction * (point.area * step.factor_of(point.ramp));
             spread_over_active(
                 &force,
                 &point.support,
@@ -422,7 +438,7 @@ pub fn apply_tractions<const D: usize>(
             status.fail(fail("left the background grid"));
             return;
         }
-        let force = point.traction * (point.area * step.factor);
+        let force = point.traction * (point.area * step.factor_of(point.ramp));
         if !spread_over_active(
             &force,
             &point.support,
@@ -473,8 +489,9 @@ pub fn write_tractions<const D: usize>(
     for point in &rows {
         reference.extend(pad(&point.reference_position));
         area.push(point.area);
-        traction.extend(pad(&(point.traction * step.factor)));
-        force.extend(pad(&(point.traction * (point.area * step.factor))));
+        let factor = step.factor_of(point.ramp);
+        traction.extend(pad(&(point.traction * factor)));
+        force.extend(pad(&(point.traction * (point.area * factor))));
     }
     let name = format!("tractions_{:04}.vtu", step.number);
     let result = write_vtu(
@@ -540,6 +557,7 @@ fn resolve_tractions(
             area: seed.area,
             traction: traction.traction.clone(),
             host: seed.host,
+            ramp: traction.ramp,
         }));
     }
     Ok(points)
@@ -580,6 +598,7 @@ fn resolve_point_loads_at(
             area: 1.0,
             traction: load.force.clone(),
             host,
+            ramp: load.ramp,
         });
     }
     Ok(loads)

@@ -75,6 +75,27 @@ pub fn run_shipped<const D: usize>(script: &str, set: &[(&str, &str)]) -> Simula
     sim
 }
 
+/// `q/s_u` after each of the 10 steps of the Tresca strip footing (`scripts/strip_footing.rhai`,
+/// `s_u = 10`, linear MPM, pushed to δ/B = 0.05) with further overrides `set`; every step must
+/// complete.
+pub fn tresca_footing_linear(set: &[(&str, &str)]) -> Vec<f64> {
+    let mut all = vec![
+        ("material", "tresca"),
+        ("su", "10"),
+        ("basis", "linear"),
+        ("settlement", "0.05"),
+        ("steps", "10"),
+    ];
+    all.extend_from_slice(set);
+    let sim = run_shipped::<2>("strip_footing.rhai", &all);
+    assert_eq!(sim.summary.steps.len(), 10, "{set:?}");
+    sim.summary
+        .steps
+        .iter()
+        .map(|step| step.measure("footing_pressure").unwrap() / 10.0)
+        .collect()
+}
+
 /// Runs the stress update and the assembly for the current increments; returns the internal
 /// force at the free DOFs.
 pub fn internal_force(sim: &mut Simulation<2>) -> Vec<f64> {
