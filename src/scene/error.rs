@@ -165,7 +165,7 @@ fn limit_message(error: &EvalAltResult) -> Option<String> {
             format!("{what} grew beyond the limit on its size (a runaway loop?); --limit {name}=N raises it")
         }
         EvalAltResult::ErrorTerminated(value, _) if value.to_string() == super::limits::TIME_LIMIT => {
-            "the scene took longer than the limit on its evaluation time (an endless loop, or a map or array grown one item at a time?); --limit seconds=N raises it".to_string()
+            "the scene took longer than the limit on its evaluation time (an endless loop, or a computation too long for a scene?); --limit seconds=N raises it".to_string()
         }
         EvalAltResult::ErrorStackOverflow(_) => "script functions nest deeper than the limit on calls (endless recursion?); --limit depth=N raises it".to_string(),
         _ => return None,
