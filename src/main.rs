@@ -184,6 +184,15 @@ fn run(cli: Cli) -> Result<(), Failure> {
         } => {
             use_threads(threads)?;
             use_petsc_options(petsc_options.as_deref())?;
+            // under mpirun: MPI until the end of the run; processes other than 0 silent
+            #[cfg(feature = "mpi")]
+            let distributed =
+                cli::distributed::DistributedRun::start_if_launched(resume.is_some())?;
+            #[cfg(feature = "mpi")]
+            let out = match &distributed {
+                Some(run) => run.output_folder(out),
+                None => out,
+            };
             let restart = RunRestart {
                 resume,
                 every: checkpoint_every.map(|n| n as usize),
