@@ -14,6 +14,9 @@
 //! * the run says, in its log and in summary.json, that the state is replicated;
 //! * the heavy column (1D; points travel across cells, and so across the slab boundaries,
 //!   between steps: `points_changing_process` counts them) equals its serial run as well;
+//! * over 2 and 3 processes the particle files are pieces listed by `.pvtu` files, which
+//!   ParaView reads with every field and point (pvpython, where installed) and `impm merge`
+//!   turns into the serial file (the comparisons above are made on the merged file);
 //! * a scene whose modules add to the tangent after the assembly (ghost penalty) is refused
 //!   with more than one process, naming what and why.
 //!
@@ -97,6 +100,21 @@ fn outcome(out: &Path) -> Outcome {
     assert_eq!(summary["status"], "completed", "{text}");
     let steps = summary["steps"].as_array().unwrap();
     let last = out.join(impm::output::step_file_name("particles", steps.len()));
+    // over several processes the particles are in pieces: `impm merge` writes the one file
+    if last.with_extension("pvtu").is_file() {
+        assert!(!last.exists());
+        let merge = Command::new(env!("CARGO_BIN_EXE_impm"))
+            .arg("merge")
+            .arg(out)
+            .output()
+            .unwrap();
+        let said = String::from_utf8_lossy(&merge.stdout);
+        assert!(
+            merge.status.success() && said.contains("points"),
+            "{said}{}",
+            String::from_utf8_lossy(&merge.stderr)
+        );
+    }
     let points = read_vtu(&last).unwrap_or_else(|e| panic!("{}: {e}", last.display()));
     Outcome {
         iterations: steps
@@ -133,7 +151,7 @@ fn relative_difference(a: &[f64], b: &[f64]) -> f64 {
 
 /// The scene's runs under `mpirun -n 1, 2, 3` against its serial run (direct solver); the
 /// number of points that changed process at a step start, summed over the steps, for each `n`.
-fn compare(script: &str, set: &[&str], tag: &str) -> Vec<f64> {
+fn compare(script: &str, set: &[&str], tag: &str, paraview: bool) -> Vec<f64> {
     let mut changes = Vec::new();
     if !mpirun_available() {
         return changes;
@@ -160,6 +178,10 @@ fn compare(script: &str, set: &[&str], tag: &str) -> Vec<f64> {
         );
         let stderr = String::from_utf8_lossy(&output.stderr);
         assert!(output.status.success(), "{script} -n {n}: {stderr}");
+        let points = reference.positions.len() / 3;
+        if n > 1 {
+            pieces_are_listed(&dir, n, points, paraview);
+        }
         let got = outcome(&dir);
         let stress = relative_difference(&got.stress, &reference.stress);
         let positions = relative_difference(&got.positions, &reference.positions);
@@ -196,7 +218,7 @@ fn compare(script: &str, set: &[&str], tag: &str) -> Vec<f64> {
             got.warnings
         );
         // process 0 assembles its slab's points only: all of them alone, fewer with others
-        let points = reference.positions.len() as f64 / 3.0;
+        let points = points as f64;
         for assembled in &got.assembled {
             let assembled = assembled.expect("assembled_points in every step");
             if n == 1 {
@@ -215,21 +237,77 @@ fn compare(script: &str, set: &[&str], tag: &str) -> Vec<f64> {
     changes
 }
 
+/// Over `n` processes: every output step's particles are `n` pieces listed by a `.pvtu`,
+/// which `particles.pvd` lists, with `points` points in all; with `paraview`, ParaView reads
+/// the series (`scripts/check_output.py` under `pvpython`, where installed) with every field
+/// and that many points in every step.
+fn pieces_are_listed(dir: &Path, n: usize, points: usize, paraview: bool) {
+    let pvd = std::fs::read_to_string(dir.join("particles.pvd")).unwrap();
+    assert!(pvd.contains("particles_0000.pvtu"), "{pvd}");
+    assert!(!pvd.contains(".vtu\""), "{pvd}");
+    let pvtu = dir.join("particles_0000.pvtu");
+    let pieces = impm::output::pvtu_pieces(&pvtu).unwrap();
+    assert_eq!(pieces.len(), n);
+    let counted: usize = pieces
+        .iter()
+        .map(|piece| read_vtu(piece).unwrap().points.len())
+        .sum();
+    assert_eq!(counted, points);
+    if !paraview {
+        return;
+    }
+    let available = Command::new("pvpython")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !available {
+        eprintln!("skipped the ParaView check: pvpython is not installed");
+        return;
+    }
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/check_output.py");
+    let output = Command::new("pvpython")
+        .arg(script)
+        .arg(dir)
+        .args([
+            "reference_position:3",
+            "reference_volume:1",
+            "volume:1",
+            "mass:1",
+            "displacement:3",
+            "cauchy_stress:9",
+            "deformation_gradient:9",
+            "body:1",
+            "point_id:1",
+        ])
+        .output()
+        .unwrap();
+    let report = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        output.status.success() && report.contains("\nOK\n"),
+        "{report}{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    assert!(
+        report.contains(&format!("points: {points},")),
+        "{points} points expected: {report}"
+    );
+}
+
 #[test]
 fn the_2d_column_over_1_2_and_3_processes_equals_the_serial_run() {
-    compare("column_2d.rhai", &["cells=16", "steps=3"], "column2d");
+    compare("column_2d.rhai", &["cells=16", "steps=3"], "column2d", true);
 }
 
 #[test]
 fn the_3d_column_over_1_2_and_3_processes_equals_the_serial_run() {
-    compare("column_3d.rhai", &["cells=4", "steps=2"], "column3d");
+    compare("column_3d.rhai", &["cells=4", "steps=2"], "column3d", false);
 }
 
 /// The heavy column (1D) shortens a lot: points cross cells, and so the slab boundaries, from
 /// step to step (the slabs are recut at every step start, balanced by points).
 #[test]
 fn points_crossing_slab_boundaries_stay_equal_to_the_serial_run() {
-    let changes = compare("heavy_column.rhai", &["cells=8", "steps=4"], "heavy");
+    let changes = compare("heavy_column.rhai", &["cells=8", "steps=4"], "heavy", false);
     if let [one, two, three] = changes[..] {
         assert_eq!(one, 0.0);
         assert!(two > 0.0 && three > 0.0, "{changes:?}");

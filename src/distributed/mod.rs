@@ -19,4 +19,6 @@ pub mod partition;
 #[cfg(feature = "mpi")]
 mod world;
 #[cfg(feature = "mpi")]
-pub use world::{Processes, Started, any, launched_by_mpirun, processes, start, sum};
+pub use world::{
+    Processes, Started, any, launched_by_mpirun, path_of_process_0, processes, start, sum,
+};

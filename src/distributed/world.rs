@@ -78,3 +78,20 @@ pub fn sum(value: f64) -> f64 {
     SimpleCommunicator::world().all_reduce_into(&value, &mut all, SystemOperation::sum());
     all
 }
+
+/// Process 0's `path`, on every process (collective). The processes of a distributed run
+/// write their pieces of the output into process 0's folder.
+pub fn path_of_process_0(path: &std::path::Path) -> std::path::PathBuf {
+    use std::os::unix::ffi::{OsStrExt, OsStringExt};
+    if processes().is_none() {
+        return path.to_path_buf();
+    }
+    let world = SimpleCommunicator::world();
+    let root = world.process_at_rank(0);
+    let mut bytes = path.as_os_str().as_bytes().to_vec();
+    let mut length = bytes.len() as u64;
+    root.broadcast_into(&mut length);
+    bytes.resize(length as usize, 0);
+    root.broadcast_into(&mut bytes[..]);
+    std::ffi::OsString::from_vec(bytes).into()
+}

@@ -17,6 +17,14 @@
 //!   matrix inside the linear solver (`PetscSolver::distributed`, which replaces the scene's
 //!   `linear` choice: the scene's `petsc_options` are kept when it chose `"petsc"`); the
 //!   correction is gathered to every process.
+//! * **Particle file in pieces** (more than one process): each process writes the points it
+//!   assembled in the step as `particles_NNNN_pK.vtu` (with a `point_id` array) into process
+//!   0's folder (`stages::output::ParticlePieces`); [`list_particle_pieces`] (`Hook::Output`)
+//!   waits until every piece is written (a collective call that also shares a failed write)
+//!   and process 0 lists them in `particles_NNNN.pvtu`, which `particles.pvd` lists. ParaView
+//!   reads it as one data set; `impm merge OUT_DIR` writes `particles_NNNN.vtu` from the
+//!   pieces (in `point_id` order, the serial file) for tools that do not read `.pvtu`. The grid
+//!   and node files are process 0's (the grid is replicated).
 //! * **Failures are collective.** `Hook::Combine` runs after a failed stage too: if a stage
 //!   failed on any process, every process fails the iteration (then cuts the step alike).
 //!
@@ -33,13 +41,15 @@ use nalgebra::SVector;
 
 use crate::components::{AssembledElsewhere, Position};
 use crate::distributed::partition::{slab_axis, slab_owners};
-use crate::distributed::{Processes, any, processes};
+use crate::distributed::{Processes, any, path_of_process_0, processes};
+use crate::output::write_pvtu;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{
     Grid, GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock, Warnings,
 };
 use crate::scene::{LinearBackend, SceneSpec};
 use crate::solver::{PetscSolver, ProcessSum};
+use crate::stages::output::{OutputPlan, ParticlePieces, WrittenPiece};
 
 /// The module: built when the process is one of a distributed run (`mpirun`).
 #[derive(Clone, Copy, Debug, Default)]
@@ -105,14 +115,30 @@ impl Plugin for DistributedModule {
             // one process assembles every point: its share is all of K
             newton.whole_tangent = processes.size == 1;
         }
+        let files = if processes.size > 1 {
+            "each process writes the points it assembles as particles_NNNN_pK.vtu, \
+             particles_NNNN.pvtu lists them (ParaView; `impm merge OUT_DIR` writes one .vtu per \
+             step for other tools), process 0 writes the other files"
+        } else {
+            "process 0 writes the files"
+        };
         world.resource_mut::<Warnings>().0.push(format!(
             "distributed run over {} MPI processes: every process holds the whole state (all \
              points and the grid: replicated, not decomposed); only the assembly (slabs of \
              cells along axis {axis}, balanced by points) and the linear solve (PETSc MPIAIJ, \
-             CG or GMRES with GAMG unless petsc_options say otherwise) are split; process 0 \
-             writes the files",
+             CG or GMRES with GAMG unless petsc_options say otherwise) are split; {files}",
             processes.size
         ));
+        if processes.size > 1 {
+            // the pieces go into process 0's folder (the others run in scratch folders)
+            let dir = world.resource::<OutputPlan>().dir.clone();
+            let dir = std::fs::canonicalize(&dir).unwrap_or(dir);
+            world.insert_resource(ParticlePieces {
+                piece: processes.rank,
+                dir: path_of_process_0(&dir),
+                written: None,
+            });
+        }
         world.insert_resource(AssemblyShare {
             processes,
             axis,
@@ -122,11 +148,16 @@ impl Plugin for DistributedModule {
             sum: ProcessSum::default(),
             buffer: Vec::new(),
         });
+        // the shares of the initial state, for its output (step 0 runs no connectivity)
+        mark_assembly_share::<D>(world);
         let share = |world: &mut World| {
             world
                 .get_resource::<AssemblyShare>()
                 .map(|s| (s.points, s.moved))
         };
+        if processes.size > 1 {
+            simulation.add_systems(Hook::Output, list_particle_pieces);
+        }
         simulation
             .add_systems(Hook::Connectivity, mark_assembly_share::<D>)
             .add_systems(Hook::Combine, combine_assembly::<D>)
@@ -230,5 +261,52 @@ pub fn combine_assembly<const D: usize>(
         .zip(share.buffer.chunks_exact(D))
     {
         *force = SVector::<f64, D>::from_column_slice(values);
+    }
+}
+
+/// After the processes wrote their pieces of the particle file (`ParticlePieces`): whether
+/// any failed (then every process fails the step: collective, and it also waits until every
+/// piece is written); then process 0 lists the pieces in `particles_NNNN.pvtu` and adds that
+/// to `particles.pvd`.
+pub fn list_particle_pieces(
+    mut pieces: ResMut<ParticlePieces>,
+    mut plan: ResMut<OutputPlan>,
+    share: Res<AssemblyShare>,
+    mut status: ResMut<RunStatus>,
+    step: Res<LoadStep>,
+) {
+    let Some(written) = pieces.written.take() else {
+        return; // not an output step (the same on every process)
+    };
+    if any(written.is_err()) {
+        let why = match written {
+            Err(why) => why,
+            Ok(_) => "a piece of the particle file could not be written by another process \
+                      of the distributed run"
+                .to_string(),
+        };
+        status.fail(SolverError::Output {
+            step: step.number,
+            why,
+        });
+        return;
+    }
+    let Ok(WrittenPiece { arrays, .. }) = written else {
+        return;
+    };
+    if share.processes.rank != 0 {
+        return;
+    }
+    let names: Vec<String> = (0..share.processes.size)
+        .map(|k| format!("particles_{:04}_p{k}.vtu", step.number))
+        .collect();
+    let name = format!("particles_{:04}.pvtu", step.number);
+    let result = write_pvtu(&pieces.dir.join(&name), &names, &arrays, &[])
+        .and_then(|()| plan.particles.push(step.factor, &name));
+    if let Err(e) = result {
+        status.fail(SolverError::Output {
+            step: step.number,
+            why: format!("{name}: {e}"),
+        });
     }
 }
