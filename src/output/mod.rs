@@ -17,6 +17,10 @@
 //!   grid_0001.vtu        ...
 //! ```
 //!
+//! A distributed run over several processes writes the particles in pieces instead
+//! (`particles_NNNN_pK.vtu`, one per process, listed by `particles_NNNN.pvtu`, which
+//! `particles.pvd` lists; see `pvtu.rs` and `impm merge`).
+//!
 //! Open `particles.pvd` (and `grid.pvd`) in ParaView to get the whole time series.
 //! The numbering `NNNN` is the solver's output counter, zero-padded to four digits (see
 //! [`step_file_name`]); the `.pvd` files store names relative to their own folder, so an output
