@@ -80,3 +80,11 @@ pub struct GridNode<const D: usize> {
 /// `Hook::AfterAssembly`).
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct ModifiedIncrement<const D: usize>(pub SMatrix<f64, D, D>);
+
+/// A point this process holds but another process assembles (a distributed run, where each
+/// process assembles the points of its block of cells): the core's assembly leaves it out.
+/// Sparse-set storage, so that marking points does not move them between tables (the order
+/// in which the other stages and the output visit points stays that of a serial run).
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[component(storage = "SparseSet")]
+pub struct AssembledElsewhere;

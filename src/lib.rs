@@ -26,6 +26,7 @@ pub mod basis;
 pub mod checkpoint;
 pub mod components;
 pub mod control;
+pub mod distributed;
 pub mod effects;
 pub mod explain;
 pub mod fem;

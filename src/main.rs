@@ -131,6 +131,13 @@ enum Command {
         #[arg(long, value_delimiter = ',')]
         y: Vec<String>,
     },
+    /// Merge the pieces of a distributed run (mpirun -n N, N > 1): every OUT_DIR/STEM_NNNN.pvtu
+    /// becomes OUT_DIR/STEM_NNNN.vtu, one file with all points in serial order, for tools that
+    /// do not read .pvtu (meshio); ParaView reads the .pvd / .pvtu as they are.
+    Merge {
+        /// The run's output folder.
+        out_dir: PathBuf,
+    },
     /// Print the reference of the scene language (every call, its options, the bases, the
     /// material models and point fields), as in docs/scene-api.md.
     Api,
@@ -184,6 +191,15 @@ fn run(cli: Cli) -> Result<(), Failure> {
         } => {
             use_threads(threads)?;
             use_petsc_options(petsc_options.as_deref())?;
+            // under mpirun: MPI until the end of the run; processes other than 0 silent
+            #[cfg(feature = "mpi")]
+            let distributed =
+                cli::distributed::DistributedRun::start_if_launched(resume.is_some())?;
+            #[cfg(feature = "mpi")]
+            let out = match &distributed {
+                Some(run) => run.output_folder(out),
+                None => out,
+            };
             let restart = RunRestart {
                 resume,
                 every: checkpoint_every.map(|n| n as usize),
@@ -227,6 +243,7 @@ fn run(cli: Cli) -> Result<(), Failure> {
             limit,
         } => check_command(&modules, &scene, &set, explain, &limits(&limit)?),
         Command::Plot { out_dir, x, y } => plot_command(&out_dir, &x, &y),
+        Command::Merge { out_dir } => merge_command(&out_dir),
         Command::Api => say(&modules.scene_api().reference()),
     }
 }
@@ -598,6 +615,31 @@ fn describe_factors(factors: &[f64]) -> String {
         factors[factors.len() - 1],
         factors.len()
     )
+}
+
+/// `impm merge`: one `.vtu` per `.pvtu` of the folder, from its pieces.
+fn merge_command(out_dir: &Path) -> Result<(), Failure> {
+    let entries = std::fs::read_dir(out_dir)
+        .map_err(|e| format!("reading the folder {}: {e}", out_dir.display()))?;
+    let mut parallel: Vec<PathBuf> = entries
+        .filter_map(|entry| entry.ok().map(|e| e.path()))
+        .filter(|path| path.extension().is_some_and(|x| x == "pvtu"))
+        .collect();
+    parallel.sort();
+    if parallel.is_empty() {
+        return Err(Failure::Message(format!(
+            "no .pvtu files in {} (only runs under mpirun with more than one process write \
+             their particles in pieces)",
+            out_dir.display()
+        )));
+    }
+    for pvtu in &parallel {
+        let merged = pvtu.with_extension("vtu");
+        let points = impm::output::merge_pvtu(pvtu, &merged)
+            .map_err(|e| format!("merging {}: {e}", pvtu.display()))?;
+        say(&format!("{}: {points} points\n", merged.display()))?;
+    }
+    Ok(())
 }
 
 /// `impm plot`: a chart of history.csv columns.

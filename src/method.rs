@@ -8,7 +8,8 @@
 //!   4. Solve          Newton until ‖f_ext − f_int‖ is small:                NewtonSchedule
 //!        a. StressUpdate   Δf, F = Δf F^n, τ and its tangent per point     (Hook::Kinematics before it: what the material sees;
 //!                                                                           Hook::StressUpdate: one system per material kind)
-//!        b. Assembly       f_int = Σ_p V0 τ g_i, consistent K              (Hook::BeforeAssembly, Hook::AfterAssembly)
+//!        b. Assembly       f_int = Σ_p V0 τ g_i, consistent K              (Hook::BeforeAssembly, Hook::AfterAssembly;
+//!                                                                           Hook::Combine: the processes' sums, distributed runs)
 //!        c. Convergence    r = f_ext − f_int at the free DOFs
 //!        d. LinearSolve    K δ = r, Δu += δ
 //!   5. UpdatePoints   G2P: x_p, u_p, F_p, V_p (paper eq. 10): the step is committed (Hook::PointUpdate, Hook::AfterStep)
@@ -92,6 +93,7 @@ pub enum NewtonSystems {
 /// | `StressUpdate` | Newton: trial stress and tangent of every point | one system per material kind |
 /// | `BeforeAssembly` | Newton, after the stress update | (plugins) |
 /// | `AfterAssembly` | Newton, after assembly: contributions to f_int and K, also blocks between the nodes of a coupling group | ghost penalty, F-bar |
+/// | `Combine` | Newton, after all of assembly, before the convergence check; runs after a failure of the iteration too (every process must take part in collective operations) | distributed runs: the processes' sums of f_int, a failure on any process |
 /// | `PointUpdate` | step, after the G2P update: state that follows the material | traction points, FEM mesh, material history |
 /// | `AfterStep` | step, after the point update, before output | stress recovery |
 /// | `PointFields` | output, before the particle file: extra point fields | point loads, stress recovery |
@@ -112,6 +114,7 @@ pub enum Hook {
     StressUpdate,
     BeforeAssembly,
     AfterAssembly,
+    Combine,
     PointUpdate,
     AfterStep,
     PointFields,
@@ -121,7 +124,7 @@ pub enum Hook {
 }
 
 impl Hook {
-    pub const ALL: [Hook; 14] = [
+    pub const ALL: [Hook; 15] = [
         Hook::Basis,
         Hook::Connectivity,
         Hook::Constraints,
@@ -130,6 +133,7 @@ impl Hook {
         Hook::StressUpdate,
         Hook::BeforeAssembly,
         Hook::AfterAssembly,
+        Hook::Combine,
         Hook::PointUpdate,
         Hook::AfterStep,
         Hook::PointFields,
@@ -147,12 +151,21 @@ impl Hook {
             | Hook::Loads
             | Hook::PointUpdate
             | Hook::AfterStep => StepSchedule.intern(),
-            Hook::Kinematics | Hook::StressUpdate | Hook::BeforeAssembly | Hook::AfterAssembly => {
-                NewtonSchedule.intern()
-            }
+            Hook::Kinematics
+            | Hook::StressUpdate
+            | Hook::BeforeAssembly
+            | Hook::AfterAssembly
+            | Hook::Combine => NewtonSchedule.intern(),
             Hook::PointFields | Hook::GridOutput | Hook::Output => OutputSchedule.intern(),
             Hook::Rollback => RollbackSchedule.intern(),
         }
+    }
+
+    /// Whether the hook's systems run after a stage of the iteration failed, too: those of
+    /// `Combine`, where the processes of a distributed run meet (a process that skipped it
+    /// would leave the others waiting), and share whether any of them failed.
+    pub fn runs_after_failure(self) -> bool {
+        matches!(self, Hook::Combine)
     }
 
     /// Whether exactly one module provides this stage (the core adds its default when none
@@ -228,6 +241,8 @@ fn newton_schedule<const D: usize>() -> Schedule {
         )
             .distributive_run_if(no_failure),
     );
+    // not `no_failure`: see `Hook::runs_after_failure`
+    schedule.configure_sets(Hook::Combine.after(Assembly).before(Convergence));
     schedule.add_systems((
         assemble::<D>.in_set(Assembly),
         check_convergence::<D>.in_set(Convergence),

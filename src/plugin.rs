@@ -47,7 +47,7 @@ use crate::components::PointId;
 pub use crate::method::Hook;
 use crate::method::Providers;
 use crate::records::StepMeasures;
-use crate::resources::{Newton, no_failure};
+use crate::resources::{Newton, RunStatus};
 use crate::scene::{
     FieldSpec, Resolver, SceneApi, SceneError, SceneModule, SceneSpec, ScriptError,
 };
@@ -389,8 +389,15 @@ impl<'w, const D: usize> Extension<'w, D> {
         self
     }
 
+    /// How many `add_systems` calls `hook` has had so far (by the modules built before this
+    /// one): a module that cannot work with what others add there can say so.
+    pub fn systems_at(&mut self, hook: Hook) -> usize {
+        self.world.get_resource_or_init::<HookSlots>().0[hook as usize] as usize
+    }
+
     /// Adds `systems` at `hook`, after the systems added there before. They run only while no
-    /// stage has failed, like the core stages.
+    /// stage has failed, like the core stages (except at `Hook::Combine`, which runs after a
+    /// failure too: see `Hook::runs_after_failure`).
     pub fn add_systems<M>(
         &mut self,
         hook: Hook,
@@ -404,14 +411,14 @@ impl<'w, const D: usize> Extension<'w, D> {
         };
         let mut schedules = self.world.resource_mut::<Schedules>();
         let schedule = schedules.entry(hook.schedule());
+        let after_failure = hook.runs_after_failure();
+        let set = slot
+            .in_set(hook)
+            .run_if(move |status: Res<RunStatus>| after_failure || status.0.is_none());
         if slot.1 == 0 {
-            schedule.configure_sets(slot.in_set(hook).run_if(no_failure));
+            schedule.configure_sets(set);
         } else {
-            schedule.configure_sets(
-                slot.in_set(hook)
-                    .after(HookSlot(hook, slot.1 - 1))
-                    .run_if(no_failure),
-            );
+            schedule.configure_sets(set.after(HookSlot(hook, slot.1 - 1)));
         }
         schedule.add_systems(systems.in_set(slot));
         self

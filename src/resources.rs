@@ -148,6 +148,10 @@ pub struct Newton {
     pub converged: bool,
     /// Linear solves done in this step.
     pub iterations: usize,
+    /// Whether `matrix` is all of K. False in a distributed run, where each process holds only
+    /// the sum over the points it assembles (the linear solver adds the processes' shares):
+    /// the checks that need all of K (a body that nothing holds, `solver::modes`) are skipped.
+    pub whole_tangent: bool,
 }
 
 impl Default for Newton {
@@ -163,6 +167,7 @@ impl Default for Newton {
             forcing: None,
             converged: false,
             iterations: 0,
+            whole_tangent: true,
         }
     }
 }

@@ -2,4 +2,6 @@
 //! ([`console`]) and the progress display ([`progress`]).
 
 pub mod console;
+#[cfg(feature = "mpi")]
+pub mod distributed;
 pub mod progress;

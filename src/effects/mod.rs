@@ -23,6 +23,8 @@
 pub mod body_force;
 pub mod carried_points;
 pub mod declarations;
+#[cfg(feature = "mpi")]
+pub mod distributed;
 pub mod fbar;
 pub mod fem_mesh;
 pub mod ghost_penalty;
@@ -43,7 +45,7 @@ use crate::plugin::ModuleSet;
 /// The modules every run has, in the order they are built (which is also the order of their
 /// systems at a shared hook).
 pub fn built_in() -> ModuleSet {
-    ModuleSet::new()
+    let modules = ModuleSet::new()
         .with(materials::MaterialModule::<Hencky>::default())
         .with(materials::MaterialModule::<VonMises>::default())
         .with(materials::MaterialModule::<DruckerPrager>::default())
@@ -61,5 +63,9 @@ pub fn built_in() -> ModuleSet {
         .with(stress_recovery::StressRecoveryModule)
         .with(probes::ProbesModule)
         .with(history::HistoryModule)
-        .with(initial_stress::InitialStressModule)
+        .with(initial_stress::InitialStressModule);
+    // last: it checks what the modules before it added after the assembly
+    #[cfg(feature = "mpi")]
+    let modules = modules.with(distributed::DistributedModule);
+    modules
 }

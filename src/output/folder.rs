@@ -130,9 +130,24 @@ fn remove_where(dir: &Path, remove: impl Fn(&str, &[&str]) -> bool) -> io::Resul
     Ok(removed)
 }
 
-/// The step number of a series file `STEM_NNNN.vtu` of one of the `series`.
+/// The step number of a series file `STEM_NNNN.vtu` of one of the `series`, or of a
+/// distributed run's parallel file `STEM_NNNN.pvtu` and its pieces `STEM_NNNN_pK.vtu`.
 fn series_step(name: &str, series: &[&str]) -> Option<usize> {
-    let (series_name, number) = name.strip_suffix(".vtu")?.rsplit_once('_')?;
+    let stem = match name.strip_suffix(".pvtu") {
+        Some(stem) => stem,
+        None => {
+            let stem = name.strip_suffix(".vtu")?;
+            match stem.rsplit_once("_p") {
+                Some((step, piece))
+                    if !piece.is_empty() && piece.bytes().all(|b| b.is_ascii_digit()) =>
+                {
+                    step
+                }
+                _ => stem,
+            }
+        }
+    };
+    let (series_name, number) = stem.rsplit_once('_')?;
     if number.is_empty() || !number.bytes().all(|b| b.is_ascii_digit()) {
         return None;
     }
@@ -182,6 +197,8 @@ mod tests {
         let series = ["particles", "grid"];
         for name in [
             "particles_0003.vtu",
+            "particles_0003.pvtu",
+            "particles_0003_p12.vtu",
             "grid_12345.vtu",
             "particles.pvd",
             "summary.json",
@@ -193,6 +210,8 @@ mod tests {
         for name in [
             "mesh_0001.vtu",
             "particles_final.vtu",
+            "particles_0003_p.vtu",
+            "particles_final.pvtu",
             "notes.txt",
             "checkpoint_final.bin",
             ".hidden.tmp",

@@ -17,6 +17,10 @@
 //!   grid_0001.vtu        ...
 //! ```
 //!
+//! A distributed run over several processes writes the particles in pieces instead
+//! (`particles_NNNN_pK.vtu`, one per process, listed by `particles_NNNN.pvtu`, which
+//! `particles.pvd` lists; see `pvtu.rs` and `impm merge`).
+//!
 //! Open `particles.pvd` (and `grid.pvd`) in ParaView to get the whole time series.
 //! The numbering `NNNN` is the solver's output counter, zero-padded to four digits (see
 //! [`step_file_name`]); the `.pvd` files store names relative to their own folder, so an output
@@ -49,11 +53,13 @@ mod appended;
 mod atomic;
 mod folder;
 mod pvd;
+mod pvtu;
 mod vtu;
 
 pub use atomic::write_atomic;
 pub use folder::{FolderLock, clear_after_step, clear_earlier_run, is_checkpoint_data};
 pub use pvd::PvdSeries;
+pub use pvtu::{POINT_ID, merge_pieces, merge_pvtu, pvtu_pieces, write_pvtu};
 pub use vtu::{
     CellKind, Cells, Encoding, Field, VtuContents, lattice_cells, pad_points, read_vtu,
     try_lattice_cells, vertex_cells, write_vtu, write_vtu_with,

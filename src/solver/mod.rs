@@ -27,6 +27,8 @@ pub use forcing::EisenstatWalker;
 pub use krylov::{Jacobi, KrylovSolver, Preconditioner, multiply};
 pub use matrix::{DofLayout, NO_DOF, NO_ENTRY, SparseMatrix};
 pub use multigrid::{Hierarchy, Multigrid};
+#[cfg(feature = "mpi")]
+pub use petsc::ProcessSum;
 #[cfg(feature = "petsc")]
 pub use petsc::{PetscSolver, set_command_line_options as set_petsc_command_line_options};
 

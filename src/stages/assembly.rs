@@ -10,6 +10,9 @@
 //! for the group; so the inner loop is D³ multiply-adds and D² additions per pair, and the
 //! scattered writes are paid per cell rather than per point.
 //!
+//! Points marked [`AssembledElsewhere`] are left out: in a distributed run each process sums
+//! the points of its own block of cells, and `Hook::Combine` adds the processes' sums.
+//!
 //! Threads (`parallel`): the points are cut into one contiguous part per thread; each part sums
 //! into its own internal force and copy of the tangent values, and the copies are added in part
 //! order. Runs are bit-identical for a given thread count and equal to round-off across counts.
@@ -17,7 +20,7 @@
 use bevy_ecs::prelude::*;
 use nalgebra::{SMatrix, SVector};
 
-use crate::components::{ReferenceVolume, Support, Trial};
+use crate::components::{AssembledElsewhere, ReferenceVolume, Support, Trial};
 use crate::mechanics::StiffnessFactor;
 use crate::parallel;
 use crate::resources::{GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock};
@@ -109,7 +112,7 @@ pub fn assemble<const D: usize>(
     mut status: ResMut<RunStatus>,
     step: Res<LoadStep>,
     mut parts: Local<Vec<AssemblyPart<D>>>,
-    points: Query<(&Support<D>, &Trial<D>, &ReferenceVolume)>,
+    points: Query<(&Support<D>, &Trial<D>, &ReferenceVolume), Without<AssembledElsewhere>>,
 ) {
     let _timer = clock.time(Stage::Assembly);
     let GridFields {

@@ -93,6 +93,8 @@ pub fn check_convergence<const D: usize>(
 /// and after a failed solve, the bodies are checked for rigid motions the tangent does not
 /// resist ([`crate::solver::modes`]): a body that nothing holds is reported as such at once,
 /// whatever module holds the others, instead of as a singular tangent after every step cut.
+/// (Not in a distributed run: there the check would need all of K, which no process holds,
+/// `Newton::whole_tangent`.)
 #[allow(clippy::too_many_arguments)]
 pub fn solve_linear_system<const D: usize>(
     mut fields: ResMut<GridFields<D>>,
@@ -108,7 +110,11 @@ pub fn solve_linear_system<const D: usize>(
     let _timer = clock.time(Stage::LinearSolve);
     let newton = &mut *newton;
     let first_solve = step.number == 1 && step.previous_factor == 0.0 && newton.iterations == 0;
+    let whole_tangent = newton.whole_tangent;
     let not_held = |rotations: bool| {
+        if !whole_tangent {
+            return None;
+        }
         let names = names.as_ref().map_or(&[][..], |n| &n.0[..]);
         body_not_held(&points, &grid.0, &fields, &newton.matrix, names, rotations)
     };

@@ -23,11 +23,11 @@ use nalgebra::{Matrix3, SVector};
 
 use crate::basis::BasisScratch;
 use crate::components::{
-    BodyIndex, DeformationGradient, Displacement, GridNode, Mass, PointId, Position,
-    ReferencePosition, ReferenceVolume, Trial, Volume,
+    AssembledElsewhere, BodyIndex, DeformationGradient, Displacement, GridNode, Mass, PointId,
+    Position, ReferencePosition, ReferenceVolume, Trial, Volume,
 };
 use crate::mechanics::{embed, interpolate};
-use crate::output::{Field, PvdSeries, lattice_cells, vertex_cells, write_vtu};
+use crate::output::{Field, POINT_ID, PvdSeries, lattice_cells, vertex_cells, write_vtu};
 use crate::resources::{Grid, GridFields, LoadStep, RunStatus, SolverError, Stage, StageClock};
 
 /// The core's particle fields, in file order, with their meaning (`output(#{ fields: [..] })`
@@ -84,6 +84,30 @@ impl PointFields {
             values: field,
         });
     }
+}
+
+/// The particle file as one piece of a parallel data set: a distributed run, where each
+/// process writes the points it assembles ([`AssembledElsewhere`] points are left out) as
+/// `particles_NNNN_pK.vtu` into `dir` (the run's folder), with a `point_id` array; the module
+/// that inserts this resource lists the pieces in `particles_NNNN.pvtu` and the `.pvd`
+/// (`write_particles` then pushes nothing). A failed write is kept in `written` rather than
+/// failing the run here, so that the module can share it with the other processes first.
+#[derive(Resource, Debug)]
+pub struct ParticlePieces {
+    /// This piece's number (the process's rank).
+    pub piece: usize,
+    /// The folder of the pieces.
+    pub dir: PathBuf,
+    /// The piece of the last output step, or why it could not be written.
+    pub written: Option<Result<WrittenPiece, String>>,
+}
+
+/// A piece of the particle file, as written: its file name and its arrays `(name,
+/// components)`, in file order.
+#[derive(Clone, Debug, PartialEq)]
+pub struct WrittenPiece {
+    pub file: String,
+    pub arrays: Vec<(String, usize)>,
 }
 
 /// Run condition: the current step is an output step.
@@ -164,8 +188,9 @@ pub fn write_particles<const D: usize>(
     mut extra: ResMut<PointFields>,
     mut status: ResMut<RunStatus>,
     mut clock: ResMut<StageClock>,
+    mut pieces: Option<ResMut<ParticlePieces>>,
     points: Query<(
-        &PointId,
+        (&PointId, Has<AssembledElsewhere>),
         &Position<D>,
         &ReferencePosition<D>,
         &ReferenceVolume,
@@ -181,8 +206,13 @@ pub fn write_particles<const D: usize>(
         return;
     }
     let _timer = clock.time(Stage::Output);
-    let mut rows: Vec<_> = points.iter().collect();
-    rows.sort_by_key(|row| row.0.0);
+    let mut rows: Vec<_> = points
+        .iter()
+        .filter(|row| pieces.is_none() || !row.0.1)
+        .collect();
+    rows.sort_by_key(|row| row.0.0.0);
+    // the points written, for the extra fields (indexed by PointId over all points)
+    let ids: Vec<usize> = rows.iter().map(|row| row.0.0.0 as usize).collect();
     let n = rows.len();
     let mut positions = Vec::with_capacity(n);
     let mut reference = Vec::with_capacity(3 * n);
@@ -224,13 +254,48 @@ pub fn write_particles<const D: usize>(
             values,
         })
         .collect();
-    let extra = std::mem::take(&mut extra.0);
+    let mut extra = std::mem::take(&mut extra.0);
+    let all_points = points.iter().len();
+    if n < all_points {
+        for field in &mut extra {
+            let c = field.components;
+            let mut kept = Vec::with_capacity(c * n);
+            for &id in &ids {
+                match field.values.get(c * id..c * (id + 1)) {
+                    Some(values) => kept.extend_from_slice(values),
+                    None => kept.resize(kept.len() + c, 0.0),
+                }
+            }
+            field.values = kept;
+        }
+    }
     fields.extend(extra.iter().map(|field| Field {
         name: field.name,
         components: field.components,
         values: &field.values,
     }));
     fields.retain(|field| plan.writes_field(field.name));
+    if let Some(pieces) = pieces.as_deref_mut() {
+        let point_id: Vec<f64> = ids.iter().map(|&id| id as f64).collect();
+        fields.push(Field::scalar(POINT_ID, &point_id));
+        let name = format!("particles_{:04}_p{}.vtu", step.number, pieces.piece);
+        let arrays = fields
+            .iter()
+            .map(|f| (f.name.to_string(), f.components))
+            .collect();
+        let result = write_vtu(
+            &pieces.dir.join(&name),
+            &positions,
+            &vertex_cells(n),
+            &fields,
+            &[],
+        );
+        pieces.written = Some(match result {
+            Ok(()) => Ok(WrittenPiece { file: name, arrays }),
+            Err(e) => Err(format!("{name}: {e}")),
+        });
+        return;
+    }
     let name = format!("particles_{:04}.vtu", step.number);
     let result = write_vtu(
         &plan.dir.join(&name),

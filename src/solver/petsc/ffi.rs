@@ -45,6 +45,31 @@ pub type KSPConvergedReason = c_int;
 /// `KSPNormType`.
 pub type KSPNormType = c_int;
 pub const KSP_NORM_UNPRECONDITIONED: KSPNormType = 2;
+/// `PETSC_DECIDE`: let PETSc choose a size (`VecCreateMPI`'s local size).
+#[cfg(feature = "mpi")]
+pub const PETSC_DECIDE: PetscInt = -1;
+/// `InsertMode`.
+#[cfg(feature = "mpi")]
+pub type InsertMode = c_int;
+#[cfg(feature = "mpi")]
+pub const INSERT_VALUES: InsertMode = 1;
+#[cfg(feature = "mpi")]
+pub const ADD_VALUES: InsertMode = 2;
+/// `ScatterMode`.
+#[cfg(feature = "mpi")]
+pub type ScatterMode = c_int;
+#[cfg(feature = "mpi")]
+pub const SCATTER_FORWARD: ScatterMode = 0;
+/// `MatAssemblyType`.
+#[cfg(feature = "mpi")]
+pub type MatAssemblyType = c_int;
+#[cfg(feature = "mpi")]
+pub const MAT_FINAL_ASSEMBLY: MatAssemblyType = 0;
+/// `NormType`.
+#[cfg(feature = "mpi")]
+pub type NormType = c_int;
+#[cfg(feature = "mpi")]
+pub const NORM_2: NormType = 1;
 /// `PCSide`.
 pub type PCSide = c_int;
 pub const PC_RIGHT: PCSide = 1;
@@ -63,6 +88,9 @@ pub type Vec = *mut Opaque;
 pub type KSP = *mut Opaque;
 pub type PC = *mut Opaque;
 pub type MatNullSpace = *mut Opaque;
+/// `VecScatter` (a `PetscSF`).
+#[cfg(feature = "mpi")]
+pub type VecScatter = *mut Opaque;
 /// `PetscOptions`; null is the global options database.
 pub type PetscOptions = *mut Opaque;
 /// OpenMPI's `MPI_Comm` (`struct ompi_communicator_t *`).
@@ -84,6 +112,10 @@ pub type ErrorHandler = unsafe extern "C" fn(
 unsafe extern "C" {
     /// OpenMPI's predefined communicator behind `MPI_COMM_SELF`.
     static ompi_mpi_comm_self: Opaque;
+    /// OpenMPI's predefined communicator behind `MPI_COMM_WORLD` (`PETSC_COMM_WORLD` unless
+    /// set otherwise: all processes of the run).
+    #[cfg(feature = "mpi")]
+    static ompi_mpi_comm_world: Opaque;
 
     pub fn PetscInitializeNoArguments() -> PetscErrorCode;
     pub fn PetscOptionsSetValue(
@@ -151,6 +183,81 @@ unsafe extern "C" {
     pub fn VecRestoreArray(vector: Vec, values: *mut *mut PetscScalar) -> PetscErrorCode;
     pub fn VecDestroy(vector: *mut Vec) -> PetscErrorCode;
 
+    #[cfg(feature = "mpi")]
+    pub fn MatMPIAIJSetPreallocationCSR(
+        matrix: Mat,
+        row_start: *const PetscInt,
+        columns: *const PetscInt,
+        values: *const PetscScalar,
+    ) -> PetscErrorCode;
+    #[cfg(feature = "mpi")]
+    pub fn MatZeroEntries(matrix: Mat) -> PetscErrorCode;
+    #[cfg(feature = "mpi")]
+    pub fn MatSetValues(
+        matrix: Mat,
+        row_count: PetscInt,
+        rows: *const PetscInt,
+        column_count: PetscInt,
+        columns: *const PetscInt,
+        values: *const PetscScalar,
+        mode: InsertMode,
+    ) -> PetscErrorCode;
+    #[cfg(feature = "mpi")]
+    pub fn MatAssemblyBegin(matrix: Mat, kind: MatAssemblyType) -> PetscErrorCode;
+    #[cfg(feature = "mpi")]
+    pub fn MatAssemblyEnd(matrix: Mat, kind: MatAssemblyType) -> PetscErrorCode;
+    #[cfg(feature = "mpi")]
+    pub fn MatMult(matrix: Mat, x: Vec, y: Vec) -> PetscErrorCode;
+    #[cfg(feature = "mpi")]
+    pub fn VecCreateMPI(
+        comm: MPI_Comm,
+        local: PetscInt,
+        global: PetscInt,
+        vector: *mut Vec,
+    ) -> PetscErrorCode;
+    #[cfg(feature = "mpi")]
+    pub fn VecSet(vector: Vec, value: PetscScalar) -> PetscErrorCode;
+    #[cfg(feature = "mpi")]
+    pub fn VecSetValues(
+        vector: Vec,
+        count: PetscInt,
+        indices: *const PetscInt,
+        values: *const PetscScalar,
+        mode: InsertMode,
+    ) -> PetscErrorCode;
+    #[cfg(feature = "mpi")]
+    pub fn VecAssemblyBegin(vector: Vec) -> PetscErrorCode;
+    #[cfg(feature = "mpi")]
+    pub fn VecAssemblyEnd(vector: Vec) -> PetscErrorCode;
+    #[cfg(feature = "mpi")]
+    pub fn VecAYPX(y: Vec, alpha: PetscScalar, x: Vec) -> PetscErrorCode;
+    #[cfg(feature = "mpi")]
+    pub fn VecNorm(vector: Vec, kind: NormType, norm: *mut PetscReal) -> PetscErrorCode;
+    #[cfg(feature = "mpi")]
+    pub fn VecScatterCreateToAll(
+        vector: Vec,
+        scatter: *mut VecScatter,
+        gathered: *mut Vec,
+    ) -> PetscErrorCode;
+    #[cfg(feature = "mpi")]
+    pub fn VecScatterBegin(
+        scatter: VecScatter,
+        from: Vec,
+        to: Vec,
+        mode: InsertMode,
+        direction: ScatterMode,
+    ) -> PetscErrorCode;
+    #[cfg(feature = "mpi")]
+    pub fn VecScatterEnd(
+        scatter: VecScatter,
+        from: Vec,
+        to: Vec,
+        mode: InsertMode,
+        direction: ScatterMode,
+    ) -> PetscErrorCode;
+    #[cfg(feature = "mpi")]
+    pub fn VecScatterDestroy(scatter: *mut VecScatter) -> PetscErrorCode;
+
     pub fn KSPCreate(comm: MPI_Comm, ksp: *mut KSP) -> PetscErrorCode;
     pub fn KSPSetOperators(ksp: KSP, matrix: Mat, preconditioning: Mat) -> PetscErrorCode;
     pub fn KSPSetType(ksp: KSP, kind: *const c_char) -> PetscErrorCode;
@@ -186,4 +293,10 @@ unsafe extern "C" {
 /// `PETSC_COMM_SELF` (`MPI_COMM_SELF` under OpenMPI: the address of `ompi_mpi_comm_self`).
 pub fn comm_self() -> MPI_Comm {
     (&raw const ompi_mpi_comm_self).cast_mut()
+}
+
+/// `MPI_COMM_WORLD` under OpenMPI: every process of the run.
+#[cfg(feature = "mpi")]
+pub fn comm_world() -> MPI_Comm {
+    (&raw const ompi_mpi_comm_world).cast_mut()
 }

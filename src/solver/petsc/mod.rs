@@ -46,10 +46,16 @@
 //! **One process, one thread at a time.** PETSc is initialised once per process
 //! (`PetscInitializeNoArguments`, with `-no_signal_handler` so that impm's own SIGINT/SIGTERM
 //! handling stays) and is not thread-safe: every call runs under one process-wide lock. The
-//! objects live on `PETSC_COMM_SELF`: this is the serial backend (each MPI rank, if any, solves
-//! its own system).
+//! objects live on `PETSC_COMM_SELF`: this is the serial backend. With the cargo feature
+//! `mpi`, `PetscSolver::distributed` puts them on every process of a distributed run
+//! (`distributed.rs`: an `MPIAIJ` matrix summed from the processes' shares).
 
+#[cfg(feature = "mpi")]
+mod distributed;
 mod ffi;
+
+#[cfg(feature = "mpi")]
+pub use distributed::ProcessSum;
 
 use std::ffi::{CStr, CString, c_char, c_int, c_void};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -228,6 +234,10 @@ pub struct PetscSolver {
     objects: Option<Objects>,
     /// Whether PETSc's use of this solver's options was checked (after its first solve).
     options_checked: bool,
+    /// The objects over every process of a distributed run, for a solver made by
+    /// [`PetscSolver::distributed`].
+    #[cfg(feature = "mpi")]
+    distributed: Option<Option<distributed::DistributedObjects>>,
 }
 
 impl PetscSolver {
@@ -241,6 +251,8 @@ impl PetscSolver {
             last_iterations: 0,
             objects: None,
             options_checked: false,
+            #[cfg(feature = "mpi")]
+            distributed: None,
         }
     }
 
@@ -287,6 +299,11 @@ impl PetscSolver {
 impl Drop for PetscSolver {
     fn drop(&mut self) {
         if let Some(objects) = self.objects.take() {
+            let _session = PETSC.lock().unwrap_or_else(|e| e.into_inner());
+            objects.destroy();
+        }
+        #[cfg(feature = "mpi")]
+        if let Some(Some(objects)) = self.distributed.take() {
             let _session = PETSC.lock().unwrap_or_else(|e| e.into_inner());
             objects.destroy();
         }
@@ -419,6 +436,252 @@ impl Padding {
     }
 }
 
+/// The communicator of a backend's objects: one process (`PETSC_COMM_SELF`, sequential
+/// objects) or every process of a distributed run (`MPI_COMM_WORLD`, MPI objects).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Comm {
+    Serial,
+    #[cfg(feature = "mpi")]
+    World,
+}
+
+impl Comm {
+    fn raw(self) -> ffi::MPI_Comm {
+        match self {
+            Comm::Serial => ffi::comm_self(),
+            #[cfg(feature = "mpi")]
+            Comm::World => ffi::comm_world(),
+        }
+    }
+}
+
+/// Configures a created KSP over `matrix`: CG (symmetric) or GMRES with GAMG, the default
+/// tolerances, then the options under `prefix`, and the true-residual norm
+/// ([`measure_the_true_residual`]). Returns the method ("cg+gamg") and the relative tolerance
+/// the options left.
+///
+/// # Safety
+/// The session is held; `ksp` and `matrix` are created objects.
+unsafe fn configure_ksp(
+    ksp: ffi::KSP,
+    matrix: ffi::Mat,
+    symmetric: bool,
+    prefix: &CStr,
+) -> Result<(String, f64), LinearSolveError> {
+    // SAFETY: as the caller promises; every out-pointer is valid.
+    unsafe {
+        check(ffi::KSPSetOperators(ksp, matrix, matrix), "KSPSetOperators")?;
+        let kind = if symmetric {
+            c"cg".as_ptr()
+        } else {
+            c"gmres".as_ptr()
+        };
+        check(ffi::KSPSetType(ksp, kind), "KSPSetType")?;
+        let mut pc = std::ptr::null_mut();
+        check(ffi::KSPGetPC(ksp, &mut pc), "KSPGetPC")?;
+        check(ffi::PCSetType(pc, c"gamg".as_ptr()), "PCSetType")?;
+        check(
+            ffi::KSPSetTolerances(
+                ksp,
+                DEFAULT_TOLERANCE,
+                f64::from(ffi::PETSC_DEFAULT),
+                f64::from(ffi::PETSC_DEFAULT),
+                DEFAULT_MAX_ITERATIONS as PetscInt,
+            ),
+            "KSPSetTolerances",
+        )?;
+        check(
+            ffi::KSPSetOptionsPrefix(ksp, prefix.as_ptr()),
+            "KSPSetOptionsPrefix",
+        )?;
+        check(ffi::KSPSetFromOptions(ksp), "KSPSetFromOptions")?;
+        measure_the_true_residual(ksp, prefix)?;
+        let (mut ksp_type, mut pc_type) = (std::ptr::null(), std::ptr::null());
+        check(ffi::KSPGetType(ksp, &mut ksp_type), "KSPGetType")?;
+        check(ffi::KSPGetPC(ksp, &mut pc), "KSPGetPC")?;
+        check(ffi::PCGetType(pc, &mut pc_type), "PCGetType")?;
+        let name = |p: *const c_char| {
+            if p.is_null() {
+                "?".to_string()
+            } else {
+                CStr::from_ptr(p).to_string_lossy().into_owned()
+            }
+        };
+        let method = format!("{}+{}", name(ksp_type), name(pc_type));
+        let (mut relative, mut absolute, mut divergence, mut iterations) = (0.0, 0.0, 0.0, 0);
+        check(
+            ffi::KSPGetTolerances(
+                ksp,
+                &mut relative,
+                &mut absolute,
+                &mut divergence,
+                &mut iterations,
+            ),
+            "KSPGetTolerances",
+        )?;
+        Ok((method, relative))
+    }
+}
+
+/// The rigid-body modes of the nodes at `coordinates` (`block` per node; this process's
+/// nodes of a distributed matrix) as `matrix`'s near-null space.
+///
+/// # Safety
+/// The session is held and `matrix` is a created matrix on `comm`.
+unsafe fn set_rigid_body_modes(
+    matrix: ffi::Mat,
+    block: usize,
+    coordinates: &[f64],
+    comm: Comm,
+) -> Result<(), LinearSolveError> {
+    let mut vector = std::ptr::null_mut();
+    let mut space = std::ptr::null_mut();
+    let length = coordinates.len() as PetscInt;
+    // SAFETY: as the caller promises; the array is written within its length.
+    let result = unsafe {
+        (|| {
+            match comm {
+                Comm::Serial => check(
+                    ffi::VecCreateSeq(comm.raw(), length, &mut vector),
+                    "VecCreateSeq",
+                )?,
+                #[cfg(feature = "mpi")]
+                Comm::World => check(
+                    ffi::VecCreateMPI(comm.raw(), length, ffi::PETSC_DECIDE, &mut vector),
+                    "VecCreateMPI",
+                )?,
+            }
+            check(
+                ffi::VecSetBlockSize(vector, block as PetscInt),
+                "VecSetBlockSize",
+            )?;
+            let mut array = std::ptr::null_mut();
+            check(ffi::VecGetArray(vector, &mut array), "VecGetArray")?;
+            std::slice::from_raw_parts_mut(array, coordinates.len()).copy_from_slice(coordinates);
+            check(ffi::VecRestoreArray(vector, &mut array), "VecRestoreArray")?;
+            check(
+                ffi::MatNullSpaceCreateRigidBody(vector, &mut space),
+                "MatNullSpaceCreateRigidBody",
+            )?;
+            check(
+                ffi::MatSetNearNullSpace(matrix, space),
+                "MatSetNearNullSpace",
+            )
+        })()
+    };
+    // SAFETY: destroying what was created (null handles are ignored by PETSc); the matrix
+    // keeps its own reference to the null space.
+    unsafe {
+        ffi::MatNullSpaceDestroy(&mut space);
+        ffi::VecDestroy(&mut vector);
+    }
+    result
+}
+
+/// Makes CG, GMRES and BiCGSTAB stop on the unpreconditioned residual `‖r − K δ‖`, as the
+/// built-in solvers do (GMRES and BiCGSTAB then precondition from the right), unless the
+/// options chose the norm or the side themselves; other methods keep PETSc's defaults.
+///
+/// # Safety
+/// The session is held and `ksp` is a created KSP.
+unsafe fn measure_the_true_residual(ksp: ffi::KSP, prefix: &CStr) -> Result<(), LinearSolveError> {
+    let null = std::ptr::null_mut();
+    let given = |name: &CStr| -> Result<bool, LinearSolveError> {
+        let mut set = ffi::PETSC_FALSE;
+        // SAFETY: valid strings and out-pointer.
+        check(
+            unsafe { ffi::PetscOptionsHasName(null, prefix.as_ptr(), name.as_ptr(), &mut set) },
+            "PetscOptionsHasName",
+        )?;
+        Ok(set == ffi::PETSC_TRUE)
+    };
+    if given(c"-ksp_norm_type")? {
+        return Ok(());
+    }
+    let mut kind = std::ptr::null();
+    // SAFETY: as the caller promises.
+    check(unsafe { ffi::KSPGetType(ksp, &mut kind) }, "KSPGetType")?;
+    let kind = if kind.is_null() {
+        String::new()
+    } else {
+        // SAFETY: PETSc's NUL-terminated type name.
+        unsafe { CStr::from_ptr(kind) }
+            .to_string_lossy()
+            .into_owned()
+    };
+    let right = match kind.as_str() {
+        "cg" => false,
+        "gmres" | "fgmres" | "bcgs" if !given(c"-ksp_pc_side")? => true,
+        _ => return Ok(()),
+    };
+    // SAFETY: as the caller promises.
+    unsafe {
+        if right {
+            check(ffi::KSPSetPCSide(ksp, ffi::PC_RIGHT), "KSPSetPCSide")?;
+        }
+        check(
+            ffi::KSPSetNormType(ksp, ffi::KSP_NORM_UNPRECONDITIONED),
+            "KSPSetNormType",
+        )
+    }
+}
+
+/// Solves with a configured KSP to the relative tolerance `tolerance`; PETSc's iteration
+/// count, or why the solve failed (PETSc's reason; `method` names the KSP and PC).
+///
+/// # Safety
+/// The session is held; the objects are created and fit each other.
+unsafe fn solve_with_ksp(
+    ksp: ffi::KSP,
+    rhs: ffi::Vec,
+    solution: ffi::Vec,
+    tolerance: f64,
+    method: &str,
+) -> Result<usize, LinearSolveError> {
+    // SAFETY: as the caller promises; every out-pointer is valid.
+    unsafe {
+        check(
+            ffi::KSPSetTolerances(
+                ksp,
+                tolerance,
+                f64::from(ffi::PETSC_DEFAULT),
+                f64::from(ffi::PETSC_DEFAULT),
+                ffi::PETSC_DEFAULT as PetscInt,
+            ),
+            "KSPSetTolerances",
+        )?;
+        check(ffi::KSPSolve(ksp, rhs, solution), "KSPSolve")?;
+        let (mut reason, mut iterations) = (0, 0);
+        check(
+            ffi::KSPGetConvergedReason(ksp, &mut reason),
+            "KSPGetConvergedReason",
+        )?;
+        check(
+            ffi::KSPGetIterationNumber(ksp, &mut iterations),
+            "KSPGetIterationNumber",
+        )?;
+        if reason < 0 {
+            let mut text = std::ptr::null();
+            check(
+                ffi::KSPGetConvergedReasonString(ksp, &mut text),
+                "KSPGetConvergedReasonString",
+            )?;
+            let text = if text.is_null() {
+                format!("reason {reason}")
+            } else {
+                CStr::from_ptr(text).to_string_lossy().into_owned()
+            };
+            return Err(LinearSolveError::NotConverged(format!(
+                "PETSc's {} solve did not converge: {text} (KSPConvergedReason {reason}) \
+                     after {iterations} iterations, relative tolerance {tolerance:.0e}; change \
+                     petsc_options or use solver(#{{ linear: \"direct\" }})",
+                method
+            )));
+        }
+        Ok(iterations.max(0) as usize)
+    }
+}
+
 /// The PETSc objects of one pattern.
 struct Objects {
     generation: u64,
@@ -470,7 +733,7 @@ impl Objects {
     fn create(&mut self, matrix: &SparseMatrix, prefix: &CStr) -> Result<f64, LinearSolveError> {
         let padding = &self.padding;
         let size = padding.size as PetscInt;
-        let comm = ffi::comm_self();
+        let comm = Comm::Serial.raw();
         let mut values = vec![0.0; padding.source.len()];
         padding.fill(matrix.values(), &mut values);
         // SAFETY: PETSc is initialised and the session held; every pointer passed is valid for
@@ -499,7 +762,7 @@ impl Objects {
                 "MatSeqAIJSetPreallocationCSR",
             )?;
             if let Some(coordinates) = &padding.coordinates {
-                self.set_rigid_body_modes(coordinates)?;
+                set_rigid_body_modes(self.matrix, padding.block, coordinates, Comm::Serial)?;
             }
             check(ffi::VecCreateSeq(comm, size, &mut self.rhs), "VecCreateSeq")?;
             check(
@@ -507,153 +770,9 @@ impl Objects {
                 "VecCreateSeq",
             )?;
             check(ffi::KSPCreate(comm, &mut self.ksp), "KSPCreate")?;
-            check(
-                ffi::KSPSetOperators(self.ksp, self.matrix, self.matrix),
-                "KSPSetOperators",
-            )?;
-            let kind = if self.symmetric {
-                c"cg".as_ptr()
-            } else {
-                c"gmres".as_ptr()
-            };
-            check(ffi::KSPSetType(self.ksp, kind), "KSPSetType")?;
-            let mut pc = std::ptr::null_mut();
-            check(ffi::KSPGetPC(self.ksp, &mut pc), "KSPGetPC")?;
-            check(ffi::PCSetType(pc, c"gamg".as_ptr()), "PCSetType")?;
-            check(
-                ffi::KSPSetTolerances(
-                    self.ksp,
-                    DEFAULT_TOLERANCE,
-                    f64::from(ffi::PETSC_DEFAULT),
-                    f64::from(ffi::PETSC_DEFAULT),
-                    DEFAULT_MAX_ITERATIONS as PetscInt,
-                ),
-                "KSPSetTolerances",
-            )?;
-            check(
-                ffi::KSPSetOptionsPrefix(self.ksp, prefix.as_ptr()),
-                "KSPSetOptionsPrefix",
-            )?;
-            check(ffi::KSPSetFromOptions(self.ksp), "KSPSetFromOptions")?;
-            self.measure_the_true_residual(prefix)?;
-            let (mut ksp_type, mut pc_type) = (std::ptr::null(), std::ptr::null());
-            check(ffi::KSPGetType(self.ksp, &mut ksp_type), "KSPGetType")?;
-            check(ffi::KSPGetPC(self.ksp, &mut pc), "KSPGetPC")?;
-            check(ffi::PCGetType(pc, &mut pc_type), "PCGetType")?;
-            let name = |p: *const c_char| {
-                if p.is_null() {
-                    "?".to_string()
-                } else {
-                    CStr::from_ptr(p).to_string_lossy().into_owned()
-                }
-            };
-            self.method = format!("{}+{}", name(ksp_type), name(pc_type));
-            let (mut relative, mut absolute, mut divergence, mut iterations) = (0.0, 0.0, 0.0, 0);
-            check(
-                ffi::KSPGetTolerances(
-                    self.ksp,
-                    &mut relative,
-                    &mut absolute,
-                    &mut divergence,
-                    &mut iterations,
-                ),
-                "KSPGetTolerances",
-            )?;
+            let (method, relative) = configure_ksp(self.ksp, self.matrix, self.symmetric, prefix)?;
+            self.method = method;
             Ok(relative)
-        }
-    }
-
-    /// The rigid-body modes of the nodes at `coordinates` as the matrix's near-null space.
-    ///
-    /// # Safety
-    /// The session is held and `self.matrix` is a created matrix.
-    unsafe fn set_rigid_body_modes(&self, coordinates: &[f64]) -> Result<(), LinearSolveError> {
-        let comm = ffi::comm_self();
-        let mut vector = std::ptr::null_mut();
-        let mut space = std::ptr::null_mut();
-        // SAFETY: as the caller promises; the array is written within its length.
-        let result = unsafe {
-            (|| {
-                check(
-                    ffi::VecCreateSeq(comm, coordinates.len() as PetscInt, &mut vector),
-                    "VecCreateSeq",
-                )?;
-                check(
-                    ffi::VecSetBlockSize(vector, self.padding.block as PetscInt),
-                    "VecSetBlockSize",
-                )?;
-                let mut array = std::ptr::null_mut();
-                check(ffi::VecGetArray(vector, &mut array), "VecGetArray")?;
-                std::slice::from_raw_parts_mut(array, coordinates.len())
-                    .copy_from_slice(coordinates);
-                check(ffi::VecRestoreArray(vector, &mut array), "VecRestoreArray")?;
-                check(
-                    ffi::MatNullSpaceCreateRigidBody(vector, &mut space),
-                    "MatNullSpaceCreateRigidBody",
-                )?;
-                check(
-                    ffi::MatSetNearNullSpace(self.matrix, space),
-                    "MatSetNearNullSpace",
-                )
-            })()
-        };
-        // SAFETY: destroying what was created (null handles are ignored by PETSc); the matrix
-        // keeps its own reference to the null space.
-        unsafe {
-            ffi::MatNullSpaceDestroy(&mut space);
-            ffi::VecDestroy(&mut vector);
-        }
-        result
-    }
-
-    /// Makes CG, GMRES and BiCGSTAB stop on the unpreconditioned residual `‖r − K δ‖`, as the
-    /// built-in solvers do (GMRES and BiCGSTAB then precondition from the right), unless the
-    /// options chose the norm or the side themselves; other methods keep PETSc's defaults.
-    ///
-    /// # Safety
-    /// The session is held and `self.ksp` is a created KSP.
-    unsafe fn measure_the_true_residual(&self, prefix: &CStr) -> Result<(), LinearSolveError> {
-        let null = std::ptr::null_mut();
-        let given = |name: &CStr| -> Result<bool, LinearSolveError> {
-            let mut set = ffi::PETSC_FALSE;
-            // SAFETY: valid strings and out-pointer.
-            check(
-                unsafe { ffi::PetscOptionsHasName(null, prefix.as_ptr(), name.as_ptr(), &mut set) },
-                "PetscOptionsHasName",
-            )?;
-            Ok(set == ffi::PETSC_TRUE)
-        };
-        if given(c"-ksp_norm_type")? {
-            return Ok(());
-        }
-        let mut kind = std::ptr::null();
-        // SAFETY: as the caller promises.
-        check(
-            unsafe { ffi::KSPGetType(self.ksp, &mut kind) },
-            "KSPGetType",
-        )?;
-        let kind = if kind.is_null() {
-            String::new()
-        } else {
-            // SAFETY: PETSc's NUL-terminated type name.
-            unsafe { CStr::from_ptr(kind) }
-                .to_string_lossy()
-                .into_owned()
-        };
-        let right = match kind.as_str() {
-            "cg" => false,
-            "gmres" | "fgmres" | "bcgs" if !given(c"-ksp_pc_side")? => true,
-            _ => return Ok(()),
-        };
-        // SAFETY: as the caller promises.
-        unsafe {
-            if right {
-                check(ffi::KSPSetPCSide(self.ksp, ffi::PC_RIGHT), "KSPSetPCSide")?;
-            }
-            check(
-                ffi::KSPSetNormType(self.ksp, ffi::KSP_NORM_UNPRECONDITIONED),
-                "KSPSetNormType",
-            )
         }
     }
 
@@ -703,44 +822,8 @@ impl Objects {
                 ffi::VecRestoreArray(self.rhs, &mut array),
                 "VecRestoreArray",
             )?;
-            check(
-                ffi::KSPSetTolerances(
-                    self.ksp,
-                    tolerance,
-                    f64::from(ffi::PETSC_DEFAULT),
-                    f64::from(ffi::PETSC_DEFAULT),
-                    ffi::PETSC_DEFAULT as PetscInt,
-                ),
-                "KSPSetTolerances",
-            )?;
-            check(ffi::KSPSolve(self.ksp, self.rhs, self.solution), "KSPSolve")?;
-            let (mut reason, mut iterations) = (0, 0);
-            check(
-                ffi::KSPGetConvergedReason(self.ksp, &mut reason),
-                "KSPGetConvergedReason",
-            )?;
-            check(
-                ffi::KSPGetIterationNumber(self.ksp, &mut iterations),
-                "KSPGetIterationNumber",
-            )?;
-            if reason < 0 {
-                let mut text = std::ptr::null();
-                check(
-                    ffi::KSPGetConvergedReasonString(self.ksp, &mut text),
-                    "KSPGetConvergedReasonString",
-                )?;
-                let text = if text.is_null() {
-                    format!("reason {reason}")
-                } else {
-                    CStr::from_ptr(text).to_string_lossy().into_owned()
-                };
-                return Err(LinearSolveError::NotConverged(format!(
-                    "PETSc's {} solve did not converge: {text} (KSPConvergedReason {reason}) \
-                     after {iterations} iterations, relative tolerance {tolerance:.0e}; change \
-                     petsc_options or use solver(#{{ linear: \"direct\" }})",
-                    self.method
-                )));
-            }
+            let iterations =
+                solve_with_ksp(self.ksp, self.rhs, self.solution, tolerance, &self.method)?;
             check(ffi::VecGetArray(self.solution, &mut array), "VecGetArray")?;
             let padded = std::slice::from_raw_parts(array, padding.size);
             for (&p, r) in padding.of_dof.iter().zip(rhs.iter_mut()) {
@@ -750,7 +833,7 @@ impl Objects {
                 ffi::VecRestoreArray(self.solution, &mut array),
                 "VecRestoreArray",
             )?;
-            Ok(iterations.max(0) as usize)
+            Ok(iterations)
         }
     }
 }
@@ -766,6 +849,10 @@ impl LinearSolver for PetscSolver {
             return Err(LinearSolveError::Backend(format!(
                 "the right-hand side is not finite at DOF {bad}"
             )));
+        }
+        #[cfg(feature = "mpi")]
+        if self.distributed.is_some() {
+            return self.solve_distributed(matrix, symmetric, rhs);
         }
         let _session = session()?;
         let stale = self

@@ -1,0 +1,312 @@
+//! Distributed runs (cargo feature `mpi`): `mpirun -n N impm run SCENE`, the scene unchanged.
+//!
+//! The first, replicated step of issue 14 (`docs/distributed.md`, `crate::distributed`):
+//!
+//! * **State: replicated.** Every process holds every point and the whole grid and runs every
+//!   stage on all of them (basis, loads, stress update, the point update, output), with the
+//!   same numbers; memory per process is that of a serial run.
+//! * **Assembly: split in slabs.** At the start of a load step ([`mark_assembly_share`],
+//!   `Hook::Connectivity`) the cells are cut into one slab per process along the axis with
+//!   the most cells, balanced by points (`distributed::partition`); a process marks the points
+//!   of the other slabs [`AssembledElsewhere`], and the core assembly leaves them out. So each
+//!   process sums `f_int` and `K` over its own points only.
+//! * **Sums and solve: PETSc.** [`combine_assembly`] (`Hook::Combine`) adds the processes'
+//!   internal forces through a PETSc vector (`solver::ProcessSum`): every process then forms
+//!   the same out-of-balance force, so convergence and step cutting are decided alike
+//!   everywhere, from the global residual. The tangent's shares go into one PETSc `MPIAIJ`
+//!   matrix inside the linear solver (`PetscSolver::distributed`, which replaces the scene's
+//!   `linear` choice: the scene's `petsc_options` are kept when it chose `"petsc"`); the
+//!   correction is gathered to every process.
+//! * **Particle file in pieces** (more than one process): each process writes the points it
+//!   assembled in the step as `particles_NNNN_pK.vtu` (with a `point_id` array) into process
+//!   0's folder (`stages::output::ParticlePieces`); [`list_particle_pieces`] (`Hook::Output`)
+//!   waits until every piece is written (a collective call that also shares a failed write)
+//!   and process 0 lists them in `particles_NNNN.pvtu`, which `particles.pvd` lists. ParaView
+//!   reads it as one data set; `impm merge OUT_DIR` writes `particles_NNNN.vtu` from the
+//!   pieces (in `point_id` order, the serial file) for tools that do not read `.pvtu`. The grid
+//!   and node files are process 0's (the grid is replicated).
+//! * **Failures are collective.** `Hook::Combine` runs after a failed stage too: if a stage
+//!   failed on any process, every process fails the iteration (then cuts the step alike).
+//!
+//! Not supported with more than one process (refused when the simulation is built): modules
+//! that add to `f_int` and `K` after the assembly (`Hook::AfterAssembly`: ghost penalty,
+//! F-bar, material-surface conditions), which every process would add in full. The check for
+//! a body that nothing holds needs all of `K` and is skipped over several processes
+//! (`Newton::whole_tangent`): such a body shows as a failed linear solve.
+
+use std::collections::HashMap;
+
+use bevy_ecs::prelude::*;
+use nalgebra::SVector;
+
+use crate::components::{AssembledElsewhere, Position};
+use crate::distributed::partition::{slab_axis, slab_owners};
+use crate::distributed::{Processes, any, path_of_process_0, processes};
+use crate::output::write_pvtu;
+use crate::plugin::{Extension, Hook, Plugin};
+use crate::resources::{
+    Grid, GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock, Warnings,
+};
+use crate::scene::{LinearBackend, SceneSpec};
+use crate::solver::{PetscSolver, ProcessSum};
+use crate::stages::output::{OutputPlan, ParticlePieces, WrittenPiece};
+
+/// The module: built when the process is one of a distributed run (`mpirun`).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct DistributedModule;
+
+/// This process's part of a distributed run.
+#[derive(Resource)]
+pub struct AssemblyShare {
+    pub processes: Processes,
+    /// The axis the slabs cut.
+    pub axis: usize,
+    /// Points this process assembles in the current load step.
+    pub points: usize,
+    /// Points whose process changed at the start of the current load step (they moved into
+    /// another slab, or the slabs were recut).
+    pub moved: usize,
+    /// The process of every point in the current load step.
+    owners: HashMap<Entity, usize>,
+    /// The sum of the internal force over the processes.
+    sum: ProcessSum,
+    /// `f_int` flattened, for the sum.
+    buffer: Vec<f64>,
+}
+
+impl Plugin for DistributedModule {
+    fn name(&self) -> &'static str {
+        "distributed"
+    }
+
+    fn used_by(&self, _spec: &SceneSpec) -> bool {
+        processes().is_some()
+    }
+
+    fn applies_to(&self, _spec: &SceneSpec) -> bool {
+        processes().is_some()
+    }
+
+    fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
+        let Some(processes) = processes() else {
+            return;
+        };
+        if processes.size > 1 && simulation.systems_at(Hook::AfterAssembly) > 0 {
+            simulation.fail(format!(
+                "the scene uses a module that adds to the internal force and tangent after the \
+                 assembly (ghost penalty, F-bar or material-surface conditions): a distributed \
+                 run over {} processes would add it once per process, which is not supported \
+                 yet; run it with mpirun -n 1 or without mpirun",
+                processes.size
+            ));
+            return;
+        }
+        let spec = simulation.spec();
+        let options = match spec.solver.linear {
+            LinearBackend::Petsc => spec.solver.petsc_options.clone(),
+            _ => String::new(),
+        };
+        let cells = simulation.world().resource::<Grid<D>>().0.cells_per_axis();
+        let axis = slab_axis(&cells);
+        let world = simulation.world();
+        {
+            let mut newton = world.resource_mut::<Newton>();
+            newton.solver = Box::new(PetscSolver::distributed(&options));
+            // one process assembles every point: its share is all of K
+            newton.whole_tangent = processes.size == 1;
+        }
+        let files = if processes.size > 1 {
+            "each process writes the points it assembles as particles_NNNN_pK.vtu, \
+             particles_NNNN.pvtu lists them (ParaView; `impm merge OUT_DIR` writes one .vtu per \
+             step for other tools), process 0 writes the other files"
+        } else {
+            "process 0 writes the files"
+        };
+        world.resource_mut::<Warnings>().0.push(format!(
+            "distributed run over {} MPI processes: every process holds the whole state (all \
+             points and the grid: replicated, not decomposed); only the assembly (slabs of \
+             cells along axis {axis}, balanced by points) and the linear solve (PETSc MPIAIJ, \
+             CG or GMRES with GAMG unless petsc_options say otherwise) are split; {files}",
+            processes.size
+        ));
+        if processes.size > 1 {
+            // the pieces go into process 0's folder (the others run in scratch folders)
+            let dir = world.resource::<OutputPlan>().dir.clone();
+            let dir = std::fs::canonicalize(&dir).unwrap_or(dir);
+            world.insert_resource(ParticlePieces {
+                piece: processes.rank,
+                dir: path_of_process_0(&dir),
+                written: None,
+            });
+        }
+        world.insert_resource(AssemblyShare {
+            processes,
+            axis,
+            points: 0,
+            moved: 0,
+            owners: HashMap::new(),
+            sum: ProcessSum::default(),
+            buffer: Vec::new(),
+        });
+        // the shares of the initial state, for its output (step 0 runs no connectivity)
+        mark_assembly_share::<D>(world);
+        let share = |world: &mut World| {
+            world
+                .get_resource::<AssemblyShare>()
+                .map(|s| (s.points, s.moved))
+        };
+        if processes.size > 1 {
+            simulation.add_systems(Hook::Output, list_particle_pieces);
+        }
+        simulation
+            .add_systems(Hook::Connectivity, mark_assembly_share::<D>)
+            .add_systems(Hook::Combine, combine_assembly::<D>)
+            .add_measure("assembled_points", move |world, _| {
+                share(world).map(|(points, _)| points as f64)
+            })
+            .add_measure("points_changing_process", move |world, _| {
+                share(world).map(|(_, moved)| moved as f64)
+            });
+    }
+}
+
+/// Marks the points of the other processes' slabs [`AssembledElsewhere`] (and unmarks this
+/// process's), from the points' positions at the start of the load step; counts the points
+/// whose process changed since the last step (the measure `points_changing_process` of
+/// summary.json; `assembled_points` is process 0's count).
+pub fn mark_assembly_share<const D: usize>(world: &mut World) {
+    let (rank, size, axis) = {
+        let share = world.resource::<AssemblyShare>();
+        (share.processes.rank, share.processes.size, share.axis)
+    };
+    let slices = world.resource::<Grid<D>>().0.cells_per_axis()[axis];
+    let mut query = world.query::<(Entity, &Position<D>)>();
+    let grid = &world.resource::<Grid<D>>().0;
+    // a point outside the grid failed the basis stage already (this hook does not run then)
+    let points: Vec<(Entity, usize)> = query
+        .iter(world)
+        .map(|(entity, x)| {
+            let slice = grid.cell_of(&x.0).map_or(0, |cell| cell[axis]);
+            (entity, slice.min(slices.saturating_sub(1)))
+        })
+        .collect();
+    let mut per_slice = vec![0usize; slices];
+    for &(_, slice) in &points {
+        per_slice[slice] += 1;
+    }
+    let owners = slab_owners(&per_slice, size);
+    let mut mine = 0;
+    let mut moved = 0;
+    let mut share = world.resource_mut::<AssemblyShare>();
+    let first_step = share.owners.is_empty();
+    for &(entity, slice) in &points {
+        let before = share.owners.insert(entity, owners[slice]);
+        if !first_step && before != Some(owners[slice]) {
+            moved += 1;
+        }
+    }
+    share.moved = moved;
+    for (entity, slice) in points {
+        let mut point = world.entity_mut(entity);
+        if owners[slice] == rank {
+            mine += 1;
+            point.remove::<AssembledElsewhere>();
+        } else {
+            point.insert(AssembledElsewhere);
+        }
+    }
+    world.resource_mut::<AssemblyShare>().points = mine;
+}
+
+/// Adds the processes' internal forces (each summed over its own points), so that every
+/// process holds the global `f_int`; first, whether a stage failed on any process (then every
+/// process fails the iteration). Runs after a failure too (`Hook::Combine`).
+pub fn combine_assembly<const D: usize>(
+    mut fields: ResMut<GridFields<D>>,
+    mut share: ResMut<AssemblyShare>,
+    mut status: ResMut<RunStatus>,
+    mut clock: ResMut<StageClock>,
+    step: Res<LoadStep>,
+) {
+    let _timer = clock.time(Stage::Assembly);
+    let failed_here = status.0.is_some();
+    if any(failed_here) {
+        if !failed_here {
+            status.fail(SolverError::Module {
+                step: step.number,
+                what: "a stage failed on another process of the distributed run (process 0 \
+                       reports its own failures)"
+                    .to_string(),
+                recoverable: true,
+            });
+        }
+        return;
+    }
+    let share = &mut *share;
+    share.buffer.clear();
+    share
+        .buffer
+        .extend(fields.internal_force.iter().flat_map(|f| f.iter().copied()));
+    if let Err(why) = share.sum.sum(&mut share.buffer) {
+        status.fail(SolverError::Module {
+            step: step.number,
+            what: format!("summing the internal force over the processes: {why}"),
+            recoverable: false,
+        });
+        return;
+    }
+    for (force, values) in fields
+        .internal_force
+        .iter_mut()
+        .zip(share.buffer.chunks_exact(D))
+    {
+        *force = SVector::<f64, D>::from_column_slice(values);
+    }
+}
+
+/// After the processes wrote their pieces of the particle file (`ParticlePieces`): whether
+/// any failed (then every process fails the step: collective, and it also waits until every
+/// piece is written); then process 0 lists the pieces in `particles_NNNN.pvtu` and adds that
+/// to `particles.pvd`.
+pub fn list_particle_pieces(
+    mut pieces: ResMut<ParticlePieces>,
+    mut plan: ResMut<OutputPlan>,
+    share: Res<AssemblyShare>,
+    mut status: ResMut<RunStatus>,
+    step: Res<LoadStep>,
+) {
+    let Some(written) = pieces.written.take() else {
+        return; // not an output step (the same on every process)
+    };
+    if any(written.is_err()) {
+        let why = match written {
+            Err(why) => why,
+            Ok(_) => "a piece of the particle file could not be written by another process \
+                      of the distributed run"
+                .to_string(),
+        };
+        status.fail(SolverError::Output {
+            step: step.number,
+            why,
+        });
+        return;
+    }
+    let Ok(WrittenPiece { arrays, .. }) = written else {
+        return;
+    };
+    if share.processes.rank != 0 {
+        return;
+    }
+    let names: Vec<String> = (0..share.processes.size)
+        .map(|k| format!("particles_{:04}_p{k}.vtu", step.number))
+        .collect();
+    let name = format!("particles_{:04}.pvtu", step.number);
+    let result = write_pvtu(&pieces.dir.join(&name), &names, &arrays, &[])
+        .and_then(|()| plan.particles.push(step.factor, &name));
+    if let Err(e) = result {
+        status.fail(SolverError::Output {
+            step: step.number,
+            why: format!("{name}: {e}"),
+        });
+    }
+}

@@ -1,0 +1,490 @@
+//! The PETSc backend over every process of a distributed run (cargo feature `mpi`).
+//!
+//! Each process holds the whole pattern of `K` (the state is replicated, see
+//! `crate::distributed`) but only its **share of the values**: the sum over the points it
+//! assembles. The padded system of the serial backend (see the parent module) becomes one
+//! PETSc `MPIAIJ` matrix with the same global numbering; process `r` of `P` owns the rows of
+//! the nodes `[B r / P, B (r + 1) / P)` of the `B` padded nodes (whole nodes, so block size
+//! `D` and the rigid-body modes carry over). Every Newton iteration each process adds its
+//! nonzero rows with `MatSetValues(ADD_VALUES)`; entries in rows another process owns travel
+//! through PETSc's assembly (`MatAssemblyBegin/End`). The right-hand side is the same on
+//! every process (it is formed from the internal force already summed over the processes,
+//! [`ProcessSum`]): each process copies its own rows into the `MPI` vector. KSP solves, and
+//! the correction is gathered to every process (`VecScatterCreateToAll`), so that every
+//! process updates every point with the same numbers.
+//!
+//! The padded rows of constrained components get `s` on the diagonal (their owner adds it),
+//! with `s` the mean `|K_ii|` of the processes' shares (an `MPI_Allreduce`; it only has to be
+//! of the order of `K`'s diagonal). "Converged" is re-checked on the true residual
+//! `‖r − K δ‖ / ‖r‖` computed by PETSc on the distributed objects (`MatMult`, `VecNorm`), so the
+//! decision is the same on every process.
+
+use std::ffi::CStr;
+
+use super::ffi::{self, PetscInt};
+use super::{
+    Comm, IDENTITY, LinearSolveError, Padding, PetscSolver, SolverKind, SparseMatrix, check,
+    configure_ksp, refuse_unused_options, session, set_rigid_body_modes, solve_with_ksp,
+};
+
+impl PetscSolver {
+    /// A solver whose objects live on every process of a distributed run (`MPI_COMM_WORLD`):
+    /// each process passes the tangent holding its share of the values (see the module docs)
+    /// and the same right-hand side; every process gets the whole solution. Collective: every
+    /// process must solve, with the same pattern and right-hand side.
+    pub fn distributed(options: &str) -> Self {
+        let mut solver = Self::new(options);
+        solver.distributed = Some(None);
+        solver
+    }
+
+    /// `LinearSolver::solve` of a distributed solver.
+    pub(super) fn solve_distributed(
+        &mut self,
+        matrix: &SparseMatrix,
+        symmetric: bool,
+        rhs: &mut [f64],
+    ) -> Result<SolverKind, LinearSolveError> {
+        let _session = session()?;
+        let stale = self.distributed.as_ref().is_none_or(|objects| {
+            objects
+                .as_ref()
+                .is_none_or(|o| o.generation != matrix.generation() || o.symmetric != symmetric)
+        });
+        if stale {
+            if let Some(old) = self.distributed.as_mut().and_then(Option::take) {
+                old.destroy();
+            }
+            let prefix = self.prefix()?;
+            let (objects, tolerance) = DistributedObjects::new(matrix, symmetric, &prefix)?;
+            self.distributed = Some(Some(objects));
+            self.tolerance = tolerance;
+        }
+        let tolerance = self
+            .requested
+            .take()
+            .map_or(self.tolerance, |r| r.max(self.tolerance));
+        let Some(Some(objects)) = &mut self.distributed else {
+            return Err(LinearSolveError::Backend(
+                "the distributed PETSc objects are missing".to_string(),
+            ));
+        };
+        objects.set_values(matrix)?;
+        let solved = objects.solve(rhs, tolerance);
+        let method = objects.method.clone();
+        if !self.options_checked {
+            self.options_checked = true;
+            if let Some(prefix) = &self.prefix {
+                refuse_unused_options(prefix)?;
+            }
+        }
+        let (iterations, relative) = solved?;
+        self.last_iterations = iterations;
+        let converged = relative <= 10.0 * tolerance; // false for NaN
+        if !converged {
+            return Err(LinearSolveError::NotConverged(format!(
+                "PETSc's {method} solve (distributed) reported convergence but its true \
+                 residual is {relative:.2e} of the right-hand side against a tolerance of \
+                 {tolerance:.0e}; change petsc_options"
+            )));
+        }
+        Ok(SolverKind::Petsc)
+    }
+}
+
+/// The distributed PETSc objects of one pattern.
+pub(super) struct DistributedObjects {
+    generation: u64,
+    symmetric: bool,
+    padding: Padding,
+    /// The padded rows this process owns: `first..end`.
+    first: usize,
+    end: usize,
+    matrix: ffi::Mat,
+    rhs: ffi::Vec,
+    solution: ffi::Vec,
+    /// `r − K δ`, for the true-residual check.
+    residual: ffi::Vec,
+    ksp: ffi::KSP,
+    /// Gathers the solution to every process.
+    scatter: ffi::VecScatter,
+    gathered: ffi::Vec,
+    method: String,
+    /// Scratch: a padded vector, one row's values.
+    padded: Vec<f64>,
+    row: Vec<f64>,
+}
+
+// SAFETY: as for the serial objects: touched only under the process-wide lock.
+unsafe impl Send for DistributedObjects {}
+// SAFETY: as for Send.
+unsafe impl Sync for DistributedObjects {}
+
+impl DistributedObjects {
+    /// Creates the objects for `matrix`'s pattern; returns them and the relative tolerance the
+    /// options set. Collective; the caller holds the session.
+    fn new(
+        matrix: &SparseMatrix,
+        symmetric: bool,
+        prefix: &CStr,
+    ) -> Result<(Self, f64), LinearSolveError> {
+        let padding = Padding::new(matrix)?;
+        let processes = crate::distributed::processes()
+            .unwrap_or(crate::distributed::Processes { rank: 0, size: 1 });
+        let blocks = padding.size / padding.block;
+        let (rank, size) = (processes.rank, processes.size.max(1));
+        let first = blocks * rank / size * padding.block;
+        let end = blocks * (rank + 1) / size * padding.block;
+        let null = std::ptr::null_mut();
+        let mut objects = Self {
+            generation: matrix.generation(),
+            symmetric,
+            first,
+            end,
+            matrix: null,
+            rhs: null,
+            solution: null,
+            residual: null,
+            ksp: null,
+            scatter: null,
+            gathered: null,
+            method: String::new(),
+            padded: vec![0.0; padding.size],
+            row: Vec::new(),
+            padding,
+        };
+        match objects.create(prefix) {
+            Ok(tolerance) => Ok((objects, tolerance)),
+            Err(e) => {
+                objects.destroy();
+                Err(e)
+            }
+        }
+    }
+
+    fn create(&mut self, prefix: &CStr) -> Result<f64, LinearSolveError> {
+        let padding = &self.padding;
+        let comm = Comm::World.raw();
+        let local = (self.end - self.first) as PetscInt;
+        let global = padding.size as PetscInt;
+        let base = padding.row_start[self.first];
+        let starts: Vec<PetscInt> = padding.row_start[self.first..=self.end]
+            .iter()
+            .map(|&r| r - base)
+            .collect();
+        let columns = &padding.columns[base as usize..padding.row_start[self.end] as usize];
+        let zeros = vec![0.0; columns.len()];
+        // SAFETY: the session is held; the CSR arrays are copied by PETSc.
+        unsafe {
+            check(ffi::MatCreate(comm, &mut self.matrix), "MatCreate")?;
+            check(
+                ffi::MatSetSizes(self.matrix, local, local, global, global),
+                "MatSetSizes",
+            )?;
+            check(
+                ffi::MatSetBlockSize(self.matrix, padding.block as PetscInt),
+                "MatSetBlockSize",
+            )?;
+            check(
+                ffi::MatSetType(self.matrix, c"mpiaij".as_ptr()),
+                "MatSetType",
+            )?;
+            check(
+                ffi::MatMPIAIJSetPreallocationCSR(
+                    self.matrix,
+                    starts.as_ptr(),
+                    columns.as_ptr(),
+                    zeros.as_ptr(),
+                ),
+                "MatMPIAIJSetPreallocationCSR",
+            )?;
+            if let Some(coordinates) = &padding.coordinates {
+                set_rigid_body_modes(
+                    self.matrix,
+                    padding.block,
+                    &coordinates[self.first..self.end],
+                    Comm::World,
+                )?;
+            }
+            for vector in [&mut self.rhs, &mut self.solution, &mut self.residual] {
+                check(
+                    ffi::VecCreateMPI(comm, local, global, vector),
+                    "VecCreateMPI",
+                )?;
+            }
+            check(
+                ffi::VecScatterCreateToAll(self.solution, &mut self.scatter, &mut self.gathered),
+                "VecScatterCreateToAll",
+            )?;
+            check(ffi::KSPCreate(comm, &mut self.ksp), "KSPCreate")?;
+            let (method, relative) = configure_ksp(self.ksp, self.matrix, self.symmetric, prefix)?;
+            self.method = method;
+            Ok(relative)
+        }
+    }
+
+    /// Puts this process's share of `matrix`'s values into the distributed matrix and
+    /// assembles it (collective).
+    fn set_values(&mut self, matrix: &SparseMatrix) -> Result<(), LinearSolveError> {
+        let values = matrix.values();
+        let padding = &self.padding;
+        let share: f64 = padding.diagonal.iter().map(|&k| values[k].abs()).sum();
+        let mean = crate::distributed::sum(share) / padding.diagonal.len().max(1) as f64;
+        let scale = if mean > 0.0 && mean.is_finite() {
+            mean
+        } else {
+            1.0
+        };
+        // SAFETY: the session is held; every row passed has its columns' count of values.
+        unsafe {
+            check(ffi::MatZeroEntries(self.matrix), "MatZeroEntries")?;
+            for p in 0..padding.size {
+                let range = padding.row_start[p] as usize..padding.row_start[p + 1] as usize;
+                let owned = (self.first..self.end).contains(&p);
+                self.row.clear();
+                self.row
+                    .extend(padding.source[range.clone()].iter().map(|&k| {
+                        if k != IDENTITY {
+                            values[k]
+                        } else if owned {
+                            scale
+                        } else {
+                            0.0
+                        }
+                    }));
+                if self.row.iter().all(|&v| v == 0.0) {
+                    continue;
+                }
+                let row = p as PetscInt;
+                check(
+                    ffi::MatSetValues(
+                        self.matrix,
+                        1,
+                        &row,
+                        self.row.len() as PetscInt,
+                        padding.columns[range].as_ptr(),
+                        self.row.as_ptr(),
+                        ffi::ADD_VALUES,
+                    ),
+                    "MatSetValues",
+                )?;
+            }
+            check(
+                ffi::MatAssemblyBegin(self.matrix, ffi::MAT_FINAL_ASSEMBLY),
+                "MatAssemblyBegin",
+            )?;
+            check(
+                ffi::MatAssemblyEnd(self.matrix, ffi::MAT_FINAL_ASSEMBLY),
+                "MatAssemblyEnd",
+            )
+        }
+    }
+
+    /// Solves for `rhs` (the same on every process; in place, every process gets the whole
+    /// solution); returns PETSc's iterations and the true relative residual. Collective.
+    fn solve(&mut self, rhs: &mut [f64], tolerance: f64) -> Result<(usize, f64), LinearSolveError> {
+        let padding = &self.padding;
+        self.padded.fill(0.0);
+        for (&p, &r) in padding.of_dof.iter().zip(rhs.iter()) {
+            self.padded[p] = r;
+        }
+        let mut array = std::ptr::null_mut();
+        // SAFETY: the session is held; the local part of an MPI vector has end − first
+        // entries, the gathered vector all of them.
+        unsafe {
+            check(ffi::VecGetArray(self.rhs, &mut array), "VecGetArray")?;
+            std::slice::from_raw_parts_mut(array, self.end - self.first)
+                .copy_from_slice(&self.padded[self.first..self.end]);
+            check(
+                ffi::VecRestoreArray(self.rhs, &mut array),
+                "VecRestoreArray",
+            )?;
+            let iterations =
+                solve_with_ksp(self.ksp, self.rhs, self.solution, tolerance, &self.method)?;
+            gather_to_all(self.scatter, self.solution, self.gathered)?;
+            check(ffi::VecGetArray(self.gathered, &mut array), "VecGetArray")?;
+            let all = std::slice::from_raw_parts(array, padding.size);
+            for (&p, r) in padding.of_dof.iter().zip(rhs.iter_mut()) {
+                *r = all[p];
+            }
+            check(
+                ffi::VecRestoreArray(self.gathered, &mut array),
+                "VecRestoreArray",
+            )?;
+            // the true residual r − K δ, measured by PETSc: the same on every process
+            check(
+                ffi::MatMult(self.matrix, self.solution, self.residual),
+                "MatMult",
+            )?;
+            check(ffi::VecAYPX(self.residual, -1.0, self.rhs), "VecAYPX")?;
+            let (mut residual, mut size) = (0.0, 0.0);
+            check(
+                ffi::VecNorm(self.residual, ffi::NORM_2, &mut residual),
+                "VecNorm",
+            )?;
+            check(ffi::VecNorm(self.rhs, ffi::NORM_2, &mut size), "VecNorm")?;
+            let relative = if size > 0.0 {
+                residual / size
+            } else if residual == 0.0 {
+                0.0
+            } else {
+                f64::INFINITY
+            };
+            Ok((iterations, relative))
+        }
+    }
+
+    /// Destroys the PETSc objects (collective). The caller holds the session.
+    pub(super) fn destroy(mut self) {
+        // SAFETY: PETSc ignores null handles; each object is destroyed once.
+        unsafe {
+            ffi::KSPDestroy(&mut self.ksp);
+            ffi::VecScatterDestroy(&mut self.scatter);
+            ffi::VecDestroy(&mut self.gathered);
+            ffi::VecDestroy(&mut self.residual);
+            ffi::VecDestroy(&mut self.solution);
+            ffi::VecDestroy(&mut self.rhs);
+            ffi::MatDestroy(&mut self.matrix);
+        }
+    }
+}
+
+/// Copies the distributed vector `from` into `to`, the whole vector on every process, with a
+/// scatter made by `VecScatterCreateToAll` (collective).
+///
+/// # Safety
+/// The session is held; the objects were created together.
+unsafe fn gather_to_all(
+    scatter: ffi::VecScatter,
+    from: ffi::Vec,
+    to: ffi::Vec,
+) -> Result<(), LinearSolveError> {
+    let (insert, forward) = (ffi::INSERT_VALUES, ffi::SCATTER_FORWARD);
+    // SAFETY: as the caller promises.
+    unsafe {
+        check(
+            ffi::VecScatterBegin(scatter, from, to, insert, forward),
+            "VecScatterBegin",
+        )?;
+        check(
+            ffi::VecScatterEnd(scatter, from, to, insert, forward),
+            "VecScatterEnd",
+        )
+    }
+}
+
+/// Sums a vector over the processes of a distributed run through a PETSc `MPI` vector: each
+/// process adds its nonzero entries (`VecSetValues(ADD_VALUES)`, off-process entries through
+/// `VecAssemblyBegin/End`), and the sums are gathered back to every process
+/// (`VecScatterCreateToAll`). Every process gets the same numbers, bit for bit (each entry is
+/// summed once, by the process that owns it); across runs the order in which the owner adds
+/// the other processes' entries may differ (the order messages arrive), so the last bits may.
+#[derive(Default)]
+pub struct ProcessSum {
+    length: usize,
+    vector: Option<(ffi::Vec, ffi::VecScatter, ffi::Vec)>,
+    indices: Vec<PetscInt>,
+    values: Vec<f64>,
+}
+
+// SAFETY: the PETSc objects are touched only under the process-wide lock.
+unsafe impl Send for ProcessSum {}
+// SAFETY: as for Send.
+unsafe impl Sync for ProcessSum {}
+
+impl ProcessSum {
+    /// Replaces `values` by their sum over the processes. Collective: every process calls it
+    /// with a slice of the same length.
+    pub fn sum(&mut self, values: &mut [f64]) -> Result<(), LinearSolveError> {
+        let _session = session()?;
+        if self.length != values.len() {
+            self.destroy();
+        }
+        let (vector, scatter, gathered) = match self.vector {
+            Some(objects) => objects,
+            None => {
+                let mut objects = (
+                    std::ptr::null_mut(),
+                    std::ptr::null_mut(),
+                    std::ptr::null_mut(),
+                );
+                // SAFETY: the session is held; out-pointers are valid.
+                let created = unsafe {
+                    check(
+                        ffi::VecCreateMPI(
+                            Comm::World.raw(),
+                            ffi::PETSC_DECIDE,
+                            values.len() as PetscInt,
+                            &mut objects.0,
+                        ),
+                        "VecCreateMPI",
+                    )
+                    .and_then(|()| {
+                        check(
+                            ffi::VecScatterCreateToAll(objects.0, &mut objects.1, &mut objects.2),
+                            "VecScatterCreateToAll",
+                        )
+                    })
+                };
+                self.vector = Some(objects);
+                self.length = values.len();
+                created?;
+                objects
+            }
+        };
+        self.indices.clear();
+        self.values.clear();
+        for (i, &v) in values.iter().enumerate() {
+            if v != 0.0 {
+                self.indices.push(i as PetscInt);
+                self.values.push(v);
+            }
+        }
+        // SAFETY: the session is held; the objects were created for this length.
+        unsafe {
+            check(ffi::VecSet(vector, 0.0), "VecSet")?;
+            check(
+                ffi::VecSetValues(
+                    vector,
+                    self.indices.len() as PetscInt,
+                    self.indices.as_ptr(),
+                    self.values.as_ptr(),
+                    ffi::ADD_VALUES,
+                ),
+                "VecSetValues",
+            )?;
+            check(ffi::VecAssemblyBegin(vector), "VecAssemblyBegin")?;
+            check(ffi::VecAssemblyEnd(vector), "VecAssemblyEnd")?;
+            gather_to_all(scatter, vector, gathered)?;
+            let mut array = std::ptr::null_mut();
+            check(ffi::VecGetArray(gathered, &mut array), "VecGetArray")?;
+            values.copy_from_slice(std::slice::from_raw_parts(array, values.len()));
+            check(
+                ffi::VecRestoreArray(gathered, &mut array),
+                "VecRestoreArray",
+            )
+        }
+    }
+
+    /// Destroys the PETSc objects; the caller holds the session.
+    fn destroy(&mut self) {
+        if let Some((mut vector, mut scatter, mut gathered)) = self.vector.take() {
+            // SAFETY: PETSc ignores null handles; each object is destroyed once.
+            unsafe {
+                ffi::VecScatterDestroy(&mut scatter);
+                ffi::VecDestroy(&mut gathered);
+                ffi::VecDestroy(&mut vector);
+            }
+        }
+        self.length = 0;
+    }
+}
+
+impl Drop for ProcessSum {
+    fn drop(&mut self) {
+        if self.vector.is_some() {
+            let _session = super::PETSC.lock().unwrap_or_else(|e| e.into_inner());
+            self.destroy();
+        }
+    }
+}

@@ -1,0 +1,339 @@
+//! Distributed runs (cargo feature `mpi`): `mpirun -n N impm run SCENE`, the scene unchanged.
+//!
+//! The state is replicated on every process; each process assembles the points of its slab of
+//! cells, the shares are summed by PETSc (`MPIAIJ` matrix, `MPI` vector) and KSP solves the
+//! distributed system (`src/effects/distributed.rs`). Checked against the serial run of the
+//! same scene with the direct solver, for 1, 2 and 3 processes (oversubscribed on a 2-core
+//! machine: `--oversubscribe`, and MPI's yield-when-idle so waiting processes give way), with
+//! a tight linear tolerance (`-ksp_rtol 1e-12`):
+//!
+//! * the same Newton iterations in every step;
+//! * the same eq. 15 error, to 1e-8 relative;
+//! * every point's Cauchy stress to 1e-8 of the largest, and its position to 1e-8 of the
+//!   body's height (the point files of process 0 hold every point, in the serial order);
+//! * the run says, in its log and in summary.json, that the state is replicated;
+//! * the heavy column (1D; points travel across cells, and so across the slab boundaries,
+//!   between steps: `points_changing_process` counts them) equals its serial run as well;
+//! * over 2 and 3 processes the particle files are pieces listed by `.pvtu` files, which
+//!   ParaView reads with every field and point (pvpython, where installed) and `impm merge`
+//!   turns into the serial file (the comparisons above are made on the merged file);
+//! * a scene whose modules add to the tangent after the assembly (ghost penalty) is refused
+//!   with more than one process, naming what and why.
+//!
+//! Skipped, with a message, where `mpirun` is missing (`.ci/run` installs OpenMPI as root).
+
+#![cfg(feature = "mpi")]
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use common::{shipped_scene, temp_dir};
+use impm::output::read_vtu;
+
+/// The runs of this file, one at a time: each oversubscribes a 2-core machine already.
+static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+/// Whether `mpirun` runs here; says why not otherwise.
+fn mpirun_available() -> bool {
+    let ok = Command::new("mpirun")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !ok {
+        eprintln!("skipped: mpirun not found (apt-get install openmpi-bin libopenmpi-dev)");
+    }
+    ok
+}
+
+/// `impm run SCENE --out OUT --set ...` (plus `extra`), under `mpirun -n N` when `processes`
+/// is given.
+fn run(processes: Option<usize>, scene: &Path, set: &[&str], out: &Path, extra: &[&str]) -> Output {
+    let binary = env!("CARGO_BIN_EXE_impm");
+    let mut args: Vec<String> = vec![
+        "run".into(),
+        scene.display().to_string(),
+        "--out".into(),
+        out.display().to_string(),
+        "--threads".into(),
+        "1".into(),
+    ];
+    for assignment in set {
+        args.extend(["--set".into(), assignment.to_string()]);
+    }
+    args.extend(extra.iter().map(|s| s.to_string()));
+    let mut command = match processes {
+        Some(n) => {
+            let mut c = Command::new("mpirun");
+            c.args([
+                "--allow-run-as-root",
+                "--oversubscribe",
+                "-n",
+                &n.to_string(),
+                binary,
+            ]);
+            c.env("OMPI_MCA_mpi_yield_when_idle", "1");
+            c
+        }
+        None => Command::new(binary),
+    };
+    command.args(&args).output().expect("the run starts")
+}
+
+/// What a run left: Newton iterations per step, the final eq. 15 error, the last point file's
+/// positions and Cauchy stresses, and summary.json's warnings.
+struct Outcome {
+    iterations: Vec<u64>,
+    error: Option<f64>,
+    positions: Vec<f64>,
+    stress: Vec<f64>,
+    warnings: Vec<String>,
+    /// Per step: the points process 0 assembled, the points that changed process at its start.
+    assembled: Vec<Option<f64>>,
+    changed: Vec<Option<f64>>,
+}
+
+fn outcome(out: &Path) -> Outcome {
+    let text = std::fs::read_to_string(out.join("summary.json")).expect("summary.json");
+    let summary: serde_json::Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(summary["status"], "completed", "{text}");
+    let steps = summary["steps"].as_array().unwrap();
+    let last = out.join(impm::output::step_file_name("particles", steps.len()));
+    // over several processes the particles are in pieces: `impm merge` writes the one file
+    if last.with_extension("pvtu").is_file() {
+        assert!(!last.exists());
+        let merge = Command::new(env!("CARGO_BIN_EXE_impm"))
+            .arg("merge")
+            .arg(out)
+            .output()
+            .unwrap();
+        let said = String::from_utf8_lossy(&merge.stdout);
+        assert!(
+            merge.status.success() && said.contains("points"),
+            "{said}{}",
+            String::from_utf8_lossy(&merge.stderr)
+        );
+    }
+    let points = read_vtu(&last).unwrap_or_else(|e| panic!("{}: {e}", last.display()));
+    Outcome {
+        iterations: steps
+            .iter()
+            .map(|s| s["iterations"].as_u64().unwrap())
+            .collect(),
+        error: summary["error"].as_f64(),
+        positions: points.points.iter().flatten().copied().collect(),
+        stress: points.point_field("cauchy_stress").unwrap().1.to_vec(),
+        assembled: steps
+            .iter()
+            .map(|s| s["assembled_points"].as_f64())
+            .collect(),
+        changed: steps
+            .iter()
+            .map(|s| s["points_changing_process"].as_f64())
+            .collect(),
+        warnings: summary["warnings"]
+            .as_array()
+            .map(|w| w.iter().map(|s| s.as_str().unwrap().to_string()).collect())
+            .unwrap_or_default(),
+    }
+}
+
+/// Largest difference between `a` and `b` relative to the largest magnitude in `b`.
+fn relative_difference(a: &[f64], b: &[f64]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    let scale = b.iter().map(|v| v.abs()).fold(0.0, f64::max);
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs() / scale)
+        .fold(0.0, f64::max)
+}
+
+/// The scene's runs under `mpirun -n 1, 2, 3` against its serial run (direct solver); the
+/// number of points that changed process at a step start, summed over the steps, for each `n`.
+fn compare(script: &str, set: &[&str], tag: &str, paraview: bool) -> Vec<f64> {
+    let mut changes = Vec::new();
+    if !mpirun_available() {
+        return changes;
+    }
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let scene = shipped_scene(script);
+    let serial_dir = temp_dir("mpi", &format!("{tag}-serial"));
+    let serial = run(None, &scene, set, &serial_dir, &[]);
+    assert!(
+        serial.status.success(),
+        "{}",
+        String::from_utf8_lossy(&serial.stderr)
+    );
+    let reference = outcome(&serial_dir);
+    for n in 1..=3 {
+        let dir = temp_dir("mpi", &format!("{tag}-{n}"));
+        let started = std::time::Instant::now();
+        let output = run(
+            Some(n),
+            &scene,
+            set,
+            &dir,
+            &["--petsc-options", "-ksp_rtol 1e-12"],
+        );
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(output.status.success(), "{script} -n {n}: {stderr}");
+        let points = reference.positions.len() / 3;
+        if n > 1 {
+            pieces_are_listed(&dir, n, points, paraview);
+        }
+        let got = outcome(&dir);
+        let stress = relative_difference(&got.stress, &reference.stress);
+        let positions = relative_difference(&got.positions, &reference.positions);
+        eprintln!(
+            "{script} -n {n}: {:.1} s, Newton {:?} (serial {:?}), eq. 15 {:?} (serial {:?}), \
+             stress difference {stress:.1e}, positions {positions:.1e}",
+            started.elapsed().as_secs_f64(),
+            got.iterations,
+            reference.iterations,
+            got.error,
+            reference.error
+        );
+        assert_eq!(got.iterations, reference.iterations, "{script} -n {n}");
+        match (got.error, reference.error) {
+            (Some(a), Some(b)) => assert!((a - b).abs() <= 1e-8 * b.abs(), "{a} {b}"),
+            (a, b) => assert_eq!(a.is_some(), b.is_some()),
+        }
+        assert!(stress <= 1e-8, "{script} -n {n}: stress {stress:e}");
+        assert!(
+            positions <= 1e-8,
+            "{script} -n {n}: positions {positions:e}"
+        );
+        // said in the log (process 0's stderr, once) and in summary.json
+        assert_eq!(
+            stderr.matches("replicated, not decomposed").count(),
+            1,
+            "{stderr}"
+        );
+        assert!(
+            got.warnings
+                .iter()
+                .any(|w| w.contains(&format!("over {n} MPI processes"))),
+            "{:?}",
+            got.warnings
+        );
+        // process 0 assembles its slab's points only: all of them alone, fewer with others
+        let points = points as f64;
+        for assembled in &got.assembled {
+            let assembled = assembled.expect("assembled_points in every step");
+            if n == 1 {
+                assert_eq!(assembled, points);
+            } else {
+                assert!(
+                    assembled > 0.0 && assembled < points,
+                    "{assembled} of {points}"
+                );
+            }
+        }
+        changes.push(got.changed.iter().map(|c| c.unwrap_or(0.0)).sum());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+    let _ = std::fs::remove_dir_all(&serial_dir);
+    changes
+}
+
+/// Over `n` processes: every output step's particles are `n` pieces listed by a `.pvtu`,
+/// which `particles.pvd` lists, with `points` points in all; with `paraview`, ParaView reads
+/// the series (`scripts/check_output.py` under `pvpython`, where installed) with every field
+/// and that many points in every step.
+fn pieces_are_listed(dir: &Path, n: usize, points: usize, paraview: bool) {
+    let pvd = std::fs::read_to_string(dir.join("particles.pvd")).unwrap();
+    assert!(pvd.contains("particles_0000.pvtu"), "{pvd}");
+    assert!(!pvd.contains(".vtu\""), "{pvd}");
+    let pvtu = dir.join("particles_0000.pvtu");
+    let pieces = impm::output::pvtu_pieces(&pvtu).unwrap();
+    assert_eq!(pieces.len(), n);
+    let counted: usize = pieces
+        .iter()
+        .map(|piece| read_vtu(piece).unwrap().points.len())
+        .sum();
+    assert_eq!(counted, points);
+    if !paraview {
+        return;
+    }
+    let available = Command::new("pvpython")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !available {
+        eprintln!("skipped the ParaView check: pvpython is not installed");
+        return;
+    }
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/check_output.py");
+    let output = Command::new("pvpython")
+        .arg(script)
+        .arg(dir)
+        .args([
+            "reference_position:3",
+            "reference_volume:1",
+            "volume:1",
+            "mass:1",
+            "displacement:3",
+            "cauchy_stress:9",
+            "deformation_gradient:9",
+            "body:1",
+            "point_id:1",
+        ])
+        .output()
+        .unwrap();
+    let report = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        output.status.success() && report.contains("\nOK\n"),
+        "{report}{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    assert!(
+        report.contains(&format!("points: {points},")),
+        "{points} points expected: {report}"
+    );
+}
+
+#[test]
+fn the_2d_column_over_1_2_and_3_processes_equals_the_serial_run() {
+    compare("column_2d.rhai", &["cells=16", "steps=3"], "column2d", true);
+}
+
+#[test]
+fn the_3d_column_over_1_2_and_3_processes_equals_the_serial_run() {
+    compare("column_3d.rhai", &["cells=4", "steps=2"], "column3d", false);
+}
+
+/// The heavy column (1D) shortens a lot: points cross cells, and so the slab boundaries, from
+/// step to step (the slabs are recut at every step start, balanced by points).
+#[test]
+fn points_crossing_slab_boundaries_stay_equal_to_the_serial_run() {
+    let changes = compare("heavy_column.rhai", &["cells=8", "steps=4"], "heavy", false);
+    if let [one, two, three] = changes[..] {
+        assert_eq!(one, 0.0);
+        assert!(two > 0.0 && three > 0.0, "{changes:?}");
+    }
+}
+
+#[test]
+fn a_module_adding_to_the_tangent_after_assembly_is_refused_over_several_processes() {
+    if !mpirun_available() {
+        return;
+    }
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let scene = shipped_scene("heavy_column.rhai");
+    let dir: PathBuf = temp_dir("mpi", "ghost");
+    let output = run(
+        Some(2),
+        &scene,
+        &["cells=4", "steps=1", "ghost_penalty=0.01"],
+        &dir,
+        &[],
+    );
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert!(
+        stderr.contains("after the assembly") && stderr.contains("mpirun -n 1"),
+        "{stderr}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
