@@ -13,14 +13,16 @@ use impm::resources::Newton;
 use impm::run::{Simulation, load_scene};
 use impm::scene::{LinearBackend, Preconditioning};
 use impm::solver::{
-    DirectSolver, KrylovSolver, LinearSolver, Multigrid, SolverKind, SparseMatrix, multiply,
+    DirectSolver, KrylovSolver, LinearSolver, Multigrid, Smoother, SolverKind, SparseMatrix,
+    multiply,
 };
 
 /// Makes a new linear solver.
 type MakeSolver = Box<dyn Fn() -> Box<dyn LinearSolver>>;
 
 /// The backends compared with the direct solve: the scene's words, and multigrid with a
-/// coarsest level of 8 DOFs so that these small problems go through the whole V-cycle.
+/// coarsest level of 8 DOFs so that these small problems go through the whole V-cycle (with
+/// either smoother).
 fn iterative_backends() -> Vec<(&'static str, MakeSolver)> {
     vec![
         (
@@ -35,6 +37,14 @@ fn iterative_backends() -> Vec<(&'static str, MakeSolver)> {
             "multigrid-deep",
             Box::new(|| {
                 let multigrid = Multigrid::with_coarsest_size(8);
+                Box::new(KrylovSolver::with_preconditioner(Box::new(multigrid)))
+            }),
+        ),
+        (
+            "multigrid-deep-chebyshev",
+            Box::new(|| {
+                let mut multigrid = Multigrid::with_coarsest_size(8);
+                multigrid.smoother = Smoother::Chebyshev(2);
                 Box::new(KrylovSolver::with_preconditioner(Box::new(multigrid)))
             }),
         ),
@@ -148,12 +158,16 @@ fn self_weight_tangent<const D: usize>(cells: usize) -> SparseMatrix {
     sim.world.resource::<Newton>().matrix.clone()
 }
 
+/// The smoothers every multigrid test below runs with.
+const SMOOTHERS: [Smoother; 2] = [Smoother::GaussSeidel, Smoother::Chebyshev(2)];
+
 /// CG iterations to a relative residual of 1e-10 on the tangent of a self-weight block (a
 /// smooth right-hand side), with multigrid (its coarsest level at most 50 DOFs, so that every
 /// refinement goes through a V-cycle of two levels or more) and with Jacobi, at three
-/// refinements; the multigrid solution against the direct one.
-fn iteration_counts<const D: usize>(refinements: [usize; 3]) -> Vec<(usize, usize, usize)> {
-    let mut counts = Vec::new();
+/// refinements; the multigrid solution against the direct one. One list per smoother of
+/// [`SMOOTHERS`], in that order.
+fn iteration_counts<const D: usize>(refinements: [usize; 3]) -> Vec<Vec<(usize, usize, usize)>> {
+    let mut counts = vec![Vec::new(); SMOOTHERS.len()];
     for cells in refinements {
         let matrix = self_weight_tangent::<D>(cells);
         let n = matrix.size();
@@ -162,36 +176,39 @@ fn iteration_counts<const D: usize>(refinements: [usize; 3]) -> Vec<(usize, usiz
         DirectSolver::default()
             .solve(&matrix, true, &mut direct)
             .unwrap();
-        let mut multigrid =
-            KrylovSolver::with_preconditioner(Box::new(Multigrid::with_coarsest_size(50)));
-        let mut x = rhs.clone();
-        assert_eq!(
-            multigrid.solve(&matrix, true, &mut x),
-            Ok(SolverKind::ConjugateGradients)
-        );
-        let hierarchy = multigrid.hierarchy().expect("a multigrid hierarchy");
-        let mut check = vec![0.0; n];
-        multiply(&matrix, &x, &mut check);
-        let residual = relative(&check, &rhs);
-        let error = relative(&x, &direct);
         let mut jacobi = KrylovSolver::default();
         let mut y = rhs.clone();
         jacobi.solve(&matrix, true, &mut y).unwrap();
-        eprintln!(
-            "{D}D block, {cells} cells a side, {n} DOFs: CG iterations multigrid {} jacobi {}, \
+        for (smoother, counts) in SMOOTHERS.iter().zip(counts.iter_mut()) {
+            let mut preconditioner = Multigrid::with_coarsest_size(50);
+            preconditioner.smoother = *smoother;
+            let mut multigrid = KrylovSolver::with_preconditioner(Box::new(preconditioner));
+            let mut x = rhs.clone();
+            assert_eq!(
+                multigrid.solve(&matrix, true, &mut x),
+                Ok(SolverKind::ConjugateGradients)
+            );
+            let hierarchy = multigrid.hierarchy().expect("a multigrid hierarchy");
+            let mut check = vec![0.0; n];
+            multiply(&matrix, &x, &mut check);
+            let residual = relative(&check, &rhs);
+            let error = relative(&x, &direct);
+            eprintln!(
+                "{D}D block, {cells} cells a side, {n} DOFs: CG iterations multigrid ({smoother:?}) {} jacobi {}, \
              multigrid residual {residual:.1e}, difference from direct {error:.1e}; {hierarchy}",
-            multigrid.last_iterations, jacobi.last_iterations
-        );
-        assert!(residual <= 1e-9, "{residual:e}");
-        assert!(error < 1e-6, "{error:e}");
-        // each level far smaller than the one below: the setup's products and a V-cycle cost
-        // little more than the finest level's
-        assert!(
-            hierarchy.operator_complexity() <= MAX_OPERATOR_COMPLEXITY,
-            "{D}D, {cells} cells: {hierarchy}"
-        );
-        assert!(hierarchy.rows.len() >= 2, "{hierarchy}");
-        counts.push((n, multigrid.last_iterations, jacobi.last_iterations));
+                multigrid.last_iterations, jacobi.last_iterations
+            );
+            assert!(residual <= 1e-9, "{residual:e}");
+            assert!(error < 1e-6, "{error:e}");
+            // each level far smaller than the one below: the setup's products and a V-cycle cost
+            // little more than the finest level's
+            assert!(
+                hierarchy.operator_complexity() <= MAX_OPERATOR_COMPLEXITY,
+                "{D}D, {cells} cells: {hierarchy}"
+            );
+            assert!(hierarchy.rows.len() >= 2, "{hierarchy}");
+            counts.push((n, multigrid.last_iterations, jacobi.last_iterations));
+        }
     }
     counts
 }
@@ -229,12 +246,16 @@ fn assert_flat(counts: &[(usize, usize, usize)]) {
 
 #[test]
 fn multigrid_keeps_the_cg_iterations_flat_under_refinement_in_2d() {
-    assert_flat(&iteration_counts::<2>([16, 32, 64]));
+    iteration_counts::<2>([16, 32, 64])
+        .iter()
+        .for_each(|c| assert_flat(c));
 }
 
 #[test]
 fn multigrid_keeps_the_cg_iterations_flat_under_refinement_in_3d() {
-    assert_flat(&iteration_counts::<3>([3, 6, 12]));
+    iteration_counts::<3>([3, 6, 12])
+        .iter()
+        .for_each(|c| assert_flat(c));
 }
 
 #[test]

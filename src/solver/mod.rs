@@ -21,12 +21,13 @@ pub mod modes;
 mod multigrid;
 #[cfg(feature = "petsc")]
 mod petsc;
+mod vectors;
 
 pub use direct::DirectSolver;
 pub use forcing::EisenstatWalker;
 pub use krylov::{Jacobi, KrylovSolver, Preconditioner, multiply};
 pub use matrix::{DofLayout, NO_DOF, NO_ENTRY, SparseMatrix};
-pub use multigrid::{Hierarchy, Multigrid};
+pub use multigrid::{Hierarchy, Multigrid, Smoother};
 #[cfg(feature = "petsc")]
 pub use petsc::{PetscSolver, set_command_line_options as set_petsc_command_line_options};
 
