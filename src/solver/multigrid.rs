@@ -175,22 +175,17 @@ impl std::fmt::Display for Hierarchy {
 }
 
 /// The smoother of the V-cycle (see the module docs, **Cycle**).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Smoother {
     /// One forward Gauss–Seidel sweep before the coarse correction, one backward sweep after:
     /// the strongest smoothing for its cost, but each row waits for the one before, so it runs
     /// on one thread.
+    #[default]
     GaussSeidel,
     /// A Chebyshev polynomial of `D⁻¹A` of this degree (at least 1) before and after: products
     /// with `A` and element-wise updates only, so it runs on every thread, the same for any
     /// thread count.
     Chebyshev(usize),
-}
-
-impl Default for Smoother {
-    fn default() -> Self {
-        Smoother::GaussSeidel
-    }
 }
 
 fn ratio(sizes: &[usize]) -> f64 {
