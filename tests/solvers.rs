@@ -4,7 +4,8 @@
 //! traction, to the Newton tolerance, with the same Newton iterations; a non-symmetric tangent
 //! (Nitsche's surface condition) goes to BiCGSTAB with multigrid and gives the same run; the
 //! multigrid preconditioner keeps CG's iteration count nearly flat under refinement of a
-//! self-weight block in 2D and 3D (where Jacobi's grows); the scene words are read and checked.
+//! self-weight block in 2D and 3D (where Jacobi's grows); the scene words are read and checked;
+//! `linear: "auto"` picks by dimension and size and records its choice.
 
 mod common;
 
@@ -13,8 +14,8 @@ use impm::resources::Newton;
 use impm::run::{Simulation, load_scene};
 use impm::scene::{LinearBackend, Preconditioning};
 use impm::solver::{
-    DirectSolver, KrylovSolver, LinearSolver, Multigrid, Smoother, SolverKind, SparseMatrix,
-    multiply,
+    DirectSolver, ITERATIVE_FROM_3D, KrylovSolver, LinearSolver, Multigrid, Smoother, SolverKind,
+    SparseMatrix, multiply,
 };
 
 /// Makes a new linear solver.
@@ -380,5 +381,66 @@ fn the_multigrid_hierarchy_is_recorded_in_the_summary() {
     let complexity = multigrid["operator_complexity"].as_f64().unwrap();
     let expected = recorded.nonzeros.iter().sum::<usize>() as f64 / recorded.nonzeros[0] as f64;
     assert!((complexity - expected).abs() < 1e-12 && complexity <= MAX_OPERATOR_COMPLEXITY);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `linear: "auto"` (`solver::AutoSolver`): a cube above the 3D threshold is solved by CG with
+/// Jacobi and gives the direct run's Newton iterations and stresses (to 1e-8 of the largest);
+/// the 1D column is solved directly; each step's summary says which backend and why, in
+/// `summary.json` too; `preconditioner` with "auto" is refused at its line.
+#[test]
+fn auto_chooses_the_backend_by_dimension_and_size_and_says_why() {
+    let cube = |linear| {
+        common::run_shipped::<3>(
+            "cube_self_weight.rhai",
+            &[("cells", "8"), ("linear", linear)],
+        )
+    };
+    let (mut auto, mut direct) = (cube("auto"), cube("direct"));
+    let difference = stress_difference(&auto.stress_profile(2), &direct.stress_profile(2));
+    let (step, reference) = (&auto.summary.steps[0], &direct.summary.steps[0]);
+    assert!(step.dofs >= ITERATIVE_FROM_3D, "{} DOFs", step.dofs);
+    let choice = step.linear_backend.clone().unwrap_or_default();
+    assert!(
+        choice.starts_with(&format!("iterative (jacobi): 3D, {} DOFs ≥", step.dofs)),
+        "{choice}"
+    );
+    assert_eq!(step.linear_iterations.len(), step.iterations);
+    assert_eq!(
+        auto.world.resource::<Newton>().last_solver,
+        SolverKind::ConjugateGradients
+    );
+    assert_eq!(step.iterations, reference.iterations);
+    eprintln!("cube, 8 cells, auto ({choice}) against direct: stresses {difference:.1e}");
+    assert!(difference < 1e-8, "{difference:e}");
+    assert_eq!(reference.linear_backend, None);
+
+    let base = std::fs::read_to_string(shipped_scene("column_1d.rhai")).unwrap();
+    let dir = temp_dir("solvers", "auto-column");
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("column.rhai");
+    std::fs::write(&path, format!("{base}\nsolver(#{{ linear: \"auto\" }});\n")).unwrap();
+    let spec = load_scene(&path, &[]).unwrap();
+    assert_eq!(spec.solver.linear, LinearBackend::Auto);
+    let out = dir.join("out");
+    let mut sim = Simulation::<1>::new(&spec, &out).unwrap();
+    sim.run(|_| {}).unwrap();
+    let text = std::fs::read_to_string(out.join("summary.json")).unwrap();
+    let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    for step in json["steps"].as_array().unwrap() {
+        let choice = step["linear_backend"].as_str().unwrap_or_default();
+        assert!(choice.starts_with("direct: 1D"), "{choice}");
+    }
+    std::fs::write(
+        &path,
+        format!("{base}\nsolver(#{{ linear: \"auto\", preconditioner: \"jacobi\" }});\n"),
+    )
+    .unwrap();
+    let lines = std::fs::read_to_string(&path).unwrap().lines().count();
+    let message = load_scene(&path, &[]).unwrap_err().to_string();
+    assert!(
+        message.contains(&format!(":{lines}:")) && message.contains("applies to"),
+        "{message}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

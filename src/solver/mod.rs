@@ -10,9 +10,11 @@
 //!
 //! Backends: [`DirectSolver`] (faer's sparse Cholesky / LU, the default) and [`KrylovSolver`]
 //! (preconditioned CG / BiCGSTAB with a [`Preconditioner`]: [`Jacobi`], or smoothed-aggregation
-//! [`Multigrid`] whose iteration count stays nearly flat under refinement); with the cargo
-//! feature `petsc`, `PetscSolver` (PETSc's KSP and preconditioners, GAMG by default).
+//! [`Multigrid`] whose iteration count stays nearly flat under refinement); [`AutoSolver`]
+//! picks one of them per solve by the dimension and the DOFs (the measured crossover); with the
+//! cargo feature `petsc`, `PetscSolver` (PETSc's KSP and preconditioners, GAMG by default).
 
+mod auto;
 mod direct;
 mod forcing;
 mod krylov;
@@ -23,6 +25,10 @@ mod multigrid;
 mod petsc;
 mod vectors;
 
+pub use auto::{
+    AutoSolver, Backend as AutoBackend, ITERATIVE_FROM_3D, MULTIGRID_FROM_2D,
+    choose as choose_backend,
+};
 pub use direct::DirectSolver;
 pub use forcing::EisenstatWalker;
 pub use krylov::{Jacobi, KrylovSolver, Preconditioner, multiply};
@@ -89,6 +95,12 @@ pub trait LinearSolver: Send + Sync {
 
     /// The levels of a multigrid preconditioner after the last solve (`None` without one).
     fn hierarchy(&self) -> Option<Hierarchy> {
+        None
+    }
+
+    /// Which backend an automatic solver ([`AutoSolver`]) used for the last solve, and why
+    /// (`None` for a solver that is one backend).
+    fn choice(&self) -> Option<String> {
         None
     }
 
