@@ -7,13 +7,16 @@
 //! iterations per Newton iteration, seconds of the linear solves and of the step.
 //!
 //! ```text
-//! cargo run --release --example multigrid_setup [-- 3:11,16 2:200 --widths 3,4]
+//! cargo run --release --example multigrid_setup [-- 3:11,16 2:200 --widths 3,4 \
+//!     --smoothers gs,cheb2 --threads 1,2]
 //! ```
 //!
 //! `D:cells,..` are the blocks (`scripts/block_2d_self_weight.rhai`,
 //! `scripts/cube_self_weight.rhai`, B-spline q = 2, 2^D points per cell: 3D 11 cells a side is
 //! 10 648 points, 16 is 32 768; 2D 200 is 160 000). The tangent is the one of the block's only
 //! load step after its Newton iterations (direct backend); the right-hand side is smooth.
+//! `--smoothers` lists multigrid's smoothers (`gs`: Gauss–Seidel, `chebK`: Chebyshev of degree
+//! K; default `gs`), `--threads` the thread counts every study runs on (default: rayon's).
 //! Timings are single runs: on a shared machine, say so next to them.
 
 use std::path::Path;
@@ -23,8 +26,28 @@ use impm::resources::{Newton, Stage};
 use impm::run::{Simulation, load_scene};
 use impm::scene::LinearBackend;
 use impm::solver::{
-    DirectSolver, KrylovSolver, LinearSolver, Multigrid, Preconditioner, SparseMatrix,
+    DirectSolver, KrylovSolver, LinearSolver, Multigrid, Preconditioner, Smoother, SparseMatrix,
 };
+
+/// A smoother's name on the command line and in the output.
+fn smoother_name(smoother: Smoother) -> String {
+    match smoother {
+        Smoother::GaussSeidel => "gs".into(),
+        Smoother::Chebyshev(degree) => format!("cheb{degree}"),
+    }
+}
+
+fn parse_smoother(name: &str) -> Smoother {
+    match name.strip_prefix("cheb") {
+        Some(degree) => Smoother::Chebyshev(
+            degree
+                .parse()
+                .unwrap_or_else(|_| panic!("chebK: K a degree, got {name}")),
+        ),
+        None if name == "gs" => Smoother::GaussSeidel,
+        None => panic!("unknown smoother {name}: gs or chebK"),
+    }
+}
 
 /// The block's load step solved by `solver` (the direct solve if `None`): the simulation after
 /// it and its wall seconds.
@@ -66,39 +89,46 @@ fn tangent<const D: usize>(cells: usize) -> SparseMatrix {
 }
 
 /// The load step with each backend (see the module docs).
-fn steps<const D: usize>(cells: usize, widths: &[usize]) {
+fn steps<const D: usize>(cells: usize, widths: &[usize], smoothers: &[Smoother]) {
     let mut backends: Vec<(String, Option<Box<dyn LinearSolver>>)> = vec![
         ("direct".into(), None),
         ("cg+jacobi".into(), Some(Box::new(KrylovSolver::default()))),
     ];
     for &width in widths {
-        for keep in [false, true] {
-            let mut multigrid = Multigrid::default();
-            multigrid.aggregate_width = width;
-            multigrid.keep_hierarchy = keep;
-            let name = format!(
-                "cg+multigrid boxes of {width}, {}",
-                if keep { "kept for the step" } else { "rebuilt" }
-            );
-            let solver = KrylovSolver::with_preconditioner(Box::new(multigrid));
-            backends.push((name, Some(Box::new(solver))));
+        for &smoother in smoothers {
+            for keep in [false, true] {
+                let mut multigrid = Multigrid::default();
+                multigrid.aggregate_width = width;
+                multigrid.keep_hierarchy = keep;
+                multigrid.smoother = smoother;
+                let name = format!(
+                    "cg+multigrid boxes of {width}, {}, {}",
+                    smoother_name(smoother),
+                    if keep { "kept for the step" } else { "rebuilt" }
+                );
+                let solver = KrylovSolver::with_preconditioner(Box::new(multigrid));
+                backends.push((name, Some(Box::new(solver))));
+            }
         }
     }
     for (name, solver) in backends {
         let (sim, seconds) = step::<D>(cells, solver);
         let record = &sim.summary.steps[0];
+        // the blocks have no reference answer of their own
+        let error = record
+            .error
+            .map_or("n/a".to_string(), |e| format!("{e:.3e}"));
         println!(
             "  step, {name}: {seconds:.3} s, linear solves {:.3} s, {} Newton iterations, \
-             Krylov iterations {:?}, error {:.3e}",
+             Krylov iterations {:?}, error {error}",
             record.seconds.get(Stage::LinearSolve).as_secs_f64(),
             record.iterations,
             record.linear_iterations,
-            record.error.unwrap_or(f64::NAN)
         );
     }
 }
 
-fn study(dim: usize, cells: usize, widths: &[usize]) {
+fn study(dim: usize, cells: usize, widths: &[usize], smoothers: &[Smoother]) {
     let matrix = match dim {
         2 => tangent::<2>(cells),
         _ => tangent::<3>(cells),
@@ -125,10 +155,14 @@ fn study(dim: usize, cells: usize, widths: &[usize]) {
         "  cg+jacobi: {seconds:.3} s, {} iterations",
         jacobi.last_iterations
     );
-    for &width in widths {
+    for (&width, &smoother) in widths
+        .iter()
+        .flat_map(|w| smoothers.iter().map(move |s| (w, s)))
+    {
         let multigrid = || {
             let mut multigrid = Multigrid::default();
             multigrid.aggregate_width = width;
+            multigrid.smoother = smoother;
             multigrid
         };
         let mut alone = multigrid();
@@ -141,21 +175,24 @@ fn study(dim: usize, cells: usize, widths: &[usize]) {
         let mut solver = KrylovSolver::with_preconditioner(Box::new(multigrid()));
         let seconds = timed(&mut solver);
         println!(
-            "  cg+multigrid, boxes of {width}: setup {first:.3} s (same pattern again {again:.3} s), \
-             solve with setup {seconds:.3} s, {} iterations; {}",
+            "  cg+multigrid, boxes of {width}, {}: setup {first:.3} s (same pattern again \
+             {again:.3} s), solve with setup {seconds:.3} s, {} iterations; {}",
+            smoother_name(smoother),
             solver.last_iterations,
             alone.hierarchy().map(|h| h.to_string()).unwrap_or_default()
         );
     }
     match dim {
-        2 => steps::<2>(cells, widths),
-        _ => steps::<3>(cells, widths),
+        2 => steps::<2>(cells, widths, smoothers),
+        _ => steps::<3>(cells, widths, smoothers),
     }
 }
 
 fn main() {
     let mut cases: Vec<(usize, Vec<usize>)> = Vec::new();
-    let mut widths = vec![3];
+    let mut widths = vec![4];
+    let mut smoothers = vec![Smoother::GaussSeidel];
+    let mut threads = vec![rayon::current_num_threads()];
     let mut args = std::env::args().skip(1);
     while let Some(arg) = args.next() {
         let list = |text: &str| -> Vec<usize> {
@@ -165,18 +202,33 @@ fn main() {
         };
         if arg == "--widths" {
             widths = list(&args.next().expect("--widths 2,3"));
+        } else if arg == "--threads" {
+            threads = list(&args.next().expect("--threads 1,2"));
+        } else if arg == "--smoothers" {
+            let names = args.next().expect("--smoothers gs,cheb2");
+            smoothers = names.split(',').map(parse_smoother).collect();
         } else if let Some((dim, sizes)) = arg.split_once(':') {
             cases.push((dim.parse().expect("dimension 2 or 3"), list(sizes)));
         } else {
-            panic!("unknown argument {arg}: D:cells,.. or --widths w,..");
+            panic!(
+                "unknown argument {arg}: D:cells,.., --widths w,.., --smoothers gs,chebK,.. or \
+                 --threads n,.."
+            );
         }
     }
     if cases.is_empty() {
         cases = vec![(3, vec![11, 16]), (2, vec![200])];
     }
-    for (dim, sizes) in cases {
-        for cells in sizes {
-            study(dim, cells, &widths);
+    for &count in &threads {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(count)
+            .build()
+            .unwrap_or_else(|e| panic!("{count} threads: {e}"));
+        println!("--- {count} thread(s) ---");
+        for (dim, sizes) in &cases {
+            for &cells in sizes {
+                pool.install(|| study(*dim, cells, &widths, &smoothers));
+            }
         }
     }
 }

@@ -386,6 +386,9 @@ fn run_command(
     if let Some(e) = summary.final_error() {
         line += &format!(", error (eq. 15) {e:.3e}");
     }
+    if let Some(choice) = summary.steps.last().and_then(|s| s.linear_backend.as_ref()) {
+        line += &format!("\nlinear solver (auto, last step): {choice}");
+    }
     if let Some(hierarchy) = summary.steps.last().and_then(|s| s.multigrid.as_ref()) {
         line += &format!("\nmultigrid (last step): {hierarchy}");
     }

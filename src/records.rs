@@ -46,6 +46,9 @@ pub struct StepRecord {
     pub linear_iterations: Vec<usize>,
     /// The multigrid preconditioner's levels at the step's last linear solve, if it has one.
     pub multigrid: Option<Hierarchy>,
+    /// The backend `linear: "auto"` used for the step's last linear solve, and why
+    /// (`LinearSolver::choice`; `None` for a backend the scene named).
+    pub linear_backend: Option<String>,
     pub converged: bool,
     pub dofs: usize,
     pub seconds: StageClock,
@@ -70,6 +73,7 @@ impl StepRecord {
             residuals: Vec::new(),
             linear_iterations: Vec::new(),
             multigrid: None,
+            linear_backend: None,
             converged: false,
             dofs: 0,
             seconds: StageClock::default(),
@@ -188,6 +192,9 @@ fn step_json(r: &StepRecord) -> Value {
             "grid_complexity": number(h.grid_complexity()),
             "operator_complexity": number(h.operator_complexity()),
         });
+    }
+    if let Some(choice) = &r.linear_backend {
+        v["linear_backend"] = json!(choice);
     }
     if let Some(e) = r.error {
         v["error"] = number(e);
@@ -389,6 +396,7 @@ pub fn step_from_json(value: &Value, measures: &[String]) -> Result<StepRecord, 
         rows: counts(&m["rows"]),
         nonzeros: counts(&m["nonzeros"]),
     });
+    record.linear_backend = value["linear_backend"].as_str().map(str::to_string);
     record.converged = value["converged"].as_bool().unwrap_or(false);
     record.dofs = count("dofs")?;
     record.seconds = stage_clock(&value["seconds"]);
@@ -444,6 +452,7 @@ const STEP_KEYS: &[&str] = &[
     "residuals",
     "linear_iterations",
     "multigrid",
+    "linear_backend",
     "converged",
     "dofs",
     "seconds",

@@ -325,6 +325,7 @@ impl<const D: usize> Simulation<D> {
         let newton = self.world.resource::<Newton>();
         record.dofs = newton.matrix.size();
         record.multigrid = newton.solver.hierarchy();
+        record.linear_backend = newton.solver.choice();
         let failure = outcome.as_ref().err().map(|e| e.to_string());
         record.add_attempt(
             &attempt,

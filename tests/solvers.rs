@@ -4,7 +4,8 @@
 //! traction, to the Newton tolerance, with the same Newton iterations; a non-symmetric tangent
 //! (Nitsche's surface condition) goes to BiCGSTAB with multigrid and gives the same run; the
 //! multigrid preconditioner keeps CG's iteration count nearly flat under refinement of a
-//! self-weight block in 2D and 3D (where Jacobi's grows); the scene words are read and checked.
+//! self-weight block in 2D and 3D (where Jacobi's grows); the scene words are read and checked;
+//! `linear: "auto"` picks by dimension and size and records its choice.
 
 mod common;
 
@@ -13,14 +14,16 @@ use impm::resources::Newton;
 use impm::run::{Simulation, load_scene};
 use impm::scene::{LinearBackend, Preconditioning};
 use impm::solver::{
-    DirectSolver, KrylovSolver, LinearSolver, Multigrid, SolverKind, SparseMatrix, multiply,
+    DirectSolver, ITERATIVE_FROM_3D, KrylovSolver, LinearSolver, Multigrid, Smoother, SolverKind,
+    SparseMatrix, multiply,
 };
 
 /// Makes a new linear solver.
 type MakeSolver = Box<dyn Fn() -> Box<dyn LinearSolver>>;
 
 /// The backends compared with the direct solve: the scene's words, and multigrid with a
-/// coarsest level of 8 DOFs so that these small problems go through the whole V-cycle.
+/// coarsest level of 8 DOFs so that these small problems go through the whole V-cycle (with
+/// either smoother).
 fn iterative_backends() -> Vec<(&'static str, MakeSolver)> {
     vec![
         (
@@ -35,6 +38,14 @@ fn iterative_backends() -> Vec<(&'static str, MakeSolver)> {
             "multigrid-deep",
             Box::new(|| {
                 let multigrid = Multigrid::with_coarsest_size(8);
+                Box::new(KrylovSolver::with_preconditioner(Box::new(multigrid)))
+            }),
+        ),
+        (
+            "multigrid-deep-chebyshev",
+            Box::new(|| {
+                let mut multigrid = Multigrid::with_coarsest_size(8);
+                multigrid.smoother = Smoother::Chebyshev(2);
                 Box::new(KrylovSolver::with_preconditioner(Box::new(multigrid)))
             }),
         ),
@@ -148,12 +159,16 @@ fn self_weight_tangent<const D: usize>(cells: usize) -> SparseMatrix {
     sim.world.resource::<Newton>().matrix.clone()
 }
 
+/// The smoothers every multigrid test below runs with.
+const SMOOTHERS: [Smoother; 2] = [Smoother::GaussSeidel, Smoother::Chebyshev(2)];
+
 /// CG iterations to a relative residual of 1e-10 on the tangent of a self-weight block (a
 /// smooth right-hand side), with multigrid (its coarsest level at most 50 DOFs, so that every
 /// refinement goes through a V-cycle of two levels or more) and with Jacobi, at three
-/// refinements; the multigrid solution against the direct one.
-fn iteration_counts<const D: usize>(refinements: [usize; 3]) -> Vec<(usize, usize, usize)> {
-    let mut counts = Vec::new();
+/// refinements; the multigrid solution against the direct one. One list per smoother of
+/// [`SMOOTHERS`], in that order.
+fn iteration_counts<const D: usize>(refinements: [usize; 3]) -> Vec<Vec<(usize, usize, usize)>> {
+    let mut counts = vec![Vec::new(); SMOOTHERS.len()];
     for cells in refinements {
         let matrix = self_weight_tangent::<D>(cells);
         let n = matrix.size();
@@ -162,36 +177,39 @@ fn iteration_counts<const D: usize>(refinements: [usize; 3]) -> Vec<(usize, usiz
         DirectSolver::default()
             .solve(&matrix, true, &mut direct)
             .unwrap();
-        let mut multigrid =
-            KrylovSolver::with_preconditioner(Box::new(Multigrid::with_coarsest_size(50)));
-        let mut x = rhs.clone();
-        assert_eq!(
-            multigrid.solve(&matrix, true, &mut x),
-            Ok(SolverKind::ConjugateGradients)
-        );
-        let hierarchy = multigrid.hierarchy().expect("a multigrid hierarchy");
-        let mut check = vec![0.0; n];
-        multiply(&matrix, &x, &mut check);
-        let residual = relative(&check, &rhs);
-        let error = relative(&x, &direct);
         let mut jacobi = KrylovSolver::default();
         let mut y = rhs.clone();
         jacobi.solve(&matrix, true, &mut y).unwrap();
-        eprintln!(
-            "{D}D block, {cells} cells a side, {n} DOFs: CG iterations multigrid {} jacobi {}, \
+        for (smoother, counts) in SMOOTHERS.iter().zip(counts.iter_mut()) {
+            let mut preconditioner = Multigrid::with_coarsest_size(50);
+            preconditioner.smoother = *smoother;
+            let mut multigrid = KrylovSolver::with_preconditioner(Box::new(preconditioner));
+            let mut x = rhs.clone();
+            assert_eq!(
+                multigrid.solve(&matrix, true, &mut x),
+                Ok(SolverKind::ConjugateGradients)
+            );
+            let hierarchy = multigrid.hierarchy().expect("a multigrid hierarchy");
+            let mut check = vec![0.0; n];
+            multiply(&matrix, &x, &mut check);
+            let residual = relative(&check, &rhs);
+            let error = relative(&x, &direct);
+            eprintln!(
+                "{D}D block, {cells} cells a side, {n} DOFs: CG iterations multigrid ({smoother:?}) {} jacobi {}, \
              multigrid residual {residual:.1e}, difference from direct {error:.1e}; {hierarchy}",
-            multigrid.last_iterations, jacobi.last_iterations
-        );
-        assert!(residual <= 1e-9, "{residual:e}");
-        assert!(error < 1e-6, "{error:e}");
-        // each level far smaller than the one below: the setup's products and a V-cycle cost
-        // little more than the finest level's
-        assert!(
-            hierarchy.operator_complexity() <= MAX_OPERATOR_COMPLEXITY,
-            "{D}D, {cells} cells: {hierarchy}"
-        );
-        assert!(hierarchy.rows.len() >= 2, "{hierarchy}");
-        counts.push((n, multigrid.last_iterations, jacobi.last_iterations));
+                multigrid.last_iterations, jacobi.last_iterations
+            );
+            assert!(residual <= 1e-9, "{residual:e}");
+            assert!(error < 1e-6, "{error:e}");
+            // each level far smaller than the one below: the setup's products and a V-cycle cost
+            // little more than the finest level's
+            assert!(
+                hierarchy.operator_complexity() <= MAX_OPERATOR_COMPLEXITY,
+                "{D}D, {cells} cells: {hierarchy}"
+            );
+            assert!(hierarchy.rows.len() >= 2, "{hierarchy}");
+            counts.push((n, multigrid.last_iterations, jacobi.last_iterations));
+        }
     }
     counts
 }
@@ -229,12 +247,16 @@ fn assert_flat(counts: &[(usize, usize, usize)]) {
 
 #[test]
 fn multigrid_keeps_the_cg_iterations_flat_under_refinement_in_2d() {
-    assert_flat(&iteration_counts::<2>([16, 32, 64]));
+    iteration_counts::<2>([16, 32, 64])
+        .iter()
+        .for_each(|c| assert_flat(c));
 }
 
 #[test]
 fn multigrid_keeps_the_cg_iterations_flat_under_refinement_in_3d() {
-    assert_flat(&iteration_counts::<3>([3, 6, 12]));
+    iteration_counts::<3>([3, 6, 12])
+        .iter()
+        .for_each(|c| assert_flat(c));
 }
 
 #[test]
@@ -359,5 +381,66 @@ fn the_multigrid_hierarchy_is_recorded_in_the_summary() {
     let complexity = multigrid["operator_complexity"].as_f64().unwrap();
     let expected = recorded.nonzeros.iter().sum::<usize>() as f64 / recorded.nonzeros[0] as f64;
     assert!((complexity - expected).abs() < 1e-12 && complexity <= MAX_OPERATOR_COMPLEXITY);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `linear: "auto"` (`solver::AutoSolver`): a cube above the 3D threshold is solved by CG with
+/// Jacobi and gives the direct run's Newton iterations and stresses (to 1e-8 of the largest);
+/// the 1D column is solved directly; each step's summary says which backend and why, in
+/// `summary.json` too; `preconditioner` with "auto" is refused at its line.
+#[test]
+fn auto_chooses_the_backend_by_dimension_and_size_and_says_why() {
+    let cube = |linear| {
+        common::run_shipped::<3>(
+            "cube_self_weight.rhai",
+            &[("cells", "8"), ("linear", linear)],
+        )
+    };
+    let (mut auto, mut direct) = (cube("auto"), cube("direct"));
+    let difference = stress_difference(&auto.stress_profile(2), &direct.stress_profile(2));
+    let (step, reference) = (&auto.summary.steps[0], &direct.summary.steps[0]);
+    assert!(step.dofs >= ITERATIVE_FROM_3D, "{} DOFs", step.dofs);
+    let choice = step.linear_backend.clone().unwrap_or_default();
+    assert!(
+        choice.starts_with(&format!("iterative (jacobi): 3D, {} DOFs ≥", step.dofs)),
+        "{choice}"
+    );
+    assert_eq!(step.linear_iterations.len(), step.iterations);
+    assert_eq!(
+        auto.world.resource::<Newton>().last_solver,
+        SolverKind::ConjugateGradients
+    );
+    assert_eq!(step.iterations, reference.iterations);
+    eprintln!("cube, 8 cells, auto ({choice}) against direct: stresses {difference:.1e}");
+    assert!(difference < 1e-8, "{difference:e}");
+    assert_eq!(reference.linear_backend, None);
+
+    let base = std::fs::read_to_string(shipped_scene("column_1d.rhai")).unwrap();
+    let dir = temp_dir("solvers", "auto-column");
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("column.rhai");
+    std::fs::write(&path, format!("{base}\nsolver(#{{ linear: \"auto\" }});\n")).unwrap();
+    let spec = load_scene(&path, &[]).unwrap();
+    assert_eq!(spec.solver.linear, LinearBackend::Auto);
+    let out = dir.join("out");
+    let mut sim = Simulation::<1>::new(&spec, &out).unwrap();
+    sim.run(|_| {}).unwrap();
+    let text = std::fs::read_to_string(out.join("summary.json")).unwrap();
+    let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    for step in json["steps"].as_array().unwrap() {
+        let choice = step["linear_backend"].as_str().unwrap_or_default();
+        assert!(choice.starts_with("direct: 1D"), "{choice}");
+    }
+    std::fs::write(
+        &path,
+        format!("{base}\nsolver(#{{ linear: \"auto\", preconditioner: \"jacobi\" }});\n"),
+    )
+    .unwrap();
+    let lines = std::fs::read_to_string(&path).unwrap().lines().count();
+    let message = load_scene(&path, &[]).unwrap_err().to_string();
+    assert!(
+        message.contains(&format!(":{lines}:")) && message.contains("applies to"),
+        "{message}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

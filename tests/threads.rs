@@ -1,8 +1,9 @@
 //! Threads (`src/parallel.rs`): a run on two threads equals the run on one to round-off (the
 //! sums over points are added in another order), and repeated runs on two threads are
 //! bit-identical (the points are cut into parts by count, and the parts' sums added in order).
-//! Checked on the paper's 2D column (against its eq. 15 error too) and on a 3D block; `impm run
-//! --threads N` records N in summary.json.
+//! Checked on the paper's 2D column (against its eq. 15 error too), on a 3D block and on a 2D
+//! block solved iteratively (CG with multigrid on the threads); `impm run --threads N` records
+//! N in summary.json.
 
 mod common;
 
@@ -135,6 +136,18 @@ fn a_3d_block_on_two_threads_equals_one_thread_to_round_off_and_repeats_bit_for_
         "block 3D",
         "block_3d.rhai",
         &[("cells", "4"), ("steps", "3")],
+    );
+}
+
+/// The linear solve on the threads (`solver::vectors`: the Krylov loop's products, dot
+/// products and updates, multigrid's cycle): a block large enough (18.6k DOFs) that the solver's
+/// loops are cut into parts, solved by CG with multigrid.
+#[test]
+fn iterative_solves_on_two_threads_equal_one_thread_to_round_off_and_repeat_bit_for_bit() {
+    check::<2>(
+        "block 2D, CG + multigrid",
+        "block_2d_self_weight.rhai",
+        &[("cells", "96"), ("linear", "iterative")],
     );
 }
 

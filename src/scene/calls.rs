@@ -600,6 +600,16 @@ fn solver_call() -> CallSpec {
                         ),
                     },
                     Choice {
+                        word: "auto",
+                        meaning: Some(
+                            "by the dimension and the DOFs of each system, as measured: direct in \
+                             1D, in 2D below 75 000 DOFs and in 3D below 2 000; CG with \
+                             multigrid in 2D and CG with Jacobi in 3D above; an iterative solve \
+                             that fails is repeated by the direct solver, which is then kept \
+                             (summary.json: linear_backend says which and why)",
+                        ),
+                    },
+                    Choice {
                         word: "petsc",
                         meaning: Some(
                             "PETSc's solvers (builds with the cargo feature `petsc` only): CG, \
@@ -641,7 +651,7 @@ fn solver_call() -> CallSpec {
             OptionSpec::new(
                 "inexact",
                 Kind::Flag,
-                "inexact Newton (linear: \"iterative\"): each linear solve only as accurate as \
+                "inexact Newton (linear: \"iterative\", or \"auto\" when it solves iteratively): each linear solve only as accurate as \
                  an Eisenstat-Walker forcing term asks, loose far from the solution and tight \
                  near it (default false)",
             ),
@@ -667,6 +677,7 @@ fn solver_call() -> CallSpec {
                                     linear: \"iterative\" only"
                             .to_string());
                     }
+                    (Some("auto"), _) => LinearBackend::Auto,
                     (Some("petsc"), _) if cfg!(feature = "petsc") => LinearBackend::Petsc,
                     (Some("petsc"), _) => {
                         return Err(format!(
@@ -686,8 +697,8 @@ fn solver_call() -> CallSpec {
             }
             if solver.inexact && solver.linear == LinearBackend::Direct {
                 return Err(
-                    "solver(...): 'inexact' applies to linear: \"iterative\" only \
-                            (a direct solve is exact)"
+                    "solver(...): 'inexact' applies to linear: \"iterative\" or \"auto\" \
+                            only (a direct solve is exact)"
                         .to_string(),
                 );
             }

@@ -180,6 +180,9 @@ pub enum LinearBackend {
     /// PETSc's KSP and preconditioners (`solver::PetscSolver`); only in a build with the cargo
     /// feature `petsc`, scenes asking for it elsewhere are refused when they load.
     Petsc,
+    /// Direct or iterative by the dimension and the DOFs of each system, the crossover measured
+    /// (`solver::AutoSolver`).
+    Auto,
 }
 
 /// The preconditioner of the iterative backend.
@@ -198,6 +201,7 @@ impl LinearBackend {
         use crate::solver::{DirectSolver, KrylovSolver};
         match self {
             LinearBackend::Direct => Box::new(DirectSolver::default()),
+            LinearBackend::Auto => Box::new(crate::solver::AutoSolver::default()),
             LinearBackend::Iterative(Preconditioning::Jacobi) => Box::new(KrylovSolver::default()),
             LinearBackend::Iterative(Preconditioning::Multigrid) => {
                 Box::new(KrylovSolver::multigrid())

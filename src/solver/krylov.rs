@@ -17,11 +17,18 @@
 //! multigrid with the rigid-body modes ([`super::Multigrid`]) keeps the count nearly flat; it is
 //! another [`Preconditioner`].
 //!
+//! Threads: the products with `K`, the dot products and the vector updates run on rayon's
+//! threads (`super::vectors`). A symmetric tangent is multiplied by gathering along its
+//! columns, so CG with Jacobi gives the same bits on any thread count; BiCGSTAB's products
+//! scatter along the columns into one buffer per thread, added in order: bit-identical for a
+//! given thread count, equal to round-off across counts.
+//!
 //! A solve that does not reach the tolerance in `max_iterations` fails with
 //! [`LinearSolveError::NotConverged`] (the Newton loop then cuts the step as for any failed
 //! solve), and one that meets a breakdown (a zero or negative curvature `pᵀKp` in CG: the
 //! tangent is not positive definite) fails at once with [`LinearSolveError::Singular`].
 
+use super::vectors::{self, ScatterParts, dot, norm};
 use super::{LinearSolveError, LinearSolver, SolverKind, SparseMatrix};
 
 /// A preconditioner `M⁻¹ ≈ K⁻¹`, rebuilt from the matrix before each solve.
@@ -47,27 +54,45 @@ impl Preconditioner for Jacobi {
         let (col_ptr, row_idx) = matrix.pattern();
         let values = matrix.values();
         self.inverse_diagonal.clear();
-        for col in 0..matrix.size() {
-            let range = col_ptr[col]..col_ptr[col + 1];
-            let diagonal = row_idx[range.clone()]
-                .iter()
-                .zip(&values[range])
-                .find(|(row, _)| **row == col)
-                .map_or(0.0, |(_, v)| *v);
-            if diagonal == 0.0 || !diagonal.is_finite() {
-                return Err(LinearSolveError::Singular(format!(
-                    "zero or non-finite diagonal entry {diagonal} at DOF {col}"
-                )));
+        self.inverse_diagonal.resize(matrix.size(), 0.0);
+        // the diagonal first (on the threads), then its inverse where it is usable
+        vectors::update(&mut self.inverse_diagonal, |columns, chunk| {
+            for (d, col) in chunk.iter_mut().zip(columns) {
+                let range = col_ptr[col]..col_ptr[col + 1];
+                *d = row_idx[range.clone()]
+                    .iter()
+                    .zip(&values[range])
+                    .find(|(row, _)| **row == col)
+                    .map_or(0.0, |(_, v)| *v);
             }
-            self.inverse_diagonal.push(1.0 / diagonal);
+        });
+        if let Some((col, &diagonal)) = self
+            .inverse_diagonal
+            .iter()
+            .enumerate()
+            .find(|(_, d)| **d == 0.0 || !d.is_finite())
+        {
+            return Err(LinearSolveError::Singular(format!(
+                "zero or non-finite diagonal entry {diagonal} at DOF {col}"
+            )));
         }
+        vectors::update(&mut self.inverse_diagonal, |_, chunk| {
+            chunk.iter_mut().for_each(|d| *d = 1.0 / *d);
+        });
         Ok(())
     }
 
     fn apply(&mut self, r: &[f64], z: &mut [f64]) {
-        for ((z, r), d) in z.iter_mut().zip(r).zip(&self.inverse_diagonal) {
-            *z = r * d;
-        }
+        let inverse_diagonal = &self.inverse_diagonal;
+        vectors::update(z, |range, z| {
+            for ((z, r), d) in z
+                .iter_mut()
+                .zip(&r[range.clone()])
+                .zip(&inverse_diagonal[range])
+            {
+                *z = r * d;
+            }
+        });
     }
 }
 
@@ -98,6 +123,8 @@ struct Work {
     p_hat: Vec<f64>,
     s_hat: Vec<f64>,
     t: Vec<f64>,
+    /// The threads' buffers of the products by columns.
+    parts: ScatterParts,
 }
 
 /// `v` as `n` zeros, keeping its allocation.
@@ -133,30 +160,60 @@ impl KrylovSolver {
     }
 }
 
-/// `y = K x` for the stored (both-triangle) CSC matrix.
+/// `y = K x` for the stored (both-triangle) CSC matrix, on the threads (a scatter along the
+/// columns: bit-identical for a given thread count, see `vectors`).
 pub fn multiply(matrix: &SparseMatrix, x: &[f64], y: &mut [f64]) {
+    multiply_with(matrix, x, y, &mut ScatterParts::default());
+}
+
+/// [`multiply`] with the threads' buffers kept by the caller.
+fn multiply_with(matrix: &SparseMatrix, x: &[f64], y: &mut [f64], parts: &mut ScatterParts) {
     let (col_ptr, row_idx) = matrix.pattern();
-    let values = matrix.values();
     y.fill(0.0);
-    for (col, &xc) in x.iter().enumerate() {
-        for k in col_ptr[col]..col_ptr[col + 1] {
-            y[row_idx[k]] += values[k] * xc;
-        }
+    vectors::scatter_add(col_ptr, row_idx, matrix.values(), x, y, parts);
+}
+
+/// `y = K x` inside a Krylov loop. A tangent declared symmetric is multiplied as `Kᵀ x`: its
+/// columns read as rows, a gather that is the same for any thread count and needs no buffers
+/// (`K` and `Kᵀ` differ by the assembly's round-off at most; the true residual at the end of a
+/// solve is checked with `K` itself). Otherwise the scatter of [`multiply`].
+fn product(
+    matrix: &SparseMatrix,
+    symmetric: bool,
+    x: &[f64],
+    y: &mut [f64],
+    parts: &mut ScatterParts,
+) {
+    if symmetric {
+        let (col_ptr, row_idx) = matrix.pattern();
+        vectors::gather(col_ptr, row_idx, matrix.values(), x, y);
+    } else {
+        multiply_with(matrix, x, y, parts);
     }
 }
 
-fn dot(u: &[f64], v: &[f64]) -> f64 {
-    u.iter().zip(v).map(|(a, b)| a * b).sum()
+/// The relative true residual `‖r − K x‖ / ‖r‖` of a solution `x` of `K x = r` (`product` is
+/// work space; NaN where `x` is not finite). Every iterative backend checks its answer with it:
+/// a recursively updated residual (CG, BiCGSTAB) or a preconditioned norm (PETSc's default) can
+/// report convergence that the system does not have.
+pub(crate) fn true_relative_residual(
+    matrix: &SparseMatrix,
+    rhs: &[f64],
+    x: &[f64],
+    product: &mut [f64],
+) -> f64 {
+    multiply(matrix, x, product);
+    vectors::update(product, |range, chunk| {
+        for (p, r) in chunk.iter_mut().zip(&rhs[range]) {
+            *p = r - *p;
+        }
+    });
+    norm(product) / norm(rhs)
 }
 
-fn norm(u: &[f64]) -> f64 {
-    dot(u, u).sqrt()
-}
-
-/// Checks the true residual `‖r − K x‖` of the solution `x` of `K x = r` (the recursively
-/// updated one of CG and BiCGSTAB can drift from it, most on ill-conditioned or indefinite
-/// tangents) against the tolerance, with a factor 10 of slack for round-off; `product` is
-/// work space.
+/// Checks the true residual of the solution `x` of `K x = r` (the recursively updated one of
+/// CG and BiCGSTAB can drift from it, most on ill-conditioned or indefinite tangents) against
+/// the tolerance, with a factor 10 of slack for round-off; `product` is work space.
 fn check_true_residual(
     matrix: &SparseMatrix,
     rhs: &[f64],
@@ -164,14 +221,7 @@ fn check_true_residual(
     product: &mut [f64],
     tolerance: f64,
 ) -> Result<(), LinearSolveError> {
-    multiply(matrix, x, product);
-    let residual: f64 = rhs
-        .iter()
-        .zip(product.iter())
-        .map(|(r, p)| (r - p).powi(2))
-        .sum::<f64>()
-        .sqrt();
-    let relative = residual / norm(rhs);
+    let relative = true_relative_residual(matrix, rhs, x, product);
     if relative <= 10.0 * tolerance {
         Ok(())
     } else {
@@ -188,6 +238,15 @@ fn not_converged(residual: f64, iterations: usize, tolerance: f64) -> LinearSolv
         "the iterative solve reached a relative residual of {residual:.2e} after {iterations} \
          iterations (tolerance {tolerance:.0e}); use the direct solver (solver(#{{ linear: \"direct\" }}))"
     ))
+}
+
+/// `y += alpha x` on the threads.
+fn add_scaled(y: &mut [f64], alpha: f64, x: &[f64]) {
+    vectors::update(y, |range, y| {
+        for (y, x) in y.iter_mut().zip(&x[range]) {
+            *y += alpha * x;
+        }
+    });
 }
 
 impl KrylovSolver {
@@ -218,7 +277,7 @@ impl KrylovSolver {
                 return Err(not_converged(reached, self.max_iterations, tolerance));
             }
             self.last_iterations += 1;
-            multiply(matrix, p, q);
+            product(matrix, true, p, q, &mut work.parts);
             let curvature = dot(p, q);
             if curvature <= 0.0 || !curvature.is_finite() {
                 return Err(LinearSolveError::Singular(format!(
@@ -227,17 +286,17 @@ impl KrylovSolver {
                 )));
             }
             let alpha = rz / curvature;
-            for i in 0..n {
-                x[i] += alpha * p[i];
-                r[i] -= alpha * q[i];
-            }
+            add_scaled(x, alpha, p);
+            add_scaled(r, -alpha, q);
             self.preconditioner.apply(r, z);
             let rz_next = dot(r, z);
             let beta = rz_next / rz;
             rz = rz_next;
-            for i in 0..n {
-                p[i] = z[i] + beta * p[i];
-            }
+            vectors::update(p, |range, p| {
+                for (p, z) in p.iter_mut().zip(&z[range]) {
+                    *p = z + beta * *p;
+                }
+            });
         }
         check_true_residual(matrix, rhs, x, q, tolerance)?;
         rhs.copy_from_slice(x);
@@ -267,6 +326,7 @@ impl KrylovSolver {
             zeros(&mut work.s_hat, n),
             zeros(&mut work.t, n),
         );
+        let parts = &mut work.parts;
         let (mut rho, mut alpha, mut omega) = (1.0, 1.0, 1.0);
         let breakdown = |what: &str| {
             LinearSolveError::Singular(format!("BiCGSTAB broke down ({what} is zero)"))
@@ -287,35 +347,33 @@ impl KrylovSolver {
             }
             let beta = (rho_next / rho) * (alpha / omega);
             rho = rho_next;
-            for i in 0..n {
-                p[i] = r[i] + beta * (p[i] - omega * v[i]);
-            }
+            vectors::update(p, |range, p| {
+                for ((p, r), v) in p.iter_mut().zip(&r[range.clone()]).zip(&v[range]) {
+                    *p = r + beta * (*p - omega * v);
+                }
+            });
             self.preconditioner.apply(p, p_hat);
-            multiply(matrix, p_hat, v);
+            product(matrix, false, p_hat, v, parts);
             let shadow_v = dot(shadow, v);
             if shadow_v == 0.0 || !shadow_v.is_finite() {
                 return Err(breakdown("r̂·v"));
             }
             alpha = rho / shadow_v;
             // s = r − α v, kept in r
-            for i in 0..n {
-                x[i] += alpha * p_hat[i];
-                r[i] -= alpha * v[i];
-            }
+            add_scaled(x, alpha, p_hat);
+            add_scaled(r, -alpha, v);
             if norm(r) <= target {
                 break;
             }
             self.preconditioner.apply(r, s_hat);
-            multiply(matrix, s_hat, t);
+            product(matrix, false, s_hat, t, parts);
             let tt = dot(t, t);
             if tt == 0.0 || !tt.is_finite() {
                 return Err(breakdown("t·t"));
             }
             omega = dot(t, r) / tt;
-            for i in 0..n {
-                x[i] += omega * s_hat[i];
-                r[i] -= omega * t[i];
-            }
+            add_scaled(x, omega, s_hat);
+            add_scaled(r, -omega, t);
         }
         check_true_residual(matrix, rhs, x, t, tolerance)?;
         rhs.copy_from_slice(x);

@@ -10,9 +10,11 @@
 //!
 //! Backends: [`DirectSolver`] (faer's sparse Cholesky / LU, the default) and [`KrylovSolver`]
 //! (preconditioned CG / BiCGSTAB with a [`Preconditioner`]: [`Jacobi`], or smoothed-aggregation
-//! [`Multigrid`] whose iteration count stays nearly flat under refinement); with the cargo
-//! feature `petsc`, `PetscSolver` (PETSc's KSP and preconditioners, GAMG by default).
+//! [`Multigrid`] whose iteration count stays nearly flat under refinement); [`AutoSolver`]
+//! picks one of them per solve by the dimension and the DOFs (the measured crossover); with the
+//! cargo feature `petsc`, `PetscSolver` (PETSc's KSP and preconditioners, GAMG by default).
 
+mod auto;
 mod direct;
 mod forcing;
 mod krylov;
@@ -21,12 +23,17 @@ pub mod modes;
 mod multigrid;
 #[cfg(feature = "petsc")]
 mod petsc;
+mod vectors;
 
+pub use auto::{
+    AutoSolver, Backend as AutoBackend, ITERATIVE_FROM_3D, MULTIGRID_FROM_2D,
+    choose as choose_backend,
+};
 pub use direct::DirectSolver;
 pub use forcing::EisenstatWalker;
 pub use krylov::{Jacobi, KrylovSolver, Preconditioner, multiply};
 pub use matrix::{DofLayout, NO_DOF, NO_ENTRY, SparseMatrix};
-pub use multigrid::{Hierarchy, Multigrid};
+pub use multigrid::{Hierarchy, Multigrid, Smoother};
 #[cfg(feature = "mpi")]
 pub use petsc::ProcessSum;
 #[cfg(feature = "petsc")]
@@ -90,6 +97,12 @@ pub trait LinearSolver: Send + Sync {
 
     /// The levels of a multigrid preconditioner after the last solve (`None` without one).
     fn hierarchy(&self) -> Option<Hierarchy> {
+        None
+    }
+
+    /// Which backend an automatic solver ([`AutoSolver`]) used for the last solve, and why
+    /// (`None` for a solver that is one backend).
+    fn choice(&self) -> Option<String> {
         None
     }
 

@@ -69,18 +69,33 @@
 //! (unit diagonal, `|Â_ij| ≤ 1` when `K` is positive definite), with near-null space `S⁻¹B`, and
 //! the preconditioner is `S M̂⁻¹ S`, symmetric as before.
 //!
-//! **Cycle**: a V-cycle with one forward Gauss–Seidel sweep before the coarse correction and
-//! one backward sweep after it (the forward one starts from zero, so it reads only the lower
-//! triangle; the row products keep four partial sums, `sparse_dot`). The backward sweep is the
-//! adjoint of the forward one, so for a symmetric positive definite `A` the cycle is a
-//! symmetric positive definite operator: a valid CG preconditioner.
+//! **Cycle**: a V-cycle with, by default ([`Smoother::GaussSeidel`]), one forward Gauss–Seidel
+//! sweep before the coarse correction and one backward sweep after it (the forward one starts
+//! from zero, so it reads only the lower triangle; the row products keep four partial sums,
+//! `sparse_dot`). The backward sweep is the adjoint of the forward one, so for a symmetric
+//! positive definite `A` the cycle is a symmetric positive definite operator: a valid CG
+//! preconditioner. Gauss–Seidel is sequential (each row waits for the rows before it); the
+//! alternative, [`Smoother::Chebyshev`], applies the same Chebyshev polynomial of `D⁻¹A` before
+//! and after (self-adjoint in the `A` inner product, so the cycle stays symmetric), built from
+//! products with `A` only.
+//!
+//! **Threads.** The residuals, restrictions (`Pᵀ r`, a gather along `P`'s columns), the
+//! Chebyshev smoother, the scaling and the power iterations run on rayon's threads
+//! (`super::vectors`), the same for any thread count; the prolongation (`x += P e`) scatters
+//! along `P`'s columns into one buffer per thread, added in order (bit-identical for a thread
+//! count, round-off across counts). Gauss–Seidel sweeps and the coarsest solve are sequential.
+//! A symmetric level operator is stored once: its columns, read as its rows.
 
 use faer::linalg::solvers::SolveCore;
 use faer::sparse::linalg::matmul::sparse_sparse_matmul;
 use faer::sparse::linalg::solvers::{Llt, Lu, SymbolicLlt, SymbolicLu};
-use faer::sparse::{SparseColMat, SparseColMatRef, SparseRowMat, SymbolicSparseColMat, Triplet};
+use faer::sparse::{
+    SparseColMat, SparseColMatRef, SparseRowMat, SymbolicSparseColMat, SymbolicSparseRowMat,
+    Triplet,
+};
 use faer::{Conj, MatMut, Par, Side};
 
+use super::vectors::{self, ScatterParts, sparse_dot};
 use super::{DofLayout, LinearSolveError, Preconditioner, SparseMatrix};
 
 /// Relative strength of connection below which blocks are not aggregated together, when the
@@ -104,6 +119,8 @@ pub struct Multigrid {
     /// built from an earlier tangent of the step is still a symmetric positive definite
     /// preconditioner, so CG stays correct; only the iteration count can change.
     pub keep_hierarchy: bool,
+    /// The smoother of every level but the coarsest.
+    pub smoother: Smoother,
     /// The pattern (generation, size, entries) the aggregates belong to.
     key: (u64, usize, usize),
     tentatives: Vec<SparseColMat<usize, f64>>,
@@ -157,6 +174,20 @@ impl std::fmt::Display for Hierarchy {
     }
 }
 
+/// The smoother of the V-cycle (see the module docs, **Cycle**).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Smoother {
+    /// One forward Gauss–Seidel sweep before the coarse correction, one backward sweep after:
+    /// the strongest smoothing for its cost, but each row waits for the one before, so it runs
+    /// on one thread.
+    #[default]
+    GaussSeidel,
+    /// A Chebyshev polynomial of `D⁻¹A` of this degree (at least 1) before and after: products
+    /// with `A` and element-wise updates only, so it runs on every thread, the same for any
+    /// thread count.
+    Chebyshev(usize),
+}
+
 fn ratio(sizes: &[usize]) -> f64 {
     match sizes.first() {
         Some(&first) if first > 0 => sizes.iter().sum::<usize>() as f64 / first as f64,
@@ -171,6 +202,7 @@ impl Default for Multigrid {
             max_levels: 12,
             aggregate_width: 4,
             keep_hierarchy: true,
+            smoother: Smoother::default(),
             key: (u64::MAX, 0, 0),
             tentatives: Vec::new(),
             scaling: Vec::new(),
@@ -189,11 +221,17 @@ struct Level {
     inverse_diagonal: Vec<f64>,
     /// Where each row's diagonal entry is in `rows` (its columns are sorted).
     diagonal: Vec<usize>,
+    /// The estimate of the spectral radius of `D⁻¹A` (power iterations).
+    radius: f64,
     /// From the next coarser level to this one.
     prolongation: SparseColMat<usize, f64>,
     x: Vec<f64>,
     b: Vec<f64>,
     r: Vec<f64>,
+    /// The Chebyshev smoother's update (empty for Gauss–Seidel).
+    direction: Vec<f64>,
+    /// The threads' buffers of the prolongation (a product by columns).
+    parts: ScatterParts,
 }
 
 enum Coarsest {
@@ -275,22 +313,31 @@ impl Preconditioner for Multigrid {
             } else if l == self.tentatives.len() {
                 break;
             }
-            let (rows, inverse_diagonal, diagonal) = rows_and_diagonal(a, l)?;
-            let omega = 4.0 / (3.0 * spectral_radius(&rows, &inverse_diagonal));
+            let (inverse_diagonal, diagonal) = diagonal_of(a, l)?;
+            let radius = spectral_radius(a, &inverse_diagonal, symmetric);
+            let omega = 4.0 / (3.0 * radius);
             let prolongation =
                 smooth_prolongator(a, self.tentatives[l].as_ref(), &inverse_diagonal, omega)?;
             let next = galerkin_product(a, prolongation.as_ref())?;
             let n = a.nrows();
+            let direction = match self.smoother {
+                Smoother::GaussSeidel => Vec::new(),
+                Smoother::Chebyshev(_) => vec![0.0; n],
+            };
+            let (rows, diagonal) =
+                by_rows(std::mem::replace(&mut operator, next), symmetric, diagonal)?;
             self.levels.push(Level {
                 rows,
                 inverse_diagonal,
                 diagonal,
+                radius,
                 prolongation,
                 x: vec![0.0; n],
                 b: vec![0.0; n],
                 r: vec![0.0; n],
+                direction,
+                parts: ScatterParts::default(),
             });
-            operator = next;
         }
         if rebuild {
             self.tentatives.truncate(self.levels.len());
@@ -308,10 +355,14 @@ impl Preconditioner for Multigrid {
     fn apply(&mut self, r: &[f64], z: &mut [f64]) {
         let scaling = &self.scaling;
         let scale = |from: &[f64], to: &mut [f64]| {
-            for ((to, from), s) in to.iter_mut().zip(from).zip(scaling) {
-                *to = from * s;
-            }
+            vectors::update(to, |range, to| {
+                for ((to, from), s) in to.iter_mut().zip(&from[range.clone()]).zip(&scaling[range])
+                {
+                    *to = from * s;
+                }
+            });
         };
+        let smoother = self.smoother;
         let Some(first) = self.levels.first_mut() else {
             scale(r, &mut self.coarse_rhs);
             self.coarsest.solve(&mut self.coarse_rhs);
@@ -324,7 +375,7 @@ impl Preconditioner for Multigrid {
         for l in 0..count {
             let (head, tail) = self.levels.split_at_mut(l + 1);
             let level = &mut head[l];
-            level.sweep(Direction::ForwardFromZero);
+            level.smooth(smoother, Direction::ForwardFromZero);
             level.residual();
             let next_b = match tail.first_mut() {
                 Some(next) => &mut next.b,
@@ -341,8 +392,13 @@ impl Preconditioner for Multigrid {
                 Some(next) => &next.x,
                 None => &self.coarse_rhs,
             };
-            prolong_add(level.prolongation.as_ref(), correction, &mut level.x);
-            level.sweep(Direction::Backward);
+            prolong_add(
+                level.prolongation.as_ref(),
+                correction,
+                &mut level.x,
+                &mut level.parts,
+            );
+            level.smooth(smoother, Direction::Backward);
         }
         scale(&self.levels[0].x, z);
     }
@@ -356,6 +412,85 @@ enum Direction {
 }
 
 impl Level {
+    /// Smooths `A x = b` before (`ForwardFromZero`) or after (`Backward`) the coarse
+    /// correction.
+    fn smooth(&mut self, smoother: Smoother, direction: Direction) {
+        match smoother {
+            Smoother::GaussSeidel => self.sweep(direction),
+            Smoother::Chebyshev(degree) => {
+                self.chebyshev(degree, direction == Direction::ForwardFromZero)
+            }
+        }
+    }
+
+    /// `degree` steps of Chebyshev's iteration on `A x = b` preconditioned by `D`, for the
+    /// eigenvalues of `D⁻¹A` in `[λ/30, λ]`, `λ = 1.1 ρ` (`ρ` the power-iteration estimate,
+    /// which is below the true radius): the error's components with eigenvalues in that
+    /// interval — the ones the coarse levels cannot represent — are damped by the Chebyshev
+    /// polynomial's bound (Saad, *Iterative Methods for Sparse Linear Systems*, algorithm
+    /// 12.1; the interval as PETSc's and Trilinos' defaults). From `x = 0` the first step
+    /// needs no product.
+    fn chebyshev(&mut self, degree: usize, from_zero: bool) {
+        let upper = 1.1 * self.radius;
+        let lower = upper / 30.0;
+        let (theta, delta) = (0.5 * (upper + lower), 0.5 * (upper - lower));
+        let sigma = theta / delta;
+        let mut rho = 1.0 / sigma;
+        let (row_ptr, col_idx, values) = (
+            self.rows.symbolic().row_ptr(),
+            self.rows.symbolic().col_idx(),
+            self.rows.val(),
+        );
+        let (x, b, r, d) = (&mut self.x, &self.b, &mut self.r, &mut self.direction);
+        let inverse_diagonal = &self.inverse_diagonal;
+        // r = b − A x
+        let residual = |x: &[f64], r: &mut [f64]| {
+            vectors::gather(row_ptr, col_idx, values, x, r);
+            vectors::update(r, |range, r| {
+                for (r, b) in r.iter_mut().zip(&b[range]) {
+                    *r = b - *r;
+                }
+            });
+        };
+        if from_zero {
+            r.copy_from_slice(b);
+        } else {
+            residual(x, r);
+        }
+        // d = D⁻¹ r / θ, x += d
+        vectors::update(d, |range, d| {
+            for ((d, r), m) in d
+                .iter_mut()
+                .zip(&r[range.clone()])
+                .zip(&inverse_diagonal[range])
+            {
+                *d = r * m / theta;
+            }
+        });
+        if from_zero {
+            x.copy_from_slice(d);
+        } else {
+            add(x, d);
+        }
+        for _ in 1..degree.max(1) {
+            let rho_next = 1.0 / (2.0 * sigma - rho);
+            residual(x, r);
+            // d = ρ' ρ d + (2 ρ' / δ) D⁻¹ r
+            let (keep, push) = (rho_next * rho, 2.0 * rho_next / delta);
+            vectors::update(d, |range, d| {
+                for ((d, r), m) in d
+                    .iter_mut()
+                    .zip(&r[range.clone()])
+                    .zip(&inverse_diagonal[range])
+                {
+                    *d = keep * *d + push * r * m;
+                }
+            });
+            add(x, d);
+            rho = rho_next;
+        }
+    }
+
     /// One Gauss–Seidel sweep on `A x = b`.
     fn sweep(&mut self, direction: Direction) {
         let (row_ptr, col_idx, values) = (
@@ -388,9 +523,12 @@ impl Level {
     /// `r = b − A x`.
     fn residual(&mut self) {
         multiply_rows(&self.rows, &self.x, &mut self.r);
-        for (r, b) in self.r.iter_mut().zip(&self.b) {
-            *r = b - *r;
-        }
+        let b = &self.b;
+        vectors::update(&mut self.r, |range, r| {
+            for (r, b) in r.iter_mut().zip(&b[range]) {
+                *r = b - *r;
+            }
+        });
     }
 }
 
@@ -406,54 +544,52 @@ impl Coarsest {
     }
 }
 
-/// `Σ_k values[k] x[indices[k]]` in four partial sums. The additions of one running sum wait
-/// on each other (a q = 2 B-spline row has up to 375 entries in 3D), which made the smoother
-/// latency-bound; four independent chains keep the floating-point units busy. The order is
-/// fixed, so the result is the same every run.
-#[inline]
-fn sparse_dot(values: &[f64], indices: &[usize], x: &[f64]) -> f64 {
-    let mut sums = [0.0; 4];
-    let (values_4, values_rest) = values.split_at(values.len() / 4 * 4);
-    let (indices_4, indices_rest) = indices.split_at(values_4.len());
-    for (v, i) in values_4.chunks_exact(4).zip(indices_4.chunks_exact(4)) {
-        for lane in 0..4 {
-            sums[lane] += v[lane] * x[i[lane]];
+/// `x += y` on the threads.
+fn add(x: &mut [f64], y: &[f64]) {
+    vectors::update(x, |range, x| {
+        for (x, y) in x.iter_mut().zip(&y[range]) {
+            *x += y;
         }
-    }
-    let rest: f64 = values_rest
-        .iter()
-        .zip(indices_rest)
-        .map(|(v, &i)| v * x[i])
-        .sum();
-    (sums[0] + sums[1]) + (sums[2] + sums[3]) + rest
+    });
 }
 
-/// `y = A x` for a matrix stored by rows.
+/// `y = A x` for a matrix stored by rows (on the threads).
 fn multiply_rows(a: &SparseRowMat<usize, f64>, x: &[f64], y: &mut [f64]) {
-    let (row_ptr, col_idx, values) = (a.symbolic().row_ptr(), a.symbolic().col_idx(), a.val());
-    for (i, y) in y.iter_mut().enumerate() {
-        let row = row_ptr[i]..row_ptr[i + 1];
-        *y = sparse_dot(&values[row.clone()], &col_idx[row], x);
-    }
+    vectors::gather(
+        a.symbolic().row_ptr(),
+        a.symbolic().col_idx(),
+        a.val(),
+        x,
+        y,
+    );
 }
 
-/// `y = Pᵀ r`.
+/// `y = Pᵀ r` (a gather along `P`'s columns, on the threads).
 fn restrict(p: SparseColMatRef<'_, usize, f64>, r: &[f64], y: &mut [f64]) {
-    let (col_ptr, row_idx, values) = (p.symbolic().col_ptr(), p.symbolic().row_idx(), p.val());
-    for (j, y) in y.iter_mut().enumerate() {
-        let column = col_ptr[j]..col_ptr[j + 1];
-        *y = sparse_dot(&values[column.clone()], &row_idx[column], r);
-    }
+    vectors::gather(
+        p.symbolic().col_ptr(),
+        p.symbolic().row_idx(),
+        p.val(),
+        r,
+        y,
+    );
 }
 
-/// `x += P e`.
-fn prolong_add(p: SparseColMatRef<'_, usize, f64>, e: &[f64], x: &mut [f64]) {
-    let (col_ptr, row_idx, values) = (p.symbolic().col_ptr(), p.symbolic().row_idx(), p.val());
-    for (j, &e) in e.iter().enumerate() {
-        for k in col_ptr[j]..col_ptr[j + 1] {
-            x[row_idx[k]] += values[k] * e;
-        }
-    }
+/// `x += P e` (a scatter along `P`'s columns, on the threads).
+fn prolong_add(
+    p: SparseColMatRef<'_, usize, f64>,
+    e: &[f64],
+    x: &mut [f64],
+    parts: &mut ScatterParts,
+) {
+    vectors::scatter_add(
+        p.symbolic().col_ptr(),
+        p.symbolic().row_idx(),
+        p.val(),
+        e,
+        x,
+        parts,
+    );
 }
 
 fn out_of_memory(what: &str) -> LinearSolveError {
@@ -491,44 +627,73 @@ fn scale_symmetrically(
     Ok(SparseColMat::new(pattern, scaled))
 }
 
-/// An operator by rows, its inverse diagonal and where each row's diagonal entry is.
-type ByRows = (SparseRowMat<usize, f64>, Vec<f64>, Vec<usize>);
-
-/// The operator by rows, its inverse diagonal and the diagonal's positions; a zero or
-/// non-finite diagonal is an error.
-fn rows_and_diagonal(
+/// The inverse diagonal of `a` and where each column's diagonal entry is in its values; a
+/// zero or non-finite diagonal is an error.
+fn diagonal_of(
     a: SparseColMatRef<'_, usize, f64>,
     level: usize,
-) -> Result<ByRows, LinearSolveError> {
-    // faer's transposition leaves each row's columns sorted (the smoother relies on it)
-    let rows = a
-        .to_row_major()
-        .map_err(|_| out_of_memory("operator by rows"))?;
-    let (row_ptr, col_idx, values) = (
-        rows.symbolic().row_ptr(),
-        rows.symbolic().col_idx(),
-        rows.val(),
-    );
+) -> Result<(Vec<f64>, Vec<usize>), LinearSolveError> {
+    let (col_ptr, row_idx, values) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
     let mut inverse = Vec::with_capacity(a.nrows());
     let mut positions = Vec::with_capacity(a.nrows());
-    for i in 0..a.nrows() {
-        debug_assert!(col_idx[row_ptr[i]..row_ptr[i + 1]].is_sorted());
-        let position = (row_ptr[i]..row_ptr[i + 1]).find(|&k| col_idx[k] == i);
+    for j in 0..a.ncols() {
+        let position = (col_ptr[j]..col_ptr[j + 1]).find(|&k| row_idx[k] == j);
         let diagonal = position.map_or(0.0, |k| values[k]);
         if diagonal == 0.0 || !diagonal.is_finite() {
             return Err(LinearSolveError::Singular(format!(
-                "zero or non-finite diagonal entry {diagonal} at DOF {i} (multigrid level {level})"
+                "zero or non-finite diagonal entry {diagonal} at DOF {j} (multigrid level {level})"
             )));
         }
         inverse.push(1.0 / diagonal);
-        positions.push(position.unwrap_or(row_ptr[i]));
+        positions.push(position.unwrap_or(col_ptr[j]));
     }
-    Ok((rows, inverse, positions))
+    Ok((inverse, positions))
 }
 
-/// An estimate of the spectral radius of `D⁻¹A` by power iterations.
-fn spectral_radius(rows: &SparseRowMat<usize, f64>, inverse_diagonal: &[f64]) -> f64 {
+/// The operator by rows (the smoother reads rows, with sorted columns) and where each row's
+/// diagonal entry is. A symmetric operator whose columns are sorted is taken as it is: its
+/// columns are its rows (`Aᵀ = A`, to round-off), with no copy and the diagonal where
+/// [`diagonal_of`] found it; otherwise it is transposed (faer's transposition leaves each
+/// row's columns sorted).
+fn by_rows(
+    a: SparseColMat<usize, f64>,
+    symmetric: bool,
+    diagonal: Vec<usize>,
+) -> Result<(SparseRowMat<usize, f64>, Vec<usize>), LinearSolveError> {
+    let sorted = {
+        let (col_ptr, row_idx) = (a.symbolic().col_ptr(), a.symbolic().row_idx());
+        (0..a.ncols()).all(|j| row_idx[col_ptr[j]..col_ptr[j + 1]].is_sorted())
+    };
+    if symmetric && sorted && a.symbolic().col_nnz().is_none() {
+        let (symbolic, values) = a.into_parts();
+        let (nrows, ncols, col_ptr, _, row_idx) = symbolic.into_parts();
+        let pattern = SymbolicSparseRowMat::new_checked(ncols, nrows, col_ptr, None, row_idx);
+        return Ok((SparseRowMat::new(pattern, values), diagonal));
+    }
+    let rows = a
+        .to_row_major()
+        .map_err(|_| out_of_memory("operator by rows"))?;
+    let (row_ptr, col_idx) = (rows.symbolic().row_ptr(), rows.symbolic().col_idx());
+    let positions = (0..rows.nrows())
+        .map(|i| {
+            (row_ptr[i]..row_ptr[i + 1])
+                .find(|&k| col_idx[k] == i)
+                .unwrap_or(row_ptr[i])
+        })
+        .collect();
+    Ok((rows, positions))
+}
+
+/// An estimate of the spectral radius of `D⁻¹A` by power iterations (with `Aᵀ` for a
+/// symmetric `A`: its columns, a gather).
+fn spectral_radius(
+    a: SparseColMatRef<'_, usize, f64>,
+    inverse_diagonal: &[f64],
+    symmetric: bool,
+) -> f64 {
     let n = inverse_diagonal.len();
+    let (col_ptr, row_idx, values) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
+    let mut parts = ScatterParts::default();
     // a fixed, non-smooth start so that runs repeat exactly
     let mut v: Vec<f64> = (0..n)
         .map(|i| 1.0 + ((i * 7919) % 101) as f64 / 101.0)
@@ -536,19 +701,28 @@ fn spectral_radius(rows: &SparseRowMat<usize, f64>, inverse_diagonal: &[f64]) ->
     let mut w = vec![0.0; n];
     let mut radius = 1.0;
     for _ in 0..POWER_ITERATIONS {
-        let size = v.iter().map(|x| x * x).sum::<f64>().sqrt();
-        multiply_rows(rows, &v, &mut w);
-        for (w, d) in w.iter_mut().zip(inverse_diagonal) {
-            *w *= d;
+        let size = vectors::norm(&v);
+        if symmetric {
+            vectors::gather(col_ptr, row_idx, values, &v, &mut w);
+        } else {
+            w.fill(0.0);
+            vectors::scatter_add(col_ptr, row_idx, values, &v, &mut w, &mut parts);
         }
-        let grown = w.iter().map(|x| x * x).sum::<f64>().sqrt();
+        vectors::update(&mut w, |range, w| {
+            for (w, d) in w.iter_mut().zip(&inverse_diagonal[range]) {
+                *w *= d;
+            }
+        });
+        let grown = vectors::norm(&w);
         if grown == 0.0 || !grown.is_finite() || size == 0.0 {
             break;
         }
         radius = grown / size;
-        for (v, w) in v.iter_mut().zip(&w) {
-            *v = w / grown;
-        }
+        vectors::update(&mut v, |range, v| {
+            for (v, w) in v.iter_mut().zip(&w[range]) {
+                *v = w / grown;
+            }
+        });
     }
     radius
 }
@@ -695,25 +869,31 @@ fn fine_blocks_and_modes(layout: &DofLayout, size: usize) -> (Blocks, Vec<Vec<f6
 /// the node's index along the axis, whatever the spacing (a B-spline grid's Greville points
 /// are `h/2` apart at its ends and `h` inside). When the positions are not on a lattice (the
 /// distinct coordinates would span far more lattice points than there are nodes: a mesh),
-/// `round((x − x_min) / h)` with `h` the median gap between distinct coordinates instead.
+/// `round((x − x_min) / h)` instead, with `h = (Π extents / nodes)^(1/d)` the side of the
+/// volume per node (over the `d` axes with an extent): the gaps between distinct coordinates
+/// do not give it, as most are the small offsets between nodes of one row of a mesh.
 fn lattice_coordinates(positions: &[[f64; 3]]) -> Vec<[i64; 3]> {
     let mut distinct: Vec<Vec<f64>> = Vec::with_capacity(3);
-    let mut median_gap = [1.0; 3];
-    for (axis, median_gap) in median_gap.iter_mut().enumerate() {
+    for axis in 0..3 {
         let mut values: Vec<f64> = positions.iter().map(|x| x[axis]).collect();
         values.sort_unstable_by(f64::total_cmp);
         let extent = values.last().unwrap_or(&0.0) - values.first().unwrap_or(&0.0);
         let tolerance = 1e-9 * extent.abs().max(f64::MIN_POSITIVE);
         values.dedup_by(|b, a| *b - *a <= tolerance);
-        let mut gaps: Vec<f64> = values.windows(2).map(|w| w[1] - w[0]).collect();
-        if !gaps.is_empty() {
-            let middle = gaps.len() / 2;
-            *median_gap = *gaps.select_nth_unstable_by(middle, f64::total_cmp).1;
-        }
         distinct.push(values);
     }
     let span: f64 = distinct.iter().map(|v| v.len() as f64).product();
     let on_lattice = span <= 8.0 * positions.len() as f64;
+    let extents: Vec<f64> = distinct
+        .iter()
+        .filter(|v| v.len() > 1)
+        .map(|v| v[v.len() - 1] - v[0])
+        .collect();
+    let spacing = if extents.is_empty() {
+        1.0
+    } else {
+        (extents.iter().product::<f64>() / positions.len() as f64).powf(1.0 / extents.len() as f64)
+    };
     let index = |axis: usize, x: f64| -> i64 {
         let values = &distinct[axis];
         if on_lattice {
@@ -723,7 +903,7 @@ fn lattice_coordinates(positions: &[[f64; 3]]) -> Vec<[i64; 3]> {
                 above > 0 && (above == values.len() || x - values[above - 1] <= values[above] - x);
             (if nearer_below { above - 1 } else { above }) as i64
         } else {
-            ((x - values[0]) / median_gap[axis]).round() as i64
+            ((x - values[0]) / spacing).round() as i64
         }
     };
     positions
@@ -972,7 +1152,12 @@ mod tests {
         assert!(t.ncols() < matrix.size() && t.ncols() == *coarse.start.last().unwrap());
         for (fine, coarse) in modes.iter().zip(&coarse_modes) {
             let mut product = vec![0.0; matrix.size()];
-            prolong_add(t.as_ref(), coarse, &mut product);
+            prolong_add(
+                t.as_ref(),
+                coarse,
+                &mut product,
+                &mut ScatterParts::default(),
+            );
             let error = product
                 .iter()
                 .zip(fine)
@@ -999,6 +1184,113 @@ mod tests {
                 let expected = if i == j { 1.0 } else { 0.0 };
                 assert!((tt[(i, j)] - expected).abs() < 1e-12, "TᵀT[{i},{j}]");
             }
+        }
+    }
+
+    /// The active nodes of a quadratic B-spline grid (Greville abscissae: `h/2` apart at the
+    /// ends, `h` inside) in `D` dimensions, kept by `keep(multi-index)`: positions and indices.
+    fn active_nodes<const D: usize>(
+        cells: [usize; D],
+        keep: impl Fn(&[usize; D]) -> bool,
+    ) -> (Vec<[f64; 3]>, Vec<[i64; 3]>) {
+        use crate::basis::{BasisKind, GridBasis};
+        let grid = GridBasis::<D>::new(
+            &[0.0; D],
+            &[1.0; D],
+            &cells,
+            BasisKind::BSpline { order: 2 },
+        )
+        .unwrap();
+        (0..grid.num_nodes())
+            .filter(|&n| keep(&grid.node_multi_index(n)))
+            .map(|n| {
+                let (x, k) = (grid.node_position(n), grid.node_multi_index(n));
+                (
+                    std::array::from_fn(|c| if c < D { x[c] } else { 0.0 }),
+                    std::array::from_fn(|c| if c < D { k[c] as i64 } else { 0 }),
+                )
+            })
+            .unzip()
+    }
+
+    /// On irregular active sets (an L-shaped body, a body with holes, a diagonal band) of a
+    /// B-spline grid, in 1D, 2D and 3D, the lattice coordinates are the nodes' grid indices
+    /// (shifted so that the lowest index present is 0), although the grid's spacing is `h/2` at
+    /// its ends and `h` inside; the boxes of 4 nodes a side group exactly the nodes with the same
+    /// `⌊index / 4⌋`.
+    #[test]
+    fn the_lattice_of_irregular_active_node_sets_is_the_grid_index_in_1d_2d_3d() {
+        fn check<const D: usize>(
+            name: &str,
+            cells: [usize; D],
+            keep: impl Fn(&[usize; D]) -> bool,
+        ) {
+            let (positions, indices) = active_nodes(cells, keep);
+            assert!(positions.len() > 4, "{name}: {} nodes", positions.len());
+            let lowest: [i64; 3] =
+                std::array::from_fn(|c| indices.iter().map(|k| k[c]).min().unwrap());
+            let expected: Vec<[i64; 3]> = indices
+                .iter()
+                .map(|k| std::array::from_fn(|c| k[c] - lowest[c]))
+                .collect();
+            let lattice = lattice_coordinates(&positions);
+            assert_eq!(lattice, expected, "{name}");
+            let (of, count, cells) = box_aggregates(&lattice, 4);
+            for (block, k) in lattice.iter().enumerate() {
+                let key: [i64; 3] = std::array::from_fn(|c| k[c].div_euclid(4));
+                assert_eq!(cells[of[block]], key, "{name}: block {block}");
+            }
+            let mut seen = cells.clone();
+            seen.sort_unstable();
+            seen.dedup();
+            assert_eq!(seen.len(), count, "{name}: one aggregate per box");
+        }
+        // 1D: a bar on part of the grid
+        check::<1>("1D bar", [12], |k| k[0] >= 3);
+        // 2D: an L-shape, and a block with holes
+        check::<2>("2D L-shape", [10, 8], |k| k[0] < 4 || k[1] < 3);
+        check::<2>("2D holes", [9, 9], |k| (k[0] * 3 + k[1] * 5) % 7 != 0);
+        // 3D: a diagonal band (every index value along each axis still present)
+        check::<3>("3D band", [6, 5, 4], |k| {
+            (k[0] as i64 - k[1] as i64).abs() <= 2 && k[2] + k[0] >= 1
+        });
+    }
+
+    /// Nodes off any lattice (a mesh's vertices: a grid of spacing `h` shaken by up to ±15 % of
+    /// `h`) fall back to `round((x − x_min) / h)` with `h` estimated from the positions: the
+    /// boxes of 4 nodes a side then hold many nodes each, as on the grid. (The first fallback,
+    /// `h` = the median gap between distinct coordinates, made one aggregate per node here —
+    /// 400 of 400 in 2D — which stops the coarsening: the gaps are mostly the shake.)
+    #[test]
+    fn scattered_positions_fall_back_to_the_spacing_and_keep_the_boxes() {
+        for dimension in [2usize, 3] {
+            let n: usize = if dimension == 2 { 20 } else { 8 };
+            let count = n.pow(dimension as u32);
+            let h = 0.1;
+            // a fixed, irregular shake in [-0.15 h, 0.15 h]
+            let shake =
+                |i: usize, c: usize| ((i * 7919 + c * 104_729) % 1000) as f64 / 1000.0 * 0.3 - 0.15;
+            let positions: Vec<[f64; 3]> = (0..count)
+                .map(|i| {
+                    std::array::from_fn(|c| {
+                        if c < dimension {
+                            (((i / n.pow(c as u32)) % n) as f64 + shake(i, c)) * h
+                        } else {
+                            0.0
+                        }
+                    })
+                })
+                .collect();
+            let lattice = lattice_coordinates(&positions);
+            let (_, aggregates, _) = box_aggregates(&lattice, 4);
+            // on average more than a quarter of a box of 4^D nodes (the boxes at the ends of
+            // each axis are cut), and not fewer aggregates than whole boxes fit
+            let (boxes, per_box) = ((n / 4).pow(dimension as u32), 4usize.pow(dimension as u32));
+            assert!(
+                aggregates >= boxes && aggregates * per_box <= 4 * count,
+                "{dimension}D: {aggregates} aggregates of {count} nodes, against {boxes} boxes \
+                 of 4^D nodes"
+            );
         }
     }
 }

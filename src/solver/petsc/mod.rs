@@ -63,7 +63,8 @@ use std::sync::{Mutex, MutexGuard, OnceLock};
 
 use ffi::PetscInt;
 
-use super::{LinearSolveError, LinearSolver, SolverKind, SparseMatrix, multiply};
+use super::krylov::true_relative_residual;
+use super::{LinearSolveError, LinearSolver, SolverKind, SparseMatrix};
 
 /// Serialises every call into PETSc (see the module docs).
 static PETSC: Mutex<()> = Mutex::new(());
@@ -890,18 +891,14 @@ impl LinearSolver for PetscSolver {
         self.last_iterations = solved?;
         // the true residual, whatever norm PETSc's options made it measure
         let mut product = vec![0.0; rhs.len()];
-        multiply(matrix, rhs, &mut product);
-        let norm = |v: &mut dyn Iterator<Item = f64>| v.map(|x| x * x).sum::<f64>().sqrt();
-        let residual = norm(&mut original.iter().zip(&product).map(|(r, p)| r - p));
-        let size = norm(&mut original.iter().copied());
-        let converged = residual <= 10.0 * tolerance * size; // false for NaN
+        let relative = true_relative_residual(matrix, &original, rhs, &mut product);
+        let converged = relative <= 10.0 * tolerance; // false for NaN
         if !converged {
             return Err(LinearSolveError::NotConverged(format!(
                 "PETSc's {} solve reported convergence but its true residual is {:.2e} of the \
                  right-hand side against a tolerance of {tolerance:.0e}; change petsc_options \
                  or use solver(#{{ linear: \"direct\" }})",
-                objects.method,
-                residual / size
+                objects.method, relative
             )));
         }
         Ok(SolverKind::Petsc)
