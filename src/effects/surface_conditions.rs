@@ -87,8 +87,10 @@
 //! ```
 //!
 //! the distance of the material's surface x̃_s (the host's first-order extrapolation, exact for
-//! homogeneous deformations) from the boundary point x_s, recorded as `NAME_separation`; above
-//! [`SEPARATION_TOLERANCE`] h (h the smallest cell size) the run warns, once per condition.
+//! homogeneous deformations) from the boundary point x_s, recorded as `NAME_separation`. The
+//! reaction's relative error is about the separation over the prescribed displacement; above
+//! 0.15 max |P λ ū| (the largest prescribed displacement so far; at least 0.01 h, h the smallest
+//! cell size: [`separation_threshold`]) the run warns, once per condition.
 //!
 //! Systems: [`find_boundary_supports`] (`Hook::Connectivity`), [`assemble_surface_conditions`]
 //! (`Hook::AfterAssembly`), [`update_boundary_points`] (`Hook::PointUpdate`),
@@ -166,7 +168,7 @@ pub struct SurfaceConditionSpec {
     pub penalty: f64,
     /// Which components, in words, for `impm check` ("all", "normal", "`[1]`").
     pub components: String,
-    /// h: the smallest cell size of the grid (the scale of the separation check).
+    /// h: the smallest cell size of the grid (the floor of the separation check).
     pub cell: f64,
 }
 
@@ -234,6 +236,8 @@ pub struct SurfaceCondition<const D: usize> {
     /// x̃_s = x_h + F_h (X_s − X_h) (the host's first-order extrapolation) is from the boundary
     /// point x_s, where the condition holds it (module docs, "Separation").
     pub separation: f64,
+    /// max |P λ ū| over the steps so far (the scale of the separation check).
+    pub largest_prescribed: f64,
     /// Whether the separation check has warned about this condition.
     pub warned: bool,
 }
@@ -473,6 +477,7 @@ fn world_conditions<const D: usize>(
             largest_gap: 0.0,
             cell: spec.cell,
             separation: 0.0,
+            largest_prescribed: 0.0,
             warned: false,
         });
     }
@@ -745,8 +750,19 @@ pub fn update_boundary_points<const D: usize>(
     }
 }
 
-/// Threshold of [`check_surface_separation`], in cells (docs/boundaries.md).
-pub const SEPARATION_TOLERANCE: f64 = 0.1;
+/// Threshold of [`check_surface_separation`]: the fraction of the largest prescribed
+/// displacement so far, max |P λ ū| (docs/boundaries.md).
+pub const SEPARATION_TOLERANCE: f64 = 0.15;
+
+/// Floor of the threshold of [`check_surface_separation`], in cells (a support, ū = 0, and
+/// the first small steps).
+pub const SEPARATION_FLOOR: f64 = 0.01;
+
+/// The separation above which [`check_surface_separation`] warns: [`SEPARATION_TOLERANCE`]
+/// times the largest prescribed displacement so far, at least [`SEPARATION_FLOOR`] cells.
+pub fn separation_threshold(largest_prescribed: f64, cell: f64) -> f64 {
+    (SEPARATION_TOLERANCE * largest_prescribed).max(SEPARATION_FLOOR * cell)
+}
 
 /// After a converged step: is the material where the condition holds it? The condition acts
 /// on the grid's displacement field at the boundary points; where the material points cannot
@@ -754,8 +770,9 @@ pub const SEPARATION_TOLERANCE: f64 = 0.1;
 /// points per cell: the functions at the surface are supported by a sliver of points), the
 /// field there can satisfy the condition while the material does not follow, and the boundary
 /// points move through the material: the reaction is then that of the smaller deformation the
-/// material really has. A [`SurfaceCondition::separation`] above [`SEPARATION_TOLERANCE`] times
-/// the cell size h is a warning (once per condition), in the log and in `summary.json`.
+/// material really has (its relative error is about the separation over the prescribed
+/// displacement). A [`SurfaceCondition::separation`] above [`separation_threshold`] is a
+/// warning (once per condition), in the log and in `summary.json`.
 pub fn check_surface_separation<const D: usize>(
     step: Res<LoadStep>,
     names: Res<SurfaceConditionNames>,
@@ -763,19 +780,29 @@ pub fn check_surface_separation<const D: usize>(
     mut warnings: ResMut<crate::resources::Warnings>,
 ) {
     for (index, condition) in set.0.iter_mut().enumerate() {
-        let cells = condition.separation / condition.cell;
-        if condition.warned || cells <= SEPARATION_TOLERANCE {
+        let prescribed = (condition.projection * condition.displacement * step.factor).amax();
+        condition.largest_prescribed = condition.largest_prescribed.max(prescribed);
+        let threshold = separation_threshold(condition.largest_prescribed, condition.cell);
+        if condition.warned || condition.separation <= threshold {
             continue;
         }
         condition.warned = true;
         let (name, line) = &names.0[index];
         let line = line.map(|l| format!("line {l}: ")).unwrap_or_default();
+        let of = if condition.largest_prescribed > 0.0 {
+            format!(
+                "{:.0} % of the prescribed displacement {}",
+                100.0 * condition.separation / condition.largest_prescribed,
+                round(condition.largest_prescribed)
+            )
+        } else {
+            format!("{:.2} cells", condition.separation / condition.cell)
+        };
         warnings.0.push(format!(
-            "{line}surface condition '{name}': at step {} (load factor {}) the material's surface is {} ({:.2} cells) away from where the condition holds it: the grid field at the surface satisfies the condition but the material does not follow it, so the reaction and the achieved displacement are not to be trusted (use more points per cell, integration: \"domain\", GIMP or CPDI, or a lower order; docs/boundaries.md)",
+            "{line}surface condition '{name}': at step {} (load factor {}) the material's surface is {} ({of}) away from where the condition holds it: the grid field at the surface satisfies the condition but the material does not follow it, so the reaction and the achieved displacement are not to be trusted (use more points per cell, integration: \"domain\", GIMP or CPDI, or a lower order; docs/boundaries.md)",
             step.number,
             step.factor,
             round(condition.separation),
-            cells,
         ));
     }
 }
