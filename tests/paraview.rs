@@ -20,6 +20,11 @@ fn available(program: &str) -> bool {
         .is_ok_and(|o| o.status.success())
 }
 
+/// xvfb-run has no `--version`: whether it runs at all.
+fn has_xvfb() -> bool {
+    Command::new("xvfb-run").arg("--help").output().is_ok()
+}
+
 fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
 }
@@ -57,12 +62,13 @@ fn check_output(out: &Path, arguments: &[&str]) {
     assert!(report.contains("\nOK\n"), "{report}");
 }
 
-/// Renders the stress picture; xvfb's X server occasionally fails to start under load, so a
-/// failed attempt is retried once before it counts.
-fn render(out: &Path) {
-    if !available("xvfb-run") && Command::new("xvfb-run").arg("--help").output().is_err() {
+/// Renders the stress picture (with `options` of show_stress.py) and returns what the script
+/// printed; xvfb's X server occasionally fails to start under load, so a failed attempt is
+/// retried once before it counts.
+fn render(out: &Path, options: &[&str]) -> String {
+    if !has_xvfb() {
         eprintln!("SKIPPED the picture: xvfb-run is not installed (apt-get install xvfb)");
-        return;
+        return String::new();
     }
     let png = out.join("stress.png");
     let attempt = || {
@@ -72,6 +78,7 @@ fn render(out: &Path) {
             .arg(out)
             .arg("--png")
             .arg(&png)
+            .args(options)
             .output()
             .unwrap()
     };
@@ -90,6 +97,21 @@ fn render(out: &Path) {
         "{} bytes",
         bytes.len()
     );
+    text(&output)
+}
+
+/// The value range show_stress.py printed ("values LOW .. HIGH") and its colour map.
+fn shown(report: &str) -> (f64, f64, bool) {
+    let line = report
+        .lines()
+        .find(|l| l.starts_with("picture:"))
+        .unwrap_or_else(|| panic!("{report}"));
+    let values = line.split("values ").nth(1).unwrap();
+    let mut words = values.split([' ', ',']).filter(|w| !w.is_empty());
+    let low: f64 = words.next().unwrap().parse().unwrap();
+    assert_eq!(words.next(), Some(".."), "{line}");
+    let high: f64 = words.next().unwrap().parse().unwrap();
+    (low, high, line.contains("diverging colour map"))
 }
 
 #[test]
@@ -132,7 +154,7 @@ fn paraview_reads_the_series_fields_loads_and_renders_the_stress() {
     ]);
     arguments.extend(["--times", "0,0.5,1"]);
     check_output(&footing, &arguments);
-    render(&footing);
+    render(&footing, &[]);
 
     let beam = run("beam_point_load.rhai", &[("steps", "3")]);
     let times = format!("0,{},{},1", 1.0 / 3.0, 2.0 / 3.0);
@@ -141,6 +163,31 @@ fn paraview_reads_the_series_fields_loads_and_renders_the_stress() {
     arguments.extend(node_fields);
     arguments.extend(["--times", &times]);
     check_output(&beam, &arguments);
+
+    // --component and --warp: the bending stress XX takes both signs (a diverging map), von
+    // Mises is one-signed (sequential), an unknown component is an error
+    if has_xvfb() {
+        let (low, high, diverging) = shown(&render(&beam, &["--component", "XX"]));
+        eprintln!("XX {low} .. {high} diverging {diverging}");
+        assert!(low < 0.0 && high > 0.0 && diverging, "XX {low} .. {high}");
+        let report = render(&beam, &["--component", "von_mises", "--warp", "10"]);
+        let (low, high, diverging) = shown(&report);
+        assert!(
+            low >= 0.0 && high > low && !diverging,
+            "von Mises {low} .. {high}"
+        );
+        let output = Command::new("pvpython")
+            .arg(root().join("scripts/show_stress.py"))
+            .arg(&beam)
+            .args(["--component", "sideways"])
+            .output()
+            .unwrap();
+        let report = text(&output);
+        assert!(
+            !output.status.success() && report.contains("--component 'sideways'"),
+            "{report}"
+        );
+    }
 
     // the checker fails on a missing field or wrong times, so it can fail
     let output = Command::new("pvpython")

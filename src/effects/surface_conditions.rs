@@ -73,8 +73,28 @@
 //! (`NAME_reaction_x`, `NAME_traction_y`, `NAME_displacement_y`, ...) in `summary.json` and
 //! `history.csv`.
 //!
+//! # Separation
+//! The condition holds the grid's field at the boundary points, not the material points. Where
+//! the material points cannot determine that field at the surface (point-integrated cubic
+//! B-splines with 2 × 2 points per cell: the functions at the surface are supported by a sliver
+//! of points), the field there satisfies the condition while the material does not follow, and
+//! the boundary points move into the material; the reaction is then that of the smaller
+//! deformation the material really has (docs/boundaries.md: −42 % in the cubic compression
+//! test). After every converged step each condition measures
+//!
+//! ```text
+//!   separation = max_s |P (x̃_s − x_s)|,   x̃_s = x_h + F_h (X_s − X_h)
+//! ```
+//!
+//! the distance of the material's surface x̃_s (the host's first-order extrapolation, exact for
+//! homogeneous deformations) from the boundary point x_s, recorded as `NAME_separation`. The
+//! reaction's relative error is about the separation over the prescribed displacement; above
+//! 0.15 max |P λ ū| (the largest prescribed displacement so far; at least 0.01 h, h the smallest
+//! cell size: [`separation_threshold`]) the run warns, once per condition.
+//!
 //! Systems: [`find_boundary_supports`] (`Hook::Connectivity`), [`assemble_surface_conditions`]
-//! (`Hook::AfterAssembly`), [`update_boundary_points`] (`Hook::PointUpdate`).
+//! (`Hook::AfterAssembly`), [`update_boundary_points`] (`Hook::PointUpdate`),
+//! [`check_surface_separation`] (`Hook::AfterStep`).
 
 use bevy_ecs::prelude::*;
 use nalgebra::{SMatrix, SVector};
@@ -148,6 +168,8 @@ pub struct SurfaceConditionSpec {
     pub penalty: f64,
     /// Which components, in words, for `impm check` ("all", "normal", "`[1]`").
     pub components: String,
+    /// h: the smallest cell size of the grid (the floor of the separation check).
+    pub cell: f64,
 }
 
 impl SurfaceConditionSpec {
@@ -208,6 +230,16 @@ pub struct SurfaceCondition<const D: usize> {
     pub mean_displacement: SVector<f64, D>,
     /// max_s |g_s| at the last converged step.
     pub largest_gap: f64,
+    /// h: the smallest cell size of the grid.
+    pub cell: f64,
+    /// max_s |P (x̃_s − x_s)| at the last converged step: how far the material's surface
+    /// x̃_s = x_h + F_h (X_s − X_h) (the host's first-order extrapolation) is from the boundary
+    /// point x_s, where the condition holds it (module docs, "Separation").
+    pub separation: f64,
+    /// max |P λ ū| over the steps so far (the scale of the separation check).
+    pub largest_prescribed: f64,
+    /// Whether the separation check has warned about this condition.
+    pub warned: bool,
 }
 
 /// The conditions of the run, in declaration order.
@@ -370,6 +402,9 @@ impl Plugin for SurfaceConditionsModule {
             simulation.nonsymmetric_tangent();
         }
         simulation.world().insert_resource(set);
+        simulation.world().insert_resource(SurfaceConditionNames(
+            specs.iter().map(|c| (c.name.clone(), c.line)).collect(),
+        ));
         for (index, condition) in specs.iter().enumerate() {
             add_condition_measures::<D>(simulation, index, &condition.name);
         }
@@ -381,7 +416,8 @@ impl Plugin for SurfaceConditionsModule {
             })
             .add_systems(Hook::Connectivity, find_boundary_supports::<D>)
             .add_systems(Hook::AfterAssembly, assemble_surface_conditions::<D>)
-            .add_systems(Hook::PointUpdate, update_boundary_points::<D>);
+            .add_systems(Hook::PointUpdate, update_boundary_points::<D>)
+            .add_systems(Hook::AfterStep, check_surface_separation::<D>);
     }
 }
 
@@ -409,6 +445,11 @@ fn add_condition_measures<const D: usize>(
             });
         }
     }
+    let key = format!("{name}_separation");
+    simulation.add_measure(key, move |world, _| {
+        let set = world.get_resource::<SurfaceConditionSet<D>>()?;
+        Some(set.0.get(index)?.separation)
+    });
 }
 
 /// The conditions' data in the world (vectors and matrices of dimension D).
@@ -434,6 +475,10 @@ fn world_conditions<const D: usize>(
             reaction: SVector::zeros(),
             mean_displacement: SVector::zeros(),
             largest_gap: 0.0,
+            cell: spec.cell,
+            separation: 0.0,
+            largest_prescribed: 0.0,
+            warned: false,
         });
     }
     Ok(SurfaceConditionSet(set))
@@ -650,26 +695,34 @@ pub fn assemble_surface_conditions<const D: usize>(
 }
 
 /// After a converged step: each condition's reaction, mean displacement and largest gap, then
-/// the boundary points move with the increment they were held to.
+/// the boundary points move with the increment they were held to, and how far the material's
+/// surface is from them ([`SurfaceCondition::separation`]).
 pub fn update_boundary_points<const D: usize>(
     step: Res<LoadStep>,
     fields: Res<GridFields<D>>,
     mut set: ResMut<SurfaceConditionSet<D>>,
-    hosts: Query<(&Trial<D>, &DeformationGradient<D>)>,
+    hosts: Query<(
+        &Trial<D>,
+        &DeformationGradient<D>,
+        &Position<D>,
+        &ReferencePosition<D>,
+    )>,
     mut points: Query<&mut BoundaryPoint<D>>,
 ) {
     for condition in set.0.iter_mut() {
         condition.reaction = SVector::zeros();
         condition.mean_displacement = SVector::zeros();
         condition.largest_gap = 0.0;
+        condition.separation = 0.0;
     }
     for mut point in points.iter_mut() {
         let condition = &set.0[point.condition];
         let g = gap(&point, condition, &fields.increment, step.factor);
         let mut reaction = -g * (condition.penalty * point.area);
+        let host = hosts.get(point.host).ok();
         if condition.imposition == Imposition::Nitsche {
             // the host's F was just committed: T_s from the trial state and Fⁿ⁺¹ Δf⁻¹ = Fⁿ
-            if let Ok((trial, _)) = hosts.get(point.host) {
+            if let Some((trial, ..)) = host {
                 let previous =
                     DeformationGradient(trial.0.increment_inverse * trial.0.deformation_gradient);
                 let (traction, _) = nitsche_traction(&point, condition, trial, &previous);
@@ -681,15 +734,82 @@ pub fn update_boundary_points<const D: usize>(
             du += fields.increment[node] * n;
         }
         point.position += du;
+        let mut separation = 0.0;
+        if let Some((_, f, x, reference)) = host {
+            let surface = x.0 + f.0 * (point.reference_position - reference.0);
+            separation = (condition.projection * (surface - point.position)).amax();
+        }
         let condition = &mut set.0[point.condition];
         condition.reaction += reaction;
         condition.mean_displacement += (point.position - point.reference_position) * point.area;
         condition.largest_gap = condition.largest_gap.max(g.norm());
+        condition.separation = condition.separation.max(separation);
     }
     for condition in set.0.iter_mut() {
         condition.mean_displacement /= condition.area;
     }
 }
+
+/// Threshold of [`check_surface_separation`]: the fraction of the largest prescribed
+/// displacement so far, max |P λ ū| (docs/boundaries.md).
+pub const SEPARATION_TOLERANCE: f64 = 0.15;
+
+/// Floor of the threshold of [`check_surface_separation`], in cells (a support, ū = 0, and
+/// the first small steps).
+pub const SEPARATION_FLOOR: f64 = 0.01;
+
+/// The separation above which [`check_surface_separation`] warns: [`SEPARATION_TOLERANCE`]
+/// times the largest prescribed displacement so far, at least [`SEPARATION_FLOOR`] cells.
+pub fn separation_threshold(largest_prescribed: f64, cell: f64) -> f64 {
+    (SEPARATION_TOLERANCE * largest_prescribed).max(SEPARATION_FLOOR * cell)
+}
+
+/// After a converged step: is the material where the condition holds it? The condition acts
+/// on the grid's displacement field at the boundary points; where the material points cannot
+/// determine that field at the surface (point-integrated B-splines of high order with few
+/// points per cell: the functions at the surface are supported by a sliver of points), the
+/// field there can satisfy the condition while the material does not follow, and the boundary
+/// points move through the material: the reaction is then that of the smaller deformation the
+/// material really has (its relative error is about the separation over the prescribed
+/// displacement). A [`SurfaceCondition::separation`] above [`separation_threshold`] is a
+/// warning (once per condition), in the log and in `summary.json`.
+pub fn check_surface_separation<const D: usize>(
+    step: Res<LoadStep>,
+    names: Res<SurfaceConditionNames>,
+    mut set: ResMut<SurfaceConditionSet<D>>,
+    mut warnings: ResMut<crate::resources::Warnings>,
+) {
+    for (index, condition) in set.0.iter_mut().enumerate() {
+        let prescribed = (condition.projection * condition.displacement * step.factor).amax();
+        condition.largest_prescribed = condition.largest_prescribed.max(prescribed);
+        let threshold = separation_threshold(condition.largest_prescribed, condition.cell);
+        if condition.warned || condition.separation <= threshold {
+            continue;
+        }
+        condition.warned = true;
+        let (name, line) = &names.0[index];
+        let line = line.map(|l| format!("line {l}: ")).unwrap_or_default();
+        let of = if condition.largest_prescribed > 0.0 {
+            format!(
+                "{:.0} % of the prescribed displacement {}",
+                100.0 * condition.separation / condition.largest_prescribed,
+                round(condition.largest_prescribed)
+            )
+        } else {
+            format!("{:.2} cells", condition.separation / condition.cell)
+        };
+        warnings.0.push(format!(
+            "{line}surface condition '{name}': at step {} (load factor {}) the material's surface is {} ({of}) away from where the condition holds it: the grid field at the surface satisfies the condition but the material does not follow it, so the reaction and the achieved displacement are not to be trusted (use more points per cell, integration: \"domain\", GIMP or CPDI, or a lower order; docs/boundaries.md)",
+            step.number,
+            step.factor,
+            round(condition.separation),
+        ));
+    }
+}
+
+/// The conditions' names and declaring lines, for messages.
+#[derive(Resource, Clone, Debug, Default)]
+pub struct SurfaceConditionNames(pub Vec<(String, Option<usize>)>);
 
 /// Boundary points of every `surface_displace(...)`, with the condition's projection, normal
 /// and penalty factor.
@@ -806,6 +926,7 @@ fn resolve_conditions(scene: &Resolver) -> Result<Vec<SurfaceConditionSpec>, Scr
             imposition: d.imposition,
             penalty: gamma * stiffness / cell,
             components,
+            cell,
         });
     }
     Ok(resolved)
