@@ -1298,3 +1298,22 @@ fn tresca_soil_is_warned_about_volumetric_locking() {
     );
     assert!(sim.summary.warnings.iter().any(|w| w.contains("F-bar")));
 }
+
+/// `initial_stress` is listed by `impm check --explain` as used when the scene calls it (it
+/// schedules nothing itself: the materials apply it), and as not used otherwise.
+#[test]
+fn explain_lists_initial_stress() {
+    for (weight, used) in [("true", true), ("false", false)] {
+        let spec = impm::run::load_scene(
+            &common::shipped_scene("strip_footing.rhai"),
+            &common::overrides(&[("material", "tresca"), ("weight", weight)]),
+        )
+        .unwrap();
+        let explanation = impm::explain::explain_scene(&spec, &impm::effects::built_in()).unwrap();
+        assert!(
+            explanation.modules.contains(&("initial stress", used)),
+            "{:?}",
+            explanation.modules
+        );
+    }
+}
