@@ -451,7 +451,8 @@ fn fbar_unlocks_the_tresca_footing() {
 }
 
 /// A von Mises body with F-bar gets no locking warning; without F-bar the warning names the
-/// option, and neither with `fbar: "patch"`. F-bar on linear FEM and an unknown `fbar` value
+/// option, and neither with `fbar: "patch"`; with B-splines of order 2 an F-bar body is warned
+/// that F-bar is experimental there (docs/plasticity.md). F-bar on linear FEM and an unknown `fbar` value
 /// are rejected with the body's line.
 #[test]
 fn the_locking_warning_points_to_fbar_and_fem_rejects_it() {
@@ -470,7 +471,18 @@ fn the_locking_warning_points_to_fbar_and_fem_rejects_it() {
     for fbar in ["true", "\"cell\"", "\"patch\""] {
         let treated = impm::scene::locking_warnings(&scene("treated", &text(fbar, "linear"), &[]));
         assert!(treated.is_empty(), "{fbar}: {treated:?}");
+        // with quadratic B-splines F-bar is experimental on plastic bodies, and says so
+        let spline = text(fbar, "linear").replace("\"linear\"", "\"bspline\", order: 2");
+        let warned = impm::scene::locking_warnings(&scene("spline", &spline, &[]));
+        assert_eq!(warned.len(), 1, "{fbar}: {warned:?}");
+        assert!(warned[0].contains("experimental") && warned[0].contains("order 2"));
     }
+    let spline = text("false", "linear").replace("\"linear\"", "\"bspline\", order: 2");
+    let warned = impm::scene::locking_warnings(&scene("spline_locked", &spline, &[]));
+    assert!(
+        warned.len() == 1 && warned[0].contains("fbar: true"),
+        "{warned:?}"
+    );
     let dir = common::temp_dir("fbar-scene", "fem");
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("fem.rhai");
