@@ -318,23 +318,25 @@ impl std::fmt::Display for SolverError {
                     f,
                     "load step {step}: the line search shortened Newton step {iteration} \
                      {backtracks} times without reducing the out-of-balance force enough; \
-                     its trials (step length: ‖r‖ / ‖r at 0‖):"
+                     its trials (step length α: ‖r(α)‖ / ‖r(0)‖ − 1, which a consistent \
+                     tangent makes about −α for short steps):"
                 )?;
                 for (alpha, ratio) in trials {
                     match ratio {
-                        Some(ratio) => write!(f, " {alpha:.2e}: {ratio:.6}")?,
+                        Some(ratio) => write!(f, " {alpha:.2e}: {:+.2e}", ratio - 1.0)?,
                         None => write!(f, " {alpha:.2e}: inadmissible")?,
                     }
                 }
-                // with the tangent the derivative of r, ‖r‖ falls like (1 − α) for short steps
                 if let Some(&(alpha, Some(ratio))) = trials.last()
                     && ratio > 1.0 - 0.5 * alpha
                 {
                     write!(
                         f,
-                        "\n  the shortest step did not reduce ‖r‖ as the tangent predicts: \
-                         the tangent is not the derivative of the residual there (an \
-                         inconsistent tangent, or a kink of the return map)"
+                        "\n  even the shortest step did not reduce ‖r‖: either the correction is \
+                         so large (a nearly singular tangent) that the residual's curvature \
+                         dominates at that length (then ‖r(α)‖ / ‖r(0)‖ − 1 falls like α² \
+                         from trial to trial), or the tangent is not the derivative of the \
+                         residual there (then like α)"
                     )?;
                 }
                 write!(f, "\nresiduals:")?;
