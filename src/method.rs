@@ -10,7 +10,8 @@
 //!                                                                           Hook::StressUpdate: one system per material kind)
 //!        b. Assembly       f_int = Σ_p V0 τ g_i, consistent K              (Hook::BeforeAssembly, Hook::AfterAssembly;
 //!                                                                           Hook::Combine: the processes' sums, distributed runs)
-//!        c. Convergence    r = f_ext − f_int at the free DOFs
+//!        c. Convergence    r = f_ext − f_int at the free DOFs; with a line search, a trial step
+//!                          that does not reduce ‖r‖ enough is shortened and evaluated again
 //!        d. LinearSolve    K δ = r, Δu += δ
 //!   5. UpdatePoints   G2P: x_p, u_p, F_p, V_p (paper eq. 10): the step is committed (Hook::PointUpdate, Hook::AfterStep)
 //!   6. Output         VTK files of the converged state                   OutputSchedule (Hook::PointFields, Hook::GridOutput, Hook::Output)
@@ -38,6 +39,7 @@ use bevy_ecs::schedule::{
 };
 
 use crate::resources::{LoadStep, Newton, NewtonSettings, RunStatus, SolverError, no_failure};
+use crate::stages::line_search;
 use crate::stages::output::writes_output;
 use crate::stages::{
     assemble, check_convergence, evaluate_basis, number_dofs, reset_grid, solve_linear_system,
@@ -216,7 +218,7 @@ fn step_schedule<const D: usize>() -> Schedule {
     );
     schedule.add_systems((
         number_dofs::<D>.in_set(Dofs),
-        solve_load_step.in_set(Solve),
+        solve_load_step::<D>.in_set(Solve),
         update_points::<D>.in_set(UpdatePoints),
         run_output.in_set(Output),
         reset_grid::<D>.in_set(ResetGrid),
@@ -246,9 +248,14 @@ fn newton_schedule<const D: usize>() -> Schedule {
     schedule.add_systems((
         assemble::<D>.in_set(Assembly),
         check_convergence::<D>.in_set(Convergence),
+        line_search::judge_iterate::<D>
+            .in_set(Convergence)
+            .after(check_convergence::<D>)
+            .run_if(line_search::searching),
         solve_linear_system::<D>
             .in_set(LinearSolve)
-            .run_if(not_converged),
+            .run_if(not_converged)
+            .run_if(line_search::iterate_accepted),
     ));
     schedule
 }
@@ -348,18 +355,26 @@ fn strict(label: impl ScheduleLabel) -> Schedule {
 }
 
 /// Stage 4: runs Newton iterations until converged, failed, or out of iterations
-/// (exclusive, so that it can run the Newton schedule).
-pub fn solve_load_step(world: &mut World) {
+/// (exclusive, so that it can run the Newton schedule). With a line search
+/// (`stages::line_search`) a rejected trial step is evaluated again shorter, without a solve.
+pub fn solve_load_step<const D: usize>(world: &mut World) {
     world.resource_mut::<Newton>().begin_step();
+    line_search::begin_step(world);
     loop {
         let before = world.resource::<Newton>().iterations;
         world.run_schedule(NewtonSchedule);
         if world.resource::<RunStatus>().0.is_some() {
+            if line_search::retry_after_failure::<D>(world) {
+                continue;
+            }
             return;
         }
         let newton = world.resource::<Newton>();
         if newton.converged {
             return;
+        }
+        if line_search::is_backtracking(world) {
+            continue;
         }
         if newton.iterations == before {
             // No solve happened: out of iterations.

@@ -61,6 +61,17 @@ pub struct StepRecord {
     pub cuts: usize,
     /// Every attempt in order, failed ones included (one entry when the step was not cut).
     pub substeps: Vec<SubstepRecord>,
+    /// What the line search did over the step's attempts (zero without one).
+    pub line_search: LineSearchCounts,
+}
+
+/// The line search's work in a load step (`stages::line_search`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LineSearchCounts {
+    /// Newton iterations whose step was shortened.
+    pub shortened: usize,
+    /// Trial steps rejected (each an evaluation without a linear solve).
+    pub rejected: usize,
 }
 
 impl StepRecord {
@@ -82,6 +93,7 @@ impl StepRecord {
             measures: Vec::new(),
             cuts: 0,
             substeps: Vec::new(),
+            line_search: LineSearchCounts::default(),
         }
     }
 
@@ -203,6 +215,12 @@ fn step_json(r: &StepRecord) -> Value {
         v[name.as_str()] = number(*value);
     }
     v["cuts"] = json!(r.cuts);
+    if r.line_search.rejected > 0 {
+        v["line_search"] = json!({
+            "shortened": r.line_search.shortened,
+            "rejected": r.line_search.rejected,
+        });
+    }
     if r.substeps.len() > 1 {
         v["substeps"] = Value::Array(
             r.substeps
@@ -312,6 +330,8 @@ impl Summary {
                 "steps": self.steps.len(),
                 "iterations": self.total_iterations(),
                 "cuts": self.steps.iter().map(|s| s.cuts).sum::<usize>(),
+                "line_search_steps": self.steps.iter().filter(|s| s.line_search.rejected > 0).count(),
+                "line_search_shortened": self.steps.iter().map(|s| s.line_search.shortened).sum::<usize>(),
                 "seconds": stage_seconds(&stages),
                 "wall_seconds": number(wall),
             },
@@ -403,6 +423,13 @@ pub fn step_from_json(value: &Value, measures: &[String]) -> Result<StepRecord, 
     record.wall_seconds = real(&value["wall_seconds"]);
     record.error = value.get("error").map(real);
     record.cuts = count("cuts")?;
+    if let Some(search) = value.get("line_search") {
+        let count = |key: &str| search[key].as_u64().unwrap_or(0) as usize;
+        record.line_search = LineSearchCounts {
+            shortened: count("shortened"),
+            rejected: count("rejected"),
+        };
+    }
     for name in measures {
         if let Some(v) = value.get(name) {
             record.measures.push((name.clone(), real(v)));
@@ -459,6 +486,7 @@ const STEP_KEYS: &[&str] = &[
     "wall_seconds",
     "error",
     "cuts",
+    "line_search",
     "substeps",
 ];
 

@@ -113,6 +113,9 @@ pub struct NewtonSettings {
     pub max_iterations: usize,
     /// Inexact Newton: the linear solves' tolerance follows Eisenstat–Walker forcing terms.
     pub inexact: bool,
+    /// Most shortenings of one Newton step by the line search (`stages::line_search`; it runs
+    /// only when its resource is inserted).
+    pub max_backtracks: usize,
 }
 
 /// When a Newton iterate has converged (`control::NormalisedResidual` by default).
@@ -219,6 +222,17 @@ pub enum SolverError {
     },
     /// The out-of-balance force grew by orders of magnitude: Newton is diverging.
     Diverged { step: usize, residuals: Vec<f64> },
+    /// The line search shortened a Newton step `backtracks` times without enough decrease of
+    /// the out-of-balance force (`stages::line_search`).
+    LineSearch {
+        step: usize,
+        iteration: usize,
+        backtracks: usize,
+        residuals: Vec<f64>,
+        /// The rejected trials of the last Newton step: step length α and ‖r(α)‖ / ‖r(0)‖
+        /// (`None`: a point's state was inadmissible).
+        trials: Vec<(f64, Option<f64>)>,
+    },
     /// The step could not be solved even after cutting it `cuts` times.
     CuttingFailed {
         step: usize,
@@ -298,6 +312,44 @@ impl std::fmt::Display for SolverError {
                 }
                 Ok(())
             }
+            SolverError::LineSearch {
+                step,
+                iteration,
+                backtracks,
+                residuals,
+                trials,
+            } => {
+                write!(
+                    f,
+                    "load step {step}: the line search shortened Newton step {iteration} \
+                     {backtracks} times without reducing the out-of-balance force enough; \
+                     its trials (step length α: ‖r(α)‖ / ‖r(0)‖ − 1, which a consistent \
+                     tangent makes about −α for short steps):"
+                )?;
+                for (alpha, ratio) in trials {
+                    match ratio {
+                        Some(ratio) => write!(f, " {alpha:.2e}: {:+.2e}", ratio - 1.0)?,
+                        None => write!(f, " {alpha:.2e}: inadmissible")?,
+                    }
+                }
+                if let Some(&(alpha, Some(ratio))) = trials.last()
+                    && ratio > 1.0 - 0.5 * alpha
+                {
+                    write!(
+                        f,
+                        "\n  even the shortest step did not reduce ‖r‖: either the correction is \
+                         so large (a nearly singular tangent) that the residual's curvature \
+                         dominates at that length (then ‖r(α)‖ / ‖r(0)‖ − 1 falls like α² \
+                         from trial to trial), or the tangent is not the derivative of the \
+                         residual there (then like α)"
+                    )?;
+                }
+                write!(f, "\nresiduals:")?;
+                for (k, r) in residuals.iter().enumerate() {
+                    write!(f, "\n  iteration {k:3}: {r:.3e}")?;
+                }
+                Ok(())
+            }
             SolverError::CuttingFailed { step, cuts, last } => write!(
                 f,
                 "load step {step}: failed after cutting the step {cuts} times; last attempt: {last}"
@@ -330,6 +382,7 @@ impl SolverError {
                 other,
                 SolverError::NotConverged { .. }
                     | SolverError::Diverged { .. }
+                    | SolverError::LineSearch { .. }
                     | SolverError::BadPointState { .. }
                     | SolverError::LinearSolve { .. }
                     | SolverError::NotFinite { .. }

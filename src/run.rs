@@ -39,6 +39,7 @@ use crate::records::{MeasuredValues, StepMeasures, StepRecord, Summary, step_fro
 use crate::resources::*;
 use crate::restart::{Checkpoint, RunIdentity};
 use crate::scene::SceneSpec;
+use crate::stages::line_search::LineSearch;
 use crate::stages::output::{OutputPlan, PointFields};
 
 /// A simulation of dimension `D`: the world and its schedules.
@@ -334,6 +335,11 @@ impl<const D: usize> Simulation<D> {
             &newton.linear_iterations,
             failure,
         );
+        // taken, so that an attempt that fails before its Newton solve adds nothing
+        if let Some(mut search) = self.world.get_resource_mut::<LineSearch>() {
+            record.line_search.shortened += std::mem::take(&mut search.shortened);
+            record.line_search.rejected += std::mem::take(&mut search.rejected);
+        }
         outcome
     }
 
@@ -451,7 +457,11 @@ fn core_world<const D: usize>(spec: &SceneSpec, out_dir: &Path) -> Result<World,
         tolerance: spec.solver.tolerance,
         max_iterations: spec.solver.max_iterations,
         inexact: spec.solver.inexact,
+        max_backtracks: spec.solver.max_backtracks,
     });
+    if spec.solver.line_search {
+        world.insert_resource(LineSearch::default());
+    }
     world.insert_resource(Newton {
         solver: spec.solver.linear_solver(),
         ..Newton::default()

@@ -10,7 +10,7 @@ use nalgebra::{SMatrix, SVector};
 use impm::components::{GridNode, PointId, Trial};
 use impm::effects::fbar::{assemble_fbar_tangent, average_volume_change, group_points_by_cell};
 use impm::effects::point_domains::evaluate_domain_basis;
-use impm::material::{Hencky, Material, VonMises};
+use impm::material::{Hencky, Material, MohrCoulomb, VonMises};
 use impm::resources::{GridFields, LoadStep, Newton};
 use impm::run::Simulation;
 use impm::solver::NO_DOF;
@@ -279,6 +279,34 @@ fn patch_fbar_tangent_matches_finite_differences() {
     check_tangent::<3, VonMises>("bspline2", PLASTIC, "\"patch\"");
 }
 
+/// The F-bar tangent with associated Mohr–Coulomb points (φ = ψ = 20°, cohesion low enough
+/// that the distorting increment makes every point flow), cell and patch averages: the
+/// Mohr–Coulomb footing with F-bar stalls in Newton (docs/plasticity.md); this checks its
+/// assembled tangent at one state where every point flows (the plane and edge returns met
+/// there), not at the stalled states themselves.
+#[test]
+fn mohr_coulomb_fbar_tangent_matches_finite_differences() {
+    let material = "model: \"mohr_coulomb\", c: 8.0, phi: 20.0, psi: 20.0";
+    for (basis, fbar) in [
+        ("linear", "true"),
+        ("bspline2", "true"),
+        ("bspline2", "\"patch\""),
+    ] {
+        check_tangent::<2, MohrCoulomb>(basis, material, fbar);
+        let text = block_scene::<2>(basis, material, fbar);
+        let mut sim = prepared::<2>("mcflow", &text, &distorting::<2>(0.015));
+        internal_force::<2, MohrCoulomb>(&mut sim, true);
+        let flowing = sim
+            .world
+            .query::<&impm::stages::PointHistory<MohrCoulomb>>()
+            .iter(&sim.world)
+            .filter(|h| h.trial.yielding)
+            .count();
+        eprintln!("{basis} {fbar} {material}: {flowing} of 36 points flow");
+        assert!(flowing >= 6, "{flowing}");
+    }
+}
+
 /// The plastic checks above flow: with the same increment, most von Mises points yield.
 #[test]
 fn the_plastic_tangent_checks_flow() {
@@ -423,7 +451,8 @@ fn fbar_unlocks_the_tresca_footing() {
 }
 
 /// A von Mises body with F-bar gets no locking warning; without F-bar the warning names the
-/// option, and neither with `fbar: "patch"`. F-bar on linear FEM and an unknown `fbar` value
+/// option, and neither with `fbar: "patch"`; with B-splines of order 2 an F-bar body is warned
+/// that F-bar is experimental there (docs/plasticity.md). F-bar on linear FEM and an unknown `fbar` value
 /// are rejected with the body's line.
 #[test]
 fn the_locking_warning_points_to_fbar_and_fem_rejects_it() {
@@ -442,7 +471,18 @@ fn the_locking_warning_points_to_fbar_and_fem_rejects_it() {
     for fbar in ["true", "\"cell\"", "\"patch\""] {
         let treated = impm::scene::locking_warnings(&scene("treated", &text(fbar, "linear"), &[]));
         assert!(treated.is_empty(), "{fbar}: {treated:?}");
+        // with quadratic B-splines F-bar is experimental on plastic bodies, and says so
+        let spline = text(fbar, "linear").replace("\"linear\"", "\"bspline\", order: 2");
+        let warned = impm::scene::locking_warnings(&scene("spline", &spline, &[]));
+        assert_eq!(warned.len(), 1, "{fbar}: {warned:?}");
+        assert!(warned[0].contains("experimental") && warned[0].contains("order 2"));
     }
+    let spline = text("false", "linear").replace("\"linear\"", "\"bspline\", order: 2");
+    let warned = impm::scene::locking_warnings(&scene("spline_locked", &spline, &[]));
+    assert!(
+        warned.len() == 1 && warned[0].contains("fbar: true"),
+        "{warned:?}"
+    );
     let dir = common::temp_dir("fbar-scene", "fem");
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("fem.rhai");

@@ -721,6 +721,8 @@ fn displacements_load_factors_solver_and_output() {
             linear: impm::scene::LinearBackend::Direct,
             inexact: false,
             petsc_options: String::new(),
+            line_search: false,
+            max_backtracks: 10,
         }
     );
     assert_eq!(scene.output.every, 2);

@@ -136,8 +136,10 @@ impl Plugin for InitialStressModule {
         })
     }
 
-    fn used_by(&self, _spec: &SceneSpec) -> bool {
-        false
+    /// Used by a scene that calls `initial_stress(..)` (so `impm check --explain` lists it);
+    /// it schedules nothing itself: the materials' modules apply the stresses when they build.
+    fn used_by(&self, spec: &SceneSpec) -> bool {
+        spec.part::<InitialStressSpec>().is_some()
     }
 
     fn build<const D: usize>(&self, _simulation: &mut Extension<'_, D>) {}

@@ -655,6 +655,24 @@ fn solver_call() -> CallSpec {
                  an Eisenstat-Walker forcing term asks, loose far from the solution and tight \
                  near it (default false)",
             ),
+            OptionSpec::new(
+                "line_search",
+                Kind::Flag,
+                "backtracking line search on the out-of-balance force (Armijo, safeguarded \
+                 parabolic steps): the full Newton step is tried first and shortened only where \
+                 it does not reduce ‖f_ext − f_int‖ enough or a point's state becomes \
+                 inadmissible (det F ≤ 0); summary.json counts the shortened steps (default \
+                 false)",
+            ),
+            OptionSpec::new(
+                "max_backtracks",
+                Kind::Whole {
+                    min: 1,
+                    max: Some(50),
+                },
+                "most shortenings of one Newton step by the line search, after which the \
+                 attempt fails and the load step is cut (default 10)",
+            ),
         ],
         |builder, options, at| {
             ensure_unset(&builder.solver, "solver")?;
@@ -689,7 +707,16 @@ fn solver_call() -> CallSpec {
                 },
                 inexact: options.flag("inexact").unwrap_or(false),
                 petsc_options: options.text("petsc_options").unwrap_or("").to_string(),
+                line_search: options.flag("line_search").unwrap_or(false),
+                max_backtracks: options
+                    .whole("max_backtracks")
+                    .unwrap_or(default.max_backtracks),
             };
+            if options.whole("max_backtracks").is_some() && !solver.line_search {
+                return Err(
+                    "solver(...): 'max_backtracks' applies to line_search: true only".to_string(),
+                );
+            }
             if options.text("petsc_options").is_some() && solver.linear != LinearBackend::Petsc {
                 return Err(
                     "solver(...): 'petsc_options' applies to linear: \"petsc\" only".to_string(),

@@ -143,6 +143,10 @@ pub struct SolverSpec {
     /// Options for PETSc's options database (`linear: "petsc"`), e.g. `-ksp_type cg -pc_type
     /// gamg`; empty for PETSc's defaults as the backend sets them.
     pub petsc_options: String,
+    /// Backtracking line search on the out-of-balance force (`stages::line_search`).
+    pub line_search: bool,
+    /// Most shortenings of one Newton step by the line search.
+    pub max_backtracks: usize,
 }
 
 impl SolverSpec {
@@ -165,6 +169,8 @@ impl Default for SolverSpec {
             linear: LinearBackend::Direct,
             inexact: false,
             petsc_options: String::new(),
+            line_search: false,
+            max_backtracks: 10,
         }
     }
 }

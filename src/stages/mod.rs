@@ -9,6 +9,7 @@
 //! | `stress.rs` | 4a StressUpdate | [`update_stress`]: one system per material kind, added by the kinds' modules |
 //! | `assembly.rs` | 4b Assembly | [`assemble`]: internal force and consistent tangent |
 //! | `newton.rs` | 4c, 4d | [`check_convergence`], [`solve_linear_system`] |
+//! | `line_search.rs` | 4c' | [`line_search::judge_iterate`]: accepts or shortens a Newton step (`solver(#{ line_search: true })`) |
 //! | `update.rs` | 5 UpdatePoints | [`update_points`]: G2P, paper eq. 10 |
 //! | `output.rs` | 6 Output | [`write_particles`], [`write_grid`] (default at `Hook::GridOutput`), [`write_nodes`] |
 //! | `reset.rs` | 7 ResetGrid | [`reset_grid`] |
@@ -16,6 +17,7 @@
 mod assembly;
 mod connectivity;
 mod dofs;
+pub mod line_search;
 mod newton;
 pub mod output;
 mod reset;
