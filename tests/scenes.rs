@@ -195,7 +195,7 @@ fn names(systems: &[ScheduledSystem]) -> Vec<String> {
     systems.iter().map(|s| s.name.clone()).collect()
 }
 
-const OPTIONAL: [&str; 9] = [
+const OPTIONAL: [&str; 10] = [
     "body_force::apply_body_force",
     "point_loads::apply_point_loads",
     "point_loads::point_load_field",
@@ -205,6 +205,7 @@ const OPTIONAL: [&str; 9] = [
     "surface_conditions::find_boundary_supports",
     "surface_conditions::assemble_surface_conditions",
     "surface_conditions::update_boundary_points",
+    "surface_conditions::check_surface_separation",
 ];
 
 /// For several scenes, the schedule holds the systems of exactly the effects it uses, and
@@ -234,6 +235,7 @@ fn schedules_hold_only_the_effects_a_scene_uses() {
                 "surface_conditions::find_boundary_supports",
                 "surface_conditions::assemble_surface_conditions",
                 "surface_conditions::update_boundary_points",
+                "surface_conditions::check_surface_separation",
             ],
         ),
         ("embankment.rhai", &["body_force::apply_body_force"]),
