@@ -386,6 +386,12 @@ fn run_command(
     if let Some(e) = summary.final_error() {
         line += &format!(", error (eq. 15) {e:.3e}");
     }
+    // a warning printed mid-run scrolls away: the last line repeats that there were some
+    match summary.warnings.len() {
+        0 => {}
+        1 => line += ", 1 warning (above and in summary.json)",
+        n => line += &format!(", {n} warnings (above and in summary.json)"),
+    }
     if let Some(choice) = summary.steps.last().and_then(|s| s.linear_backend.as_ref()) {
         line += &format!("\nlinear solver (auto, last step): {choice}");
     }

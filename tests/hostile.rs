@@ -620,6 +620,24 @@ fn corpus() -> Vec<Case> {
             0,
             "done: 2 steps",
         ),
+        // a warning given mid-run (here: the material leaves its surface condition, cubic
+        // splines with 2x2 points per cell) is repeated on the last line, which stays on screen
+        case(
+            "warning repeated at the end",
+            Some(
+                r#"grid(#{ lower: [0.0, 0.0], upper: [1.0, 1.2], cells: [4, 4], basis: "bspline", order: 3 });
+const m = material(#{ name: "soil", E: 1000.0, nu: 0.0, density: 1.0 });
+body(#{ name: "block", material: m, region: box([0.0, 0.0], [1.0, 1.0]), ppc: 2 });
+fix(|x| x[1] == 0.0, [1]);
+fix(|x| x[0] == 0.0 || x[0] == 1.0, [0]);
+surface_displace(#{ on: [[0.0, 1.0], [1.0, 1.0]], displacement: [0.0, -0.2], name: "top" });
+load_steps(40);
+"#,
+            ),
+            &["run", "SCENE", "--out", "DIR/o"],
+            0,
+            " s, 1 warning (above and in summary.json)\nresults: ",
+        ),
         // a body with no support is named at the first solve, not after the step cuts
         Case {
             name: "body with no support",
