@@ -13,6 +13,7 @@
 //!     --backends direct,multigrid,jacobi,petsc-gamg,petsc-hypre --threads 1
 //! ```
 //!
+//! `multigrid` uses the default smoother (Chebyshev of degree 2), `multigrid-gs` Gauss–Seidel.
 //! `petsc-gamg` and `petsc-hypre` (builds with the feature `petsc`) are PETSc's CG with its
 //! smoothed-aggregation multigrid (GAMG, given the rigid-body modes) and with hypre's
 //! BoomerAMG, at the built-in solvers' relative tolerance 1e-10.
@@ -35,6 +36,7 @@ use std::path::{Path, PathBuf};
 use impm::resources::{Newton, Stage};
 use impm::run::{Simulation, load_scene};
 use impm::scene::{LinearBackend, Preconditioning};
+use impm::solver::Smoother;
 use impm::study::memory;
 use impm::study::{Series, chart};
 
@@ -126,6 +128,7 @@ fn parse() -> Result<Plan, String> {
                     .map(|b| match b {
                         "direct" => Ok(Backend::builtin(LinearBackend::Direct, "direct")),
                         "iterative" | "multigrid" => Ok(MULTIGRID),
+                        "multigrid-gs" => Ok(MULTIGRID_GS),
                         "jacobi" => Ok(Backend::builtin(
                             LinearBackend::Iterative(Preconditioning::Jacobi),
                             "cg+jacobi",
@@ -144,8 +147,8 @@ fn parse() -> Result<Plan, String> {
                             name: "petsc cg+boomeramg",
                         }),
                         _ => Err(format!(
-                            "backend '{b}': direct, multigrid (= iterative), jacobi, petsc-gamg \
-                             or petsc-hypre"
+                            "backend '{b}': direct, multigrid (= iterative), multigrid-gs, \
+                             jacobi, petsc-gamg or petsc-hypre"
                         )),
                     })
                     .collect::<Result<_, _>>()?
@@ -326,8 +329,14 @@ impl Backend {
 }
 
 const MULTIGRID: Backend = Backend::builtin(
-    LinearBackend::Iterative(Preconditioning::Multigrid),
+    LinearBackend::Iterative(Preconditioning::Multigrid(Smoother::Chebyshev(2))),
     "cg+multigrid",
+);
+
+/// Multigrid with the Gauss–Seidel smoother (the default before 2026-11-24).
+const MULTIGRID_GS: Backend = Backend::builtin(
+    LinearBackend::Iterative(Preconditioning::Multigrid(Smoother::GaussSeidel)),
+    "cg+multigrid(gs)",
 );
 
 fn backend_name(b: Backend) -> String {

@@ -392,7 +392,9 @@ fn run_command(
         1 => line += ", 1 warning (above and in summary.json)",
         n => line += &format!(", {n} warnings (above and in summary.json)"),
     }
-    if let Some(choice) = summary.steps.last().and_then(|s| s.linear_backend.as_ref()) {
+    // `auto` (the default) is worth a line when it solved iteratively or fell back to direct
+    let choice = summary.steps.last().and_then(|s| s.linear_backend.as_ref());
+    if let Some(choice) = choice.filter(|c| !c.starts_with("direct:") || c.contains(" failed ")) {
         line += &format!("\nlinear solver (auto, last step): {choice}");
     }
     if let Some(hierarchy) = summary.steps.last().and_then(|s| s.multigrid.as_ref()) {

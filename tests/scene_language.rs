@@ -718,7 +718,7 @@ fn displacements_load_factors_solver_and_output() {
             tolerance: 1e-6,
             max_iterations: 12,
             max_step_cuts: 8,
-            linear: impm::scene::LinearBackend::Direct,
+            linear: impm::scene::LinearBackend::Auto,
             inexact: false,
             petsc_options: String::new(),
             line_search: false,

@@ -32,7 +32,7 @@ fn iterative_backends() -> Vec<(&'static str, MakeSolver)> {
         ),
         (
             "multigrid",
-            Box::new(|| LinearBackend::Iterative(Preconditioning::Multigrid).solver()),
+            Box::new(|| LinearBackend::Iterative(Preconditioning::default()).solver()),
         ),
         (
             "multigrid-deep",
@@ -277,13 +277,19 @@ fn the_scene_chooses_the_backend_and_a_wrong_word_names_its_line() {
     let (spec, _) = scene("iterative");
     assert_eq!(
         spec.unwrap().solver.linear,
-        LinearBackend::Iterative(Preconditioning::Multigrid)
+        LinearBackend::Iterative(Preconditioning::default())
     );
     let (spec, _) = scene("iterative\", preconditioner: \"jacobi");
     assert_eq!(
         spec.unwrap().solver.linear,
         LinearBackend::Iterative(Preconditioning::Jacobi)
     );
+    let (spec, _) = scene("iterative\", smoother: \"gauss_seidel");
+    assert_eq!(
+        spec.unwrap().solver.linear,
+        LinearBackend::Iterative(Preconditioning::Multigrid(Smoother::GaussSeidel))
+    );
+    assert_eq!(Smoother::default(), Smoother::Chebyshev(2));
     let (spec, _) = scene("direct");
     assert_eq!(spec.unwrap().solver.linear, LinearBackend::Direct);
     let (error, lines) = scene("gmres");
@@ -296,6 +302,12 @@ fn the_scene_chooses_the_backend_and_a_wrong_word_names_its_line() {
     for (wrong, says) in [
         ("iterative\", preconditioner: \"ilu", "multigrid"),
         ("direct\", preconditioner: \"jacobi", "applies to"),
+        ("iterative\", smoother: \"jacobi", "gauss_seidel"),
+        (
+            "iterative\", preconditioner: \"jacobi\", smoother: \"chebyshev",
+            "multigrid preconditioner only",
+        ),
+        ("auto\", smoother: \"chebyshev", "applies to"),
     ] {
         let (error, lines) = scene(wrong);
         let message = error.unwrap_err().to_string();

@@ -20,6 +20,7 @@ use super::{GridSpec, LinearBackend, MaterialSpec, OutputSpec, Preconditioning, 
 use crate::basis::BasisKind;
 use crate::basis::axis::{MIN_CELL_RESOLUTION, unresolved_grid_line};
 use crate::material::{Hencky, Material, MaterialParameters, ParameterValue};
+use crate::solver::Smoother;
 
 /// Registers the core's calls and the point bases (linear, B-spline).
 pub fn register(api: &mut SceneApi) {
@@ -619,7 +620,7 @@ fn solver_call() -> CallSpec {
                         ),
                     },
                 ]),
-                "backend of the linear solves (default \"direct\")",
+                "backend of the linear solves (default \"auto\")",
             ),
             OptionSpec::new(
                 "petsc_options",
@@ -647,6 +648,28 @@ fn solver_call() -> CallSpec {
                     },
                 ]),
                 "preconditioner of linear: \"iterative\" (default \"multigrid\")",
+            ),
+            OptionSpec::new(
+                "smoother",
+                Kind::Choice(vec![
+                    Choice {
+                        word: "chebyshev",
+                        meaning: Some(
+                            "a Chebyshev polynomial of degree 2 in the inverse diagonal times \
+                             the tangent, before and after the coarse correction: runs on every \
+                             thread",
+                        ),
+                    },
+                    Choice {
+                        word: "gauss_seidel",
+                        meaning: Some(
+                            "one forward and one backward Gauss-Seidel sweep: a little stronger \
+                             per sweep, but on one thread",
+                        ),
+                    },
+                ]),
+                "smoother of the multigrid preconditioner (linear: \"iterative\"; default \
+                 \"chebyshev\", measured faster in docs/performance.md)",
             ),
             OptionSpec::new(
                 "inexact",
@@ -689,13 +712,18 @@ fn solver_call() -> CallSpec {
                     (Some("iterative"), Some("jacobi")) => {
                         LinearBackend::Iterative(Preconditioning::Jacobi)
                     }
-                    (Some("iterative"), _) => LinearBackend::Iterative(Preconditioning::Multigrid),
+                    (Some("iterative"), _) => LinearBackend::Iterative(Preconditioning::Multigrid(
+                        match options.text("smoother") {
+                            Some("gauss_seidel") => Smoother::GaussSeidel,
+                            _ => Smoother::default(),
+                        },
+                    )),
                     (_, Some(_)) => {
                         return Err("solver(...): 'preconditioner' applies to \
                                     linear: \"iterative\" only"
                             .to_string());
                     }
-                    (Some("auto"), _) => LinearBackend::Auto,
+                    (Some("direct"), _) => LinearBackend::Direct,
                     (Some("petsc"), _) if cfg!(feature = "petsc") => LinearBackend::Petsc,
                     (Some("petsc"), _) => {
                         return Err(format!(
@@ -703,7 +731,7 @@ fn solver_call() -> CallSpec {
                             super::WITHOUT_PETSC
                         ));
                     }
-                    _ => LinearBackend::Direct,
+                    _ => LinearBackend::Auto,
                 },
                 inexact: options.flag("inexact").unwrap_or(false),
                 petsc_options: options.text("petsc_options").unwrap_or("").to_string(),
@@ -712,6 +740,18 @@ fn solver_call() -> CallSpec {
                     .whole("max_backtracks")
                     .unwrap_or(default.max_backtracks),
             };
+            if options.text("smoother").is_some()
+                && !matches!(
+                    solver.linear,
+                    LinearBackend::Iterative(Preconditioning::Multigrid(_))
+                )
+            {
+                return Err(
+                    "solver(...): 'smoother' applies to linear: \"iterative\" with \
+                            the multigrid preconditioner only"
+                        .to_string(),
+                );
+            }
             if options.whole("max_backtracks").is_some() && !solver.line_search {
                 return Err(
                     "solver(...): 'max_backtracks' applies to line_search: true only".to_string(),

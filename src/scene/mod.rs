@@ -166,7 +166,7 @@ impl Default for SolverSpec {
             tolerance: 1e-9,
             max_iterations: 30,
             max_step_cuts: 8,
-            linear: LinearBackend::Direct,
+            linear: LinearBackend::Auto,
             inexact: false,
             petsc_options: String::new(),
             line_search: false,
@@ -179,7 +179,6 @@ impl Default for SolverSpec {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum LinearBackend {
     /// Sparse Cholesky / LU (`solver::DirectSolver`).
-    #[default]
     Direct,
     /// Preconditioned CG / BiCGSTAB (`solver::KrylovSolver`).
     Iterative(Preconditioning),
@@ -187,18 +186,25 @@ pub enum LinearBackend {
     /// feature `petsc`, scenes asking for it elsewhere are refused when they load.
     Petsc,
     /// Direct or iterative by the dimension and the DOFs of each system, the crossover measured
-    /// (`solver::AutoSolver`).
+    /// (`solver::AutoSolver`): the default.
+    #[default]
     Auto,
 }
 
 /// The preconditioner of the iterative backend.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Preconditioning {
-    /// Smoothed-aggregation multigrid with the rigid-body modes (`solver::Multigrid`).
-    #[default]
-    Multigrid,
+    /// Smoothed-aggregation multigrid with the rigid-body modes (`solver::Multigrid`), with
+    /// this smoother.
+    Multigrid(crate::solver::Smoother),
     /// The inverse diagonal (`solver::Jacobi`).
     Jacobi,
+}
+
+impl Default for Preconditioning {
+    fn default() -> Self {
+        Preconditioning::Multigrid(Default::default())
+    }
 }
 
 impl LinearBackend {
@@ -209,8 +215,10 @@ impl LinearBackend {
             LinearBackend::Direct => Box::new(DirectSolver::default()),
             LinearBackend::Auto => Box::new(crate::solver::AutoSolver::default()),
             LinearBackend::Iterative(Preconditioning::Jacobi) => Box::new(KrylovSolver::default()),
-            LinearBackend::Iterative(Preconditioning::Multigrid) => {
-                Box::new(KrylovSolver::multigrid())
+            LinearBackend::Iterative(Preconditioning::Multigrid(smoother)) => {
+                let mut multigrid = crate::solver::Multigrid::default();
+                multigrid.smoother = smoother;
+                Box::new(KrylovSolver::with_preconditioner(Box::new(multigrid)))
             }
             #[cfg(feature = "petsc")]
             LinearBackend::Petsc => Box::new(crate::solver::PetscSolver::new("")),
