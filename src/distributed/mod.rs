@@ -11,11 +11,13 @@
 //! end, with their output silenced. The module that does this is `effects::distributed`; the
 //! PETSc side is `solver::PetscSolver::distributed` and `solver::ProcessSum`.
 //!
-//! Built in every configuration: the pure kernel [`partition`] (the slabs), and
-//! [`launched_by_mpirun`], which reads the environment so that any build can refuse what it
-//! cannot run under `mpirun`. The process
+//! Built in every configuration: the pure kernels [`partition`] (the slabs) and [`migration`]
+//! (a point's whole state as numbers, who sends which points where: the first pieces of the
+//! decomposition, not used by runs yet), and [`launched_by_mpirun`], which reads the
+//! environment so that any build can refuse what it cannot run under `mpirun`. The process
 //! bookkeeping (`start`, `processes`, `any`, `abort`) exists with the feature `mpi` only.
 
+pub mod migration;
 pub mod partition;
 
 #[cfg(feature = "mpi")]
