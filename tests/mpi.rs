@@ -55,6 +55,14 @@ fn mpirun_available() -> bool {
 /// `impm run SCENE --out OUT --set ...` (plus `extra`), under `mpirun -n N` when `processes`
 /// is given.
 fn run(processes: Option<usize>, scene: &Path, set: &[&str], out: &Path, extra: &[&str]) -> Output {
+    let args = run_arguments(scene, set, out, extra);
+    impm_command(processes, &args)
+        .output()
+        .expect("the run starts")
+}
+
+/// The arguments of `impm run SCENE --out OUT --threads 1 --set ...` (plus `extra`).
+fn run_arguments(scene: &Path, set: &[&str], out: &Path, extra: &[&str]) -> Vec<String> {
     let mut args: Vec<String> = vec![
         "run".into(),
         scene.display().to_string(),
@@ -67,9 +75,7 @@ fn run(processes: Option<usize>, scene: &Path, set: &[&str], out: &Path, extra: 
         args.extend(["--set".into(), assignment.to_string()]);
     }
     args.extend(extra.iter().map(|s| s.to_string()));
-    impm_command(processes, &args)
-        .output()
-        .expect("the run starts")
+    args
 }
 
 /// The `impm` binary with `args`, under `mpirun -n N` when `processes` is given.
@@ -387,21 +393,7 @@ fn a_process_failing_alone_outside_newton_ends_the_whole_job() {
     let scene = shipped_scene("column_2d.rhai");
     let dir = temp_dir("mpi", "fails-alone");
     std::fs::create_dir_all(dir.join("history.csv")).unwrap();
-    let args: Vec<String> = [
-        "run",
-        &scene.display().to_string(),
-        "--out",
-        &dir.display().to_string(),
-        "--threads",
-        "1",
-        "--set",
-        "cells=4",
-        "--set",
-        "steps=3",
-    ]
-    .iter()
-    .map(|s| s.to_string())
-    .collect();
+    let args = run_arguments(&scene, &["cells=4", "steps=3"], &dir, &[]);
     let logs = temp_dir("mpi", "fails-alone-logs");
     // the failed process waits 20 s for the others before it ends the job
     let ended = run_within(
@@ -441,17 +433,14 @@ fn a_study_under_mpirun_is_refused() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let scene = shipped_scene("column_1d.rhai");
     let dir = temp_dir("mpi", "study");
-    let args: Vec<String> = [
-        "study",
-        &scene.display().to_string(),
-        "--sweep",
-        "cells=4,8",
-        "--out",
-        &dir.display().to_string(),
-    ]
-    .iter()
-    .map(|s| s.to_string())
-    .collect();
+    let args = vec![
+        "study".to_string(),
+        scene.display().to_string(),
+        "--sweep".into(),
+        "cells=4,8".into(),
+        "--out".into(),
+        dir.display().to_string(),
+    ];
     let output = impm_command(Some(2), &args).output().unwrap();
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(!output.status.success(), "{stderr}");
