@@ -395,6 +395,12 @@ fn a_process_failing_alone_outside_newton_ends_the_whole_job() {
     std::fs::create_dir_all(dir.join("history.csv")).unwrap();
     let args = run_arguments(&scene, &["cells=4", "steps=3"], &dir, &[]);
     let logs = temp_dir("mpi", "fails-alone-logs");
+    // the scratch folder a process killed by an earlier abort left (its process is gone): a
+    // process other than 0 removes it when it starts
+    let mut gone = Command::new("true").spawn().unwrap();
+    gone.wait().unwrap();
+    let stale = std::env::temp_dir().join(format!("impm-process1-{}", gone.id()));
+    std::fs::create_dir_all(&stale).unwrap();
     // the failed process waits 20 s for the others before it ends the job
     let ended = run_within(
         impm_command(Some(2), &args),
@@ -419,6 +425,7 @@ fn a_process_failing_alone_outside_newton_ends_the_whole_job() {
         .map(|piece| read_vtu(piece).unwrap().points.len())
         .sum();
     assert_eq!(points, 4 * 4 * 4, "4 cells of 4 x 4 points");
+    assert!(!stale.exists(), "{} left", stale.display());
     let _ = std::fs::remove_dir_all(&dir);
     let _ = std::fs::remove_dir_all(&logs);
 }

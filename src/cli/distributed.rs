@@ -74,8 +74,9 @@ impl DistributedRun {
             ));
         }
         let scratch = (processes.rank > 0).then(|| {
+            remove_stale_scratch();
             std::env::temp_dir().join(format!(
-                "impm-process{}-{}",
+                "{SCRATCH_PREFIX}{}-{}",
                 processes.rank,
                 std::process::id()
             ))
@@ -144,6 +145,30 @@ impl DistributedRun {
     fn remove_scratch(&self) {
         if let Some(scratch) = &self.scratch {
             let _ = std::fs::remove_dir_all(scratch);
+        }
+    }
+}
+
+/// The start of a scratch folder's name: `impm-processRANK-PID`.
+const SCRATCH_PREFIX: &str = "impm-process";
+
+/// Removes the scratch folders of earlier runs whose process no longer exists: a job ended by
+/// `MPI_Abort` kills its processes before they can remove their own.
+fn remove_stale_scratch() {
+    let Ok(entries) = std::fs::read_dir(std::env::temp_dir()) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let pid = name
+            .to_str()
+            .and_then(|name| name.strip_prefix(SCRATCH_PREFIX))
+            .and_then(|rest| rest.rsplit_once('-'))
+            .and_then(|(_, pid)| pid.parse::<u32>().ok());
+        if let Some(pid) = pid
+            && !std::path::Path::new("/proc").join(pid.to_string()).exists()
+        {
+            let _ = std::fs::remove_dir_all(entry.path());
         }
     }
 }
