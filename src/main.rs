@@ -173,10 +173,12 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
         Err(Failure::BrokenPipe) => ExitCode::from(141),
+        Err(Failure::Quiet) => ExitCode::FAILURE,
     }
 }
 
 fn run(cli: Cli) -> Result<(), Failure> {
+    refuse_under_mpirun(&cli.command)?;
     let modules = effects::built_in();
     match cli.command {
         Command::Run {
@@ -205,7 +207,14 @@ fn run(cli: Cli) -> Result<(), Failure> {
                 every: checkpoint_every.map(|n| n as usize),
                 limit: limit.clone(),
             };
-            run_command(&modules, &scene, out, &set, &limits(&limit)?, &restart)
+            let result = limits(&limit)
+                .and_then(|limits| run_command(&modules, &scene, out, &set, &limits, &restart));
+            // under mpirun: end together with the other processes, or end the whole job
+            #[cfg(feature = "mpi")]
+            if let Some(distributed) = distributed {
+                return distributed.end(result);
+            }
+            result
         }
         Command::Study {
             scene,
@@ -246,6 +255,43 @@ fn run(cli: Cli) -> Result<(), Failure> {
         Command::Merge { out_dir } => merge_command(&out_dir),
         Command::Api => say(&modules.scene_api().reference()),
     }
+}
+
+/// Under `mpirun` with more than one process only `impm run` of a build with the feature
+/// `mpi` runs (over all of them); every other command would run once per process, into the
+/// same files, and is refused: process 0 says why, the others end quietly (exit status 1).
+fn refuse_under_mpirun(command: &Command) -> Result<(), Failure> {
+    let Some(processes) = impm::distributed::launched_by_mpirun() else {
+        return Ok(());
+    };
+    if processes.size == 1 {
+        return Ok(());
+    }
+    let (name, why) = match command {
+        Command::Run { .. } if cfg!(feature = "mpi") => return Ok(()),
+        Command::Run { .. } => (
+            "run",
+            "this build has no distributed runs: build impm with --features mpi (README, \
+             \"Running on a cluster\")",
+        ),
+        Command::Study { .. } => (
+            "study",
+            "a study runs its sweep's runs one after another in one process; under mpirun \
+             every process would run the whole study into the same folder",
+        ),
+        Command::Check { .. } => ("check", "it does not run over several processes"),
+        Command::Plot { .. } => ("plot", "it does not run over several processes"),
+        Command::Merge { .. } => ("merge", "it does not run over several processes"),
+        Command::Api => ("api", "it does not run over several processes"),
+    };
+    if processes.rank > 0 {
+        return Err(Failure::Quiet);
+    }
+    Err(Failure::Message(format!(
+        "impm {name} under mpirun with {} processes: {why}; run it without mpirun (or with \
+         mpirun -n 1). Only `impm run` runs over several processes.",
+        processes.size
+    )))
 }
 
 /// `--threads N`: the global thread pool's size (otherwise rayon's default).

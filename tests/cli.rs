@@ -211,3 +211,60 @@ fn a_cpdi_domain_leaving_the_grid_names_the_point_and_corner() {
     );
     assert!(!err.contains("panicked"), "{err}");
 }
+
+/// Under `mpirun` with more than one process (OpenMPI's environment, set here by hand so that
+/// no MPI is needed) only `impm run` runs: `impm study` and `impm check` are refused before
+/// they write anything, by process 0 with the reason and by the others quietly, all with exit
+/// status 1; with one process they run as usual. (`tests/mpi.rs` checks it under `mpirun`.)
+#[test]
+fn commands_other_than_run_are_refused_over_several_mpi_processes() {
+    let dir = temp("mpi-refused");
+    let scene = scene_with(&dir, "column.rhai", "", "-10.0");
+    let out = dir.join("study").display().to_string();
+    let under = |rank: &str, size: &str, args: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_impm"))
+            .args(args)
+            .env("OMPI_COMM_WORLD_RANK", rank)
+            .env("OMPI_COMM_WORLD_SIZE", size)
+            .output()
+            .unwrap()
+    };
+    let study = ["study", &scene, "--sweep", "cells=4,8", "--out", &out];
+    let first = under("0", "2", &study);
+    let err = stderr(&first);
+    assert_eq!(first.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("impm study under mpirun with 2 processes")
+            && err.contains("every process would run the whole study into the same folder")
+            && err.contains("run it without mpirun (or with mpirun -n 1)"),
+        "{err}"
+    );
+    let other = under("1", "2", &study);
+    assert_eq!(other.status.code(), Some(1));
+    assert!(other.stderr.is_empty(), "{}", stderr(&other));
+    assert!(!Path::new(&out).exists(), "nothing written");
+    let check = under("0", "3", &["check", &scene]);
+    assert_eq!(check.status.code(), Some(1));
+    assert!(
+        stderr(&check).contains("impm check under mpirun with 3 processes"),
+        "{}",
+        stderr(&check)
+    );
+    assert!(under("0", "1", &["check", &scene]).status.success());
+    // a build without distributed runs refuses `impm run` too (with them, it runs)
+    #[cfg(not(feature = "mpi"))]
+    {
+        let run = under("0", "2", &["run", &scene, "--out", &out]);
+        assert_eq!(run.status.code(), Some(1));
+        assert!(
+            stderr(&run)
+                .contains("this build has no distributed runs: build impm with --features mpi"),
+            "{}",
+            stderr(&run)
+        );
+        assert!(!Path::new(&out).exists(), "nothing written");
+    }
+    let alone = under("0", "1", &study);
+    assert!(alone.status.success(), "{}", stderr(&alone));
+    assert!(Path::new(&out).join("study.csv").is_file());
+}

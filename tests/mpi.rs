@@ -18,7 +18,12 @@
 //!   ParaView reads with every field and point (pvpython, where installed) and `impm merge`
 //!   turns into the serial file (the comparisons above are made on the merged file);
 //! * a scene whose modules add to the tangent after the assembly (ghost penalty) is refused
-//!   with more than one process, naming what and why.
+//!   with more than one process, naming what and why (once, without an abort: the processes
+//!   fail together);
+//! * a process that fails alone outside the Newton iteration ends the whole job (`MPI_Abort`)
+//!   within a bounded time, naming the process and the cause, instead of leaving the others
+//!   waiting; what was written before stays readable;
+//! * `impm study` under `mpirun -n 2` is refused, said once, before anything is written.
 //!
 //! Skipped, with a message, where `mpirun` is missing (`.ci/run` installs OpenMPI as root).
 
@@ -50,7 +55,14 @@ fn mpirun_available() -> bool {
 /// `impm run SCENE --out OUT --set ...` (plus `extra`), under `mpirun -n N` when `processes`
 /// is given.
 fn run(processes: Option<usize>, scene: &Path, set: &[&str], out: &Path, extra: &[&str]) -> Output {
-    let binary = env!("CARGO_BIN_EXE_impm");
+    let args = run_arguments(scene, set, out, extra);
+    impm_command(processes, &args)
+        .output()
+        .expect("the run starts")
+}
+
+/// The arguments of `impm run SCENE --out OUT --threads 1 --set ...` (plus `extra`).
+fn run_arguments(scene: &Path, set: &[&str], out: &Path, extra: &[&str]) -> Vec<String> {
     let mut args: Vec<String> = vec![
         "run".into(),
         scene.display().to_string(),
@@ -63,6 +75,12 @@ fn run(processes: Option<usize>, scene: &Path, set: &[&str], out: &Path, extra: 
         args.extend(["--set".into(), assignment.to_string()]);
     }
     args.extend(extra.iter().map(|s| s.to_string()));
+    args
+}
+
+/// The `impm` binary with `args`, under `mpirun -n N` when `processes` is given.
+fn impm_command(processes: Option<usize>, args: &[String]) -> Command {
+    let binary = env!("CARGO_BIN_EXE_impm");
     let mut command = match processes {
         Some(n) => {
             let mut c = Command::new("mpirun");
@@ -78,7 +96,36 @@ fn run(processes: Option<usize>, scene: &Path, set: &[&str], out: &Path, extra: 
         }
         None => Command::new(binary),
     };
-    command.args(&args).output().expect("the run starts")
+    command.args(args);
+    command
+}
+
+/// Runs `command` with its standard output and error in files of `dir`; kills it if it has not
+/// ended after `limit` (a hung job: `None`). Returns its exit status and standard error.
+fn run_within(
+    mut command: Command,
+    dir: &Path,
+    limit: std::time::Duration,
+) -> Option<(std::process::ExitStatus, String)> {
+    std::fs::create_dir_all(dir).unwrap();
+    let stderr = dir.join("stderr.txt");
+    let mut child = command
+        .stdout(std::fs::File::create(dir.join("stdout.txt")).unwrap())
+        .stderr(std::fs::File::create(&stderr).unwrap())
+        .spawn()
+        .expect("the command starts");
+    let started = std::time::Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            return Some((status, std::fs::read_to_string(&stderr).unwrap()));
+        }
+        if started.elapsed() > limit {
+            let _ = child.kill();
+            let _ = child.wait();
+            return None;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
 }
 
 /// What a run left: Newton iterations per step, the final eq. 15 error, the last point file's
@@ -268,17 +315,8 @@ fn pieces_are_listed(dir: &Path, n: usize, points: usize, paraview: bool) {
     let output = Command::new("pvpython")
         .arg(script)
         .arg(dir)
-        .args([
-            "reference_position:3",
-            "reference_volume:1",
-            "volume:1",
-            "mass:1",
-            "displacement:3",
-            "cauchy_stress:9",
-            "deformation_gradient:9",
-            "body:1",
-            "point_id:1",
-        ])
+        .args(common::PARTICLE_FIELDS)
+        .arg("point_id:1")
         .output()
         .unwrap();
     let report = String::from_utf8_lossy(&output.stdout);
@@ -335,5 +373,100 @@ fn a_module_adding_to_the_tangent_after_assembly_is_refused_over_several_process
         stderr.contains("after the assembly") && stderr.contains("mpirun -n 1"),
         "{stderr}"
     );
+    // a failure every process shares ends the processes together: no abort, said once
+    assert!(!stderr.contains("MPI_Abort"), "{stderr}");
+    assert_eq!(stderr.matches("after the assembly").count(), 1, "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A failure on one process outside the Newton iteration (process 0 cannot write history.csv
+/// at the end of step 1: a folder is in its way; the other process writes into its own
+/// scratch folder and goes on into step 2) ends the whole job, within a bounded time, with a
+/// non-zero exit status and a message naming the process and the cause; what was written
+/// before stays readable. Without the mend the other process waited forever in step 2.
+#[test]
+fn a_process_failing_alone_outside_newton_ends_the_whole_job() {
+    if !mpirun_available() {
+        return;
+    }
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let scene = shipped_scene("column_2d.rhai");
+    let dir = temp_dir("mpi", "fails-alone");
+    std::fs::create_dir_all(dir.join("history.csv")).unwrap();
+    let args = run_arguments(&scene, &["cells=4", "steps=3"], &dir, &[]);
+    let logs = temp_dir("mpi", "fails-alone-logs");
+    // the scratch folder a process killed by an earlier abort left (its process is gone): a
+    // process other than 0 removes it when it starts
+    let mut gone = Command::new("true").spawn().unwrap();
+    gone.wait().unwrap();
+    let stale = std::env::temp_dir().join(format!("impm-process1-{}", gone.id()));
+    std::fs::create_dir_all(&stale).unwrap();
+    // the failed process waits 20 s for the others before it ends the job
+    let ended = run_within(
+        impm_command(Some(2), &args),
+        &logs,
+        std::time::Duration::from_secs(300),
+    );
+    let (status, stderr) = ended.expect("the job ends (it hung before: killed after 300 s)");
+    assert!(!status.success(), "{stderr}");
+    assert!(
+        stderr.contains("error (process 0 of 2)")
+            && stderr.contains("history.csv")
+            && stderr.contains("MPI_Abort"),
+        "{stderr}"
+    );
+    // step 1's records and particle pieces were written before the failure, and read back
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["steps"].as_array().unwrap().len(), 1, "{summary}");
+    let pieces = impm::output::pvtu_pieces(&dir.join("particles_0001.pvtu")).unwrap();
+    let points: usize = pieces
+        .iter()
+        .map(|piece| read_vtu(piece).unwrap().points.len())
+        .sum();
+    assert_eq!(points, 4 * 4 * 4, "4 cells of 4 x 4 points");
+    assert!(!stale.exists(), "{} left", stale.display());
+    let _ = std::fs::remove_dir_all(&dir);
+    let _ = std::fs::remove_dir_all(&logs);
+}
+
+/// `impm study` (and every command but `impm run`) is refused under mpirun with more than one
+/// process, said once (by process 0), before anything is written.
+#[test]
+fn a_study_under_mpirun_is_refused() {
+    if !mpirun_available() {
+        return;
+    }
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let scene = shipped_scene("column_1d.rhai");
+    let dir = temp_dir("mpi", "study");
+    let args = vec![
+        "study".to_string(),
+        scene.display().to_string(),
+        "--sweep".into(),
+        "cells=4,8".into(),
+        "--out".into(),
+        dir.display().to_string(),
+    ];
+    let output = impm_command(Some(2), &args).output().unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success(), "{stderr}");
+    assert_eq!(
+        stderr
+            .matches("impm study under mpirun with 2 processes")
+            .count(),
+        1,
+        "{stderr}"
+    );
+    assert!(stderr.contains("without mpirun"), "{stderr}");
+    assert!(!dir.exists(), "nothing written");
+    // with one process it is an ordinary study
+    let output = impm_command(Some(1), &args).output().unwrap();
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    assert!(dir.join("study.csv").is_file());
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -123,16 +123,7 @@ fn paraview_reads_the_series_fields_loads_and_renders_the_stress() {
         );
         return;
     }
-    let particle_fields = [
-        "reference_position:3",
-        "reference_volume:1",
-        "volume:1",
-        "mass:1",
-        "displacement:3",
-        "cauchy_stress:9",
-        "deformation_gradient:9",
-        "body:1",
-    ];
+    let particle_fields = common::PARTICLE_FIELDS;
     let node_fields = [
         "--nodes",
         "active:1",

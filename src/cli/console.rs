@@ -13,6 +13,8 @@ pub enum Failure {
     /// Stdout is closed (the reader went away): end quietly, exit status 141 (as a shell
     /// reports a process ended by SIGPIPE).
     BrokenPipe,
+    /// Exit status 1 without a message: another process of the same `mpirun` job says why.
+    Quiet,
 }
 
 impl From<String> for Failure {

@@ -1,28 +1,54 @@
-//! `impm run` under `mpirun` (cargo feature `mpi`): starts MPI, and keeps every process but
-//! the first from writing files or printing (`impm::distributed`).
+//! `impm run` under `mpirun` (cargo feature `mpi`): starts MPI, keeps every process but the
+//! first from writing files or printing (`impm::distributed`), and makes sure that a process
+//! that cannot go on ends the whole job instead of leaving the others waiting.
 //!
 //! The state is replicated on every process (the first step of issue 14), so the processes
 //! would all write the same files: process 0 writes them into the run's folder; every other
 //! process runs into a scratch folder of its own under the system's temporary folder, removed
 //! when the run ends, with its standard output and error sent to `/dev/null`.
+//!
+//! **Nothing hangs.** Inside a load step every failure is shared (`Hook::Combine`, the output
+//! pieces): the processes fail and cut the step alike, and end their runs together. A failure
+//! on one process elsewhere (process 0 cannot write `summary.json`, its output folder, a
+//! checkpoint; a stop asked between steps that one process sees before the others) would
+//! leave the others waiting in their next collective call. So at its end every process meets
+//! the others ([`DistributedRun::end`], a barrier on a communicator of its own): a process
+//! whose run failed waits at most [`FAILED_PROCESS_WAIT`] for them, and if they do not come it
+//! says which process failed and why on the console's standard error and ends the job with
+//! `MPI_Abort` (exit status 1); files already written stay as they are. A panic on any process
+//! ends the job the same way at once (a panic hook). When the processes end together, process
+//! 0 reports a failure they share; a process other than 0 whose run failed alone says so itself.
 
+use std::fs::File;
+use std::io::Write;
 use std::path::PathBuf;
+use std::sync::OnceLock;
+use std::time::Duration;
 
-use impm::distributed::{Started, launched_by_mpirun, processes, start};
+use impm::distributed::{Ending, Processes, Started, abort, launched_by_mpirun, start};
 
-use super::console::Failure;
+use super::console::{Failure, note};
+
+/// How long a process whose run failed waits for the others at the end before it ends the job
+/// (`MPI_Abort`): in a failure the processes share, they all come within the time process 0
+/// takes to record it in `summary.json`.
+pub const FAILED_PROCESS_WAIT: Duration = Duration::from_secs(20);
+
+/// The console's standard error, kept by a process other than 0 before its own is silenced:
+/// for the message that ends the job.
+static CONSOLE: OnceLock<File> = OnceLock::new();
 
 /// MPI, started for a run under `mpirun`, and the scratch folder of a process other than 0.
 pub struct DistributedRun {
-    _mpi: Started,
+    processes: Processes,
     scratch: Option<PathBuf>,
+    // dropped last: MPI_Finalize
+    mpi: Started,
 }
 
 impl Drop for DistributedRun {
     fn drop(&mut self) {
-        if let Some(scratch) = &self.scratch {
-            let _ = std::fs::remove_dir_all(scratch);
-        }
+        self.remove_scratch();
     }
 }
 
@@ -31,11 +57,11 @@ impl DistributedRun {
     /// run). A process other than 0 is silenced. `--resume` is refused with more than one
     /// process (the other processes' checkpoints are not kept).
     pub fn start_if_launched(resume: bool) -> Result<Option<Self>, Failure> {
-        if !launched_by_mpirun() {
+        if launched_by_mpirun().is_none() {
             return Ok(None);
         }
         let mpi = start().map_err(Failure::Message)?;
-        let Some(processes) = processes() else {
+        let Some(processes) = impm::distributed::processes() else {
             return Err(Failure::Message(
                 "MPI started without processes".to_string(),
             ));
@@ -48,8 +74,9 @@ impl DistributedRun {
             ));
         }
         let scratch = (processes.rank > 0).then(|| {
+            remove_stale_scratch();
             std::env::temp_dir().join(format!(
-                "impm-process{}-{}",
+                "{SCRATCH_PREFIX}{}-{}",
                 processes.rank,
                 std::process::id()
             ))
@@ -57,7 +84,14 @@ impl DistributedRun {
         if scratch.is_some() {
             silence();
         }
-        Ok(Some(Self { _mpi: mpi, scratch }))
+        if processes.size > 1 {
+            abort_on_panic(processes);
+        }
+        Ok(Some(Self {
+            processes,
+            scratch,
+            mpi,
+        }))
     }
 
     /// The folder this process writes into: `out` for process 0, its scratch folder for the
@@ -68,14 +102,112 @@ impl DistributedRun {
             None => out,
         }
     }
+
+    /// Ends this process's run in agreement with the others (see the module docs): returns
+    /// `result` when every process reached its end; otherwise says why on the console and
+    /// ends the whole job (`MPI_Abort`, exit status 1). A process other than 0 whose run
+    /// failed where process 0's did not says why itself (its own output is silenced).
+    pub fn end(self, result: Result<(), Failure>) -> Result<(), Failure> {
+        let Processes { rank, size } = self.processes;
+        if size == 1 {
+            return result;
+        }
+        let failed = result.is_err();
+        let wait = failed.then_some(FAILED_PROCESS_WAIT);
+        match self.mpi.all_ended(failed, wait) {
+            Ending::Together { process_0_failed } => {
+                if let Err(Failure::Message(why)) = &result
+                    && rank > 0
+                    && !process_0_failed
+                {
+                    to_console(&format!("error (process {rank} of {size}): {why}"));
+                }
+                result
+            }
+            Ending::NotTogether => {
+                let why = match &result {
+                    Err(Failure::Message(why)) => why.as_str(),
+                    _ => "its standard output was closed",
+                };
+                to_console(&format!(
+                    "error (process {rank} of {size}): {why}\nthe other processes did not end \
+                     their runs within {} s (they wait for this one in the run's next \
+                     collective step): ending the whole job (MPI_Abort); the files written so \
+                     far are kept",
+                    FAILED_PROCESS_WAIT.as_secs()
+                ));
+                self.remove_scratch();
+                abort(1)
+            }
+        }
+    }
+
+    fn remove_scratch(&self) {
+        if let Some(scratch) = &self.scratch {
+            let _ = std::fs::remove_dir_all(scratch);
+        }
+    }
+}
+
+/// The start of a scratch folder's name: `impm-processRANK-PID`.
+const SCRATCH_PREFIX: &str = "impm-process";
+
+/// Removes the scratch folders of earlier runs whose process no longer exists: a job ended by
+/// `MPI_Abort` kills its processes before they can remove their own.
+fn remove_stale_scratch() {
+    let Ok(entries) = std::fs::read_dir(std::env::temp_dir()) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let pid = name
+            .to_str()
+            .and_then(|name| name.strip_prefix(SCRATCH_PREFIX))
+            .and_then(|rest| rest.rsplit_once('-'))
+            .and_then(|(_, pid)| pid.parse::<u32>().ok());
+        if let Some(pid) = pid
+            && !std::path::Path::new("/proc").join(pid.to_string()).exists()
+        {
+            let _ = std::fs::remove_dir_all(entry.path());
+        }
+    }
+}
+
+/// Writes a line on the console's standard error (process 0's own, or the one a silenced
+/// process kept), ignoring a failure.
+fn to_console(line: &str) {
+    match CONSOLE.get() {
+        Some(mut console) => {
+            let _ = writeln!(console, "{line}");
+        }
+        None => note(line),
+    }
+}
+
+/// A panic on any process ends the job: the others would wait for it forever.
+fn abort_on_panic(processes: Processes) {
+    std::panic::set_hook(Box::new(move |info| {
+        to_console(&format!(
+            "error (process {} of {}): {info}\nending the whole job (MPI_Abort)",
+            processes.rank, processes.size
+        ));
+        abort(101)
+    }));
 }
 
 /// Sends this process's standard output and error to `/dev/null` (`dup2`: std has no safe
-/// way to replace the process's own descriptors; libc is linked anyway).
+/// way to replace the process's own descriptors; libc is linked anyway), keeping the
+/// console's standard error ([`CONSOLE`]) for a message that ends the job.
 fn silence() {
-    use std::os::fd::AsRawFd;
+    use std::os::fd::{AsRawFd, FromRawFd};
     unsafe extern "C" {
+        fn dup(old: std::ffi::c_int) -> std::ffi::c_int;
         fn dup2(old: std::ffi::c_int, new: std::ffi::c_int) -> std::ffi::c_int;
+    }
+    // SAFETY: 2 is open (or dup fails with -1); a new descriptor belongs to the File alone
+    let kept = unsafe { dup(2) };
+    if kept >= 0 {
+        let _ = CONSOLE.set(unsafe { File::from_raw_fd(kept) });
     }
     if let Ok(null) = std::fs::OpenOptions::new().write(true).open("/dev/null") {
         // SAFETY: both descriptors are open; dup2 replaces 1 and 2 atomically.

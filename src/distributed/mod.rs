@@ -11,14 +11,37 @@
 //! end, with their output silenced. The module that does this is `effects::distributed`; the
 //! PETSc side is `solver::PetscSolver::distributed` and `solver::ProcessSum`.
 //!
-//! [`partition`] is a pure kernel (built in every configuration); the process bookkeeping
-//! (`start`, `processes`, `any`) exists with the feature `mpi` only.
+//! Built in every configuration: the pure kernels [`partition`] (the slabs) and [`migration`]
+//! (a point's whole state as numbers, who sends which points where: the first pieces of the
+//! decomposition, not used by runs yet), and [`launched_by_mpirun`], which reads the
+//! environment so that any build can refuse what it cannot run under `mpirun`. The process
+//! bookkeeping (`start`, `processes`, `any`, `abort`) exists with the feature `mpi` only.
 
+pub mod migration;
 pub mod partition;
 
 #[cfg(feature = "mpi")]
 mod world;
 #[cfg(feature = "mpi")]
-pub use world::{
-    Processes, Started, any, launched_by_mpirun, path_of_process_0, processes, start, sum,
-};
+pub use world::{Ending, Started, abort, any, path_of_process_0, processes, start, sum};
+
+/// This process's place in a distributed run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Processes {
+    /// This process's rank, `0..size`.
+    pub rank: usize,
+    /// The number of processes.
+    pub size: usize,
+}
+
+/// This process's place among the processes `mpirun` started, read from the environment
+/// without starting MPI (OpenMPI sets `OMPI_COMM_WORLD_RANK` and `OMPI_COMM_WORLD_SIZE` in
+/// every process it starts); `None` when `mpirun` did not start this process.
+pub fn launched_by_mpirun() -> Option<Processes> {
+    let read = |name: &str| std::env::var(name).ok()?.trim().parse::<usize>().ok();
+    let size = read("OMPI_COMM_WORLD_SIZE")?;
+    Some(Processes {
+        rank: read("OMPI_COMM_WORLD_RANK").unwrap_or(0),
+        size: size.max(1),
+    })
+}

@@ -8,30 +8,77 @@
 //! sums (internal force, tangent) go through PETSc's vectors and matrices.
 
 use std::sync::OnceLock;
+use std::time::{Duration, Instant};
 
 use mpi::collective::SystemOperation;
 use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
 
-/// This process's place in a distributed run.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Processes {
-    /// This process's rank, `0..size`.
-    pub rank: usize,
-    /// The number of processes.
-    pub size: usize,
-}
+use super::Processes;
 
 static PROCESSES: OnceLock<Processes> = OnceLock::new();
 
 /// MPI, running from [`start`] until this is dropped (at the end of `main`: `MPI_Finalize`).
 pub struct Started {
+    /// A communicator of its own for [`Started::all_ended`], so that the agreement at the end
+    /// can never be taken for one of the run's collective calls by a process still inside the
+    /// run.
+    ending: SimpleCommunicator,
+    // dropped last: MPI_Finalize
     _universe: mpi::environment::Universe,
 }
 
-/// Whether this process was launched by `mpirun` (OpenMPI's `OMPI_COMM_WORLD_SIZE`).
-pub fn launched_by_mpirun() -> bool {
-    std::env::var_os("OMPI_COMM_WORLD_SIZE").is_some()
+/// How every process ended its run, as [`Started::all_ended`] finds it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Ending {
+    /// Every process reached the end of its run; whether process 0's run failed.
+    Together { process_0_failed: bool },
+    /// Some process did not reach the end within the wait: it is waiting in a collective call
+    /// this process will never make (this process failed outside the collective decisions).
+    NotTogether,
+}
+
+impl Started {
+    /// Waits until every process has reached the end of its run (collective, on a
+    /// communicator of its own: `MPI_Ibarrier`, polled), at most `wait` (`None`: as long as
+    /// it takes), then shares whether process 0's run `failed`. A process that failed where
+    /// the others did not (e.g. process 0 could not write its output) waits a bounded time:
+    /// the others are then blocked in the run's next collective call and never come, and it
+    /// must end the job ([`abort`]); a process that completed its run waits as long as it
+    /// takes (the others either come or one of them aborts the job).
+    pub fn all_ended(&self, failed: bool, wait: Option<Duration>) -> Ending {
+        let started = Instant::now();
+        let mut request = self.ending.immediate_barrier();
+        loop {
+            match request.test() {
+                Ok(_) => break,
+                Err(pending) => {
+                    if wait.is_some_and(|wait| started.elapsed() > wait) {
+                        // never completed: the job is about to be aborted (dropping an
+                        // incomplete request panics in the `mpi` crate)
+                        std::mem::forget(pending);
+                        return Ending::NotTogether;
+                    }
+                    request = pending;
+                    std::thread::sleep(Duration::from_millis(5));
+                }
+            }
+        }
+        let mut process_0_failed = i32::from(failed);
+        self.ending
+            .process_at_rank(0)
+            .broadcast_into(&mut process_0_failed);
+        Ending::Together {
+            process_0_failed: process_0_failed != 0,
+        }
+    }
+}
+
+/// Ends every process of the job (`MPI_Abort` on `MPI_COMM_WORLD`, exit status `code`): for a
+/// process that cannot go on while the others wait for it in a collective call. Say why on
+/// standard error first.
+pub fn abort(code: i32) -> ! {
+    SimpleCommunicator::world().abort(code)
 }
 
 /// Starts MPI (MPI calls from the main thread only: `MPI_THREAD_FUNNELED`) and records this
@@ -48,6 +95,7 @@ pub fn start() -> Result<Started, String> {
         .set(processes)
         .map_err(|_| "MPI was started twice".to_string())?;
     Ok(Started {
+        ending: world.duplicate(),
         _universe: universe,
     })
 }

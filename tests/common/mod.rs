@@ -38,6 +38,19 @@ pub fn column_script() -> String {
     shipped_scene("column_1d.rhai").display().to_string()
 }
 
+/// The particle file's fields and their components, as `scripts/check_output.py` takes them
+/// (`NAME:COMPONENTS`).
+pub const PARTICLE_FIELDS: [&str; 8] = [
+    "reference_position:3",
+    "reference_volume:1",
+    "volume:1",
+    "mass:1",
+    "displacement:3",
+    "cauchy_stress:9",
+    "deformation_gradient:9",
+    "body:1",
+];
+
 /// Numbers the folders of [`temp_dir`] within one test process.
 static TEMP_DIRS: AtomicUsize = AtomicUsize::new(0);
 

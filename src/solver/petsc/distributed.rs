@@ -23,8 +23,9 @@ use std::ffi::CStr;
 
 use super::ffi::{self, PetscInt};
 use super::{
-    Comm, IDENTITY, LinearSolveError, Padding, PetscSolver, SolverKind, SparseMatrix, check,
-    configure_ksp, refuse_unused_options, session, set_rigid_body_modes, solve_with_ksp,
+    BuiltFor, Comm, IDENTITY, LinearSolveError, Padding, PatternObjects, PetscSolver, SolverKind,
+    SparseMatrix, check, configure_ksp, objects_for, refuse_unused_options, session,
+    set_rigid_body_modes, solve_with_ksp,
 };
 
 impl PetscSolver {
@@ -34,7 +35,7 @@ impl PetscSolver {
     /// process must solve, with the same pattern and right-hand side.
     pub fn distributed(options: &str) -> Self {
         let mut solver = Self::new(options);
-        solver.distributed = Some(None);
+        solver.distributed = true;
         solver
     }
 
@@ -46,29 +47,16 @@ impl PetscSolver {
         rhs: &mut [f64],
     ) -> Result<SolverKind, LinearSolveError> {
         let _session = session()?;
-        let stale = self.distributed.as_ref().is_none_or(|objects| {
-            objects
-                .as_ref()
-                .is_none_or(|o| o.generation != matrix.generation() || o.symmetric != symmetric)
-        });
-        if stale {
-            if let Some(old) = self.distributed.as_mut().and_then(Option::take) {
-                old.destroy();
-            }
-            let prefix = self.prefix()?;
+        let prefix = self.prefix()?;
+        let (objects, _) = objects_for(&mut self.distributed_objects, matrix, symmetric, || {
             let (objects, tolerance) = DistributedObjects::new(matrix, symmetric, &prefix)?;
-            self.distributed = Some(Some(objects));
             self.tolerance = tolerance;
-        }
+            Ok(objects)
+        })?;
         let tolerance = self
             .requested
             .take()
             .map_or(self.tolerance, |r| r.max(self.tolerance));
-        let Some(Some(objects)) = &mut self.distributed else {
-            return Err(LinearSolveError::Backend(
-                "the distributed PETSc objects are missing".to_string(),
-            ));
-        };
         objects.set_values(matrix)?;
         let solved = objects.solve(rhs, tolerance);
         let method = objects.method.clone();
@@ -94,8 +82,7 @@ impl PetscSolver {
 
 /// The distributed PETSc objects of one pattern.
 pub(super) struct DistributedObjects {
-    generation: u64,
-    symmetric: bool,
+    built_for: BuiltFor,
     padding: Padding,
     /// The padded rows this process owns: `first..end`.
     first: usize,
@@ -115,10 +102,24 @@ pub(super) struct DistributedObjects {
     row: Vec<f64>,
 }
 
-// SAFETY: as for the serial objects: touched only under the process-wide lock.
-unsafe impl Send for DistributedObjects {}
-// SAFETY: as for Send.
-unsafe impl Sync for DistributedObjects {}
+impl PatternObjects for DistributedObjects {
+    fn built_for(&self) -> BuiltFor {
+        self.built_for
+    }
+
+    fn destroy(mut self) {
+        // SAFETY: PETSc ignores null handles; each object is destroyed once.
+        unsafe {
+            ffi::KSPDestroy(&mut self.ksp);
+            ffi::VecScatterDestroy(&mut self.scatter);
+            ffi::VecDestroy(&mut self.gathered);
+            ffi::VecDestroy(&mut self.residual);
+            ffi::VecDestroy(&mut self.solution);
+            ffi::VecDestroy(&mut self.rhs);
+            ffi::MatDestroy(&mut self.matrix);
+        }
+    }
+}
 
 impl DistributedObjects {
     /// Creates the objects for `matrix`'s pattern; returns them and the relative tolerance the
@@ -137,8 +138,7 @@ impl DistributedObjects {
         let end = blocks * (rank + 1) / size * padding.block;
         let null = std::ptr::null_mut();
         let mut objects = Self {
-            generation: matrix.generation(),
-            symmetric,
+            built_for: BuiltFor::of(matrix, symmetric),
             first,
             end,
             matrix: null,
@@ -217,7 +217,8 @@ impl DistributedObjects {
                 "VecScatterCreateToAll",
             )?;
             check(ffi::KSPCreate(comm, &mut self.ksp), "KSPCreate")?;
-            let (method, relative) = configure_ksp(self.ksp, self.matrix, self.symmetric, prefix)?;
+            let symmetric = self.built_for.symmetric;
+            let (method, relative) = configure_ksp(self.ksp, self.matrix, symmetric, prefix)?;
             self.method = method;
             Ok(relative)
         }
@@ -331,20 +332,6 @@ impl DistributedObjects {
                 f64::INFINITY
             };
             Ok((iterations, relative))
-        }
-    }
-
-    /// Destroys the PETSc objects (collective). The caller holds the session.
-    pub(super) fn destroy(mut self) {
-        // SAFETY: PETSc ignores null handles; each object is destroyed once.
-        unsafe {
-            ffi::KSPDestroy(&mut self.ksp);
-            ffi::VecScatterDestroy(&mut self.scatter);
-            ffi::VecDestroy(&mut self.gathered);
-            ffi::VecDestroy(&mut self.residual);
-            ffi::VecDestroy(&mut self.solution);
-            ffi::VecDestroy(&mut self.rhs);
-            ffi::MatDestroy(&mut self.matrix);
         }
     }
 }

@@ -232,13 +232,15 @@ pub struct PetscSolver {
     /// A looser tolerance for the next solve only (inexact Newton).
     requested: Option<f64>,
     last_iterations: usize,
-    objects: Option<Objects>,
+    objects: Option<UnderLock<Objects>>,
     /// Whether PETSc's use of this solver's options was checked (after its first solve).
     options_checked: bool,
-    /// The objects over every process of a distributed run, for a solver made by
-    /// [`PetscSolver::distributed`].
+    /// Whether the solver works over every process of a distributed run (made by
+    /// [`PetscSolver::distributed`]), and its objects there.
     #[cfg(feature = "mpi")]
-    distributed: Option<Option<distributed::DistributedObjects>>,
+    distributed: bool,
+    #[cfg(feature = "mpi")]
+    distributed_objects: Option<UnderLock<distributed::DistributedObjects>>,
 }
 
 impl PetscSolver {
@@ -253,7 +255,9 @@ impl PetscSolver {
             objects: None,
             options_checked: false,
             #[cfg(feature = "mpi")]
-            distributed: None,
+            distributed: false,
+            #[cfg(feature = "mpi")]
+            distributed_objects: None,
         }
     }
 
@@ -301,12 +305,12 @@ impl Drop for PetscSolver {
     fn drop(&mut self) {
         if let Some(objects) = self.objects.take() {
             let _session = PETSC.lock().unwrap_or_else(|e| e.into_inner());
-            objects.destroy();
+            objects.0.destroy();
         }
         #[cfg(feature = "mpi")]
-        if let Some(Some(objects)) = self.distributed.take() {
+        if let Some(objects) = self.distributed_objects.take() {
             let _session = PETSC.lock().unwrap_or_else(|e| e.into_inner());
-            objects.destroy();
+            objects.0.destroy();
         }
     }
 }
@@ -683,10 +687,66 @@ unsafe fn solve_with_ksp(
     }
 }
 
-/// The PETSc objects of one pattern.
-struct Objects {
+/// PETSc objects built for one pattern of `K` (the serial [`Objects`], the distributed
+/// `DistributedObjects`): kept through a load step, rebuilt when the pattern or the symmetry
+/// changes ([`objects_for`]).
+trait PatternObjects: Sized {
+    /// The pattern generation and symmetry they were built for.
+    fn built_for(&self) -> BuiltFor;
+    /// Destroys the PETSc objects (collective for distributed ones). The caller holds the
+    /// session.
+    fn destroy(self);
+}
+
+/// What PETSc objects were built for: a pattern generation of `K` and its symmetry.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct BuiltFor {
     generation: u64,
     symmetric: bool,
+}
+
+impl BuiltFor {
+    fn of(matrix: &SparseMatrix, symmetric: bool) -> Self {
+        Self {
+            generation: matrix.generation(),
+            symmetric,
+        }
+    }
+}
+
+/// PETSc objects a solver keeps between solves.
+struct UnderLock<T>(T);
+
+// SAFETY: the PETSc objects are only touched under the process-wide lock `PETSC`, from one
+// thread at a time (a `&UnderLock` gives no access to PETSc without it).
+unsafe impl<T> Send for UnderLock<T> {}
+// SAFETY: as for Send.
+unsafe impl<T> Sync for UnderLock<T> {}
+
+/// The objects in `slot` for `matrix`'s pattern and `symmetric`: the ones there if they were
+/// built for it, else new ones from `build` (the old ones destroyed first); and whether they
+/// are new. The caller holds the session.
+fn objects_for<'s, T: PatternObjects>(
+    slot: &'s mut Option<UnderLock<T>>,
+    matrix: &SparseMatrix,
+    symmetric: bool,
+    build: impl FnOnce() -> Result<T, LinearSolveError>,
+) -> Result<(&'s mut T, bool), LinearSolveError> {
+    let wanted = BuiltFor::of(matrix, symmetric);
+    let fresh = slot.as_ref().is_none_or(|o| o.0.built_for() != wanted);
+    if fresh && let Some(old) = slot.take() {
+        old.0.destroy();
+    }
+    let objects = match slot.take() {
+        Some(objects) => objects,
+        None => UnderLock(build()?),
+    };
+    Ok((&mut slot.insert(objects).0, fresh))
+}
+
+/// The PETSc objects of one pattern.
+struct Objects {
+    built_for: BuiltFor,
     padding: Padding,
     matrix: ffi::Mat,
     rhs: ffi::Vec,
@@ -696,11 +756,21 @@ struct Objects {
     method: String,
 }
 
-// SAFETY: the PETSc objects are only touched under the process-wide lock `PETSC`, from one
-// thread at a time; they live on PETSC_COMM_SELF.
-unsafe impl Send for Objects {}
-// SAFETY: as for Send; `&Objects` gives no access to PETSc without the lock.
-unsafe impl Sync for Objects {}
+impl PatternObjects for Objects {
+    fn built_for(&self) -> BuiltFor {
+        self.built_for
+    }
+
+    fn destroy(mut self) {
+        // SAFETY: PETSc ignores null handles; each object is destroyed once.
+        unsafe {
+            ffi::KSPDestroy(&mut self.ksp);
+            ffi::VecDestroy(&mut self.solution);
+            ffi::VecDestroy(&mut self.rhs);
+            ffi::MatDestroy(&mut self.matrix);
+        }
+    }
+}
 
 impl Objects {
     /// Creates the matrix with `matrix`'s values, the vectors, the near-null space and the KSP
@@ -712,8 +782,7 @@ impl Objects {
     ) -> Result<(Self, f64), LinearSolveError> {
         let padding = Padding::new(matrix)?;
         let mut objects = Self {
-            generation: matrix.generation(),
-            symmetric,
+            built_for: BuiltFor::of(matrix, symmetric),
             matrix: std::ptr::null_mut(),
             rhs: std::ptr::null_mut(),
             solution: std::ptr::null_mut(),
@@ -771,20 +840,10 @@ impl Objects {
                 "VecCreateSeq",
             )?;
             check(ffi::KSPCreate(comm, &mut self.ksp), "KSPCreate")?;
-            let (method, relative) = configure_ksp(self.ksp, self.matrix, self.symmetric, prefix)?;
+            let symmetric = self.built_for.symmetric;
+            let (method, relative) = configure_ksp(self.ksp, self.matrix, symmetric, prefix)?;
             self.method = method;
             Ok(relative)
-        }
-    }
-
-    /// Destroys the PETSc objects. The caller holds the session.
-    fn destroy(mut self) {
-        // SAFETY: PETSc ignores null handles; each object is destroyed once.
-        unsafe {
-            ffi::KSPDestroy(&mut self.ksp);
-            ffi::VecDestroy(&mut self.solution);
-            ffi::VecDestroy(&mut self.rhs);
-            ffi::MatDestroy(&mut self.matrix);
         }
     }
 
@@ -852,30 +911,19 @@ impl LinearSolver for PetscSolver {
             )));
         }
         #[cfg(feature = "mpi")]
-        if self.distributed.is_some() {
+        if self.distributed {
             return self.solve_distributed(matrix, symmetric, rhs);
         }
         let _session = session()?;
-        let stale = self
-            .objects
-            .as_ref()
-            .is_none_or(|o| o.generation != matrix.generation() || o.symmetric != symmetric);
-        if stale {
-            if let Some(old) = self.objects.take() {
-                old.destroy();
-            }
-            let prefix = self.prefix()?;
+        let prefix = self.prefix()?;
+        let (objects, fresh) = objects_for(&mut self.objects, matrix, symmetric, || {
             let (objects, tolerance) = Objects::new(matrix, symmetric, &prefix)?;
-            self.objects = Some(objects);
             self.tolerance = tolerance;
-        } else if let Some(objects) = &mut self.objects {
+            Ok(objects)
+        })?;
+        if !fresh {
             objects.set_values(matrix)?;
         }
-        let Some(objects) = &mut self.objects else {
-            return Err(LinearSolveError::Backend(
-                "the PETSc objects are missing".to_string(),
-            ));
-        };
         let tolerance = self
             .requested
             .take()
