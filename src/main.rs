@@ -440,7 +440,7 @@ fn run_command(
     }
     // `auto` (the default) is worth a line when it solved iteratively or fell back to direct
     let choice = summary.steps.last().and_then(|s| s.linear_backend.as_ref());
-    if let Some(choice) = choice.filter(|c| !c.starts_with("direct:") || c.contains(" failed ")) {
+    if let Some(choice) = choice.filter(|c| impm::solver::worth_telling(c)) {
         line += &format!("\nlinear solver (auto, last step): {choice}");
     }
     if let Some(hierarchy) = summary.steps.last().and_then(|s| s.multigrid.as_ref()) {

@@ -77,6 +77,16 @@ pub fn choose(dimension: usize, dofs: usize) -> (Backend, String) {
     }
 }
 
+/// Whether a run should name `choice` (a [`LinearSolver::choice`] of this solver) on its last
+/// lines: when it solved iteratively or fell back to the direct solver; a plain direct choice
+/// (every small run) is left to summary.json.
+pub fn worth_telling(choice: &str) -> bool {
+    !choice.starts_with(Backend::Direct.name()) || choice.contains(FELL_BACK)
+}
+
+/// The words of a fallback's reason (see [`AutoSolver`]'s `solve`).
+const FELL_BACK: &str = " failed (";
+
 /// The solver of `linear: "auto"` (see the module docs).
 #[derive(Default)]
 pub struct AutoSolver {
@@ -137,7 +147,7 @@ impl LinearSolver for AutoSolver {
             Ok(kind) => Ok(kind),
             Err(failure) => {
                 let why = format!(
-                    "{why}, but {} failed ({failure}): the direct solver from then on",
+                    "{why}, but {}{FELL_BACK}{failure}): the direct solver from then on",
                     backend.name()
                 );
                 self.fell_back = Some(why.clone());
@@ -239,6 +249,11 @@ mod tests {
             assert!(residual(&matrix, &x, &rhs) < 1e-9);
             let choice = solver.choice().unwrap_or_default();
             assert!(choice.contains(&format!("3D, {n} DOFs")), "{choice}");
+            assert_eq!(
+                worth_telling(&choice),
+                expected != Backend::Direct,
+                "{choice}"
+            );
         }
     }
 
@@ -263,6 +278,7 @@ mod tests {
                 choice.starts_with("direct: 3D") && choice.contains("iterative (jacobi) failed"),
                 "{choice}"
             );
+            assert!(worth_telling(&choice), "{choice}");
         }
     }
 }

@@ -27,7 +27,7 @@ mod vectors;
 
 pub use auto::{
     AutoSolver, Backend as AutoBackend, ITERATIVE_FROM_3D, MULTIGRID_FROM_2D,
-    choose as choose_backend,
+    choose as choose_backend, worth_telling,
 };
 pub use direct::DirectSolver;
 pub use forcing::EisenstatWalker;
