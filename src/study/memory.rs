@@ -74,10 +74,24 @@ mod tests {
         }
         let block = vec![1u8; 64 << 20];
         std::hint::black_box(&block);
+        // Read while the block is held: the process then holds at least its 64 MiB.
+        let held = read_status()
+            .and_then(|s| status_field_mib(&s, "VmRSS"))
+            .unwrap();
         drop(block);
         let used = end_run(started);
-        let (peak, base) = (used.peak_mib.unwrap(), used.baseline_mib.unwrap());
-        // Other test threads allocate too, so only a lower bound is asserted.
-        assert!(peak >= base + 60.0, "peak {peak} MiB, baseline {base} MiB");
+        let peak = used.peak_mib.unwrap();
+        // Other test threads allocate and free concurrently, so the baseline can fall during the
+        // run (a bound against it failed so); what cannot fail is that the block was resident
+        // and that the peak saw it, to the kernel's lag in syncing per-thread page counts (a
+        // tenth of a MiB seen; 1 MiB allowed).
+        assert!(
+            held >= 64.0,
+            "resident {held} MiB while holding a 64 MiB block"
+        );
+        assert!(
+            peak >= held - 1.0,
+            "peak {peak} MiB below the {held} MiB resident during the run"
+        );
     }
 }
