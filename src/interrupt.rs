@@ -4,7 +4,11 @@
 //! --timeout`) stops a run the same way with the status `"timed out"`.
 //!
 //! The signal handlers only set a flag (`signal-hook`, the ecosystem's crate for this); the
-//! driver (`run.rs`) and the study loop poll [`stop_reason`] between load steps and runs.
+//! driver (`run.rs`) polls [`agreed_stop_reason`] between load steps, the study loop
+//! [`stop_reason`] between runs. In a distributed run (`mpirun`) a signal or a deadline may
+//! reach the processes at different steps; the command line then sets an agreement
+//! ([`set_agreement`]) through which every process learns, at the same point between steps,
+//! whether any of them is asked to stop, so that they stop together.
 
 use std::sync::Arc;
 use std::sync::Mutex;
@@ -29,6 +33,49 @@ impl StopReason {
             StopReason::TimedOut => "timed out",
         }
     }
+
+    /// The reason a run status names (the inverse of [`StopReason::status`]).
+    pub fn from_status(status: &str) -> Option<Self> {
+        [StopReason::Interrupted, StopReason::TimedOut]
+            .into_iter()
+            .find(|reason| reason.status() == status)
+    }
+
+    /// A number per reason, larger for the one that wins when several processes see different
+    /// reasons (a signal over a deadline, as in [`stop_reason`]); 0 is no stop.
+    pub fn precedence(reason: Option<Self>) -> i32 {
+        match reason {
+            None => 0,
+            Some(StopReason::TimedOut) => 1,
+            Some(StopReason::Interrupted) => 2,
+        }
+    }
+
+    /// The reason of a [`StopReason::precedence`].
+    pub fn from_precedence(precedence: i32) -> Option<Self> {
+        match precedence {
+            1 => Some(StopReason::TimedOut),
+            p if p >= 2 => Some(StopReason::Interrupted),
+            _ => None,
+        }
+    }
+}
+
+/// How the processes of a distributed run agree on a stop: given this process's own reason,
+/// the reason of the run (collective: every process calls it at the same point).
+pub type Agreement = fn(Option<StopReason>) -> Option<StopReason>;
+
+fn agreement() -> &'static OnceLock<Agreement> {
+    static AGREEMENT: OnceLock<Agreement> = OnceLock::new();
+    &AGREEMENT
+}
+
+/// Makes [`agreed_stop_reason`] go through `agree` (once per process: the command line sets it
+/// for a run under `mpirun` with more than one process).
+pub fn set_agreement(agree: Agreement) -> Result<(), String> {
+    agreement()
+        .set(agree)
+        .map_err(|_| "the processes' agreement on stopping was set twice".to_string())
 }
 
 fn flag() -> &'static Arc<AtomicBool> {
@@ -76,4 +123,48 @@ pub fn stop_reason() -> Option<StopReason> {
         .unwrap_or_else(std::sync::PoisonError::into_inner);
     at.filter(|&at| Instant::now() >= at)
         .map(|_| StopReason::TimedOut)
+}
+
+/// Whether the run should stop now, as all its processes decide together: [`stop_reason`]
+/// alone in an ordinary run; in a distributed one, the reason any process has (collective,
+/// see [`set_agreement`]).
+pub fn agreed_stop_reason() -> Option<StopReason> {
+    let mine = stop_reason();
+    match agreement().get() {
+        Some(agree) => agree(mine),
+        None => mine,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_reason_is_read_back_from_its_status_and_a_signal_wins_the_agreement() {
+        for reason in [StopReason::Interrupted, StopReason::TimedOut] {
+            assert_eq!(StopReason::from_status(reason.status()), Some(reason));
+            let precedence = StopReason::precedence(Some(reason));
+            assert_eq!(StopReason::from_precedence(precedence), Some(reason));
+        }
+        assert_eq!(StopReason::from_status("completed"), None);
+        assert_eq!(
+            StopReason::from_precedence(StopReason::precedence(None)),
+            None
+        );
+        // the agreement takes the largest precedence over the processes
+        let largest = [
+            None,
+            Some(StopReason::TimedOut),
+            Some(StopReason::Interrupted),
+        ]
+        .map(StopReason::precedence)
+        .into_iter()
+        .max()
+        .unwrap();
+        assert_eq!(
+            StopReason::from_precedence(largest),
+            Some(StopReason::Interrupted)
+        );
+    }
 }

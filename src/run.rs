@@ -348,7 +348,7 @@ impl<const D: usize> Simulation<D> {
     /// flight, with the summary's status saying why.
     pub fn run(&mut self, mut on_step: impl FnMut(&StepRecord)) -> Result<(), SolverError> {
         while self.steps_done < self.spec.load_factors.len() {
-            if let Some(reason) = crate::interrupt::stop_reason() {
+            if let Some(reason) = crate::interrupt::agreed_stop_reason() {
                 self.summary.stop(reason.status());
                 break;
             }
@@ -740,13 +740,17 @@ fn run_in<const D: usize>(
     let result = start
         .and_then(|()| sim.run(on_step))
         .map_err(RunError::Solve)
-        .and_then(|()| match crate::interrupt::stop_reason() {
-            Some(reason) if sim.summary.status == reason.status() => Err(RunError::Stopped {
-                reason,
-                steps_done: sim.steps_done(),
-            }),
-            _ => Ok(()),
-        });
+        .and_then(
+            // the status, not this process's own flag: in a distributed run a process may stop
+            // because another one was asked to
+            |()| match crate::interrupt::StopReason::from_status(sim.summary.status) {
+                Some(reason) => Err(RunError::Stopped {
+                    reason,
+                    steps_done: sim.steps_done(),
+                }),
+                None => Ok(()),
+            },
+        );
     (Some(sim.summary), result)
 }
 

@@ -23,6 +23,8 @@
 //! * a process that fails alone outside the Newton iteration ends the whole job (`MPI_Abort`)
 //!   within a bounded time, naming the process and the cause, instead of leaving the others
 //!   waiting; what was written before stays readable;
+//! * a signal to one process only stops every process after the same load step (the stop is
+//!   agreed between steps), with the status "interrupted" and no abort;
 //! * `impm study` under `mpirun -n 2` is refused, said once, before anything is written.
 //!
 //! Skipped, with a message, where `mpirun` is missing (`.ci/run` installs OpenMPI as root).
@@ -426,6 +428,113 @@ fn a_process_failing_alone_outside_newton_ends_the_whole_job() {
         .sum();
     assert_eq!(points, 4 * 4 * 4, "4 cells of 4 x 4 points");
     assert!(!stale.exists(), "{} left", stale.display());
+    let _ = std::fs::remove_dir_all(&dir);
+    let _ = std::fs::remove_dir_all(&logs);
+}
+
+/// The process of rank `rank` that `mpirun` (process `launcher`) started: a descendant of it
+/// whose environment says that rank (OpenMPI's `OMPI_COMM_WORLD_RANK`).
+fn process_of_rank(launcher: u32, rank: usize) -> Option<u32> {
+    let parent = |pid: u32| -> Option<u32> {
+        let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+        // "pid (comm) state ppid ...": comm may hold spaces, so split after its ')'
+        stat.rsplit_once(')')?
+            .1
+            .split_whitespace()
+            .nth(1)?
+            .parse()
+            .ok()
+    };
+    let wanted = format!("OMPI_COMM_WORLD_RANK={rank}");
+    std::fs::read_dir("/proc")
+        .ok()?
+        .flatten()
+        .find_map(|entry| {
+            let pid: u32 = entry.file_name().to_str()?.parse().ok()?;
+            let environ = std::fs::read(format!("/proc/{pid}/environ")).ok()?;
+            if !environ.split(|&b| b == 0).any(|v| v == wanted.as_bytes()) {
+                return None;
+            }
+            let mut ancestor = parent(pid);
+            while let Some(a) = ancestor.filter(|&a| a > 1) {
+                if a == launcher {
+                    return Some(pid);
+                }
+                ancestor = parent(a);
+            }
+            None
+        })
+}
+
+/// A signal that reaches one process only (here process 1, which writes nothing of the run's
+/// own) stops every process after the same load step: the stop is agreed between steps. The
+/// job ends with the status "interrupted" in summary.json, without an abort, and the files of
+/// the steps done read back. Before, process 1 stopped alone, process 0 went on into the next
+/// step and waited there until process 1 ended the job with MPI_Abort (after 20 s).
+#[test]
+fn a_signal_to_one_process_stops_them_all_after_the_same_step() {
+    if !mpirun_available() {
+        return;
+    }
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let scene = shipped_scene("column_2d.rhai");
+    let dir = temp_dir("mpi", "signal-one");
+    let logs = temp_dir("mpi", "signal-one-logs");
+    std::fs::create_dir_all(&logs).unwrap();
+    let args = run_arguments(&scene, &["cells=4", "steps=20000"], &dir, &[]);
+    let mut job = impm_command(Some(2), &args)
+        .stdout(std::fs::File::create(logs.join("stdout.txt")).unwrap())
+        .stderr(std::fs::File::create(logs.join("stderr.txt")).unwrap())
+        .spawn()
+        .expect("the job starts");
+    let started = std::time::Instant::now();
+    let limit = std::time::Duration::from_secs(120);
+    // a few steps done, then SIGINT to process 1 alone
+    while !dir.join("particles_0003.pvtu").exists() {
+        assert!(job.try_wait().unwrap().is_none(), "the job ended early");
+        assert!(started.elapsed() < limit, "no third step within {limit:?}");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let process_1 = process_of_rank(job.id(), 1).expect("process 1 of the job");
+    let sent = Command::new("kill")
+        .args(["-INT", &process_1.to_string()])
+        .status()
+        .unwrap();
+    assert!(sent.success());
+    let signalled = std::time::Instant::now();
+    let status = loop {
+        if let Some(status) = job.try_wait().unwrap() {
+            break status;
+        }
+        if started.elapsed() > limit {
+            let _ = job.kill();
+            let _ = job.wait();
+            panic!("the job did not end within {limit:?} of its start: it hung");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    };
+    let stderr = std::fs::read_to_string(logs.join("stderr.txt")).unwrap();
+    let ended_in = signalled.elapsed().as_secs_f64();
+    assert!(
+        !status.success(),
+        "an interrupted run exits non-zero: {stderr}"
+    );
+    assert!(!stderr.contains("MPI_Abort"), "ended by an abort: {stderr}");
+    assert!(stderr.contains("interrupted after load step"), "{stderr}");
+    // the abort path waits 20 s first; the agreed stop ends at the next step
+    assert!(ended_in < 15.0, "ended {ended_in:.1} s after the signal");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["status"], "interrupted", "{summary}");
+    let steps = summary["steps"].as_array().unwrap().len();
+    assert!((3..20000).contains(&steps), "{steps} steps");
+    let last = dir.join(format!("particles_{steps:04}.pvtu"));
+    let points: usize = impm::output::pvtu_pieces(&last)
+        .unwrap()
+        .iter()
+        .map(|piece| read_vtu(piece).unwrap().points.len())
+        .sum();
+    assert_eq!(points, 4 * 4 * 4, "the last step's pieces hold every point");
     let _ = std::fs::remove_dir_all(&dir);
     let _ = std::fs::remove_dir_all(&logs);
 }

@@ -8,10 +8,11 @@
 //! when the run ends, with its standard output and error sent to `/dev/null`.
 //!
 //! **Nothing hangs.** Inside a load step every failure is shared (`Hook::Combine`, the output
-//! pieces): the processes fail and cut the step alike, and end their runs together. A failure
-//! on one process elsewhere (process 0 cannot write `summary.json`, its output folder, a
-//! checkpoint; a stop asked between steps that one process sees before the others) would
-//! leave the others waiting in their next collective call. So at its end every process meets
+//! pieces): the processes fail and cut the step alike, and end their runs together. A stop
+//! (a signal, a deadline) is agreed between steps ([`agree_on_stop`]): if any process is asked
+//! to stop, all stop after the same step. A failure on one process elsewhere (process 0 cannot
+//! write `summary.json`, its output folder, a checkpoint) would leave the others waiting in
+//! their next collective call. So at its end every process meets
 //! the others ([`DistributedRun::end`], a barrier on a communicator of its own): a process
 //! whose run failed waits at most [`FAILED_PROCESS_WAIT`] for them, and if they do not come it
 //! says which process failed and why on the console's standard error and ends the job with
@@ -26,6 +27,7 @@ use std::sync::OnceLock;
 use std::time::Duration;
 
 use impm::distributed::{Ending, Processes, Started, abort, launched_by_mpirun, start};
+use impm::interrupt::StopReason;
 
 use super::console::{Failure, note};
 
@@ -86,6 +88,7 @@ impl DistributedRun {
         }
         if processes.size > 1 {
             abort_on_panic(processes);
+            impm::interrupt::set_agreement(agree_on_stop).map_err(Failure::Message)?;
         }
         Ok(Some(Self {
             processes,
@@ -182,6 +185,13 @@ fn to_console(line: &str) {
         }
         None => note(line),
     }
+}
+
+/// The processes stop together: each learns, between load steps, whether any of them got a
+/// signal or passed its deadline (`mpirun` forwards a signal to every process, but they may be
+/// at different points of a step when it arrives).
+fn agree_on_stop(mine: Option<StopReason>) -> Option<StopReason> {
+    StopReason::from_precedence(impm::distributed::largest(StopReason::precedence(mine)))
 }
 
 /// A panic on any process ends the job: the others would wait for it forever.

@@ -23,7 +23,7 @@ pub mod partition;
 #[cfg(feature = "mpi")]
 mod world;
 #[cfg(feature = "mpi")]
-pub use world::{Ending, Started, abort, any, path_of_process_0, processes, start, sum};
+pub use world::{Ending, Started, abort, any, largest, path_of_process_0, processes, start, sum};
 
 /// This process's place in a distributed run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

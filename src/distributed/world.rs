@@ -4,7 +4,8 @@
 //! `OMPI_COMM_WORLD_SIZE` in every process it starts), so a build with the feature still runs
 //! `impm run SCENE` as one ordinary process. PETSc, started later on first use, finds MPI
 //! running and works on `MPI_COMM_WORLD`. The `mpi` crate gives rank, size and the two small
-//! reductions the driver needs (whether any process failed; a sum of one number); the large
+//! reductions the driver needs (whether any process failed or is asked to stop; a sum of one
+//! number); the large
 //! sums (internal force, tangent) go through PETSc's vectors and matrices.
 
 use std::sync::OnceLock;
@@ -107,13 +108,17 @@ pub fn processes() -> Option<Processes> {
 
 /// Whether `flag` holds on any process (collective: every process must call it).
 pub fn any(flag: bool) -> bool {
+    largest(i32::from(flag)) != 0
+}
+
+/// The largest of `value` over the processes (collective: every process must call it).
+pub fn largest(value: i32) -> i32 {
     if processes().is_none() {
-        return flag;
+        return value;
     }
-    let mine = i32::from(flag);
     let mut all = 0i32;
-    SimpleCommunicator::world().all_reduce_into(&mine, &mut all, SystemOperation::max());
-    all != 0
+    SimpleCommunicator::world().all_reduce_into(&value, &mut all, SystemOperation::max());
+    all
 }
 
 /// The sum of `value` over the processes (collective). Not bit-identical across processes in
