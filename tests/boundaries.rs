@@ -206,6 +206,108 @@ fn penalty_default_holds_the_total_displacement_with_any_step_count() {
     }
 }
 
+/// The material's top displacement (a probe at the top's centre: the least-squares linear fit
+/// of the nearest material points, not the boundary points where the condition holds the grid
+/// field) and the reaction after `steps` load steps, relative to the prescribed displacement
+/// and the exact (Hencky) force; the spread of the points' stress (the largest difference from
+/// the exact state over |σ_vertical|); and whether the run warned.
+fn material_errors<const D: usize>(set: &[(&str, &str)], stretch: f64) -> (f64, f64, f64, bool) {
+    let at = if D == 2 {
+        "[0.5, 1.0]"
+    } else {
+        "[0.5, 0.5, 1.0]"
+    };
+    let text = format!(
+        "{}probe(#{{ name: \"mid\", at: {at} }});\n",
+        uniaxial::<D>()
+    );
+    let (mut sim, steps) = run::<D>("material", &text, set);
+    let (spread, ..) = uniaxial_errors(&mut sim, stretch);
+    let axis = ["x", "y", "z"][D - 1];
+    let last = steps.last().unwrap();
+    let u = last.measure(&format!("mid_displacement_{axis}")).unwrap();
+    let r = last.measure(&format!("top_reaction_{axis}")).unwrap();
+    let (exact, _) = hencky_uniaxial(stretch);
+    (
+        (u - (stretch - 1.0)) / (stretch - 1.0),
+        (r - exact) / exact,
+        spread,
+        !sim.summary.warnings.is_empty(),
+    )
+}
+
+/// Point-integrated B-splines (q = 2, 3) with 2 × 2 (2 × 2 × 2) points per cell and linear
+/// MPM, penalty default, 5 load steps, compression to 80 % and tension to 120 %, 2D and 3D
+/// (coarse: 2 × 2 × 4 cells): the issue asks for the top's *material* displacement within
+/// 0.1 % of the prescribed one and the reaction within 1 % of the Hencky force. Asserted where
+/// it holds (measured: q = 2 in 2D, compression and tension, material −2.9e-4 / −2.8e-4,
+/// reaction −0.15 % / −0.55 %; q = 2 in 3D, compression, +9.1e-5, −0.15 %); the reaction alone
+/// where only it holds (q = 2 3D tension: material +2.5e-3, reaction −0.55 %; q = 3 2D
+/// compression: −3.3e-3, −0.31 %). The other cases do not meet the bounds and are recorded in
+/// docs/boundaries.md with their figures and causes (the method's own error: q = 3 2D tension
+/// −5.0e-3 / −2.0 %, linear MPM −4.5 % / −14 %); 3D cubic compression on this coarse grid,
+/// where the material leaves the condition (reaction −80 %), must warn (3D cubic tension warns
+/// at step 1 and then fails to converge at step 4: left out, recorded in the docs).
+#[test]
+fn material_follows_the_condition_with_point_integrated_bases() {
+    type Case<'a> = (
+        usize,
+        &'a str,
+        &'a [(&'a str, &'a str)],
+        Option<f64>,
+        Option<f64>,
+    );
+    let q2: &[(&str, &str)] = &[("order", "2")];
+    let q3: &[(&str, &str)] = &[("order", "3")];
+    let linear: &[(&str, &str)] = &[("basis", "linear"), ("order", "1")];
+    let cases: [Case; 11] = [
+        (2, "0.8", q2, Some(1e-3), Some(0.01)),
+        (2, "1.2", q2, Some(1e-3), Some(0.01)),
+        (2, "0.8", q3, None, Some(0.01)),
+        (2, "1.2", q3, None, None),
+        (2, "0.8", linear, None, None),
+        (2, "1.2", linear, None, None),
+        (3, "0.8", q2, Some(1e-3), Some(0.01)),
+        (3, "1.2", q2, None, Some(0.01)),
+        (3, "0.8", q3, None, None),
+        (3, "0.8", linear, None, None),
+        (3, "1.2", linear, None, None),
+    ];
+    for (dim, stretch, basis, material_bound, reaction_bound) in cases {
+        let mut set = basis.to_vec();
+        set.extend([("stretch", stretch), ("steps", "5")]);
+        let s: f64 = stretch.parse().unwrap();
+        let (material, reaction, spread, warned) = if dim == 2 {
+            material_errors::<2>(&set, s)
+        } else {
+            material_errors::<3>(&set, s)
+        };
+        eprintln!(
+            "{dim}D {set:?}: material top displacement {material:+.2e}, reaction {:+.3} %, σ spread {:.1} %, warned {warned}",
+            100.0 * reaction,
+            100.0 * spread
+        );
+        if let Some(bound) = material_bound {
+            assert!(
+                material.abs() < bound,
+                "{dim}D {set:?}: material {material:e}"
+            );
+        }
+        if let Some(bound) = reaction_bound {
+            assert!(
+                reaction.abs() < bound,
+                "{dim}D {set:?}: reaction {reaction:e}"
+            );
+        }
+        if dim == 3 && basis == q3 {
+            assert!(
+                reaction.abs() > 0.1 && warned,
+                "3D cubic: {reaction:e}, {warned}"
+            );
+        }
+    }
+}
+
 /// The methods that integrate a homogeneous deformation exactly give the same answer with 5
 /// and with 40 load steps (the condition prescribes a total displacement): the penalty
 /// default with GIMP, CPDI and domain-averaged B-splines in 2D, domain-averaged B-splines in
