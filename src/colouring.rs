@@ -2,49 +2,55 @@
 //!
 //! Two points whose supports share no node add to disjoint entries of the internal force and of
 //! the tangent (K_ij couples the DOFs of nodes i and j of one support). The points are put into
-//! **blocks** (here: the points whose supports have the same lowest corner, i.e. the points of
-//! one background cell for a B-spline or linear basis) and the blocks into **colours** such
-//! that two blocks of one colour share no node; the threads then work on the blocks of one
-//! colour at a time, each block on one thread, adding straight into the shared arrays.
+//! **blocks** (slabs of background cells) and the blocks into two **colours** such that two
+//! blocks of one colour share no node; the threads then work on the blocks of one colour at a
+//! time, each block on one thread, adding straight into the shared arrays.
 //!
-//! The spacing is taken from the supports themselves, not from the basis' order. Node `n` has
-//! the multi-index `m(n)` of the grid's node numbering (axis 0 fastest; the last axis is left
-//! unbounded, so any index has one). A point's support `S_p` lies in the box
-//! `[a_p, a_p + e_p - 1]` with the corner `a_{p,k} = min_{n ∈ S_p} m_k(n)` and the extent
-//! `e_{p,k} = max_{n ∈ S_p} m_k(n) - a_{p,k} + 1`. With the widths `w_k = max_p e_{p,k}`:
+//! The slabs are cut along one axis k, the one with the most nodes (the last, slowest in the
+//! numbering, on a tie: its slabs are contiguous ranges of nodes). Node `n` has the index
+//! `m_k(n) = ⌊n / s_k⌋ mod n_k` along it (`s_k` the stride of axis k in the grid's numbering,
+//! axis 0 fastest; the last axis is left unbounded, so any index has one). A point's support
+//! `S_p` spans `[a_p, b_p]` along k, `a_p = min_{n ∈ S_p} m_k(n)`, `b_p = max_{n ∈ S_p} m_k(n)`.
+//! The spacing is taken from the supports themselves, not from the basis' order: with the
+//! width `w = max_p (b_p − a_p + 1)` and the slab thickness `L = max(w − 1, 1)`:
 //!
-//! * block of p: its corner `a_p`;
-//! * colour of p: `c_p = Σ_k (a_{p,k} mod w_k) Π_{l<k} w_l`, one of `C = Π_k w_k` colours.
+//! * block (slab) of p: `⌊a_p / L⌋`; colour of p: its slab's parity.
 //!
-//! Two points of one colour with different corners differ in some axis k by a non-zero multiple
-//! of `w_k`, so their boxes (of width at most `w_k`) do not overlap along k, and their supports
-//! share no node. A B-spline basis of order q gives `w_k = q + 1`, `(q + 1)^D` colours; linear
-//! 2 per axis; GIMP's and CPDI's wider supports give what their widths are. A support that is
-//! not compact in the grid's numbering (an FEM mesh's nodes, numbered their own way) gives wide
-//! boxes and many colours: above [`MAX_COLOURS`] there is no colouring ([`colour_points`]
-//! returns `None`) and the assembly falls back to a copy of the sums per thread.
+//! Two slabs of one colour are `t ≥ 2` slabs apart: the support of a point of slab `t₀` ends at
+//! `b ≤ a + w − 1 ≤ (t₀ + 1) L − 1 + w − 1 < (t₀ + 2) L` (as `L > w − 2`), where the other
+//! slab's supports begin. So their supports share no node. A B-spline basis of order q gives
+//! `w = q + 1`, linear 2, GIMP's and CPDI's wider supports what their widths are. Slabs keep the
+//! cells of a slab in the grid's order, so the writes into the tangent move through memory as
+//! in the plain loop (a finer colouring, cell by cell with `w^D` colours, made the assembly
+//! twice as slow for the lost locality). A support that is not compact in the grid's numbering
+//! (an FEM mesh's nodes, numbered their own way) gives a wide slab and few of them: below
+//! [`MIN_SLABS`] there is no colouring ([`colour_points`] returns `None`) and the assembly falls
+//! back to a copy of the sums per thread.
 //!
-//! The order is fixed by the points alone: colour by colour, block by block (increasing corner),
-//! and within a block the points in their given order. So every entry of the sums receives its
-//! terms in an order that does not depend on the number of threads.
+//! The order is fixed by the points alone: colour by colour, slab by slab, within a slab by the
+//! lowest node of the support (cell order) and then by the given order. So every entry of the
+//! sums receives its terms in an order that does not depend on the number of threads.
 
 use rayon::prelude::*;
 
-/// Most colours a colouring may have (8 per axis in 3D): beyond it the blocks of a colour
-/// are too few to share among threads, and the points' supports are not compact.
-pub const MAX_COLOURS: usize = 512;
+/// Fewest slabs a colouring may have (two per colour): fewer, and the threads would have no
+/// two blocks of a colour to share.
+pub const MIN_SLABS: usize = 4;
 
 /// The points in colour order, cut into blocks and colours.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Colouring {
-    /// Point indices (into the caller's points) by colour, then block, then given order.
+    /// Point indices (into the caller's points) by colour, then block, then the lowest node of
+    /// the support, then given order.
     pub order: Vec<u32>,
     /// The points of block `b` are `order[block_start[b]..block_start[b + 1]]`.
     pub block_start: Vec<usize>,
     /// The blocks of colour `c` are `colour_start[c]..colour_start[c + 1]` (possibly empty).
     pub colour_start: Vec<usize>,
-    /// The widths `w_k` (nodes per axis spanned by the widest support).
-    pub widths: Vec<usize>,
+    /// The axis the slabs are cut along.
+    pub axis: usize,
+    /// The width `w` (nodes along the axis spanned by the widest support).
+    pub width: usize,
 }
 
 impl Colouring {
@@ -60,115 +66,86 @@ impl Colouring {
     }
 }
 
-/// The multi-index of node `index` in a grid of `sizes` nodes per axis (axis 0 fastest), the
-/// last axis unbounded.
-#[inline]
-fn multi_index<const D: usize>(sizes: &[usize; D], mut index: usize) -> [usize; D] {
-    let mut multi = [0; D];
-    for k in 0..D {
-        if k + 1 == D {
-            multi[k] = index;
-        } else {
-            multi[k] = index % sizes[k];
-            index /= sizes[k];
-        }
-    }
-    multi
-}
-
-/// The corner `a_p` and extents `e_p` of a support (module docs); zero extents when empty.
-fn support_box<const D: usize>(
-    sizes: &[usize; D],
-    nodes: impl Iterator<Item = usize>,
-) -> ([usize; D], [usize; D]) {
-    let mut lo = [usize::MAX; D];
-    let mut hi = [0; D];
-    let mut any = false;
-    for node in nodes {
-        any = true;
-        let m = multi_index(sizes, node);
-        for k in 0..D {
-            lo[k] = lo[k].min(m[k]);
-            hi[k] = hi[k].max(m[k]);
-        }
-    }
-    if !any {
-        return ([0; D], [0; D]);
-    }
-    (lo, std::array::from_fn(|k| hi[k] - lo[k] + 1))
-}
-
 /// Colours `n` points whose supports are `nodes_of(p)` (node indices of a grid with `sizes`
-/// nodes per axis), as the module docs say; `None` when it takes more than [`MAX_COLOURS`]
-/// colours or a corner does not fit the sort key (no colouring: the caller falls back).
-///
-/// `same_as_previous(p)` may say that point `p` has the support of point `p - 1` (the points of
-/// a cell), which saves decomposing its nodes again; it must be exact.
+/// nodes per axis), as the module docs say; `None` when it gives fewer than [`MIN_SLABS`]
+/// slabs (no colouring: the caller falls back).
 pub fn colour_points<const D: usize, I: Iterator<Item = usize>>(
     sizes: [usize; D],
     n: usize,
-    nodes_of: impl Fn(usize) -> I,
-    same_as_previous: impl Fn(usize) -> bool,
+    nodes_of: impl Fn(usize) -> I + Sync,
 ) -> Option<Colouring> {
-    if n > u32::MAX as usize || sizes.contains(&0) {
+    if n > u32::MAX as usize || sizes.contains(&0) || D == 0 {
         return None;
     }
-    let mut boxes: Vec<([usize; D], [usize; D])> = Vec::with_capacity(n);
-    for p in 0..n {
-        match boxes.last() {
-            Some(&previous) if same_as_previous(p) => boxes.push(previous),
-            _ => boxes.push(support_box(&sizes, nodes_of(p))),
-        }
-    }
-    let widths: [usize; D] =
-        std::array::from_fn(|k| boxes.iter().map(|(_, e)| e[k]).max().unwrap_or(1).max(1));
-    let colours = widths
+    // The axis with the most nodes, the last on a tie; its stride, bounded unless last.
+    let axis = (0..D).rev().max_by_key(|&k| (sizes[k], k))?;
+    let stride: usize = sizes[..axis].iter().product();
+    let along = |node: usize| match axis + 1 == D {
+        true => node / stride,
+        false => node / stride % sizes[axis],
+    };
+    // Per point: (a_p, b_p, lowest node); an empty support spans nothing (width 0).
+    let spans: Vec<(usize, usize, usize)> = (0..n)
+        .into_par_iter()
+        .map(|p| {
+            let (mut a, mut b, mut low) = (usize::MAX, 0, usize::MAX);
+            for node in nodes_of(p) {
+                let m = along(node);
+                (a, b, low) = (a.min(m), b.max(m), low.min(node));
+            }
+            if low == usize::MAX {
+                (0, 0, 0)
+            } else {
+                (a, b + 1, low)
+            }
+        })
+        .collect();
+    let width = spans.iter().map(|&(a, b, _)| b - a).max().unwrap_or(1);
+    let thickness = width.saturating_sub(1).max(1);
+    let slabs = spans
         .iter()
-        .try_fold(1usize, |c, &w| c.checked_mul(w))
-        .filter(|&c| c <= MAX_COLOURS)?;
-    // The sort key: colour, then the corner's flat index, then the point (unique keys, so the
-    // unstable sort gives one order).
-    let mut strides = [1usize; D];
-    for k in 1..D {
-        strides[k] = strides[k - 1].checked_mul(sizes[k - 1])?;
+        .map(|&(a, _, _)| a / thickness)
+        .max()
+        .unwrap_or(0)
+        + 1;
+    if slabs < MIN_SLABS || slabs > u32::MAX as usize / 2 {
+        return None;
     }
-    let mut keys = Vec::with_capacity(n);
-    for (p, (corner, _)) in boxes.iter().enumerate() {
-        let mut flat = 0usize;
-        let mut colour = 0usize;
-        for k in (0..D).rev() {
-            flat = flat.checked_add(corner[k].checked_mul(strides[k])?)?;
-            colour = colour * widths[k] + corner[k] % widths[k];
-        }
-        // 32 bits of point, 64 of corner, 32 of colour (colour < MAX_COLOURS).
-        let flat = u64::try_from(flat).ok()?;
-        keys.push(((colour as u128) << 96) | (u128::from(flat) << 32) | p as u128);
-    }
-    drop(boxes);
+    // The sort key: colour (1 bit), slab (31 bits), lowest node (64), point (32): unique keys,
+    // so the unstable sort gives one order.
+    let mut keys: Vec<u128> = spans
+        .par_iter()
+        .enumerate()
+        .map(|(p, &(a, _, low))| {
+            let slab = (a / thickness) as u128;
+            let colour = slab % 2;
+            (colour << 127) | (slab << 96) | ((low as u128) << 32) | p as u128
+        })
+        .collect();
+    drop(spans);
     keys.par_sort_unstable();
 
     let mut order = Vec::with_capacity(n);
     let mut block_start = Vec::new();
-    let mut colour_start = vec![0; colours + 1];
+    let mut colour_start = vec![0; 3];
     let mut previous: Option<u128> = None;
     for (position, key) in keys.iter().enumerate() {
-        let block = key >> 32;
+        let block = key >> 96;
         if previous != Some(block) {
             block_start.push(position);
-            colour_start[(key >> 96) as usize + 1] += 1;
+            colour_start[(key >> 127) as usize + 1] += 1;
             previous = Some(block);
         }
         order.push(*key as u32);
     }
     block_start.push(n);
-    for c in 0..colours {
-        colour_start[c + 1] += colour_start[c];
-    }
+    colour_start[2] += colour_start[1];
     Some(Colouring {
         order,
         block_start,
         colour_start,
-        widths: widths.to_vec(),
+        axis,
+        width,
     })
 }
 
@@ -189,7 +166,7 @@ mod tests {
     }
 
     /// Every colour's blocks have pairwise disjoint node sets, every point appears once, and
-    /// the points of a block keep their given order.
+    /// the points of a block are in (lowest node, given order).
     fn assert_valid(colouring: &Colouring, supports: &[Vec<usize>]) {
         let mut seen = vec![false; supports.len()];
         for &p in &colouring.order {
@@ -197,12 +174,20 @@ mod tests {
             seen[p as usize] = true;
         }
         assert!(seen.iter().all(|&s| s));
+        assert_eq!(colouring.colours(), 2);
         for c in 0..colouring.colours() {
             let blocks = colouring.blocks_of(c);
             let mut owner = std::collections::HashMap::new();
             for (b, w) in blocks.windows(2).enumerate() {
                 let points = &colouring.order[w[0]..w[1]];
-                assert!(points.windows(2).all(|p| p[0] < p[1]), "block order");
+                let key = |p: u32| {
+                    let low = supports[p as usize].iter().min().copied().unwrap_or(0);
+                    (low, p)
+                };
+                assert!(
+                    points.windows(2).all(|p| key(p[0]) < key(p[1])),
+                    "block order"
+                );
                 for &p in points {
                     for &node in &supports[p as usize] {
                         let first = *owner.entry(node).or_insert(b);
@@ -213,10 +198,14 @@ mod tests {
         }
     }
 
+    fn colour(sizes: [usize; 2], supports: &[Vec<usize>]) -> Option<Colouring> {
+        colour_points(sizes, supports.len(), |p| supports[p].iter().copied())
+    }
+
     #[test]
-    fn b_spline_supports_take_q_plus_one_colours_per_axis_with_disjoint_blocks() {
+    fn b_spline_supports_make_slabs_of_q_cells_with_disjoint_blocks_per_colour() {
         for q in 1..=3 {
-            let cells = [7, 5];
+            let cells = [7, 11];
             let sizes = [cells[0] + q, cells[1] + q];
             // Two points per cell, cells visited in a scrambled order.
             let mut supports = Vec::new();
@@ -226,27 +215,21 @@ mod tests {
                 supports.push(box_nodes(sizes, corner, q));
                 supports.push(box_nodes(sizes, corner, q));
             }
-            let colouring = colour_points(
-                sizes,
-                supports.len(),
-                |p| supports[p].iter().copied(),
-                |p| supports[p] == supports[p - 1],
-            )
-            .unwrap();
-            assert_eq!(colouring.widths, vec![q + 1, q + 1]);
-            assert_eq!(colouring.colours(), (q + 1) * (q + 1));
-            assert_eq!(colouring.block_start.len(), cells[0] * cells[1] + 1);
+            let colouring = colour(sizes, &supports).unwrap();
+            assert_eq!((colouring.axis, colouring.width), (1, q + 1));
+            // Slabs of max(q, 1) cells along axis 1.
+            assert_eq!(colouring.block_start.len() - 1, cells[1].div_ceil(q.max(1)));
             assert_valid(&colouring, &supports);
         }
     }
 
     #[test]
-    fn uneven_supports_take_the_widest_extent() {
-        // GIMP-like: 2 or 3 nodes per axis, linear grid of 6 x 6 nodes.
-        let sizes = [6, 6];
+    fn uneven_supports_take_the_widest_extent_along_the_longest_axis() {
+        // GIMP-like: 2 or 3 nodes per axis, linear grid of 12 x 6 nodes: slabs along axis 0.
+        let sizes = [12, 6];
         let mut supports = Vec::new();
         for j in 0..4 {
-            for i in 0..4 {
+            for i in 0..10 {
                 let width = 2 + (i + j) % 2;
                 let mut nodes = Vec::new();
                 for b in 0..width {
@@ -258,36 +241,27 @@ mod tests {
             }
         }
         supports.push(Vec::new());
-        let colouring = colour_points(
-            sizes,
-            supports.len(),
-            |p| supports[p].iter().copied(),
-            |_| false,
-        )
-        .unwrap();
-        assert_eq!(colouring.widths, vec![3, 3]);
+        let colouring = colour(sizes, &supports).unwrap();
+        assert_eq!((colouring.axis, colouring.width), (0, 3));
         assert_valid(&colouring, &supports);
     }
 
     #[test]
     fn supports_spread_over_the_numbering_are_not_coloured() {
-        // Nodes far apart in the numbering (an unstructured mesh): too many colours.
+        // Nodes far apart in the numbering (an unstructured mesh): one wide slab.
         let sizes = [100, 100];
         let supports: Vec<Vec<usize>> = (0..50).map(|p| vec![p, p + 77, 5000 + p]).collect();
-        assert!(
-            colour_points(
-                sizes,
-                supports.len(),
-                |p| supports[p].iter().copied(),
-                |_| false
-            )
-            .is_none()
-        );
+        assert!(colour(sizes, &supports).is_none());
     }
 
     #[test]
     fn node_indices_beyond_the_grid_fall_on_the_unbounded_last_axis() {
-        assert_eq!(multi_index(&[4, 3], 4 * 3 * 2 + 5), [1, 7]);
-        assert_eq!(multi_index(&[9], 40), [40]);
+        // 2 x 3 nodes, supports of 2 nodes along axis 1 reaching past the grid's 3 rows.
+        let sizes = [2, 3];
+        let supports: Vec<Vec<usize>> = (0..10).map(|r| vec![2 * r, 2 * (r + 1)]).collect();
+        let colouring = colour(sizes, &supports).unwrap();
+        assert_eq!((colouring.axis, colouring.width), (1, 2));
+        assert_eq!(colouring.block_start.len() - 1, 10);
+        assert_valid(&colouring, &supports);
     }
 }

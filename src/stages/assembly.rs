@@ -13,14 +13,15 @@
 //! Points marked [`AssembledElsewhere`] are left out: in a distributed run each process sums
 //! the points of its own block of cells, and `Hook::Combine` adds the processes' sums.
 //!
-//! Threads (`parallel`): the points are put in colour order (`colouring`: blocks of points
-//! with the same support corner, coloured so that two blocks of one colour share no node), and
+//! Threads (`parallel`): the points are put in colour order (`colouring`: slabs of cells, two
+//! colours, so that two slabs of one colour share no node), and
 //! the threads share the blocks of one colour at a time, adding straight into the one internal
 //! force and the one array of tangent values ([`parallel::for_each_colour`]). No copy of the
 //! sums per thread; the internal force and the tangent are bit-identical for any thread count,
 //! because every entry receives its terms in the colouring's order. Where the supports cannot be
-//! coloured (more than `colouring::MAX_COLOURS` colours: supports that are not compact in the
-//! grid's numbering, such as an FEM mesh's), the points are cut into one contiguous part per
+//! coloured (fewer than `colouring::MIN_SLABS` slabs: supports that are not compact in the
+//! grid's numbering, such as an FEM mesh's, or a grid a few supports wide), the points are cut
+//! into one contiguous part per
 //! thread, each part sums into its own internal force and copy of the tangent values, and the
 //! copies are added in part order: bit-identical for a given thread count, equal to round-off
 //! across counts.
@@ -226,9 +227,8 @@ pub fn assemble<const D: usize>(
 
 /// The points' colouring (`colouring`) on the grid's node numbering, `None` without one.
 fn colour<const D: usize>(grid: &Grid<D>, points: &[PointItem<'_, D>]) -> Option<Colouring> {
-    let nodes = |p: usize| points[p].0.0.iter().map(|w| w.node);
-    colouring::colour_points(grid.0.nodes_per_axis(), points.len(), nodes, |p| {
-        nodes(p).eq(nodes(p - 1))
+    colouring::colour_points(grid.0.nodes_per_axis(), points.len(), |p| {
+        points[p].0.0.iter().map(|w| w.node)
     })
 }
 
