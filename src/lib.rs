@@ -11,7 +11,8 @@
 //!   [`effects`] (the built-in ones: materials, loads, constraints, GIMP/CPDI, FEM, ghost
 //!   penalty, stress recovery).
 //! * Pure kernels: [`basis`], [`material`], [`mechanics`], [`quadrature`], [`solver`],
-//!   [`analytic`], [`recovery`], [`interpolation`], [`ghost`], [`fem`], [`parameter`].
+//!   [`analytic`], [`recovery`], [`interpolation`], [`ghost`], [`fem`], [`parameter`],
+//!   [`colouring`] (points into colours for the threaded assembly).
 //! * Driver and I/O: [`run`] (build and drive a simulation), [`records`] (summary.json),
 //!   [`checkpoint`] (saved states, part by part), [`restart`] (checkpoint files, resuming),
 //!   [`explain`] (what a scene runs), [`scene`] (Rhai), [`output`] (VTK), [`study`] (sweeps,
@@ -24,6 +25,7 @@
 pub mod analytic;
 pub mod basis;
 pub mod checkpoint;
+pub mod colouring;
 pub mod components;
 pub mod control;
 pub mod distributed;

@@ -6,10 +6,17 @@
 //! thread of the current rayon pool, and each part runs on its own state; the stage then
 //! combines the states **in part order** ([`add_parts`] for summed arrays). The cut depends only
 //! on the number of points and the number of threads, never on timing, so a run is bit-identical
-//! from one repetition to the next for a given thread count. Sums over points (internal force,
-//! tangent) are added in another order for another thread count, so runs with 1 and 2 threads
-//! agree to round-off, not bit for bit; per-point work without sums (stress update, basis
-//! evaluation) is identical for any thread count.
+//! from one repetition to the next for a given thread count. Per-point work without sums (stress
+//! update, basis evaluation) is identical for any thread count.
+//!
+//! Sums over points into one array (the assembly's internal force and tangent) go through
+//! [`for_each_colour`] instead: the points come in the colour order of `crate::colouring`, and
+//! the blocks of one colour, which touch disjoint entries, are shared among the threads, colour
+//! after colour; every part adds straight into the one array through [`Disjoint`]. No copy per
+//! thread, no summing pass, and every entry receives its terms in the colouring's order, so the
+//! sums are bit-identical for any thread count. Where the points cannot be coloured the
+//! assembly sums per part and adds the parts in order, which agrees across thread counts only
+//! to round-off.
 //!
 //! The kernels (`mechanics`, `basis`, `material`) know nothing of this: only the thin systems
 //! over them call here.
@@ -21,6 +28,7 @@
 //! deterministic split and merge of partial sums, which `Query::par_iter` does not give (its
 //! batches follow the task pool), and rayon is already built for faer.
 
+use std::marker::PhantomData;
 use std::ops::Range;
 
 use rayon::prelude::*;
@@ -108,6 +116,104 @@ pub fn add_parts<T: Copy + Send + Sync + std::ops::AddAssign>(target: &mut [T], 
         });
 }
 
+/// Sets every element of `target` to `value`, in parallel over chunks.
+pub fn fill<T: Copy + Send + Sync>(target: &mut [T], value: T) {
+    const CHUNK: usize = 1 << 14;
+    target
+        .par_chunks_mut(CHUNK)
+        .for_each(|chunk| chunk.fill(value));
+}
+
+/// Runs `work(items, state)` over the blocks of `items`, colour after colour: colour `c` owns
+/// the blocks `colour_start[c]..colour_start[c + 1]`, block `b` the items
+/// `block_start[b]..block_start[b + 1]` (as `crate::colouring::Colouring`). A colour's blocks
+/// are cut into `states.len()` contiguous runs of about equal item count, never inside a block,
+/// and the runs are done in parallel, part `p` with `states[p]`; the next colour starts when
+/// all of them are done. With one state everything runs on the calling thread, in order.
+pub fn for_each_colour<T: Sync, S: Send>(
+    items: &[T],
+    block_start: &[usize],
+    colour_start: &[usize],
+    states: &mut [S],
+    work: impl Fn(&[T], &mut S) + Sync,
+) {
+    for colour in colour_start.windows(2) {
+        let blocks = &block_start[colour[0]..=colour[1]];
+        let (first, last) = (blocks[0], blocks[blocks.len() - 1]);
+        if first == last {
+            continue;
+        }
+        if let [state] = states {
+            work(&items[first..last], state);
+            continue;
+        }
+        let parts = states.len();
+        let mut cuts = Vec::with_capacity(parts + 1);
+        cuts.push(first);
+        for p in 1..parts {
+            let target = first + (last - first) * p / parts;
+            let at = blocks.partition_point(|&start| start < target);
+            cuts.push(blocks[at.min(blocks.len() - 1)].max(cuts[p - 1]));
+        }
+        cuts.push(last);
+        cuts.par_windows(2)
+            .zip(states.par_iter_mut())
+            .for_each(|(range, state)| {
+                if range[0] < range[1] {
+                    work(&items[range[0]..range[1]], state);
+                }
+            });
+    }
+}
+
+/// A slice that several threads update at once, each at entries no other thread touches in the
+/// meantime (the blocks of one colour, [`for_each_colour`]). Made from `&mut [T]`, which it
+/// borrows for its lifetime; element access is `unsafe` because that promise is the caller's.
+pub struct Disjoint<'a, T> {
+    start: *mut T,
+    len: usize,
+    _borrow: PhantomData<&'a mut [T]>,
+}
+
+// SAFETY: the wrapper hands out `&mut T` to single elements only, through `update`, whose
+// contract forbids two threads to be at one element at once; `T: Send` lets the element be
+// written from another thread.
+unsafe impl<T: Send> Send for Disjoint<'_, T> {}
+// SAFETY: as for `Send`: sharing the wrapper shares no element.
+unsafe impl<T: Send> Sync for Disjoint<'_, T> {}
+
+impl<'a, T> Disjoint<'a, T> {
+    pub fn new(slice: &'a mut [T]) -> Self {
+        Self {
+            start: slice.as_mut_ptr(),
+            len: slice.len(),
+            _borrow: PhantomData,
+        }
+    }
+
+    /// The length of the slice.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether the slice is empty.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Applies `f` to element `k` (panics when `k` is out of range).
+    ///
+    /// # Safety
+    /// While this runs, no other thread reads or writes element `k` through this wrapper.
+    #[inline]
+    pub unsafe fn update(&self, k: usize, f: impl FnOnce(&mut T)) {
+        assert!(k < self.len, "index {k} out of range {}", self.len);
+        // SAFETY: `k` is in range of the borrowed slice, and by the contract no other
+        // reference to element `k` is alive while `f` runs.
+        f(unsafe { &mut *self.start.add(k) })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -154,5 +260,56 @@ mod tests {
         let b: Vec<f64> = (0..n).map(|k| -(k as f64)).collect();
         add_parts(&mut target, &[&a, &b]);
         assert!(target.iter().all(|&t| t == 0.5));
+    }
+
+    #[test]
+    fn colours_run_in_order_and_no_block_is_cut() {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(3)
+            .build()
+            .unwrap();
+        // 10 items in 5 blocks ([0,2) [2,3) [3,7) [7,9) [9,10)); colour 0: blocks 0..2,
+        // colour 1: none, colour 2: blocks 2..5.
+        let block_start = [0, 2, 3, 7, 9, 10];
+        let colour_start = [0, 2, 2, 5];
+        let items: Vec<usize> = (0..10).collect();
+        pool.install(|| {
+            let mut seen = vec![Vec::new(); 3];
+            let log = std::sync::Mutex::new(Vec::new());
+            for_each_colour(
+                &items,
+                &block_start,
+                &colour_start,
+                &mut seen,
+                |run, state| {
+                    state.push(run.to_vec());
+                    log.lock().unwrap().push(run.to_vec());
+                },
+            );
+            let mut runs = log.into_inner().unwrap();
+            runs.sort();
+            for run in &runs {
+                assert!(block_start.contains(&run[0]));
+                assert!(block_start.contains(&(run[run.len() - 1] + 1)));
+            }
+            let flat: Vec<usize> = runs.into_iter().flatten().collect();
+            assert_eq!(flat, items);
+            // Every item of colour 0 came before every item of colour 2 in each part.
+            for part in seen {
+                let flat: Vec<usize> = part.into_iter().flatten().collect();
+                assert!(flat.windows(2).all(|w| w[0] < w[1]), "{flat:?}");
+            }
+        });
+    }
+
+    #[test]
+    fn disjoint_updates_from_threads_reach_the_slice() {
+        let mut target = vec![0.0f64; 1000];
+        let shared = Disjoint::new(&mut target);
+        (0..1000usize).into_par_iter().for_each(|k| {
+            // SAFETY: every k is visited by one iteration only.
+            unsafe { shared.update(k, |v| *v += k as f64) };
+        });
+        assert!(target.iter().enumerate().all(|(k, &v)| v == k as f64));
     }
 }

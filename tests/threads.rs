@@ -1,9 +1,13 @@
-//! Threads (`src/parallel.rs`): a run on two threads equals the run on one to round-off (the
-//! sums over points are added in another order), and repeated runs on two threads are
-//! bit-identical (the points are cut into parts by count, and the parts' sums added in order).
-//! Checked on the paper's 2D column (against its eq. 15 error too), on a 3D block and on a 2D
-//! block solved iteratively (CG with multigrid on the threads); `impm run --threads N` records
-//! N in summary.json.
+//! Threads (`src/parallel.rs`): a run on two threads equals the run on one bit for bit (the
+//! assembly adds every entry's terms in the colouring's order, `src/colouring.rs`; the stress
+//! update and the basis are per point; the linear solves cut their loops the same way for both
+//! counts at these sizes), and so do repeated runs on two threads. (A grid fewer than 4 slabs of
+//! supports high, `colouring::MIN_SLABS`, is assembled by copies per thread: equal to round-off
+//! across counts.) Checked on the paper's 2D
+//! column (with its eq. 15 error), on a 3D block and on a 2D block solved iteratively (CG with
+//! multigrid on the threads): every point's position and Cauchy stress after the run. At the
+//! assembly itself: the internal force and every tangent value on 1, 2 and 3 threads, for
+//! linear, B-spline (q = 2, 3), GIMP and 3D. `impm run --threads N` records N in summary.json.
 
 mod common;
 
@@ -22,15 +26,29 @@ struct Outcome {
     points: Vec<PointState>,
 }
 
-fn run<const D: usize>(script: &str, set: &[(&str, &str)], threads: usize) -> Outcome {
+/// `work` on a pool of `threads` threads.
+fn on_threads<R: Send>(threads: usize, work: impl FnOnce() -> R + Send) -> R {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
         .unwrap();
-    pool.install(|| {
-        let spec = load_scene(&shipped_scene(script), &overrides(set)).unwrap();
-        let dir = temp_dir("threads", &format!("{script}-{threads}"));
-        let mut sim = Simulation::<D>::new(&spec, &dir).unwrap();
+    pool.install(work)
+}
+
+/// The simulation of a shipped scene with overrides, and its (not yet written) output folder.
+fn simulation<const D: usize>(
+    script: &str,
+    set: &[(&str, &str)],
+    threads: usize,
+) -> (Simulation<D>, std::path::PathBuf) {
+    let spec = load_scene(&shipped_scene(script), &overrides(set)).unwrap();
+    let dir = temp_dir("threads", &format!("{script}-{threads}"));
+    (Simulation::<D>::new(&spec, &dir).unwrap(), dir)
+}
+
+fn run<const D: usize>(script: &str, set: &[(&str, &str)], threads: usize) -> Outcome {
+    on_threads(threads, || {
+        let (mut sim, dir) = simulation::<D>(script, set, threads);
         sim.run(|_| {})
             .unwrap_or_else(|e| panic!("{script} on {threads} threads: {e}"));
         let _ = std::fs::remove_dir_all(&dir);
@@ -85,13 +103,6 @@ fn bits(o: &Outcome) -> Vec<u64> {
         .collect()
 }
 
-/// Round-off tolerance across thread counts: the Newton iterates differ by the summation order
-/// of the internal force and tangent (~1e-16 relative per sum), and the converged states by that
-/// amplified through a few solves; 1e-12 of the largest value (2.4e-14 measured on the column) leaves room for the conditioning
-/// while failing for any real difference (a point missed or counted twice changes the stress
-/// at the percent level).
-const ACROSS_THREADS: f64 = 1e-12;
-
 fn check<const D: usize>(name: &str, script: &str, set: &[(&str, &str)]) {
     let one = run::<D>(script, set, 1);
     let two = run::<D>(script, set, 2);
@@ -109,12 +120,10 @@ fn check<const D: usize>(name: &str, script: &str, set: &[(&str, &str)]) {
     assert_eq!((one.threads, two.threads), (1, 2));
     assert_eq!(two.iterations, one.iterations);
     assert!(
-        dx <= ACROSS_THREADS && ds <= ACROSS_THREADS,
-        "{dx:e} {ds:e}"
+        bits(&two) == bits(&one),
+        "{name}: 2 threads differ from 1 (position {dx:e}, stress {ds:e} of the largest)"
     );
-    if let (Some(a), Some(b)) = (one.error, two.error) {
-        assert!((a - b).abs() <= 1e-8 * a, "{a:e} {b:e}");
-    }
+    assert_eq!(one.error.map(f64::to_bits), two.error.map(f64::to_bits));
     assert!(
         bits(&two) == bits(&again),
         "{name}: two runs on 2 threads differ"
@@ -122,7 +131,7 @@ fn check<const D: usize>(name: &str, script: &str, set: &[(&str, &str)]) {
 }
 
 #[test]
-fn the_2d_column_on_two_threads_equals_one_thread_to_round_off_and_repeats_bit_for_bit() {
+fn the_2d_column_on_two_threads_equals_one_thread_bit_for_bit_and_repeats() {
     check::<2>(
         "column 2D",
         "column_2d.rhai",
@@ -131,11 +140,12 @@ fn the_2d_column_on_two_threads_equals_one_thread_to_round_off_and_repeats_bit_f
 }
 
 #[test]
-fn a_3d_block_on_two_threads_equals_one_thread_to_round_off_and_repeats_bit_for_bit() {
+fn a_3d_block_on_two_threads_equals_one_thread_bit_for_bit_and_repeats() {
     check::<3>(
         "block 3D",
         "block_3d.rhai",
-        &[("cells", "4"), ("steps", "3")],
+        // 8 cells high: 4 slabs, the fewest the colouring takes (`colouring::MIN_SLABS`).
+        &[("cells", "8"), ("steps", "3")],
     );
 }
 
@@ -143,7 +153,7 @@ fn a_3d_block_on_two_threads_equals_one_thread_to_round_off_and_repeats_bit_for_
 /// products and updates, multigrid's cycle): a block large enough (18.6k DOFs) that the solver's
 /// loops are cut into parts, solved by CG with multigrid.
 #[test]
-fn iterative_solves_on_two_threads_equal_one_thread_to_round_off_and_repeat_bit_for_bit() {
+fn iterative_solves_on_two_threads_equal_one_thread_bit_for_bit_and_repeat() {
     check::<2>(
         "block 2D, CG + multigrid",
         "block_2d_self_weight.rhai",
@@ -180,4 +190,118 @@ fn the_threads_option_is_recorded_in_the_summary() {
     let zero = impm(&["run", &scene, "--threads", "0"]);
     assert!(!zero.status.success());
     assert!(String::from_utf8_lossy(&zero.stderr).contains("--threads"));
+}
+
+/// The internal force and the tangent values (bits, in node and pattern order) after one stress
+/// update and assembly on `threads` threads, at a non-uniform increment (a shear, a stretch
+/// and a wobble, so that every point's blocks differ); and the colouring's width.
+fn assembled<const D: usize>(
+    script: &str,
+    set: &[(&str, &str)],
+    threads: usize,
+) -> (Vec<u64>, Vec<u64>, Option<usize>) {
+    use bevy_ecs::system::RunSystemOnce;
+    use impm::components::Support;
+    use impm::resources::{Grid, GridFields, LoadStep, Newton};
+    use impm::stages::{assemble, evaluate_basis, number_dofs, update_stress};
+    on_threads(threads, || {
+        let (mut sim, dir) = simulation::<D>(script, set, threads);
+        let _ = std::fs::remove_dir_all(&dir);
+        let mut step = sim.world.resource_mut::<LoadStep>();
+        (step.number, step.factor) = (1, 1.0);
+        sim.world.run_system_once(evaluate_basis::<D>).unwrap();
+        sim.world.run_system_once(number_dofs::<D>).unwrap();
+        let grid = sim.world.resource::<Grid<D>>().0.clone();
+        let mut fields = sim.world.resource_mut::<GridFields<D>>();
+        for (node, u) in fields.increment.iter_mut().enumerate() {
+            // A shear, a stretch and a wobble: x_0 += 0.1 x_{D-1}, x_k += 0.02 x_k + 0.01 sin(..).
+            let x = grid.node_position(node);
+            let phase = x
+                .iter()
+                .enumerate()
+                .map(|(k, v)| (1.3 + 0.7 * k as f64) * v);
+            let wobble = 0.01 * phase.sum::<f64>().sin();
+            *u = x * 0.02 + nalgebra::SVector::<f64, D>::repeat(wobble);
+            u[0] += 0.1 * x[D - 1];
+        }
+        sim.world
+            .run_system_once(update_stress::<D, impm::material::Hencky>)
+            .unwrap();
+        sim.world.run_system_once(assemble::<D>).unwrap();
+        let status = sim.world.resource::<impm::resources::RunStatus>();
+        assert!(status.0.is_none(), "{:?}", status.0);
+        let force = sim.world.resource::<GridFields<D>>().internal_force.clone();
+        let force = force.iter().flat_map(|f| f.iter().map(|v| v.to_bits()));
+        let values = sim.world.resource::<Newton>().matrix.values().to_vec();
+        assert!(values.iter().any(|&v| v != 0.0));
+        let sizes = sim.world.resource::<Grid<D>>().0.nodes_per_axis();
+        let supports: Vec<Vec<usize>> = sim
+            .world
+            .query::<&Support<D>>()
+            .iter(&sim.world)
+            .map(|s| s.0.iter().map(|w| w.node).collect())
+            .collect();
+        let colouring =
+            impm::colouring::colour_points(sizes, supports.len(), |p| supports[p].iter().copied());
+        (
+            force.collect(),
+            values.iter().map(|v| v.to_bits()).collect(),
+            colouring.map(|c| c.width),
+        )
+    })
+}
+
+/// The coloured assembly (`src/colouring.rs`): the internal force and every tangent value are
+/// bit-identical on 1, 2 and 3 threads, for B-splines of order 1, 2, 3 (the 2D self-weight block
+/// on 12 x 12 cells: supports q + 1 nodes wide, slabs of max(q, 1) cells) and a 3D block
+/// (q = 2); each case is checked to be coloured, with the width its supports span.
+#[test]
+fn the_assembled_force_and_tangent_are_bit_identical_on_one_two_and_three_threads() {
+    for order in ["1", "2", "3"] {
+        let set = [("cells", "12"), ("order", order)];
+        let one = assembled::<2>("block_2d_self_weight.rhai", &set, 1);
+        let width = order.parse::<usize>().unwrap() + 1;
+        assert_eq!(one.2, Some(width), "order {order}");
+        for threads in [2, 3] {
+            let other = assembled::<2>("block_2d_self_weight.rhai", &set, threads);
+            assert!(
+                one.0 == other.0,
+                "order {order}: internal force, {threads} threads"
+            );
+            assert!(
+                one.1 == other.1,
+                "order {order}: tangent, {threads} threads"
+            );
+        }
+        eprintln!(
+            "order {order}: {} force components and {} tangent values bit-identical on 1, 2, 3 \
+             threads",
+            one.0.len(),
+            one.1.len()
+        );
+    }
+    let set = [("cells", "8")];
+    let one = assembled::<3>("block_3d.rhai", &set, 1);
+    assert_eq!(one.2, Some(3));
+    let two = assembled::<3>("block_3d.rhai", &set, 2);
+    assert!(one.0 == two.0 && one.1 == two.1, "3D block");
+}
+
+/// The bases whose supports differ from point to point (GIMP's domains, CPDI's corners) and
+/// linear MPM, run on 1 and 2 threads: bit-identical runs (the strip footing; CPDI on the 2D
+/// column, whose footing's corners leave the grid in step 2 on any thread count).
+#[test]
+fn linear_gimp_and_cpdi_runs_are_bit_identical_on_one_and_two_threads() {
+    for basis in ["linear", "gimp"] {
+        check::<2>(
+            &format!("strip footing, {basis}"),
+            "strip_footing.rhai",
+            &[("basis", basis), ("steps", "2")],
+        );
+    }
+    check::<2>(
+        "column 2D, cpdi",
+        "column_2d.rhai",
+        &[("basis", "cpdi"), ("cells", "16"), ("steps", "3")],
+    );
 }

@@ -230,6 +230,19 @@ impl SparseMatrix {
         rows: &[u32; D],
         block: &nalgebra::SMatrix<f64, D, D>,
     ) {
+        Self::add_block_with(starts, rows, block, |k, v| values[k] += v);
+    }
+
+    /// Calls `add(k, value)` for every entry of `block` with a DOF, `k` its position in the
+    /// values (from [`SparseMatrix::block_starts`]): [`SparseMatrix::add_block_to`] for values
+    /// that are not a plain slice (the threads' shared values in `stages/assembly.rs`).
+    #[inline]
+    pub fn add_block_with<const D: usize>(
+        starts: &[usize; D],
+        rows: &[u32; D],
+        block: &nalgebra::SMatrix<f64, D, D>,
+        mut add: impl FnMut(usize, f64),
+    ) {
         for (b, &start) in starts.iter().enumerate() {
             if start == NO_ENTRY {
                 continue;
@@ -237,7 +250,7 @@ impl SparseMatrix {
             let mut k = start;
             for (a, &row) in rows.iter().enumerate() {
                 if row != NO_DOF {
-                    values[k] += block[(a, b)];
+                    add(k, block[(a, b)]);
                     k += 1;
                 }
             }

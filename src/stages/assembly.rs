@@ -13,18 +13,80 @@
 //! Points marked [`AssembledElsewhere`] are left out: in a distributed run each process sums
 //! the points of its own block of cells, and `Hook::Combine` adds the processes' sums.
 //!
-//! Threads (`parallel`): the points are cut into one contiguous part per thread; each part sums
-//! into its own internal force and copy of the tangent values, and the copies are added in part
-//! order. Runs are bit-identical for a given thread count and equal to round-off across counts.
+//! Threads (`parallel`): the points are put in colour order (`colouring`: slabs of cells, two
+//! colours, so that two slabs of one colour share no node), and
+//! the threads share the blocks of one colour at a time, adding straight into the one internal
+//! force and the one array of tangent values ([`parallel::for_each_colour`]). No copy of the
+//! sums per thread; the internal force and the tangent are bit-identical for any thread count,
+//! because every entry receives its terms in the colouring's order. Where the supports cannot be
+//! coloured (fewer than `colouring::MIN_SLABS` slabs: supports that are not compact in the
+//! grid's numbering, such as an FEM mesh's, or a grid a few supports wide), the points are cut
+//! into one contiguous part per
+//! thread, each part sums into its own internal force and copy of the tangent values, and the
+//! copies are added in part order: bit-identical for a given thread count, equal to round-off
+//! across counts.
 
 use bevy_ecs::prelude::*;
 use nalgebra::{SMatrix, SVector};
 
+use crate::colouring::{self, Colouring};
 use crate::components::{AssembledElsewhere, ReferenceVolume, Support, Trial};
 use crate::mechanics::StiffnessFactor;
-use crate::parallel;
-use crate::resources::{GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock};
+use crate::parallel::{self, Disjoint};
+use crate::resources::{
+    Grid, GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock,
+};
 use crate::solver::SparseMatrix;
+
+/// A point as the assembly reads it.
+type PointItem<'a, const D: usize> = (&'a Support<D>, &'a Trial<D>, &'a ReferenceVolume);
+
+/// Where a part adds the internal force and the tangent values it sums.
+trait Sums<const D: usize> {
+    fn add_force(&mut self, node: usize, force: SVector<f64, D>);
+    fn add_value(&mut self, k: usize, value: f64);
+}
+
+/// A part's own arrays (the fallback without colours; the first part's are the grid's and the
+/// system's).
+struct OwnSums<'a, const D: usize> {
+    force: &'a mut [SVector<f64, D>],
+    values: &'a mut [f64],
+}
+
+impl<const D: usize> Sums<D> for OwnSums<'_, D> {
+    #[inline]
+    fn add_force(&mut self, node: usize, force: SVector<f64, D>) {
+        self.force[node] += force;
+    }
+    #[inline]
+    fn add_value(&mut self, k: usize, value: f64) {
+        self.values[k] += value;
+    }
+}
+
+/// The one internal force and the one array of tangent values, shared by the threads. Made
+/// only in [`assemble_coloured`], whose parts are runs of blocks of one colour
+/// ([`parallel::for_each_colour`]): the supports of two such blocks share no node, so two
+/// threads never add to one node's force, nor to one entry of K (whose row and column nodes
+/// are both in the adding point's support).
+struct SharedSums<'s, 'a, const D: usize> {
+    force: &'s Disjoint<'a, SVector<f64, D>>,
+    values: &'s Disjoint<'a, f64>,
+}
+
+impl<const D: usize> Sums<D> for SharedSums<'_, '_, D> {
+    #[inline]
+    fn add_force(&mut self, node: usize, force: SVector<f64, D>) {
+        // SAFETY: see `SharedSums`: no other thread adds at this node during the colour.
+        unsafe { self.force.update(node, |f| *f += force) }
+    }
+    #[inline]
+    fn add_value(&mut self, k: usize, value: f64) {
+        // SAFETY: see `SharedSums`: no other thread adds at this entry during the colour.
+        unsafe { self.values.update(k, |v| *v += value) }
+    }
+}
 
 /// Scratch memory of the assembly, kept between iterations.
 #[derive(Default)]
@@ -75,7 +137,7 @@ impl<const D: usize> AssemblyScratch<D> {
 
     /// Adds the group's summed blocks (and, if symmetric, their transposes for j != i) to the
     /// sparse values (laid out as the system's) and clears them.
-    fn flush(&mut self, dofs: &[[u32; D]], values: &mut [f64]) {
+    fn flush(&mut self, dofs: &[[u32; D]], sums: &mut impl Sums<D>) {
         let m = self.cached_nodes.len();
         let mut pair = 0;
         for i in 0..m {
@@ -83,10 +145,13 @@ impl<const D: usize> AssemblyScratch<D> {
             for j in self.first_partner(i)..m {
                 let (starts_ij, starts_ji) = &self.starts[pair];
                 let k = &mut self.blocks[pair];
-                SparseMatrix::add_block_to(values, starts_ij, dofs_i, k);
+                SparseMatrix::add_block_with(starts_ij, dofs_i, k, |k, v| sums.add_value(k, v));
                 if self.symmetric && j != i {
                     let dofs_j = &dofs[self.cached_nodes[j]];
-                    SparseMatrix::add_block_to(values, starts_ji, dofs_j, &k.transpose());
+                    let kt = k.transpose();
+                    SparseMatrix::add_block_with(starts_ji, dofs_j, &kt, |k, v| {
+                        sums.add_value(k, v)
+                    });
                 }
                 *k = SMatrix::zeros();
                 pair += 1;
@@ -95,8 +160,9 @@ impl<const D: usize> AssemblyScratch<D> {
     }
 }
 
-/// One thread's part of the assembly: its scratch, and the internal force and tangent values
-/// it sums (the first part sums straight into the grid's and the system's).
+/// One thread's part of the assembly: its scratch, and (only without colours) the internal
+/// force and tangent values it sums (the first part sums straight into the grid's and the
+/// system's).
 #[derive(Default)]
 pub struct AssemblyPart<const D: usize> {
     scratch: AssemblyScratch<D>,
@@ -111,6 +177,7 @@ pub fn assemble<const D: usize>(
     mut clock: ResMut<StageClock>,
     mut status: ResMut<RunStatus>,
     step: Res<LoadStep>,
+    grid: Res<Grid<D>>,
     mut parts: Local<Vec<AssemblyPart<D>>>,
     points: Query<(&Support<D>, &Trial<D>, &ReferenceVolume), Without<AssembledElsewhere>>,
 ) {
@@ -122,45 +189,28 @@ pub fn assemble<const D: usize>(
     } = &mut *fields;
     let symmetric = newton.symmetric;
     let mut points: Vec<_> = points.iter().collect();
-    // One part per thread (`parallel`), summed into its own force and values; the parts are
-    // added in order afterwards, so a given thread count gives bit-identical sums.
+    let colouring = colour(&grid, &points);
     parts.resize_with(parallel::part_count(points.len()), Default::default);
     newton.matrix.with_values_apart(|system, values| {
-        #[allow(clippy::expect_used, reason = "parallel::part_count is at least 1")]
-        let (first, others) = parts.split_first_mut().expect("at least one part");
-        for part in others.iter_mut() {
-            part.internal_force
-                .resize(internal_force.len(), SVector::zeros());
-            part.values.resize(values.len(), 0.0);
+        let target = (dofs.as_slice(), system, symmetric);
+        match colouring {
+            Some(colouring) => {
+                // Only the fallback keeps copies: free any an earlier step made.
+                for part in parts.iter_mut() {
+                    part.internal_force = Vec::new();
+                    part.values = Vec::new();
+                }
+                assemble_coloured(
+                    &points,
+                    &colouring,
+                    target,
+                    &mut parts,
+                    internal_force,
+                    values,
+                )
+            }
+            None => assemble_in_parts(&mut points, target, &mut parts, internal_force, values),
         }
-        let mut targets: Vec<_> =
-            std::iter::once((&mut first.scratch, &mut internal_force[..], &mut values[..]))
-                .chain(others.iter_mut().map(|part| {
-                    (
-                        &mut part.scratch,
-                        &mut part.internal_force[..],
-                        &mut part.values[..],
-                    )
-                }))
-                .collect();
-        parallel::for_each_part(&mut points, &mut targets, |_, points, target| {
-            let (scratch, internal_force, values) = target;
-            internal_force.fill(SVector::zeros());
-            values.fill(0.0);
-            assemble_points(
-                points,
-                dofs,
-                system,
-                symmetric,
-                scratch,
-                internal_force,
-                values,
-            );
-        });
-        let forces: Vec<&[_]> = others.iter().map(|p| &p.internal_force[..]).collect();
-        parallel::add_parts(internal_force, &forces);
-        let others: Vec<&[f64]> = others.iter().map(|p| &p.values[..]).collect();
-        parallel::add_parts(values, &others);
     });
     // Guard: a non-finite internal force is reported here, at the node where it appears.
     if let Some(node) = internal_force
@@ -175,17 +225,100 @@ pub fn assemble<const D: usize>(
     }
 }
 
+/// The points' colouring (`colouring`) on the grid's node numbering, `None` without one.
+fn colour<const D: usize>(grid: &Grid<D>, points: &[PointItem<'_, D>]) -> Option<Colouring> {
+    colouring::colour_points(grid.0.nodes_per_axis(), points.len(), |p| {
+        points[p].0.0.iter().map(|w| w.node)
+    })
+}
+
+/// The DOF numbers, the system (for its pattern) and whether K is symmetric.
+type Target<'a, const D: usize> = (&'a [[u32; D]], &'a SparseMatrix, bool);
+
+/// The threads share one internal force and one array of values, colour after colour (module
+/// docs).
+fn assemble_coloured<const D: usize>(
+    points: &[PointItem<'_, D>],
+    colouring: &Colouring,
+    (dofs, system, symmetric): Target<'_, D>,
+    parts: &mut [AssemblyPart<D>],
+    internal_force: &mut [SVector<f64, D>],
+    values: &mut [f64],
+) {
+    let ordered: Vec<PointItem<'_, D>> = colouring
+        .order
+        .iter()
+        .map(|&p| points[p as usize])
+        .collect();
+    parallel::fill(internal_force, SVector::zeros());
+    parallel::fill(values, 0.0);
+    let (force, values) = (Disjoint::new(internal_force), Disjoint::new(values));
+    let mut scratches: Vec<&mut AssemblyScratch<D>> =
+        parts.iter_mut().map(|part| &mut part.scratch).collect();
+    parallel::for_each_colour(
+        &ordered,
+        &colouring.block_start,
+        &colouring.colour_start,
+        &mut scratches,
+        |points, scratch| {
+            let mut sums = SharedSums {
+                force: &force,
+                values: &values,
+            };
+            assemble_points(points, dofs, system, symmetric, scratch, &mut sums);
+        },
+    );
+}
+
+/// The fallback: one contiguous part of the points per thread, each summing into its own
+/// internal force and values (the first part into the grid's and the system's); the parts are
+/// added in order afterwards, so a given thread count gives bit-identical sums.
+fn assemble_in_parts<const D: usize>(
+    points: &mut [PointItem<'_, D>],
+    (dofs, system, symmetric): Target<'_, D>,
+    parts: &mut [AssemblyPart<D>],
+    internal_force: &mut [SVector<f64, D>],
+    values: &mut [f64],
+) {
+    #[allow(clippy::expect_used, reason = "parallel::part_count is at least 1")]
+    let (first, others) = parts.split_first_mut().expect("at least one part");
+    for part in others.iter_mut() {
+        part.internal_force
+            .resize(internal_force.len(), SVector::zeros());
+        part.values.resize(values.len(), 0.0);
+    }
+    let mut targets: Vec<_> =
+        std::iter::once((&mut first.scratch, &mut internal_force[..], &mut values[..]))
+            .chain(others.iter_mut().map(|part| {
+                (
+                    &mut part.scratch,
+                    &mut part.internal_force[..],
+                    &mut part.values[..],
+                )
+            }))
+            .collect();
+    parallel::for_each_part(points, &mut targets, |_, points, target| {
+        let (scratch, force, values) = target;
+        force.fill(SVector::zeros());
+        values.fill(0.0);
+        let mut sums = OwnSums { force, values };
+        assemble_points(points, dofs, system, symmetric, scratch, &mut sums);
+    });
+    let forces: Vec<&[_]> = others.iter().map(|p| &p.internal_force[..]).collect();
+    parallel::add_parts(internal_force, &forces);
+    let others: Vec<&[f64]> = others.iter().map(|p| &p.values[..]).collect();
+    parallel::add_parts(values, &others);
+}
+
 /// Sums the internal force and tangent blocks of `points` (consecutive points with the same
-/// support form a group, see the module docs) into `internal_force` and `values`.
-#[allow(clippy::type_complexity)]
+/// support form a group, see the module docs) into `sums`.
 fn assemble_points<const D: usize>(
-    points: &[(&Support<D>, &Trial<D>, &ReferenceVolume)],
+    points: &[PointItem<'_, D>],
     dofs: &[[u32; D]],
     system: &SparseMatrix,
     symmetric: bool,
     scratch: &mut AssemblyScratch<D>,
-    internal_force: &mut [SVector<f64, D>],
-    values: &mut [f64],
+    sums: &mut impl Sums<D>,
 ) {
     scratch.cached_nodes.clear();
     for (support, trial, volume) in points {
@@ -196,7 +329,7 @@ fn assemble_points<const D: usize>(
             .copied()
             .eq(support.iter().map(|w| w.node))
         {
-            scratch.flush(dofs, values);
+            scratch.flush(dofs, sums);
             scratch.cache_block_positions(support.iter().map(|w| w.node), dofs, system, symmetric);
         }
         scratch.gradients.clear();
@@ -210,12 +343,12 @@ fn assemble_points<const D: usize>(
         let mut pair = 0;
         for (i, wi) in support.iter().enumerate() {
             let g_i = &scratch.gradients[i];
-            internal_force[wi.node] += state.internal_force(v0, g_i);
+            sums.add_force(wi.node, state.internal_force(v0, g_i));
             for factor_j in &scratch.factors[scratch.first_partner(i)..] {
                 scratch.blocks[pair] += state.stiffness_from(v0, g_i, factor_j);
                 pair += 1;
             }
         }
     }
-    scratch.flush(dofs, values);
+    scratch.flush(dofs, sums);
 }
