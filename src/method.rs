@@ -219,14 +219,15 @@ fn step_schedule<const D: usize>() -> Schedule {
     );
     schedule.add_systems((
         number_dofs::<D>.in_set(Dofs),
-        // arc-length control (only when asked): the loads at λ = 1 are its reference load
+        // arc-length control (only when asked): the loads are evaluated at λ = 1, its
+        // reference load, which the solve takes before it starts
         arc_length::unit_load
-            .in_set(Loads)
-            .before(Hook::Loads)
+            .in_set(Dofs)
+            .after(number_dofs::<D>)
             .run_if(arc_length::active::<D>),
         arc_length::take_reference_load::<D>
-            .in_set(Loads)
-            .after(Hook::Loads)
+            .in_set(Solve)
+            .before(solve_load_step::<D>)
             .run_if(arc_length::active::<D>),
         solve_load_step::<D>.in_set(Solve),
         update_points::<D>.in_set(UpdatePoints),

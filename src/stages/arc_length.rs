@@ -232,12 +232,14 @@ pub fn active<const D: usize>(arc: Option<Res<ArcLength<D>>>) -> bool {
     arc.is_some()
 }
 
-/// Loads stage, before `Hook::Loads`: the loads are evaluated at λ = 1 (f̂).
+/// Dofs stage, after the numbering (so before `Hook::Loads`): the loads are evaluated at λ = 1
+/// (f̂).
 pub fn unit_load(mut step: ResMut<LoadStep>) {
     step.factor = 1.0;
 }
 
-/// Loads stage, after `Hook::Loads`: keeps f̂ and puts f_ext = λ_n f̂ and λ_n back.
+/// Solve stage, before the Newton loop (so after `Hook::Loads`): keeps f̂ and puts
+/// f_ext = λ_n f̂ and λ_n back.
 pub fn take_reference_load<const D: usize>(
     mut arc: ResMut<ArcLength<D>>,
     mut fields: ResMut<GridFields<D>>,
@@ -591,7 +593,7 @@ mod tests {
 
     #[test]
     fn the_corrector_lands_on_the_arc_and_keeps_the_direction() {
-        let (increment, residual, load) = ([1.0, 0.0], [0.05, -0.2], [0.3, 1.0]);
+        let (increment, residual, load) = ([1.0, 0.0], [-0.1, 0.05], [0.3, 1.0]);
         let (delta, root) = load_correction(&increment, &residual, &load, 1.0, 1.0).unwrap();
         assert_eq!(root, Root::Arc);
         let new: Vec<f64> = (0..2)
