@@ -12,7 +12,8 @@
 //!                                                                           Hook::Combine: the processes' sums, distributed runs)
 //!        c. Convergence    r = f_ext − f_int at the free DOFs; with a line search, a trial step
 //!                          that does not reduce ‖r‖ enough is shortened and evaluated again
-//!        d. LinearSolve    K δ = r, Δu += δ
+//!        d. LinearSolve    K δ = r, Δu += δ; under arc-length control also K δ_f = f̂ and the
+//!                          load factor's correction (`stages::arc_length`)
 //!   5. UpdatePoints   G2P: x_p, u_p, F_p, V_p (paper eq. 10): the step is committed (Hook::PointUpdate, Hook::AfterStep)
 //!   6. Output         VTK files of the converged state                   OutputSchedule (Hook::PointFields, Hook::GridOutput, Hook::Output)
 //!   7. ResetGrid      the grid forgets the step: back to its undeformed state
@@ -39,8 +40,8 @@ use bevy_ecs::schedule::{
 };
 
 use crate::resources::{LoadStep, Newton, NewtonSettings, RunStatus, SolverError, no_failure};
-use crate::stages::line_search;
 use crate::stages::output::writes_output;
+use crate::stages::{arc_length, line_search};
 use crate::stages::{
     assemble, check_convergence, evaluate_basis, number_dofs, reset_grid, solve_linear_system,
     update_points, write_grid, write_nodes, write_particles,
@@ -218,6 +219,16 @@ fn step_schedule<const D: usize>() -> Schedule {
     );
     schedule.add_systems((
         number_dofs::<D>.in_set(Dofs),
+        // arc-length control (only when asked): the loads are evaluated at λ = 1, its
+        // reference load, which the solve takes before it starts
+        arc_length::unit_load
+            .in_set(Dofs)
+            .after(number_dofs::<D>)
+            .run_if(arc_length::active::<D>),
+        arc_length::take_reference_load::<D>
+            .in_set(Solve)
+            .before(solve_load_step::<D>)
+            .run_if(arc_length::active::<D>),
         solve_load_step::<D>.in_set(Solve),
         update_points::<D>.in_set(UpdatePoints),
         run_output.in_set(Output),
@@ -252,10 +263,20 @@ fn newton_schedule<const D: usize>() -> Schedule {
             .in_set(Convergence)
             .after(check_convergence::<D>)
             .run_if(line_search::searching),
+        arc_length::keep_going_forward::<D>
+            .in_set(Convergence)
+            .after(check_convergence::<D>)
+            .before(line_search::judge_iterate::<D>)
+            .run_if(arc_length::active::<D>),
         solve_linear_system::<D>
             .in_set(LinearSolve)
             .run_if(not_converged)
             .run_if(line_search::iterate_accepted),
+        arc_length::correct_load_factor::<D>
+            .in_set(LinearSolve)
+            .after(solve_linear_system::<D>)
+            .run_if(arc_length::active::<D>)
+            .run_if(no_failure),
     ));
     schedule
 }

@@ -168,6 +168,9 @@ pub struct Summary {
     pub resume: Option<String>,
     /// The threads the stages ran on (`parallel::thread_count` when the run was built).
     pub threads: usize,
+    /// Under arc-length control: the peak load factor, whether the run passed it, why it
+    /// ended (`stages::arc_length::ArcLengthControl::to_json`).
+    pub arc_length: Option<Value>,
 }
 
 /// A JSON number, or null where not finite (JSON has no NaN).
@@ -264,6 +267,7 @@ impl Summary {
             warnings: crate::scene::scene_warnings(spec),
             resume: None,
             threads: crate::parallel::thread_count(),
+            arc_length: None,
         }
     }
 
@@ -352,6 +356,9 @@ impl Summary {
         }
         if !self.warnings.is_empty() {
             v["warnings"] = json!(self.warnings);
+        }
+        if let Some(arc) = &self.arc_length {
+            v["arc_length"] = arc.clone();
         }
         if let Some(command) = self.resume.as_ref().filter(|_| self.status != "completed") {
             v["resume"] = Value::String(command.clone());

@@ -39,6 +39,7 @@ use crate::records::{MeasuredValues, StepMeasures, StepRecord, Summary, step_fro
 use crate::resources::*;
 use crate::restart::{Checkpoint, RunIdentity};
 use crate::scene::SceneSpec;
+use crate::stages::arc_length::{ArcLength, ArcLengthControl, ArcLengthSpec};
 use crate::stages::line_search::LineSearch;
 use crate::stages::output::{OutputPlan, PointFields};
 
@@ -49,6 +50,9 @@ pub struct Simulation<const D: usize> {
     pub summary: Summary,
     steps_done: usize,
     control: Box<dyn LoadStepControl>,
+    /// Arc-length control (`stages::arc_length`), when the scene asks for it: then the load
+    /// factor of each step is an unknown, and `control` is not used.
+    arc: Option<ArcLengthControl>,
     restart: Option<RestartPlan>,
 }
 
@@ -107,6 +111,10 @@ impl<const D: usize> Simulation<D> {
             summary: Summary::new(spec, points, active, out_dir),
             steps_done: 0,
             control: Box::new(StepCutting::new(spec.solver.max_step_cuts)),
+            arc: spec.part::<ArcLengthSpec>().map(|arc| {
+                let first = spec.load_factors.first().copied().unwrap_or(0.0);
+                ArcLengthControl::new(*arc, spec.solver.max_step_cuts, first)
+            }),
             restart: None,
         })
     }
@@ -192,6 +200,13 @@ impl<const D: usize> Simulation<D> {
     /// points and every module's state, the records (`summary.json`, `history.csv`) and the
     /// `.pvd` series, and removes the files of the steps after the checkpoint.
     pub fn resume_from(&mut self, checkpoint: Checkpoint) -> Result<(), String> {
+        if self.arc.is_some() {
+            return Err(
+                "a run under arc-length control cannot be resumed yet (its checkpoint does not \
+                 keep the arc); run it again from the start"
+                    .to_string(),
+            );
+        }
         self.restore_state(&SavedState {
             steps_done: checkpoint.steps_done,
             parts: checkpoint.parts,
@@ -239,6 +254,9 @@ impl<const D: usize> Simulation<D> {
     /// Solves the next load step with the attempts the control policy asks for (see
     /// `control.rs`); on failure the error is also recorded in the summary.
     pub fn step(&mut self) -> Result<&StepRecord, SolverError> {
+        if self.arc.is_some() {
+            return self.arc_length_step();
+        }
         let number = self.steps_done + 1;
         let target = self.spec.load_factors[number - 1];
         let start = match number {
@@ -260,15 +278,29 @@ impl<const D: usize> Simulation<D> {
                         self.world.run_schedule(RollbackSchedule);
                         attempt = next;
                     }
-                    None => return Err(self.fail_step(record, e, clock)),
+                    None => {
+                        let cuts = self.control.cuts();
+                        return Err(self.fail_step(record, e, clock, cuts));
+                    }
                 },
             }
         }
         record.cuts = self.control.cuts();
+        self.complete_step(record, clock)
+    }
+
+    /// Records a converged step (at the load factor of its record) and writes the records.
+    fn complete_step(
+        &mut self,
+        mut record: StepRecord,
+        clock: Instant,
+    ) -> Result<&StepRecord, SolverError> {
+        let number = record.step;
+        let factor = record.load_factor;
         record.seconds = self.world.resource::<StageClock>().clone();
         record.wall_seconds = clock.elapsed().as_secs_f64();
-        record.error = self.analytic_error(target);
-        record.measures = self.measures(target);
+        record.error = self.analytic_error(factor);
+        record.measures = self.measures(factor);
         self.steps_done = number;
         self.summary.push(record);
         self.take_warnings();
@@ -284,14 +316,67 @@ impl<const D: usize> Simulation<D> {
         Ok(record)
     }
 
+    /// A load step under arc-length control (`stages::arc_length`): attempts on the arc from
+    /// the last converged point, the arc halved after a failure; the step's load factor is the
+    /// one it converged at.
+    fn arc_length_step(&mut self) -> Result<&StepRecord, SolverError> {
+        let number = self.steps_done + 1;
+        *self.world.resource_mut::<StageClock>() = StageClock::default();
+        let clock = Instant::now();
+        let start = self.arc_control().begin();
+        let mut record = StepRecord::new(number, start);
+        loop {
+            let (start, radius, first) = self.arc_control().begin_attempt();
+            {
+                let mut arc = self.world.resource_mut::<ArcLength<D>>();
+                arc.first_increment = first;
+                arc.begin_attempt(start, radius);
+            }
+            let attempt = Attempt {
+                from: start,
+                to: start,
+                completes_step: true,
+            };
+            match self.attempt(number, attempt, &mut record) {
+                Ok(()) => break,
+                Err(e) => {
+                    let recoverable = e.is_recoverable_by_cutting();
+                    if self.arc_control().failed(recoverable) {
+                        self.world.run_schedule(RollbackSchedule);
+                    } else {
+                        let cuts = self.arc_control().cuts();
+                        return Err(self.fail_step(record, e, clock, cuts));
+                    }
+                }
+            }
+        }
+        let (factor, radius, linearised) = {
+            let mut arc = self.world.resource_mut::<ArcLength<D>>();
+            arc.accept();
+            (arc.factor, arc.radius, arc.linearised)
+        };
+        let iterations = record.substeps.last().map_or(0, |s| s.iterations);
+        let control = self.arc_control();
+        control.succeeded(number, factor, iterations, radius, linearised);
+        record.cuts = control.cuts();
+        record.load_factor = factor;
+        self.complete_step(record, clock)
+    }
+
+    fn arc_control(&mut self) -> &mut ArcLengthControl {
+        #[allow(clippy::expect_used, reason = "called under arc-length control only")]
+        self.arc.as_mut().expect("arc-length control")
+    }
+
     /// Records a step that could not be solved, and the error to report.
     fn fail_step(
         &mut self,
         mut record: StepRecord,
         last: SolverError,
         clock: Instant,
+        cuts: usize,
     ) -> SolverError {
-        record.cuts = self.control.cuts();
+        record.cuts = cuts;
         let error = if record.cuts > 0 && last.is_recoverable_by_cutting() {
             SolverError::CuttingFailed {
                 step: record.step,
@@ -328,6 +413,11 @@ impl<const D: usize> Simulation<D> {
         record.multigrid = newton.solver.hierarchy();
         record.linear_backend = newton.solver.choice();
         let failure = outcome.as_ref().err().map(|e| e.to_string());
+        // the load factor reached (arc-length control moves it inside the solve)
+        let attempt = Attempt {
+            to: self.world.resource::<LoadStep>().factor,
+            ..attempt
+        };
         record.add_attempt(
             &attempt,
             newton.iterations,
@@ -356,6 +446,20 @@ impl<const D: usize> Simulation<D> {
             on_step(record);
             if self.checkpoint_due() {
                 self.write_checkpoint()?;
+            }
+            if self.arc.as_ref().is_some_and(|arc| arc.end().is_some()) {
+                break;
+            }
+        }
+        if let Some(arc) = &self.arc {
+            self.summary.arc_length = Some(arc.to_json());
+            let report = arc.report();
+            if arc.passed_peak() || arc.end().is_some() {
+                use std::io::Write;
+                let _ = writeln!(std::io::stderr(), "{report}");
+            } else {
+                self.world.resource_mut::<Warnings>().0.push(report);
+                self.take_warnings();
             }
         }
         self.summary.finish();

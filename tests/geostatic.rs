@@ -11,13 +11,7 @@ use impm::run::Simulation;
 mod common;
 
 fn scene(tag: &str, text: &str) -> Result<impm::scene::SceneSpec, String> {
-    let dir = common::temp_dir("geostatic-scene", tag);
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join(format!("{tag}.rhai"));
-    std::fs::write(&path, text).unwrap();
-    let spec = impm::run::load_scene(&path, &[]).map_err(|e| e.to_string());
-    let _ = std::fs::remove_dir_all(&dir);
-    spec
+    common::scene_from_text("geostatic-scene", tag, text)
 }
 
 /// A plane-strain column of soil, 1 wide and 10 high (quadratic B-splines, one cell wide,

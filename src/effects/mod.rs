@@ -19,7 +19,9 @@
 //! | `probes.rs` | displacement, stress and F at material reference positions (`probe`) |
 //! | `history.rs` | named columns of history.csv from the measured quantities (`record`) |
 //! | `initial_stress.rs` | geostatic `K0` initial stresses (`initial_stress`), applied by the materials' modules |
+//! | `arc_length.rs` | arc-length load control (`solver(#{ control: "arc_length" })`; the method in `stages::arc_length`) |
 
+pub mod arc_length;
 pub mod body_force;
 pub mod carried_points;
 pub mod declarations;
@@ -63,7 +65,8 @@ pub fn built_in() -> ModuleSet {
         .with(stress_recovery::StressRecoveryModule)
         .with(probes::ProbesModule)
         .with(history::HistoryModule)
-        .with(initial_stress::InitialStressModule);
+        .with(initial_stress::InitialStressModule)
+        .with(arc_length::ArcLengthModule);
     // last: it checks what the modules before it added after the assembly
     #[cfg(feature = "mpi")]
     let modules = modules.with(distributed::DistributedModule);

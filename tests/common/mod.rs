@@ -66,6 +66,22 @@ pub fn temp_dir(prefix: &str, tag: &str) -> PathBuf {
     dir
 }
 
+/// The scene of the script `text` (written to a temporary file named after `tag`, removed
+/// after loading), or the loading error as text.
+pub fn scene_from_text(
+    prefix: &str,
+    tag: &str,
+    text: &str,
+) -> Result<impm::scene::SceneSpec, String> {
+    let dir = temp_dir(prefix, tag);
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join(format!("{tag}.rhai"));
+    std::fs::write(&path, text).unwrap();
+    let spec = load_scene(&path, &[]).map_err(|e| e.to_string());
+    let _ = std::fs::remove_dir_all(&dir);
+    spec
+}
+
 /// `--set` style overrides from pairs.
 pub fn overrides(pairs: &[(&str, &str)]) -> Vec<(String, String)> {
     pairs

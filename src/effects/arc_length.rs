@@ -1,0 +1,199 @@
+//! Arc-length load control as a scene option: `solver(#{ control: "arc_length",
+//! target_iterations: 5, max_load_factor: 2.0 })`. The method is in `stages::arc_length` (its
+//! systems sit in the core's Newton loop and run only when this module inserts their state);
+//! this module reads the options and refuses what the arc cannot control.
+//!
+//! The arc controls proportional loads f_ext = λ f̂: tractions, point loads and a body force
+//! that follow the load factor. It refuses, at the scene line that asks for them:
+//! * a prescribed displacement that is not zero (`displace`, `surface_displace` with a
+//!   `displacement`): its ramp would be a second load parameter the arc does not constrain;
+//!   supports (`fix`, zero displacements) are fine;
+//! * held loads (`held: true`): they are not proportional to λ;
+//! * the Newton line search, which would move the iterate off the arc.
+
+use super::body_force::BodyForceRamp;
+use super::grid_constraints::ConstraintDeclarations;
+use crate::plugin::{Extension, Plugin};
+use crate::resources::Ramp;
+use crate::scene::{Choice, Kind, OptionSpec, Range, Resolver, SceneApi, SceneSpec, ScriptError};
+use crate::stages::arc_length::{ArcLength, ArcLengthSpec};
+
+/// The module: built when the scene asks for arc-length control.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ArcLengthModule;
+
+impl Plugin for ArcLengthModule {
+    fn name(&self) -> &'static str {
+        "arc-length control"
+    }
+
+    fn scene_api(&self, api: &mut SceneApi) {
+        api.extend(
+            "solver",
+            OptionSpec::new(
+                "control",
+                Kind::Choice(vec![
+                    Choice {
+                        word: "load",
+                        meaning: Some("the load factors of the schedule, steps cut on failure"),
+                    },
+                    Choice {
+                        word: "arc_length",
+                        meaning: Some(
+                            "arc-length (Riks/Crisfield, cylindrical arc): the load factor is an \
+                             unknown of each step, so the run follows a load-controlled problem \
+                             past its limit load; the first load factor sizes the first arc, the \
+                             schedule's step count is the most steps; tractions, point loads and \
+                             a body force following the load factor are the controlled loads",
+                        ),
+                    },
+                ]),
+                "how the load factor of a step is found (default \"load\")",
+            ),
+        );
+        api.extend(
+            "solver",
+            OptionSpec::new(
+                "target_iterations",
+                Kind::Whole {
+                    min: 1,
+                    max: Some(50),
+                },
+                "control: \"arc_length\": the Newton iterations per step the arc length is \
+                 scaled towards, √(target / iterations) within [1/2, 2] (default 5)",
+            ),
+        );
+        api.extend(
+            "solver",
+            OptionSpec::new(
+                "max_load_factor",
+                Kind::Number(Range::Positive),
+                "control: \"arc_length\": the run ends after the step that reaches this load \
+                 factor (default: no such end; the run also ends when the load factor falls \
+                 back to zero after its peak, or after the schedule's steps)",
+            ),
+        );
+    }
+
+    fn resolve(&self, scene: &mut Resolver) -> Result<(), ScriptError> {
+        let Some(solver) = scene.call_options("solver") else {
+            return Ok(());
+        };
+        let (options, at) = (&solver.value, solver.at);
+        if options.text("control") != Some("arc_length") {
+            for key in ["target_iterations", "max_load_factor"] {
+                if options.has(key) {
+                    return Err(ScriptError::at(
+                        at,
+                        format!("solver(...): '{key}' applies to control: \"arc_length\" only"),
+                    ));
+                }
+            }
+            return Ok(());
+        }
+        let refuse = |why: String| ScriptError::at(at, format!("solver(...): {why}"));
+        if options.flag("line_search") == Some(true) {
+            return Err(refuse(
+                "control: \"arc_length\" cannot be combined with line_search: true (the line \
+                 search would move the iterate off the arc)"
+                    .to_string(),
+            ));
+        }
+        let first = scene.spec.load_factors.first().copied().unwrap_or(0.0);
+        if first == 0.0 || !first.is_finite() {
+            return Err(refuse(format!(
+                "control: \"arc_length\" sizes its first arc from the first load factor, which \
+                 is {first}: give a schedule whose first factor is not zero"
+            )));
+        }
+        let conflict = |what: &str, line: Option<usize>| {
+            let line = line.map(|l| format!(" (line {l})")).unwrap_or_default();
+            refuse(format!(
+                "control: \"arc_length\" controls tractions, point loads and a body force that \
+                 follow the load factor; {what}{line} is not one of them: the arc cannot \
+                 control two load parameters. Use supports (zero displacement) with \
+                 arc-length, or load control for prescribed displacements"
+            ))
+        };
+        if let Some(declared) = scene.spec.part::<ConstraintDeclarations>()
+            && let Some(d) = declared
+                .0
+                .iter()
+                .find(|d| d.values.iter().any(|&v| v != 0.0))
+        {
+            return Err(conflict(
+                &format!("the prescribed displacement {}", d.name),
+                d.line,
+            ));
+        }
+        for call in scene.every_call_options("surface_displace") {
+            if call
+                .value
+                .numbers("displacement")
+                .is_some_and(|u| u.iter().any(|&v| v != 0.0))
+            {
+                return Err(conflict(
+                    "surface_displace with a displacement",
+                    call.at.line(),
+                ));
+            }
+        }
+        for name in ["traction", "point_load_at"] {
+            for call in scene.every_call_options(name) {
+                if call.value.flag("held") == Some(true) {
+                    return Err(conflict(&format!("a held {name}"), call.at.line()));
+                }
+            }
+        }
+        if let Some(held) = scene
+            .declarations::<BodyForceRamp>()
+            .iter()
+            .find(|r| r.value.0 == Ramp::Held)
+        {
+            return Err(conflict("a held body force", held.at.line()));
+        }
+        let default = ArcLengthSpec::default();
+        scene.spec.set_part(ArcLengthSpec {
+            target_iterations: options
+                .whole("target_iterations")
+                .unwrap_or(default.target_iterations),
+            max_load_factor: options
+                .number("max_load_factor")
+                .unwrap_or(default.max_load_factor),
+        });
+        Ok(())
+    }
+
+    fn describe(&self, spec: &SceneSpec) -> Option<String> {
+        spec.part::<ArcLengthSpec>().map(|arc| {
+            format!(
+                "target {} iterations per step, at most {} steps, first arc from the load \
+                 increment {}{}",
+                arc.target_iterations,
+                spec.load_factors.len(),
+                spec.load_factors.first().copied().unwrap_or(0.0),
+                if arc.max_load_factor.is_finite() {
+                    format!(", ends at load factor {}", arc.max_load_factor)
+                } else {
+                    String::new()
+                }
+            )
+        })
+    }
+
+    fn used_by(&self, spec: &SceneSpec) -> bool {
+        spec.part::<ArcLengthSpec>().is_some()
+    }
+
+    fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
+        let first = simulation
+            .spec()
+            .load_factors
+            .first()
+            .copied()
+            .unwrap_or(0.0);
+        simulation
+            .world()
+            .insert_resource(ArcLength::<D>::new(first));
+    }
+}

@@ -1,0 +1,661 @@
+//! Arc-length load control (Riks 1979, Crisfield 1981): the load factor λ becomes an unknown
+//! of the Newton solve, so that a load-controlled problem (tractions, point loads, a body
+//! force ramped with λ) is traced to and past a limit load, where λ must fall
+//! (`solver(#{ control: "arc_length" })`; off by default, and then nothing here runs).
+//!
+//! # The step
+//!
+//! The loads the arc controls are proportional, f_ext(λ) = λ f̂ (f̂: the loads at λ = 1, which
+//! the loads stage evaluates at the unit factor, [`unit_load`], [`take_reference_load`]). A load
+//! step from the converged (u_n, λ_n) looks for the increment (Δu, Δλ) with
+//!
+//! ```text
+//!   r(Δu, Δλ) = (λ_n + Δλ) f̂ − f_int(u_n + Δu) = 0,      ‖Δu‖² = Δl²    (cylindrical arc, Crisfield)
+//! ```
+//!
+//! (‖·‖ over the free DOFs; no load term in the constraint). Each Newton iteration makes two
+//! solves with the same tangent K,
+//!
+//! ```text
+//!   K δu_r = r,     K δu_f = f̂,     δu = δu_r + δλ δu_f,
+//! ```
+//!
+//! and δλ puts the new increment on the arc: with a = δu_f·δu_f, v = Δu + δu_r,
+//!
+//! ```text
+//!   a δλ² + 2 (δu_f·v) δλ + (v·v − Δl²) = 0.
+//! ```
+//!
+//! * The predictor (Δu = 0): the two roots have opposite signs; the sign is that of
+//!   Δu_{n−1}·δu_f (Feng, Perić & Owen 1996: the step keeps going the way the previous one went,
+//!   which turns λ down past a limit point where K has a negative eigenvalue and δu_f flips),
+//!   the first step's that of its load increment. (At Δu = 0 a plastic point's trial state is
+//!   elastic, so K there is the elastic tangent: past a plastic limit the predictor points up
+//!   in λ and the correctors bring it down. A secant predictor, the previous increment scaled
+//!   to the arc, was tried on the footing below and did worse: points inverted under F-bar.)
+//! * A corrector takes the root whose new increment makes the smaller angle with the old one,
+//!   the larger (Δu + δu)·Δu (Crisfield 1981).
+//! * Where the quadratic has no real root (a large residual against a short arc, typical of
+//!   plastic steps), δλ comes from the linearised constraint instead, the iterative change
+//!   orthogonal to the step's increment so far (Ramm 1981, the updated normal plane), which is
+//!   always solvable while Δu·δu_f ≠ 0:
+//!
+//!   ```text
+//!     Δu·(δu_r + δλ δu_f) = 0   ⇒   δλ = −(Δu·δu_r) / (Δu·δu_f).
+//!   ```
+//!
+//!   The converged point then lies a little outside the arc (each such iteration lengthens
+//!   Δu); the run counts these iterations ([`ArcLength::linearised`]).
+//!
+//! The step converges by the usual criterion on r at the current λ (the predictor is always
+//! taken: the residual at Δu = 0 is the previous step's converged one, and in MPM also the
+//! out-of-balance force of the grid reset, which a large step makes large). A converged
+//! increment that goes back along the path, Δu·Δu_{n−1} < 0, or unloads, Δλ < 0 with
+//! f̂·Δu < 0, is refused and the arc cut ([`keep_going_forward`]): past a plastic limit Newton
+//! can land on the elastic unloading branch, which is on the arc and in equilibrium but is the
+//! path already traced. (So a genuine snap-back is not followed either.)
+//!
+//! # Step control
+//!
+//! [`ArcLengthControl`] is the policy (pure): the first arc is sized so that the first step's
+//! predictor raises λ by the scene's first load factor, Δl₀ = |λ₁| ‖δu_f‖; after a converged
+//! step the arc is scaled by √(target iterations / iterations) within [1/2, 2] (Crisfield); a
+//! failed attempt is repeated with half the arc, at most `max_step_cuts` times. The run ends at
+//! `max_load_factor`, when λ has fallen back to zero after a peak (the load is shed: collapse
+//! traced), or after the scene's number of load steps; the peak λ and whether the run went
+//! past it are recorded ([`ArcLengthControl::report`]).
+
+use bevy_ecs::prelude::*;
+use nalgebra::SVector;
+
+use crate::resources::{GridFields, LoadStep, Newton, RunStatus, SolverError};
+use crate::solver::NO_DOF;
+
+/// The scene's arc-length options (a part of the scene: `solver(#{ control: "arc_length" })`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ArcLengthSpec {
+    /// Newton iterations per step the arc is scaled towards.
+    pub target_iterations: usize,
+    /// The run ends when λ reaches this (infinite: no such end).
+    pub max_load_factor: f64,
+}
+
+impl Default for ArcLengthSpec {
+    fn default() -> Self {
+        Self {
+            target_iterations: 5,
+            max_load_factor: f64::INFINITY,
+        }
+    }
+}
+
+/// How δλ of an iteration was found.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Root {
+    /// A root of the arc's quadratic.
+    Arc,
+    /// The linearised constraint (the quadratic had no real root).
+    Linearised,
+}
+
+fn dot(u: &[f64], v: &[f64]) -> f64 {
+    u.iter().zip(v).map(|(a, b)| a * b).sum()
+}
+
+/// Σ_i u_i · v_i over nodes.
+fn node_dot<const D: usize>(u: &[SVector<f64, D>], v: &[SVector<f64, D>]) -> f64 {
+    u.iter().zip(v).map(|(a, b)| a.dot(b)).sum()
+}
+
+/// δλ of one iteration (see the module docs): `increment` Δu before it, `residual_part` δu_r,
+/// `load_part` δu_f, `radius` Δl; `sign` (±1) the predictor's direction, used when Δu = 0.
+/// `None` when no δλ exists (the linearised constraint is singular, Δu·δu_f = 0, or a value
+/// is not finite).
+pub fn load_correction(
+    increment: &[f64],
+    residual_part: &[f64],
+    load_part: &[f64],
+    radius: f64,
+    sign: f64,
+) -> Option<(f64, Root)> {
+    let v: Vec<f64> = increment
+        .iter()
+        .zip(residual_part)
+        .map(|(a, b)| a + b)
+        .collect();
+    let a = dot(load_part, load_part);
+    let b = 2.0 * dot(load_part, &v);
+    let c = dot(&v, &v) - radius * radius;
+    let discriminant = b * b - 4.0 * a * c;
+    let predictor = dot(increment, increment) == 0.0;
+    let finite = |x: f64| x.is_finite().then_some(x);
+    if a > 0.0 && discriminant >= 0.0 {
+        // the roots without cancellation (Numerical Recipes §5.6)
+        let q = -0.5 * (b + b.signum() * discriminant.sqrt());
+        let (r1, r2) = if q == 0.0 { (0.0, 0.0) } else { (q / a, c / q) };
+        let chosen = if predictor {
+            if sign * r1 >= sign * r2 { r1 } else { r2 }
+        } else {
+            let cosine = |root: f64| {
+                increment
+                    .iter()
+                    .zip(&v)
+                    .zip(load_part)
+                    .map(|((du, vi), f)| du * (vi + root * f))
+                    .sum::<f64>()
+            };
+            if cosine(r1) >= cosine(r2) { r1 } else { r2 }
+        };
+        return finite(chosen).map(|root| (root, Root::Arc));
+    }
+    if predictor {
+        // ‖δu_r‖ > Δl with no real root: the normal-plane predictor
+        return finite(sign * radius / a.sqrt()).map(|root| (root, Root::Linearised));
+    }
+    let denominator = dot(increment, load_part);
+    if denominator == 0.0 {
+        return None;
+    }
+    finite(-dot(increment, residual_part) / denominator).map(|root| (root, Root::Linearised))
+}
+
+/// The state of the arc-length step being solved (inserted only when the scene asks for
+/// arc-length control), in node order where it outlives the step's DOF numbering.
+#[derive(Resource, Debug)]
+pub struct ArcLength<const D: usize> {
+    /// f̂: the external force at λ = 1, by node.
+    reference: Vec<SVector<f64, D>>,
+    /// f̂ at the free DOFs.
+    reference_dofs: Vec<f64>,
+    /// λ at the start of the step (set by the driver).
+    pub start: f64,
+    /// λ of the current iterate.
+    pub factor: f64,
+    /// Δl of the step; 0: sized from `first_increment` by the first predictor.
+    pub radius: f64,
+    /// The first step's load increment (sizes the first arc).
+    pub first_increment: f64,
+    /// Δu of the previous converged step, by node (empty before the first).
+    previous: Vec<SVector<f64, D>>,
+    /// Δu of the current iterate, by node.
+    current: Vec<SVector<f64, D>>,
+    /// `Newton::iterations` at the last correction.
+    corrected: usize,
+    /// Iterations of the current attempt whose δλ came from the linearised constraint.
+    pub linearised: usize,
+}
+
+impl<const D: usize> ArcLength<D> {
+    pub fn new(first_increment: f64) -> Self {
+        Self {
+            reference: Vec::new(),
+            reference_dofs: Vec::new(),
+            start: 0.0,
+            factor: 0.0,
+            radius: 0.0,
+            first_increment,
+            previous: Vec::new(),
+            current: Vec::new(),
+            corrected: 0,
+            linearised: 0,
+        }
+    }
+
+    /// Prepares an attempt from λ = `start` with the arc `radius` (0: sized by the predictor).
+    pub fn begin_attempt(&mut self, start: f64, radius: f64) {
+        self.start = start;
+        self.factor = start;
+        self.radius = radius;
+        self.corrected = 0;
+        self.linearised = 0;
+        self.current.clear();
+    }
+
+    /// The attempt converged: its increment gives the next predictor its direction.
+    pub fn accept(&mut self) {
+        self.previous.clone_from(&self.current);
+    }
+
+    /// ‖Δu‖ of the last iterate (over the free DOFs it was taken on): Δl on a converged step
+    /// whose iterations all stayed on the arc (`linearised` = 0).
+    pub fn increment_norm(&self) -> f64 {
+        self.current
+            .iter()
+            .map(|u| u.norm_squared())
+            .sum::<f64>()
+            .sqrt()
+    }
+}
+
+/// Run condition: the scene asked for arc-length control.
+pub fn active<const D: usize>(arc: Option<Res<ArcLength<D>>>) -> bool {
+    arc.is_some()
+}
+
+/// Dofs stage, after the numbering (so before `Hook::Loads`): the loads are evaluated at λ = 1
+/// (f̂).
+pub fn unit_load(mut step: ResMut<LoadStep>) {
+    step.factor = 1.0;
+}
+
+/// Solve stage, before the Newton loop (so after `Hook::Loads`): keeps f̂ and puts
+/// f_ext = λ_n f̂ and λ_n back.
+pub fn take_reference_load<const D: usize>(
+    mut arc: ResMut<ArcLength<D>>,
+    mut fields: ResMut<GridFields<D>>,
+    mut step: ResMut<LoadStep>,
+    mut status: ResMut<RunStatus>,
+) {
+    let (arc, fields) = (&mut *arc, &mut *fields);
+    arc.reference.clone_from(&fields.external_force);
+    arc.reference_dofs.clear();
+    arc.reference_dofs.resize(fields.dof_count, 0.0);
+    for (node, dofs) in fields.dofs.iter().enumerate() {
+        for (c, &dof) in dofs.iter().enumerate() {
+            if dof != NO_DOF {
+                arc.reference_dofs[dof as usize] = arc.reference[node][c];
+            }
+        }
+    }
+    if arc.reference_dofs.iter().all(|&f| f == 0.0) {
+        status.fail(SolverError::Module {
+            step: step.number,
+            what: "arc-length control: the loads at load factor 1 put no force on a free \
+                   degree of freedom (arc-length controls tractions, point loads and a body \
+                   force that follows the load factor)"
+                .to_string(),
+            recoverable: false,
+        });
+        return;
+    }
+    for (f, reference) in fields.external_force.iter_mut().zip(&arc.reference) {
+        *f = reference * arc.start;
+    }
+    step.factor = arc.start;
+}
+
+/// Convergence stage, after the check: the predictor is always taken (at Δu = 0 the residual
+/// is the previous step's converged one), and a converged increment that turns back along the
+/// path is refused (recoverable: the arc is cut): Δu·Δu_{n−1} < 0, or unloading, Δλ < 0 with
+/// f̂·Δu < 0 (the load and the displacement it works on both fall). Such a point is on the arc
+/// and in equilibrium, but it is the path already traced (typically the elastic unloading
+/// branch past a plastic limit). A genuine snap-back (load and displacement falling together)
+/// is refused the same way: this control does not follow one.
+pub fn keep_going_forward<const D: usize>(
+    arc: Res<ArcLength<D>>,
+    mut newton: ResMut<Newton>,
+    step: Res<LoadStep>,
+    mut status: ResMut<RunStatus>,
+) {
+    if newton.iterations == 0 {
+        newton.converged = false;
+        return;
+    }
+    if !newton.converged || arc.previous.is_empty() {
+        return;
+    }
+    let along = node_dot(&arc.current, &arc.previous);
+    let work = node_dot(&arc.current, &arc.reference);
+    let unloading = arc.factor < arc.start && work < 0.0;
+    if along < 0.0 || unloading {
+        newton.converged = false;
+        let why = if unloading {
+            format!("the load and the displacement under it both fall (f̂·Δu = {work:.3e})")
+        } else {
+            format!("Δu·Δu_prev = {along:.3e} < 0")
+        };
+        status.fail(SolverError::Module {
+            step: step.number,
+            what: format!(
+                "arc-length control: the converged increment turns back along the path traced \
+                 ({why}, load factor {:.6e}); the arc is cut",
+                step.factor
+            ),
+            recoverable: true,
+        });
+    }
+}
+
+/// Linear-solve stage, after `K δu_r = r` (already added to Δu): solves `K δu_f = f̂`, finds
+/// δλ (module docs) and moves the iterate to Δu + δλ δu_f, λ + δλ, f_ext = λ f̂.
+pub fn correct_load_factor<const D: usize>(
+    mut arc: ResMut<ArcLength<D>>,
+    mut fields: ResMut<GridFields<D>>,
+    mut newton: ResMut<Newton>,
+    mut step: ResMut<LoadStep>,
+    mut status: ResMut<RunStatus>,
+) {
+    let (arc, fields, newton) = (&mut *arc, &mut *fields, &mut *newton);
+    if newton.iterations == arc.corrected {
+        return; // no solve in this iteration
+    }
+    arc.corrected = newton.iterations;
+    let residual_part = newton.residual.clone();
+    let mut increment = vec![0.0; residual_part.len()];
+    let mut previous = vec![0.0; residual_part.len()];
+    for (node, dofs) in fields.dofs.iter().enumerate() {
+        for (c, &dof) in dofs.iter().enumerate() {
+            if dof != NO_DOF {
+                let dof = dof as usize;
+                increment[dof] = fields.increment[node][c] - residual_part[dof];
+                previous[dof] = arc.previous.get(node).map_or(0.0, |u| u[c]);
+            }
+        }
+    }
+    let mut load_part = arc.reference_dofs.clone();
+    if let Err(why) = newton
+        .solver
+        .solve(&newton.matrix, newton.symmetric, &mut load_part)
+    {
+        status.fail(SolverError::LinearSolve {
+            step: step.number,
+            iteration: newton.iterations,
+            why: format!("arc-length, K δu_f = f̂: {why}"),
+        });
+        return;
+    }
+    if arc.radius <= 0.0 {
+        arc.radius = arc.first_increment.abs() * dot(&load_part, &load_part).sqrt();
+    }
+    let sign = if arc.previous.is_empty() {
+        arc.first_increment.signum()
+    } else if dot(&previous, &load_part) < 0.0 {
+        -1.0
+    } else {
+        1.0
+    };
+    let Some((delta, root)) =
+        load_correction(&increment, &residual_part, &load_part, arc.radius, sign)
+    else {
+        status.fail(SolverError::Module {
+            step: step.number,
+            what: format!(
+                "arc-length control: no load-factor correction at iteration {} (the \
+                 linearised constraint is singular, or a value is not finite)",
+                newton.iterations
+            ),
+            recoverable: true,
+        });
+        return;
+    };
+    if root == Root::Linearised && newton.iterations > 1 {
+        arc.linearised += 1;
+    }
+    for (node, dofs) in fields.dofs.iter().enumerate() {
+        for (c, &dof) in dofs.iter().enumerate() {
+            if dof != NO_DOF {
+                fields.increment[node][c] += delta * load_part[dof as usize];
+            }
+        }
+    }
+    move_to(arc, fields, &mut step, delta);
+}
+
+/// The iterate's load factor λ + δλ (Δu already moved): f_ext = λ f̂, and Δu kept by node.
+fn move_to<const D: usize>(
+    arc: &mut ArcLength<D>,
+    fields: &mut GridFields<D>,
+    step: &mut LoadStep,
+    delta: f64,
+) {
+    arc.factor += delta;
+    step.factor = arc.factor;
+    for (f, reference) in fields.external_force.iter_mut().zip(&arc.reference) {
+        *f = reference * arc.factor;
+    }
+    arc.current.clone_from(&fields.increment);
+    // inactive and constrained components carry no Δu
+    for (node, dofs) in fields.dofs.iter().enumerate() {
+        for (c, &dof) in dofs.iter().enumerate() {
+            if dof == NO_DOF {
+                arc.current[node][c] = 0.0;
+            }
+        }
+    }
+}
+
+/// Why an arc-length run ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ArcEnd {
+    /// λ reached `max_load_factor`.
+    MaxLoadFactor,
+    /// λ fell back to zero after its peak: the load is shed.
+    Unloaded,
+}
+
+/// The arc-length step policy (pure; see the module docs).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ArcLengthControl {
+    pub spec: ArcLengthSpec,
+    pub max_cuts: usize,
+    /// Δl of the next step; 0 before the first step sized it.
+    radius: f64,
+    /// The first step's load increment while its arc is not known (halved by cuts).
+    first_increment: f64,
+    cuts: usize,
+    /// The largest λ of a converged step, and the step.
+    peak: Option<(f64, usize)>,
+    /// λ of the last converged step.
+    last: f64,
+    end: Option<ArcEnd>,
+    /// Iterations of the converged steps whose δλ came from the linearised constraint.
+    linearised: usize,
+}
+
+impl ArcLengthControl {
+    pub fn new(spec: ArcLengthSpec, max_cuts: usize, first_increment: f64) -> Self {
+        Self {
+            spec,
+            max_cuts,
+            radius: 0.0,
+            first_increment,
+            cuts: 0,
+            peak: None,
+            last: 0.0,
+            end: None,
+            linearised: 0,
+        }
+    }
+
+    /// Starts a load step: the step's first attempt; returns λ_n.
+    pub fn begin(&mut self) -> f64 {
+        self.cuts = 0;
+        self.last
+    }
+
+    /// The next attempt: (λ_n, the arc Δl, 0 while the first step sizes it, and the load
+    /// increment it is sized from).
+    pub fn begin_attempt(&self) -> (f64, f64, f64) {
+        (self.last, self.radius, self.first_increment)
+    }
+
+    /// The attempt converged at λ = `factor` after `iterations` Newton iterations, on the arc
+    /// `radius`, with `linearised` iterations off the arc: records it and sizes the next arc.
+    pub fn succeeded(
+        &mut self,
+        step: usize,
+        factor: f64,
+        iterations: usize,
+        radius: f64,
+        linearised: usize,
+    ) {
+        self.linearised += linearised;
+        let scale = (self.spec.target_iterations as f64 / iterations.max(1) as f64).sqrt();
+        self.radius = radius * scale.clamp(0.5, 2.0);
+        if self.peak.is_none_or(|(peak, _)| factor > peak) {
+            self.peak = Some((factor, step));
+        }
+        self.last = factor;
+        if factor >= self.spec.max_load_factor {
+            self.end = Some(ArcEnd::MaxLoadFactor);
+        } else if factor <= 0.0 && self.peak.is_some_and(|(peak, _)| peak > 0.0) {
+            self.end = Some(ArcEnd::Unloaded);
+        }
+    }
+
+    /// The attempt failed (`recoverable`: a shorter arc may succeed): whether to try again
+    /// with half the arc.
+    pub fn failed(&mut self, recoverable: bool) -> bool {
+        if !recoverable || self.cuts >= self.max_cuts {
+            return false;
+        }
+        self.cuts += 1;
+        if self.radius > 0.0 {
+            self.radius *= 0.5;
+        } else {
+            self.first_increment *= 0.5;
+        }
+        true
+    }
+
+    /// The current step's cuts.
+    pub fn cuts(&self) -> usize {
+        self.cuts
+    }
+
+    /// Why the run ended, if it did.
+    pub fn end(&self) -> Option<ArcEnd> {
+        self.end
+    }
+
+    /// The largest λ of a converged step and its step number.
+    pub fn peak(&self) -> Option<(f64, usize)> {
+        self.peak
+    }
+
+    /// Whether λ has come down from its peak (the limit load was passed): by more than a
+    /// millionth of the peak.
+    pub fn passed_peak(&self) -> bool {
+        self.peak
+            .is_some_and(|(peak, _)| peak > 0.0 && self.last < peak * (1.0 - 1e-6))
+    }
+
+    /// The run's record for `summary.json` (`"arc_length"`).
+    pub fn to_json(&self) -> serde_json::Value {
+        let number =
+            |x: f64| serde_json::Number::from_f64(x).map_or(serde_json::Value::Null, Into::into);
+        serde_json::json!({
+            "peak_load_factor": self.peak.map(|(peak, _)| number(peak)),
+            "peak_step": self.peak.map(|(_, step)| step),
+            "passed_limit": self.passed_peak() || self.end == Some(ArcEnd::Unloaded),
+            "end": match self.end {
+                Some(ArcEnd::MaxLoadFactor) => "max_load_factor",
+                Some(ArcEnd::Unloaded) => "unloaded",
+                None => "steps",
+            },
+            "linearised_iterations": self.linearised,
+            "report": self.report(),
+        })
+    }
+
+    /// One line on the run for the log and `summary.json`.
+    pub fn report(&self) -> String {
+        let Some((peak, at)) = self.peak else {
+            return "arc-length control: no step converged".to_string();
+        };
+        let how = match self.end {
+            Some(ArcEnd::MaxLoadFactor) => format!(
+                "it ended at max_load_factor {} without passing a limit load",
+                self.spec.max_load_factor
+            ),
+            Some(ArcEnd::Unloaded) => {
+                "it passed the limit load and ended when the load factor fell back to zero"
+                    .to_string()
+            }
+            None if self.passed_peak() => format!(
+                "it passed the limit load (the last load factor is {:.6e}, {:.3} % below the peak)",
+                self.last,
+                100.0 * (1.0 - self.last / peak)
+            ),
+            None => "it did NOT pass a limit load: the load factor was still rising at the \
+                     last step, so the peak is not the limit load (give more steps or a longer \
+                     first arc)"
+                .to_string(),
+        };
+        format!("arc-length control: the largest load factor was {peak:.6e} at step {at}; {how}")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_predictor_goes_the_asked_way_on_the_arc() {
+        let load = [3.0, 4.0]; // ‖δu_f‖ = 5
+        for sign in [1.0, -1.0] {
+            let (delta, root) =
+                load_correction(&[0.0, 0.0], &[0.0, 0.0], &load, 2.0, sign).expect("a predictor");
+            assert_eq!(root, Root::Arc);
+            assert!((delta - sign * 0.4).abs() < 1e-15, "{delta}");
+        }
+    }
+
+    #[test]
+    fn the_corrector_lands_on_the_arc_and_keeps_the_direction() {
+        let (increment, residual, load) = ([1.0, 0.0], [-0.1, 0.05], [0.3, 1.0]);
+        let (delta, root) = load_correction(&increment, &residual, &load, 1.0, 1.0).unwrap();
+        assert_eq!(root, Root::Arc);
+        let new: Vec<f64> = (0..2)
+            .map(|i| increment[i] + residual[i] + delta * load[i])
+            .collect();
+        assert!((dot(&new, &new) - 1.0).abs() < 1e-14);
+        // the other root would turn the increment back: a negative cosine
+        assert!(dot(&new, &increment) > 0.9);
+    }
+
+    #[test]
+    fn without_a_real_root_the_change_is_orthogonal_to_the_increment() {
+        // a residual far off the arc: |Δu + δu_r| = 3 against Δl = 1, δu_f small
+        let (increment, residual, load) = ([1.0, 0.0], [2.0, 1.0], [0.1, 0.1]);
+        let (delta, root) = load_correction(&increment, &residual, &load, 1.0, 1.0).unwrap();
+        assert_eq!(root, Root::Linearised);
+        let change: Vec<f64> = (0..2).map(|i| residual[i] + delta * load[i]).collect();
+        assert!(dot(&change, &increment).abs() < 1e-15);
+        // singular: δu_f orthogonal to Δu
+        assert_eq!(
+            load_correction(&increment, &residual, &[0.0, 0.1], 1.0, 1.0),
+            None
+        );
+    }
+
+    #[test]
+    fn the_policy_scales_halves_and_ends_the_run() {
+        let spec = ArcLengthSpec {
+            target_iterations: 4,
+            max_load_factor: 2.0,
+        };
+        let mut control = ArcLengthControl::new(spec, 2, 0.1);
+        assert_eq!(control.begin(), 0.0);
+        assert_eq!(control.begin_attempt(), (0.0, 0.0, 0.1));
+        // the first step fails before its arc is known: the increment is halved
+        assert!(control.failed(true));
+        assert_eq!(control.begin_attempt().2, 0.05);
+        control.succeeded(1, 0.05, 16, 8.0, 0);
+        // 16 iterations against 4: the arc halves (√(1/4))
+        assert_eq!(control.begin(), 0.05);
+        assert_eq!(control.begin_attempt(), (0.05, 4.0, 0.05));
+        control.succeeded(2, 1.5, 1, 4.0, 1);
+        // one iteration: doubled at most
+        control.begin();
+        assert_eq!(control.begin_attempt().1, 8.0);
+        assert!(control.failed(true) && control.failed(true) && !control.failed(true));
+        assert_eq!(control.begin_attempt().1, 2.0);
+        assert!(!control.failed(false));
+        control.succeeded(3, 1.2, 4, 2.0, 0);
+        assert!(control.passed_peak());
+        assert_eq!(control.peak(), Some((1.5, 2)));
+        assert!(control.report().contains("passed the limit load"));
+        control.succeeded(4, -0.1, 4, 2.0, 0);
+        assert_eq!(control.end(), Some(ArcEnd::Unloaded));
+        assert_eq!(control.to_json()["linearised_iterations"], 1);
+        assert_eq!(control.to_json()["passed_limit"], true);
+        let mut rising = ArcLengthControl::new(spec, 2, 0.1);
+        rising.succeeded(1, 2.5, 4, 1.0, 0);
+        assert_eq!(rising.end(), Some(ArcEnd::MaxLoadFactor));
+        let mut short = ArcLengthControl::new(spec, 2, 0.1);
+        short.succeeded(1, 0.5, 4, 1.0, 0);
+        assert!(short.report().contains("did NOT pass"));
+        assert_eq!(short.to_json()["end"], "steps");
+    }
+}

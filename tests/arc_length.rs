@@ -1,0 +1,354 @@
+//! Arc-length load control (`solver(#{ control: "arc_length" })`, `src/stages/arc_length.rs`):
+//! a bar with a limit load traced through and past it on its closed-form curve; the converged
+//! points on the arc; Newton's quadratic convergence inside an arc step; the Tresca footing
+//! under a uniform pressure against Prandtl; the options and scenes it refuses.
+
+use impm::plugin::Plugin;
+use impm::run::Simulation;
+use impm::stages::arc_length::ArcLength;
+
+mod common;
+
+fn scene(tag: &str, text: &str) -> Result<impm::scene::SceneSpec, String> {
+    common::scene_from_text("arc-length-scene", tag, text)
+}
+
+/// A bar of length 1 (linear FEM, 4 elements), E = 1, ν = 0 (1D Hencky: Kirchhoff stress
+/// τ = E ln F), fixed at x = 0 and pulled at x = 1 by the dead force λ. Uniaxial strain keeps
+/// the area, so λ = σ = τ / F = ln F / F: a limit load 1/e at F = e, and the force falls
+/// beyond it. The first step's load factor sizes the arc; `target_iterations: 2` keeps it
+/// (every step takes 2 iterations).
+const BAR: &str = "\
+grid(#{ lower: [0.0], upper: [1.0], cells: [4], basis: \"fem\" });
+const m = material(#{ name: \"bar\", E: 1.0, nu: 0.0, density: 1.0 });
+body(#{ name: \"bar\", material: m, region: box([0.0], [1.0]), ppc: 2 });
+fix(|x| x[0] == 0.0, [0]);
+point_load_at(#{ at: [1.0], force: [1.0] });
+probe(#{ name: \"end\", at: [1.0] });
+solver(#{ control: \"arc_length\", target_iterations: 2 });
+load_factors(100, |k| 0.05 * k);
+";
+
+/// (λ, end displacement, Δl, ‖Δu‖) of every step of the bar, run step by step.
+fn bar_steps() -> Vec<(f64, f64, f64, f64)> {
+    let spec = scene("bar", BAR).unwrap();
+    let dir = common::temp_dir("arc-length", "bar");
+    let mut sim = Simulation::<1>::new(&spec, &dir).unwrap();
+    sim.write_initial_state().unwrap();
+    let mut steps = Vec::new();
+    while sim.steps_done() < spec.load_factors.len() {
+        let record = sim.step().unwrap();
+        let (factor, u) = (
+            record.load_factor,
+            record.measure("end_displacement_x").unwrap(),
+        );
+        let arc = sim.world.resource::<ArcLength<1>>();
+        assert_eq!(arc.linearised, 0, "every iteration on the arc");
+        steps.push((factor, u, arc.radius, arc.increment_norm()));
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    steps
+}
+
+#[test]
+fn a_bar_is_traced_through_its_limit_load_on_the_closed_form_curve() {
+    let steps = bar_steps();
+    let limit = (-1.0f64).exp();
+    let mut worst = 0.0f64;
+    for &(factor, u, _, _) in &steps {
+        let stretch = 1.0 + u;
+        worst = worst.max((factor - stretch.ln() / stretch).abs());
+    }
+    let (peak_at, &(peak, peak_u, _, _)) = steps
+        .iter()
+        .enumerate()
+        .max_by(|a, b| a.1.0.total_cmp(&b.1.0))
+        .unwrap();
+    let (last, last_u, _, _) = *steps.last().unwrap();
+    println!(
+        "{} steps; largest |λ − ln F / F| {worst:.1e}; peak λ = {peak:.6} at step {} (F = {:.4}) \
+         against 1/e = {limit:.6}; last λ = {last:.4} at F = {:.3}",
+        steps.len(),
+        peak_at + 1,
+        1.0 + peak_u,
+        1.0 + last_u
+    );
+    assert!(
+        worst < 1e-10,
+        "every converged point on the curve: {worst:e}"
+    );
+    // the limit is sampled from both sides: λ rose to it and fell past it
+    assert!(peak <= limit + 1e-12 && peak > 0.99 * limit, "{peak}");
+    assert!(peak_at > 0 && peak_at + 1 < steps.len());
+    assert!(last < 0.9 * peak && 1.0 + last_u > 2.0 * std::f64::consts::E);
+    assert!(
+        steps.windows(2).all(|w| w[1].1 > w[0].1),
+        "u grows along the path"
+    );
+}
+
+#[test]
+fn converged_points_lie_on_the_arc() {
+    let steps = bar_steps();
+    let mut worst = 0.0f64;
+    for &(_, _, radius, norm) in &steps {
+        assert!(radius > 0.0);
+        worst = worst.max((norm - radius).abs() / radius);
+    }
+    println!(
+        "largest |‖Δu‖ − Δl| / Δl over {} steps: {worst:.1e}",
+        steps.len()
+    );
+    assert!(worst < 1e-12, "{worst:e}");
+    // the first arc is sized so that the first step's predictor raises λ by 0.05
+    assert!((steps[0].0 - 0.05).abs() < 0.05 * 0.1, "{}", steps[0].0);
+}
+
+/// Orders of convergence ln(r_{k+1}/r_k) / ln(r_k/r_{k−1}) over the residuals above round-off
+/// after the predictor (the first residual is the one at Δu = 0, before the step's load).
+fn orders(residuals: &[f64]) -> Vec<f64> {
+    let useful: Vec<f64> = residuals[1..]
+        .iter()
+        .copied()
+        .filter(|&r| r > 1e-13)
+        .collect();
+    useful
+        .windows(3)
+        .map(|w| (w[2] / w[1]).ln() / (w[1] / w[0]).ln())
+        .collect()
+}
+
+#[test]
+fn newton_stays_quadratic_inside_an_arc_step() {
+    // elastic plane-strain layer under a strip pressure (scripts/footing_traction.rhai's
+    // set-up, q = 200 = E / 50 at λ = 1), arcs of about a unit load factor, so that a step
+    // takes several iterations
+    let text = "\
+const soil = material(#{ name: \"soil\", E: 1.0e4, nu: 0.3, density: 1.0 });
+grid(#{ lower: [0.0, 0.0], upper: [10.0, 7.0], cells: [10, 7], basis: \"bspline\", order: 2 });
+body(#{ name: \"layer\", material: soil, region: box([0.0, 0.0], [10.0, 5.5]), ppc: 2 });
+fix(|x| x[1] == 0.0);
+fix(|x| x[0] == 0.0 || x[0] == 10.0, [0]);
+traction(#{ on: [[0.0, 5.5], [2.0, 5.5]], traction: [0.0, -200.0], per_cell: 3 });
+solver(#{ control: \"arc_length\", tolerance: 1e-12, linear: \"direct\" });
+load_factors(3, |k| 1.0 * k);
+";
+    let spec = scene("quadratic", text).unwrap();
+    let dir = common::temp_dir("arc-length", "quadratic");
+    let mut sim = Simulation::<2>::new(&spec, &dir).unwrap();
+    sim.run(|_| {}).unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    let mut all = Vec::new();
+    for step in &sim.summary.steps {
+        let rates = orders(&step.residuals);
+        println!(
+            "step {} λ = {:.4}: residuals {}, orders {:.2?}",
+            step.step,
+            step.load_factor,
+            step.residuals
+                .iter()
+                .map(|r| format!("{r:.1e}"))
+                .collect::<Vec<_>>()
+                .join(" "),
+            rates
+        );
+        assert!(step.residuals.len() >= 4, "several iterations per step");
+        all.extend(rates);
+    }
+    // quadratic, not linear (order 1): the normalised residual's constants keep the
+    // observed orders a little below 2 from so few iterations
+    assert!(all.len() >= sim.summary.steps.len());
+    assert!(all.iter().all(|&p| p > 1.6), "quadratic: {all:?}");
+}
+
+#[test]
+fn the_footing_under_a_uniform_pressure_passes_prandtls_limit() {
+    let spec = impm::run::load_scene(
+        &common::shipped_scene("footing_pressure_arc.rhai"),
+        &common::overrides(&[]),
+    )
+    .unwrap();
+    let dir = common::temp_dir("arc-length", "footing");
+    let mut sim = Simulation::<2>::new(&spec, &dir).unwrap();
+    sim.write_initial_state().unwrap();
+    let mut off_arc = 0.0f64;
+    while sim.steps_done() < spec.load_factors.len() {
+        sim.step().unwrap();
+        let arc = sim.world.resource::<ArcLength<2>>();
+        if arc.linearised == 0 {
+            off_arc = off_arc.max((arc.increment_norm() - arc.radius).abs() / arc.radius);
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    let steps = &sim.summary.steps;
+    let prandtl = 2.0 + std::f64::consts::PI;
+    let peak = steps
+        .iter()
+        .map(|s| s.load_factor)
+        .fold(f64::NEG_INFINITY, f64::max);
+    let first_peak = steps
+        .windows(2)
+        .find(|w| w[1].load_factor < w[0].load_factor)
+        .map(|w| (w[0].load_factor, w[0].measure("settlement").unwrap()))
+        .unwrap();
+    let last = steps.last().unwrap();
+    println!(
+        "q_max / s_u = {peak:.4} ({:+.1} % against 2 + π); first peak {:.4} ({:+.1} %) at δ/B = \
+         {:.4}; last {:.4} at δ/B = {:.4}; largest |‖Δu‖ − Δl| / Δl {off_arc:.1e}",
+        100.0 * (peak / prandtl - 1.0),
+        first_peak.0,
+        100.0 * (first_peak.0 / prandtl - 1.0),
+        first_peak.1,
+        last.load_factor,
+        last.measure("settlement").unwrap()
+    );
+    // 4 cells across B, linear MPM with F-bar: coarse; the rigid footing of the same set-up
+    // overestimates by 17 % (docs/plasticity.md); 10 % bounds this one honestly
+    assert!((peak / prandtl - 1.0).abs() < 0.10, "{peak}");
+    assert!(first_peak.0 > prandtl * 0.95, "{first_peak:?}");
+    // past the limit: the load factor came down while the settlement grew
+    assert!(last.load_factor < peak);
+    assert!(last.measure("settlement").unwrap() > first_peak.1);
+    assert!(off_arc < 1e-9, "{off_arc:e}");
+}
+
+/// The scene of the refusals: a 2D block with a traction, and `extra` on line 6.
+fn block(extra: &str, solver: &str) -> String {
+    format!(
+        "grid(#{{ lower: [0.0, 0.0], upper: [2.0, 2.0], cells: [2, 2], basis: \"bspline\", order: 2 }});\n\
+         const soil = material(#{{ name: \"soil\", E: 1.0e4, nu: 0.3, density: 1.0 }});\n\
+         body(#{{ name: \"b\", material: soil, region: box([0.0, 0.0], [2.0, 1.5]), ppc: 2 }});\n\
+         fix(|x| x[1] == 0.0);\n\
+         traction(#{{ on: [[0.0, 1.5], [1.0, 1.5]], traction: [0.0, -1.0] }});\n\
+         {extra}\n\
+         solver(#{{ {solver} }});\n\
+         load_steps(4);\n"
+    )
+}
+
+#[test]
+fn what_the_arc_cannot_control_is_refused_with_the_scene_line() {
+    let arc = "control: \"arc_length\"";
+    let cases: [(&str, &str, &str, &[&str]); 8] = [
+        (
+            "displace",
+            "displace(|x| x[0] == 2.0 && x[1] > 0.0, [0], [0.01]);",
+            arc,
+            &[":7:1:", "displace1 (line 6)", "arc_length"],
+        ),
+        (
+            "surface",
+            "surface_displace(#{ on: [[1.0, 1.5], [2.0, 1.5]], displacement: [0.0, -0.1] });",
+            arc,
+            &[":7:1:", "surface_displace", "(line 6)"],
+        ),
+        (
+            "held_traction",
+            "traction(#{ on: [[1.0, 1.5], [2.0, 1.5]], traction: [0.0, -1.0], held: true });",
+            arc,
+            &[":7:1:", "held traction (line 6)"],
+        ),
+        (
+            "held_weight",
+            "body_force([0.0, -10.0], #{ held: true });",
+            arc,
+            &[":7:1:", "held body force (line 6)"],
+        ),
+        (
+            "line_search",
+            "",
+            "control: \"arc_length\", line_search: true",
+            &[":7:1:", "line_search"],
+        ),
+        (
+            "target_alone",
+            "",
+            "target_iterations: 4",
+            &[
+                ":7:1:",
+                "'target_iterations' applies to control: \"arc_length\" only",
+            ],
+        ),
+        (
+            "max_alone",
+            "",
+            "control: \"load\", max_load_factor: 2.0",
+            &[
+                ":7:1:",
+                "'max_load_factor' applies to control: \"arc_length\" only",
+            ],
+        ),
+        (
+            "bad_word",
+            "",
+            "control: \"riks\"",
+            &[":7:1:", "arc_length"],
+        ),
+    ];
+    for (tag, extra, solver, expected) in cases {
+        let error = scene(tag, &block(extra, solver)).unwrap_err();
+        println!("{tag}: {error}");
+        for part in expected {
+            assert!(error.contains(part), "{tag}: '{part}' in {error}");
+        }
+    }
+    // bad numbers
+    for (tag, solver) in [
+        (
+            "zero_target",
+            "control: \"arc_length\", target_iterations: 0",
+        ),
+        (
+            "negative_max",
+            "control: \"arc_length\", max_load_factor: -1.0",
+        ),
+    ] {
+        let error = scene(tag, &block("", solver)).unwrap_err();
+        println!("{tag}: {error}");
+        assert!(error.contains(":7:1:"), "{tag}: {error}");
+    }
+    // a schedule that starts at zero gives the first arc no size
+    let zero = block("", arc).replace("load_steps(4);", "load_factors([0.0, 1.0]);");
+    let error = scene("zero_first", &zero).unwrap_err();
+    assert!(
+        error.contains(":7:1:") && error.contains("first load factor"),
+        "{error}"
+    );
+    // supports (zero displacement) are fine, and so is load control with the same scene
+    let fine = block("displace(|x| x[0] == 2.0, [0], [0.0]);", arc);
+    assert!(scene("support", &fine).is_ok());
+    let load = block(
+        "displace(|x| x[0] == 2.0 && x[1] > 0.0, [0], [0.01]);",
+        "control: \"load\"",
+    );
+    assert!(scene("load", &load).is_ok());
+}
+
+/// Without the option nothing of the arc is built, and a load-controlled run is what it was:
+/// the same scene with and without `control: "load"` gives bit-identical steps.
+#[test]
+fn load_control_is_untouched() {
+    let text = |solver: &str| block("", solver);
+    let run = |tag: &str, text: String| {
+        let spec = scene(tag, &text).unwrap();
+        assert!(
+            !impm::effects::arc_length::ArcLengthModule.used_by(&spec),
+            "{tag}"
+        );
+        let dir = common::temp_dir("arc-length", tag);
+        let mut sim = Simulation::<2>::new(&spec, &dir).unwrap();
+        assert!(sim.world.get_resource::<ArcLength<2>>().is_none());
+        sim.run(|_| {}).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        assert!(sim.summary.arc_length.is_none());
+        sim.summary
+            .steps
+            .iter()
+            .map(|s| (s.load_factor, s.residuals.clone()))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(
+        run("plain", text("tolerance: 1e-9")),
+        run("load", text("control: \"load\""))
+    );
+}
