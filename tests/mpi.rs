@@ -23,6 +23,7 @@
 //! * a process that fails alone outside the Newton iteration ends the whole job (`MPI_Abort`)
 //!   within a bounded time, naming the process and the cause, instead of leaving the others
 //!   waiting; what was written before stays readable;
+//! * arc-length control is refused over more than one process (not distributed yet);
 //! * a signal to one process only stops every process after the same load step (the stop is
 //!   agreed between steps), with the status "interrupted" and no abort;
 //! * `impm study` under `mpirun -n 2` is refused, said once, before anything is written.
@@ -430,6 +431,27 @@ fn a_process_failing_alone_outside_newton_ends_the_whole_job() {
     assert!(!stale.exists(), "{} left", stale.display());
     let _ = std::fs::remove_dir_all(&dir);
     let _ = std::fs::remove_dir_all(&logs);
+}
+
+/// Arc-length control is not distributed yet (its second solve and dot products): refused over
+/// 2 processes at the scene's line, once, without an abort.
+#[test]
+fn arc_length_control_is_refused_over_several_processes() {
+    if !mpirun_available() {
+        return;
+    }
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let scene = shipped_scene("footing_pressure_arc.rhai");
+    let dir: PathBuf = temp_dir("mpi", "arc");
+    let output = run(Some(2), &scene, &["cells=2"], &dir, &[]);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert!(
+        stderr.contains("arc_length") && stderr.contains("mpirun -n 1"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("MPI_Abort"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The process of rank `rank` that `mpirun` (process `launcher`) started: a descendant of it

@@ -9,7 +9,9 @@
 //!   `displacement`): its ramp would be a second load parameter the arc does not constrain;
 //!   supports (`fix`, zero displacements) are fine;
 //! * held loads (`held: true`): they are not proportional to λ;
-//! * the Newton line search, which would move the iterate off the arc.
+//! * the Newton line search, which would move the iterate off the arc;
+//! * runs under `mpirun` with more than one process (the arc's second solve and its dot
+//!   products are not distributed yet).
 
 use super::body_force::BodyForceRamp;
 use super::grid_constraints::ConstraintDeclarations;
@@ -96,6 +98,14 @@ impl Plugin for ArcLengthModule {
             return Err(refuse(
                 "control: \"arc_length\" cannot be combined with line_search: true (the line \
                  search would move the iterate off the arc)"
+                    .to_string(),
+            ));
+        }
+        if crate::distributed::launched_by_mpirun().is_some_and(|p| p.size > 1) {
+            return Err(refuse(
+                "control: \"arc_length\" under mpirun with more than one process is not \
+                 supported yet (its second solve and its dot products are not distributed): \
+                 run with mpirun -n 1 or without mpirun"
                     .to_string(),
             ));
         }
