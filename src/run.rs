@@ -454,13 +454,17 @@ impl<const D: usize> Simulation<D> {
         if let Some(arc) = &self.arc {
             self.summary.arc_length = Some(arc.to_json());
             let report = arc.report();
+            let stalled = arc.stalled_warning();
             if arc.passed_peak() || arc.end().is_some() {
                 use std::io::Write;
                 let _ = writeln!(std::io::stderr(), "{report}");
             } else {
                 self.world.resource_mut::<Warnings>().0.push(report);
-                self.take_warnings();
             }
+            if let Some(stalled) = stalled {
+                self.world.resource_mut::<Warnings>().0.push(stalled);
+            }
+            self.take_warnings();
         }
         self.summary.finish();
         self.summary.write().map_err(|e| SolverError::Output {

@@ -440,7 +440,14 @@ pub struct ArcLengthControl {
     end: Option<ArcEnd>,
     /// Iterations of the converged steps whose δλ came from the linearised constraint.
     linearised: usize,
+    /// The largest arc of a converged step, and the last one's.
+    largest_arc: f64,
+    last_arc: f64,
 }
+
+/// Below this fraction of the largest arc, the last converged arc means the path is no longer
+/// traced: cuts have shrunk the steps until they barely move ([`ArcLengthControl::stalled`]).
+pub const STALLED_ARC: f64 = 1e-2;
 
 impl ArcLengthControl {
     pub fn new(spec: ArcLengthSpec, max_cuts: usize, first_increment: f64) -> Self {
@@ -454,6 +461,8 @@ impl ArcLengthControl {
             last: 0.0,
             end: None,
             linearised: 0,
+            largest_arc: 0.0,
+            last_arc: 0.0,
         }
     }
 
@@ -480,6 +489,8 @@ impl ArcLengthControl {
         linearised: usize,
     ) {
         self.linearised += linearised;
+        self.largest_arc = self.largest_arc.max(radius);
+        self.last_arc = radius;
         let scale = (self.spec.target_iterations as f64 / iterations.max(1) as f64).sqrt();
         self.radius = radius * scale.clamp(0.5, 2.0);
         if self.peak.is_none_or(|(peak, _)| factor > peak) {
@@ -530,6 +541,27 @@ impl ArcLengthControl {
             .is_some_and(|(peak, _)| peak > 0.0 && self.last < peak * (1.0 - 1e-6))
     }
 
+    /// The last converged arc over the largest, when it is below [`STALLED_ARC`]: the steps
+    /// no longer move along the path (on a footing past its peak, Newton keeps landing on the
+    /// elastic unloading branch, which is refused, and the cuts shrink the arc), so the end of
+    /// the curve is not a result.
+    pub fn stalled(&self) -> Option<f64> {
+        let ratio = self.last_arc / self.largest_arc;
+        (self.largest_arc > 0.0 && ratio < STALLED_ARC).then_some(ratio)
+    }
+
+    /// The warning of a [`ArcLengthControl::stalled`] run.
+    pub fn stalled_warning(&self) -> Option<String> {
+        self.stalled().map(|ratio| {
+            format!(
+                "arc-length control: the last arc is {ratio:.1e} of the largest (step cuts \
+                 shrank it): the last steps barely moved, so the load-displacement path there \
+                 is not traced and the end of the curve is not a result (the predictor is the \
+                 elastic one; docs/plasticity.md, \"Past the limit load\")"
+            )
+        })
+    }
+
     /// The run's record for `summary.json` (`"arc_length"`).
     pub fn to_json(&self) -> serde_json::Value {
         let number =
@@ -544,6 +576,7 @@ impl ArcLengthControl {
                 None => "steps",
             },
             "linearised_iterations": self.linearised,
+            "stalled_arc_ratio": self.stalled().map(number),
             "report": self.report(),
         })
     }
@@ -579,6 +612,24 @@ impl ArcLengthControl {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_run_whose_arc_shrank_to_nothing_is_called_stalled() {
+        let spec = ArcLengthSpec {
+            target_iterations: 5,
+            max_load_factor: 10.0,
+        };
+        let mut control = ArcLengthControl::new(spec, 8, 0.1);
+        control.succeeded(1, 1.0, 5, 0.2, 0);
+        control.succeeded(2, 2.0, 5, 0.2, 0);
+        assert_eq!(control.stalled(), None);
+        control.succeeded(3, 1.9, 5, 0.2 * STALLED_ARC * 2.0, 0);
+        assert_eq!(control.stalled(), None, "above the threshold");
+        control.succeeded(4, 1.9, 5, 0.2 * STALLED_ARC / 2.0, 0);
+        let ratio = control.stalled().expect("stalled");
+        assert!((ratio - STALLED_ARC / 2.0).abs() < 1e-15, "{ratio}");
+        assert!(control.stalled_warning().unwrap().contains("not traced"));
+    }
 
     #[test]
     fn the_predictor_goes_the_asked_way_on_the_arc() {
