@@ -177,7 +177,9 @@ impl<const D: usize> Simulation<D> {
 
     /// Writes the checkpoint of the steps done so far, if the run keeps checkpoints.
     fn write_checkpoint(&mut self) -> Result<(), SolverError> {
-        let Some(plan) = &self.restart else {
+        // an arc-length run cannot be resumed (`resume_from`): a checkpoint would be written
+        // for nothing, and a failed run would point to it
+        let Some(plan) = self.restart.as_ref().filter(|_| self.arc.is_none()) else {
             return Ok(());
         };
         let identity = plan.identity.clone();
