@@ -207,14 +207,18 @@ fn run(cli: Cli) -> Result<(), Failure> {
                 every: checkpoint_every.map(|n| n as usize),
                 limit: limit.clone(),
             };
-            let result = limits(&limit)
-                .and_then(|limits| run_command(&modules, &scene, out, &set, &limits, &restart));
-            // under mpirun: end together with the other processes, or end the whole job
+            let job = || {
+                limits(&limit)
+                    .and_then(|limits| run_command(&modules, &scene, out, &set, &limits, &restart))
+            };
+            // under mpirun: a panic ends the job; end together with the other processes, or
+            // end the whole job
             #[cfg(feature = "mpi")]
             if let Some(distributed) = distributed {
+                let result = distributed.abort_on_panic(job);
                 return distributed.end(result);
             }
-            result
+            job()
         }
         Command::Study {
             scene,

@@ -17,8 +17,10 @@
 //! whose run failed waits at most [`FAILED_PROCESS_WAIT`] for them, and if they do not come it
 //! says which process failed and why on the console's standard error and ends the job with
 //! `MPI_Abort` (exit status 1); files already written stay as they are. A panic on any process
-//! ends the job the same way at once (a panic hook). When the processes end together, process
-//! 0 reports a failure they share; a process other than 0 whose run failed alone says so itself.
+//! ends the job at once (exit status 101), from the main thread also when a worker of the
+//! thread pool panicked ([`DistributedRun::abort_on_panic`]). When the processes end together,
+//! process 0 reports a failure they share; a process other than 0 whose run failed alone says
+//! so itself.
 
 use std::fs::File;
 use std::io::Write;
@@ -95,6 +97,23 @@ impl DistributedRun {
             scratch,
             mpi,
         }))
+    }
+
+    /// Runs `job` on the main thread; a panic in it (on this thread or on a worker of the
+    /// thread pool, which carries it here) ends the whole job with `MPI_Abort` (exit status
+    /// 101) once the panic hook has said why: the other processes would wait for this one in
+    /// their next collective call. One process runs `job` as it is.
+    pub fn abort_on_panic<R>(&self, job: impl FnOnce() -> R) -> R {
+        if self.processes.size == 1 {
+            return job();
+        }
+        match std::panic::catch_unwind(std::panic::AssertUnwindSafe(job)) {
+            Ok(result) => result,
+            Err(_) => {
+                self.remove_scratch();
+                abort(101)
+            }
+        }
     }
 
     /// The folder this process writes into: `out` for process 0, its scratch folder for the
@@ -181,7 +200,8 @@ fn remove_stale_scratch() {
 fn to_console(line: &str) {
     match CONSOLE.get() {
         Some(mut console) => {
-            let _ = writeln!(console, "{line}");
+            // one write, so lines of several threads do not interleave
+            let _ = console.write_all(format!("{line}\n").as_bytes());
         }
         None => note(line),
     }
@@ -194,14 +214,22 @@ fn agree_on_stop(mine: Option<StopReason>) -> Option<StopReason> {
     StopReason::from_precedence(impm::distributed::largest(StopReason::precedence(mine)))
 }
 
-/// A panic on any process ends the job: the others would wait for it forever.
+/// A panic on any process ends the job: the others would wait for it forever. The hook runs
+/// on the thread that panicked, which may be a worker of the thread pool; MPI was started for
+/// the main thread only (`Threading::Funneled`), so the hook only says what happened, and
+/// [`DistributedRun::abort_on_panic`] ends the job from the main thread, where the thread pool
+/// carries a worker's panic.
 fn abort_on_panic(processes: Processes) {
+    static SAID: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
     std::panic::set_hook(Box::new(move |info| {
+        // the first panic is the cause: other workers of the same loop may panic after it
+        if SAID.swap(true, std::sync::atomic::Ordering::SeqCst) {
+            return;
+        }
         to_console(&format!(
             "error (process {} of {}): {info}\nending the whole job (MPI_Abort)",
             processes.rank, processes.size
         ));
-        abort(101)
     }));
 }
 
