@@ -214,7 +214,7 @@ impl std::fmt::Display for Explanation {
             }
             writeln!(
                 f,
-                "  {:<20} {}",
+                "  {:<23} {}",
                 system.stage.as_deref().unwrap_or("-"),
                 system.name
             )?;
@@ -226,7 +226,7 @@ impl std::fmt::Display for Explanation {
             for system in &self.left_out {
                 writeln!(
                     f,
-                    "  {:<20} {} ({})",
+                    "  {:<23} {} ({})",
                     system.stage.as_deref().unwrap_or("-"),
                     system.name,
                     system.schedule

@@ -3,17 +3,18 @@
 //! ```text
 //! for each load step n -> n+1 (load factor λ_n -> λ_{n+1}):           StepSchedule
 //!   1. Connectivity   basis N_i(x_p), ∇N_i at the step start; active nodes   (Hook::Basis, Hook::Connectivity)
-//!   2. Dofs           constrained components, then DOF numbers and the sparsity pattern (Hook::Constraints)
+//!   2. Dofs           constrained components, then DOF numbers and the sparsity pattern (Hook::Constraints, Hook::AfterDofs)
 //!   3. Loads          f_ext at λ_{n+1}; prescribed increments                (Hook::Loads)
-//!   4. Solve          Newton until ‖f_ext − f_int‖ is small:                NewtonSchedule
+//!   4. Solve          Newton until ‖f_ext − f_int‖ is small:                NewtonSchedule (Hook::BeforeSolve before it)
 //!        a. StressUpdate   Δf, F = Δf F^n, τ and its tangent per point     (Hook::Kinematics before it: what the material sees;
 //!                                                                           Hook::StressUpdate: one system per material kind)
 //!        b. Assembly       f_int = Σ_p V0 τ g_i, consistent K              (Hook::BeforeAssembly, Hook::AfterAssembly;
 //!                                                                           Hook::Combine: the processes' sums, distributed runs)
-//!        c. Convergence    r = f_ext − f_int at the free DOFs; with a line search, a trial step
-//!                          that does not reduce ‖r‖ enough is shortened and evaluated again
-//!        d. LinearSolve    K δ = r, Δu += δ; under arc-length control also K δ_f = f̂ and the
-//!                          load factor's correction (`stages::arc_length`)
+//!        c. Convergence    r = f_ext − f_int at the free DOFs (Hook::Convergence: a module may
+//!                          overrule the verdict; the line search shortens a trial step that does
+//!                          not reduce ‖r‖ enough, evaluated again without a solve)
+//!        d. LinearSolve    K δ = r, Δu += δ                                   (Hook::AfterLinearSolve:
+//!                                                                           e.g. arc-length's load-factor correction)
 //!   5. UpdatePoints   G2P: x_p, u_p, F_p, V_p (paper eq. 10): the step is committed (Hook::PointUpdate, Hook::AfterStep)
 //!   6. Output         VTK files of the converged state                   OutputSchedule (Hook::PointFields, Hook::GridOutput, Hook::Output)
 //!   7. ResetGrid      the grid forgets the step: back to its undeformed state
@@ -40,8 +41,8 @@ use bevy_ecs::schedule::{
 };
 
 use crate::resources::{LoadStep, Newton, NewtonSettings, RunStatus, SolverError, no_failure};
+use crate::stages::line_search;
 use crate::stages::output::writes_output;
-use crate::stages::{arc_length, line_search};
 use crate::stages::{
     assemble, check_convergence, evaluate_basis, number_dofs, reset_grid, solve_linear_system,
     update_points, write_grid, write_nodes, write_particles,
@@ -91,12 +92,16 @@ pub enum NewtonSystems {
 /// | `Basis` | step, connectivity: the one system that evaluates the basis at the points | point basis (default), point domains (GIMP, CPDI, domain-averaged B-splines), FEM elements |
 /// | `Connectivity` | step, connectivity, after the basis; node groups coupled in the tangent (`GridFields::couplings`) | ghost faces, F-bar cells |
 /// | `Constraints` | step, before DOF numbering: constrained components, extra couplings | grid constraints (`fix`, `displace`) |
+/// | `AfterDofs` | step, after DOF numbering, before the loads | arc-length control (the loads at λ = 1) |
 /// | `Loads` | step, external forces and prescribed increments of the step | body force, point loads, tractions, prescribed displacements |
+/// | `BeforeSolve` | step, after the loads, before the Newton iterations | arc-length control (keeps f̂) |
 /// | `Kinematics` | Newton, before the stress update: the increment of deformation a material sees, when not the point's own (`components::ModifiedIncrement`), e.g. averaged over the points of a cell | F-bar |
 /// | `StressUpdate` | Newton: trial stress and tangent of every point | one system per material kind |
 /// | `BeforeAssembly` | Newton, after the stress update | (plugins) |
 /// | `AfterAssembly` | Newton, after assembly: contributions to f_int and K, also blocks between the nodes of a coupling group | ghost penalty, F-bar |
 /// | `Combine` | Newton, after all of assembly, before the convergence check; runs after a failure of the iteration too (every process must take part in collective operations) | distributed runs: the processes' sums of f_int, a failure on any process |
+/// | `Convergence` | Newton, after the convergence check: may overrule the verdict | arc-length control (an iterate that went back along the path), the line search (accepts or shortens the iterate) |
+/// | `AfterLinearSolve` | Newton, after the linear solve; runs in a converged iteration too, where no solve happened (`Newton::iterations` did not grow) | arc-length control (the load factor's correction) |
 /// | `PointUpdate` | step, after the G2P update: state that follows the material | traction points, FEM mesh, material history |
 /// | `AfterStep` | step, after the point update, before output | stress recovery |
 /// | `PointFields` | output, before the particle file: extra point fields | point loads, stress recovery |
@@ -112,12 +117,16 @@ pub enum Hook {
     Basis,
     Connectivity,
     Constraints,
+    AfterDofs,
     Loads,
+    BeforeSolve,
     Kinematics,
     StressUpdate,
     BeforeAssembly,
     AfterAssembly,
     Combine,
+    Convergence,
+    AfterLinearSolve,
     PointUpdate,
     AfterStep,
     PointFields,
@@ -127,16 +136,20 @@ pub enum Hook {
 }
 
 impl Hook {
-    pub const ALL: [Hook; 15] = [
+    pub const ALL: [Hook; 19] = [
         Hook::Basis,
         Hook::Connectivity,
         Hook::Constraints,
+        Hook::AfterDofs,
         Hook::Loads,
+        Hook::BeforeSolve,
         Hook::Kinematics,
         Hook::StressUpdate,
         Hook::BeforeAssembly,
         Hook::AfterAssembly,
         Hook::Combine,
+        Hook::Convergence,
+        Hook::AfterLinearSolve,
         Hook::PointUpdate,
         Hook::AfterStep,
         Hook::PointFields,
@@ -151,14 +164,18 @@ impl Hook {
             Hook::Basis
             | Hook::Connectivity
             | Hook::Constraints
+            | Hook::AfterDofs
             | Hook::Loads
+            | Hook::BeforeSolve
             | Hook::PointUpdate
             | Hook::AfterStep => StepSchedule.intern(),
             Hook::Kinematics
             | Hook::StressUpdate
             | Hook::BeforeAssembly
             | Hook::AfterAssembly
-            | Hook::Combine => NewtonSchedule.intern(),
+            | Hook::Combine
+            | Hook::Convergence
+            | Hook::AfterLinearSolve => NewtonSchedule.intern(),
             Hook::PointFields | Hook::GridOutput | Hook::Output => OutputSchedule.intern(),
             Hook::Rollback => RollbackSchedule.intern(),
         }
@@ -209,7 +226,9 @@ fn step_schedule<const D: usize>() -> Schedule {
                 .chain()
                 .in_set(Connectivity),
             Hook::Constraints.in_set(Dofs).before(number_dofs::<D>),
+            Hook::AfterDofs.in_set(Dofs).after(number_dofs::<D>),
             Hook::Loads.in_set(Loads),
+            Hook::BeforeSolve.in_set(Solve).before(solve_load_step::<D>),
             (Hook::PointUpdate, Hook::AfterStep)
                 .chain()
                 .in_set(UpdatePoints)
@@ -219,16 +238,6 @@ fn step_schedule<const D: usize>() -> Schedule {
     );
     schedule.add_systems((
         number_dofs::<D>.in_set(Dofs),
-        // arc-length control (only when asked): the loads are evaluated at λ = 1, its
-        // reference load, which the solve takes before it starts
-        arc_length::unit_load
-            .in_set(Dofs)
-            .after(number_dofs::<D>)
-            .run_if(arc_length::active::<D>),
-        arc_length::take_reference_load::<D>
-            .in_set(Solve)
-            .before(solve_load_step::<D>)
-            .run_if(arc_length::active::<D>),
         solve_load_step::<D>.in_set(Solve),
         update_points::<D>.in_set(UpdatePoints),
         run_output.in_set(Output),
@@ -251,6 +260,12 @@ fn newton_schedule<const D: usize>() -> Schedule {
             Hook::StressUpdate.in_set(StressUpdate),
             Hook::BeforeAssembly.after(StressUpdate).before(Assembly),
             Hook::AfterAssembly.in_set(Assembly).after(assemble::<D>),
+            Hook::Convergence
+                .in_set(Convergence)
+                .after(check_convergence::<D>),
+            Hook::AfterLinearSolve
+                .in_set(LinearSolve)
+                .after(solve_linear_system::<D>),
         )
             .distributive_run_if(no_failure),
     );
@@ -259,24 +274,10 @@ fn newton_schedule<const D: usize>() -> Schedule {
     schedule.add_systems((
         assemble::<D>.in_set(Assembly),
         check_convergence::<D>.in_set(Convergence),
-        line_search::judge_iterate::<D>
-            .in_set(Convergence)
-            .after(check_convergence::<D>)
-            .run_if(line_search::searching),
-        arc_length::keep_going_forward::<D>
-            .in_set(Convergence)
-            .after(check_convergence::<D>)
-            .before(line_search::judge_iterate::<D>)
-            .run_if(arc_length::active::<D>),
         solve_linear_system::<D>
             .in_set(LinearSolve)
             .run_if(not_converged)
             .run_if(line_search::iterate_accepted),
-        arc_length::correct_load_factor::<D>
-            .in_set(LinearSolve)
-            .after(solve_linear_system::<D>)
-            .run_if(arc_length::active::<D>)
-            .run_if(no_failure),
     ));
     schedule
 }

@@ -569,9 +569,6 @@ fn core_world<const D: usize>(spec: &SceneSpec, out_dir: &Path) -> Result<World,
         inexact: spec.solver.inexact,
         max_backtracks: spec.solver.max_backtracks,
     });
-    if spec.solver.line_search {
-        world.insert_resource(LineSearch::default());
-    }
     world.insert_resource(Newton {
         solver: spec.solver.linear_solver(),
         ..Newton::default()

@@ -352,3 +352,38 @@ fn load_control_is_untouched() {
         run("load", text("control: \"load\""))
     );
 }
+
+/// The arc's four systems are added by its module at their hooks (what `impm check --explain`
+/// lists): a scene that asks for the arc schedules them, one that does not schedules none.
+#[test]
+fn the_arc_is_scheduled_only_when_asked() {
+    let arc_systems = |tag: &str, solver: &str| {
+        let spec = scene(tag, &block("", solver)).unwrap();
+        let dir = common::temp_dir("arc-length", tag);
+        let mut sim = Simulation::<2>::new(&spec, &dir).unwrap();
+        let systems = impm::explain::scheduled_systems(&mut sim.world).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        systems
+            .into_iter()
+            .filter(|s| s.name.contains("arc_length"))
+            .map(|s| (s.stage.unwrap_or_default(), s.name))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(arc_systems("unscheduled", "tolerance: 1e-9"), []);
+    let scheduled = arc_systems("scheduled", "control: \"arc_length\"");
+    let expected = [
+        ("Hook::AfterDofs", "arc_length::unit_load"),
+        ("Hook::BeforeSolve", "arc_length::take_reference_load"),
+        ("Hook::Convergence", "arc_length::keep_going_forward"),
+        ("Hook::AfterLinearSolve", "arc_length::correct_load_factor"),
+    ];
+    for (hook, name) in expected {
+        assert!(
+            scheduled
+                .iter()
+                .any(|(stage, system)| stage == hook && system.starts_with(name)),
+            "{name} at {hook}: {scheduled:?}"
+        );
+    }
+    assert_eq!(scheduled.len(), expected.len(), "{scheduled:?}");
+}

@@ -181,7 +181,7 @@ fn check_explain_lists_the_systems_of_the_scene() {
     assert!(text.contains("  point loads                 yes"), "{text}");
     let scheduled = text.split("left out").next().unwrap();
     assert!(
-        scheduled.contains("Hook::Loads          point_loads::apply_point_loads"),
+        scheduled.contains("Hook::Loads             point_loads::apply_point_loads"),
         "{text}"
     );
     assert!(!scheduled.contains("apply_body_force"), "{text}");

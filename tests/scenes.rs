@@ -362,6 +362,11 @@ fn schedules_hold_only_the_effects_a_scene_uses() {
         "fbar::group_points_by_cell",
         "fbar::average_volume_change",
         "fbar::assemble_fbar_tangent",
+        "line_search::judge_iterate",
+        "arc_length::unit_load",
+        "arc_length::take_reference_load",
+        "arc_length::keep_going_forward",
+        "arc_length::correct_load_factor",
     ]) {
         assert!(
             left_out.iter().any(|s| s == system),
@@ -379,9 +384,13 @@ fn schedules_hold_only_the_effects_a_scene_uses() {
             assert!(left_out.contains(&name), "{name}: {left_out:?}");
         }
     }
-    // the optional systems above, the recovered-stress output field, F-bar and the plastic
-    // systems
-    assert_eq!(left_out.len(), OPTIONAL.len() + 6 + 3 + 9, "{left_out:?}");
+    // the optional systems above, the recovered-stress output field, F-bar, the line search,
+    // arc-length control and the plastic systems
+    assert_eq!(
+        left_out.len(),
+        OPTIONAL.len() + 6 + 3 + 5 + 9,
+        "{left_out:?}"
+    );
 }
 
 /// The complete scene of docs/scene-api.md, written from the documentation alone, runs.

@@ -1,7 +1,14 @@
 //! Arc-length load control as a scene option: `solver(#{ control: "arc_length",
-//! target_iterations: 5, max_load_factor: 2.0 })`. The method is in `stages::arc_length` (its
-//! systems sit in the core's Newton loop and run only when this module inserts their state);
-//! this module reads the options and refuses what the arc cannot control.
+//! target_iterations: 5, max_load_factor: 2.0 })`. The method is in `stages::arc_length`; this
+//! module reads the options, refuses what the arc cannot control, and adds the arc's four
+//! systems at their hooks (scenes without the option schedule none of them):
+//!
+//! ```text
+//!   Hook::AfterDofs         unit_load              the loads are evaluated at λ = 1 ...
+//!   Hook::BeforeSolve       take_reference_load    ... and kept as f̂; f_ext = λ_n f̂
+//!   Hook::Convergence       keep_going_forward     a converged iterate that went back is refused
+//!   Hook::AfterLinearSolve  correct_load_factor    K δu_f = f̂, δλ from the arc, Δu += δu_r + δλ δu_f
+//! ```
 //!
 //! The arc controls proportional loads f_ext = λ f̂: tractions, point loads and a body force
 //! that follow the load factor. It refuses, at the scene line that asks for them:
@@ -15,10 +22,14 @@
 
 use super::body_force::BodyForceRamp;
 use super::grid_constraints::ConstraintDeclarations;
+use crate::method::Hook;
 use crate::plugin::{Extension, Plugin};
 use crate::resources::Ramp;
 use crate::scene::{Choice, Kind, OptionSpec, Range, Resolver, SceneApi, SceneSpec, ScriptError};
-use crate::stages::arc_length::{ArcLength, ArcLengthSpec};
+use crate::stages::arc_length::{
+    ArcLength, ArcLengthSpec, correct_load_factor, keep_going_forward, take_reference_load,
+    unit_load,
+};
 
 /// The module: built when the scene asks for arc-length control.
 #[derive(Clone, Copy, Debug, Default)]
@@ -205,5 +216,10 @@ impl Plugin for ArcLengthModule {
         simulation
             .world()
             .insert_resource(ArcLength::<D>::new(first));
+        simulation
+            .add_systems(Hook::AfterDofs, unit_load)
+            .add_systems(Hook::BeforeSolve, take_reference_load::<D>)
+            .add_systems(Hook::Convergence, keep_going_forward::<D>)
+            .add_systems(Hook::AfterLinearSolve, correct_load_factor::<D>);
     }
 }

@@ -19,6 +19,7 @@
 //! | `probes.rs` | displacement, stress and F at material reference positions (`probe`) |
 //! | `history.rs` | named columns of history.csv from the measured quantities (`record`) |
 //! | `initial_stress.rs` | geostatic `K0` initial stresses (`initial_stress`), applied by the materials' modules |
+//! | `line_search.rs` | the Newton line search (`solver(#{ line_search: true })`; the method in `stages::line_search`) |
 //! | `arc_length.rs` | arc-length load control (`solver(#{ control: "arc_length" })`; the method in `stages::arc_length`) |
 
 pub mod arc_length;
@@ -33,6 +34,7 @@ pub mod ghost_penalty;
 pub mod grid_constraints;
 pub mod history;
 pub mod initial_stress;
+pub mod line_search;
 pub mod materials;
 pub mod point_domains;
 pub mod point_loads;
@@ -66,6 +68,7 @@ pub fn built_in() -> ModuleSet {
         .with(probes::ProbesModule)
         .with(history::HistoryModule)
         .with(initial_stress::InitialStressModule)
+        .with(line_search::LineSearchModule)
         .with(arc_length::ArcLengthModule);
     // last: it checks what the modules before it added after the assembly
     #[cfg(feature = "mpi")]

@@ -227,18 +227,13 @@ impl<const D: usize> ArcLength<D> {
     }
 }
 
-/// Run condition: the scene asked for arc-length control.
-pub fn active<const D: usize>(arc: Option<Res<ArcLength<D>>>) -> bool {
-    arc.is_some()
-}
-
-/// Dofs stage, after the numbering (so before `Hook::Loads`): the loads are evaluated at λ = 1
+/// `Hook::AfterDofs` (so before `Hook::Loads`): the loads are evaluated at λ = 1
 /// (f̂).
 pub fn unit_load(mut step: ResMut<LoadStep>) {
     step.factor = 1.0;
 }
 
-/// Solve stage, before the Newton loop (so after `Hook::Loads`): keeps f̂ and puts
+/// `Hook::BeforeSolve`, before the Newton loop (so after `Hook::Loads`): keeps f̂ and puts
 /// f_ext = λ_n f̂ and λ_n back.
 pub fn take_reference_load<const D: usize>(
     mut arc: ResMut<ArcLength<D>>,
@@ -274,7 +269,7 @@ pub fn take_reference_load<const D: usize>(
     step.factor = arc.start;
 }
 
-/// Convergence stage, after the check: the predictor is always taken (at Δu = 0 the residual
+/// `Hook::Convergence`, after the check: the predictor is always taken (at Δu = 0 the residual
 /// is the previous step's converged one), and a converged increment that turns back along the
 /// path is refused (recoverable: the arc is cut): Δu·Δu_{n−1} < 0, or unloading, Δλ < 0 with
 /// f̂·Δu < 0 (the load and the displacement it works on both fall). Such a point is on the arc
@@ -316,7 +311,7 @@ pub fn keep_going_forward<const D: usize>(
     }
 }
 
-/// Linear-solve stage, after `K δu_r = r` (already added to Δu): solves `K δu_f = f̂`, finds
+/// `Hook::AfterLinearSolve`, after `K δu_r = r` (already added to Δu): solves `K δu_f = f̂`, finds
 /// δλ (module docs) and moves the iterate to Δu + δλ δu_f, λ + δλ, f_ext = λ f̂.
 pub fn correct_load_factor<const D: usize>(
     mut arc: ResMut<ArcLength<D>>,

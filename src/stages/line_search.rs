@@ -190,7 +190,8 @@ fn for_free_dofs<const D: usize>(fields: &GridFields<D>, mut f: impl FnMut(usize
     }
 }
 
-/// Newton stage 4c' (after the convergence check, before the solve): accepts the iterate just
+/// `Hook::Convergence` (after the convergence check, before the solve; added by
+/// `effects::line_search`): accepts the iterate just
 /// evaluated or rejects it and puts the shorter step in its place (see the module docs).
 pub fn judge_iterate<const D: usize>(
     mut search: ResMut<LineSearch>,
@@ -234,11 +235,6 @@ pub fn judge_iterate<const D: usize>(
 /// Run condition of the linear solve: the line search (if any) accepted the iterate.
 pub fn iterate_accepted(search: Option<Res<LineSearch>>) -> bool {
     search.is_none_or(|s| !s.backtracking)
-}
-
-/// Run condition of [`judge_iterate`]: the scene asked for a line search.
-pub fn searching(search: Option<Res<LineSearch>>) -> bool {
-    search.is_some()
 }
 
 /// Prepares the line search (if any) for a load step's Newton solve.

@@ -10,7 +10,7 @@
 //! | `assembly.rs` | 4b Assembly | [`assemble`]: internal force and consistent tangent |
 //! | `newton.rs` | 4c, 4d | [`check_convergence`], [`solve_linear_system`] |
 //! | `line_search.rs` | 4c' | [`line_search::judge_iterate`]: accepts or shortens a Newton step (`solver(#{ line_search: true })`) |
-//! | `arc_length.rs` | 2–4, 4c, 4d | [`arc_length::correct_load_factor`]: the load factor as an unknown (`solver(#{ control: "arc_length" })`) |
+//! | `arc_length.rs` | 2–4, 4c, 4d | [`arc_length::correct_load_factor`]: the load factor as an unknown (`solver(#{ control: "arc_length" })`; scheduled by `effects::arc_length` at its hooks) |
 //! | `update.rs` | 5 UpdatePoints | [`update_points`]: G2P, paper eq. 10 |
 //! | `output.rs` | 6 Output | [`write_particles`], [`write_grid`] (default at `Hook::GridOutput`), [`write_nodes`] |
 //! | `reset.rs` | 7 ResetGrid | [`reset_grid`] |
