@@ -84,7 +84,7 @@ pub fn spread_force<const D: usize>(
 }
 
 /// Σ_{i active} N_i over `support`.
-fn active_weight<const D: usize>(support: &[NodeWeight<D>], active: &[bool]) -> f64 {
+pub fn active_weight<const D: usize>(support: &[NodeWeight<D>], active: &[bool]) -> f64 {
     support
         .iter()
         .filter(|w| active[w.node])

@@ -16,6 +16,25 @@ pub trait CarriedPoint<const D: usize>: Component<Mutability = Mutable> {
     fn position(&self) -> SVector<f64, D>;
 }
 
+/// Implements [`CarriedPoint`] for a point component generic over `D` with the fields
+/// `id: u32` and `position: SVector<f64, D>`.
+macro_rules! carried_point {
+    ($point:ident) => {
+        impl<const D: usize> $crate::effects::carried_points::CarriedPoint<D> for $point<D> {
+            fn id(&self) -> u32 {
+                self.id
+            }
+            fn position(&self) -> nalgebra::SVector<f64, D> {
+                self.position
+            }
+            fn position_mut(&mut self) -> &mut nalgebra::SVector<f64, D> {
+                &mut self.position
+            }
+        }
+    };
+}
+pub(crate) use carried_point;
+
 /// The points' positions, in id order (a `CheckpointPart::save`).
 pub fn save_positions<const D: usize, P: CarriedPoint<D>>(world: &mut World) -> Vec<f64> {
     let mut points: Vec<(u32, SVector<f64, D>)> = world

@@ -38,6 +38,7 @@ pub mod line_search;
 pub mod materials;
 pub mod point_domains;
 pub mod point_loads;
+pub mod pressure;
 pub mod probes;
 pub mod stress_recovery;
 pub mod surface_conditions;
@@ -59,6 +60,7 @@ pub fn built_in() -> ModuleSet {
         .with(body_force::BodyForceModule)
         .with(point_loads::PointLoadsModule)
         .with(tractions::TractionsModule)
+        .with(pressure::PressureModule)
         .with(grid_constraints::GridConstraintsModule)
         .with(grid_constraints::PrescribedDisplacementsModule)
         .with(surface_conditions::SurfaceConditionsModule)

@@ -51,7 +51,7 @@ use nalgebra::SVector;
 
 use rhai::Dynamic;
 
-use super::carried_points::{CarriedPoint, restore_positions, save_positions};
+use super::carried_points::{carried_point, restore_positions, save_positions};
 use super::declarations::{LoadSummary, held_option};
 use super::probes::material_point_near;
 use crate::basis::{BasisKind, BasisScratch, NodeWeight};
@@ -357,17 +357,7 @@ fn spawn_traction_points<const D: usize>(simulation: &mut Extension<'_, D>) -> R
     Ok(())
 }
 
-impl<const D: usize> CarriedPoint<D> for TractionPoint<D> {
-    fn id(&self) -> u32 {
-        self.id
-    }
-    fn position(&self) -> SVector<f64, D> {
-        self.position
-    }
-    fn position_mut(&mut self) -> &mut SVector<f64, D> {
-        &mut self.position
-    }
-}
+carried_point!(TractionPoint);
 
 /// The weights N_a(x_p) + ∇N_a(x_p) · `offset` of a host's support expanded to a point at
 /// x_p + `offset` (module docs: load points with linear FEM). They sum to one when the host's

@@ -211,6 +211,20 @@ impl<const D: usize> ArcLength<D> {
         self.current.clear();
     }
 
+    /// A follower load's force at λ = 1 changed by `change` (by node) with the iterate: f̂ is
+    /// the loads at λ = 1 in the current configuration, so it and its free-DOF part follow
+    /// (`effects::pressure`).
+    pub fn change_reference(&mut self, change: &[SVector<f64, D>], dofs: &[[u32; D]]) {
+        for ((f, df), node_dofs) in self.reference.iter_mut().zip(change).zip(dofs) {
+            *f += df;
+            for (c, &dof) in node_dofs.iter().enumerate() {
+                if dof != NO_DOF {
+                    self.reference_dofs[dof as usize] += df[c];
+                }
+            }
+        }
+    }
+
     /// The attempt converged: its increment gives the next predictor its direction.
     pub fn accept(&mut self) {
         self.previous.clone_from(&self.current);

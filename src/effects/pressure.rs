@@ -1,0 +1,881 @@
+//! A follower pressure on a curved boundary (2D): `pressure(#{ on: arc(#{ centre, radius,
+//! from, to }), pressure: p })`, a pressure p (force per unit current length at load factor 1)
+//! that acts normal to the *current* boundary and pushes into the body, such as the internal
+//! pressure of a thick-walled cylinder. Unlike `traction(...)` (a dead load of fixed direction,
+//! `tractions.rs`) its force follows the deformation, so it depends on the unknowns and adds a
+//! load-stiffness term to the tangent.
+//!
+//! # Seeding
+//!
+//! The arc (centre c, radius R, angles θ₀ → θ₁) is cut into m equal parts (`per_cell` parts per
+//! cell of arc length, m ≥ 1), with vertices V_k = c + R (cos θ_k, sin θ_k), k = 0..m, and a
+//! load point M_k at the midpoint of each part's arc. All 2m + 1 points are carried by the
+//! material like traction points: each has a host, the material point nearest to it in the
+//! reference configuration (within a cell of it). Which side of the arc the body is on is read
+//! from the hosts (all on one side, or the scene line is refused); the sign s = ±1 makes the
+//! force push into the body for p > 0.
+//!
+//! # The force: the current chord of each part
+//!
+//! Part k carries the force of the pressure on the current segment between its vertices,
+//!
+//! ```text
+//!   f_k = λ s p Q (x_{k+1} − x_k),      Q = [[0, 1], [−1, 0]]  (a quarter turn clockwise),
+//! ```
+//!
+//! spread over the grid through the basis at its load point, f_ext,i += N_i(m_k) f_k (over the
+//! active nodes of the support, as for traction points: the resultant is kept exactly). This
+//! is p n dΓ integrated over the polygon through the carried vertices, which converges to the
+//! arc's as m² (the chord of a part against its arc). It was chosen over the host-deformed
+//! normal n dΓ = J F⁻ᵀ N dΓ₀ because the sum telescopes: the resultant is
+//! λ s p Q (x_m − x_0), the pressure times the current chord of the whole arc, *exactly*, in
+//! any configuration (the pressure on a closed curve has zero resultant, on an open one it is
+//! p times the chord rotated), while J F⁻ᵀ N of the hosts makes it depend on the host's
+//! gradient of a possibly coarse field and is exact only for homogeneous deformations.
+//!
+//! # Carrying, and the load stiffness
+//!
+//! During a load step the grid moves with the material (updated Lagrangian). A carried point
+//! at x⁰ at the start of the step, hosted by the material point p at x_p, moves with the host's
+//! displacement increment and its gradient,
+//!
+//! ```text
+//!   x(Δu) = x⁰ + Σ_j ŵ_j Δu_j,     ŵ_j = N_j(x_p) + ∇N_j(x_p) · (x⁰ − x_p)
+//! ```
+//!
+//! (`tractions::host_weights`): exactly the update x_p + Δf_p (x⁰ − x_p) of the host's
+//! neighbourhood, linear in Δu. Every Newton iteration evaluates f_k at the current vertices,
+//! and the tangent K = ∂f_int/∂Δu − ∂f_ext/∂Δu receives
+//!
+//! ```text
+//!   K_(i,a)(j,b) −= λ s p N_i(m_k) (ŵ_j(V_{k+1}) − ŵ_j(V_k)) Q_ab
+//! ```
+//!
+//! for every part k: the exact derivative (f_k is linear in Δu). It is not symmetric, so the
+//! module marks the tangent non-symmetric. The nodes of a part's load point and of its
+//! vertices' hosts are coupled in the sparsity pattern (`GridFields::couplings`). When the step
+//! converges the carried points move to x(Δu).
+//!
+//! # With the load control and with arc-length control
+//!
+//! The loads stage adds f at the start-of-step configuration; from then on each iteration
+//! replaces it (`Hook::AfterAssembly`) by f at the iterate: f_ext += λ (f̂_p(Δu) − f̂_p(Δu_prev)),
+//! where f̂_p is the pressure's force at λ = 1. Under arc-length control (`stages::arc_length`)
+//! the reference load f̂ must be the loads at λ = 1 *in the current configuration* (the
+//! derivative of the residual with respect to λ): the same change is added to the arc's f̂
+//! ([`ArcLength::change_reference`]), and λ is the iterate's.
+//!
+//! Systems, added only when a scene declares a pressure: [`find_pressure_weights`]
+//! (`Hook::Connectivity`), [`apply_pressure`] (`Hook::Loads`), [`follow_pressure`]
+//! (`Hook::AfterAssembly`), [`carry_pressure_points`] (`Hook::PointUpdate`).
+
+use bevy_ecs::prelude::*;
+use nalgebra::SVector;
+use rhai::Dynamic;
+
+use super::carried_points::{carried_point, restore_positions, save_positions};
+use super::declarations::LoadSummary;
+use super::tractions::host_weights;
+use crate::basis::{BasisKind, BasisScratch, NodeWeight};
+use crate::checkpoint::CheckpointPart;
+use crate::components::{Position, Support};
+use crate::mechanics::active_weight;
+use crate::plugin::{Extension, Hook, Plugin};
+use crate::resources::{
+    Grid, GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock,
+};
+use crate::scene::{
+    CallSpec, GridSpec, Kind, Located, OptionSpec, Options, Range, Resolver, SceneApi, SceneSpec,
+    ScriptError, nearest_points,
+};
+use crate::solver::NO_DOF;
+use crate::stages::arc_length::ArcLength;
+
+/// `arc(#{ centre, radius, from, to })`: a circular arc in 2D, angles in degrees
+/// counter-clockwise from the x axis.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ArcShape {
+    pub centre: [f64; 2],
+    pub radius: f64,
+    pub from: f64,
+    pub to: f64,
+}
+
+impl ArcShape {
+    /// The point at angle `degrees`.
+    pub fn point(&self, degrees: f64) -> [f64; 2] {
+        let t = degrees.to_radians();
+        [
+            self.centre[0] + self.radius * t.cos(),
+            self.centre[1] + self.radius * t.sin(),
+        ]
+    }
+
+    /// The arc's length.
+    pub fn length(&self) -> f64 {
+        self.radius * (self.to - self.from).abs().to_radians()
+    }
+
+    /// The vertices of `parts` equal parts (`parts + 1` points) and the midpoints of the parts'
+    /// arcs (`parts` points), in the arc's direction.
+    pub fn divide(&self, parts: usize) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
+        let step = (self.to - self.from) / parts as f64;
+        let vertices = (0..=parts)
+            .map(|k| self.point(self.from + k as f64 * step))
+            .collect();
+        let midpoints = (0..parts)
+            .map(|k| self.point(self.from + (k as f64 + 0.5) * step))
+            .collect();
+        (vertices, midpoints)
+    }
+}
+
+/// `pressure(...)` as declared.
+#[derive(Clone, Debug)]
+struct PressureDeclaration {
+    arc: ArcShape,
+    pressure: f64,
+    per_cell: usize,
+}
+
+/// A carried point of a pressure: its reference position and host (a global point index).
+#[derive(Clone, Debug, PartialEq)]
+pub struct CarriedSpec {
+    pub position: [f64; 2],
+    pub host: usize,
+}
+
+/// One part of a pressure arc: its vertices and load point (indices among the scene's pressure
+/// points) and s p, the pressure signed so that s p Q (x_end − x_start) pushes into the body.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Part {
+    pub start: usize,
+    pub end: usize,
+    pub load_point: usize,
+    pub pressure: f64,
+}
+
+/// The scene's pressures: every carried point (vertices and load points) and every part.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Pressures {
+    pub points: Vec<CarriedSpec>,
+    pub parts: Vec<Part>,
+    pub summaries: Vec<LoadSummary>,
+}
+
+/// A vertex or load point of a pressure arc, carried by the material (module docs).
+#[derive(Component, Clone, Debug, PartialEq)]
+pub struct PressurePoint<const D: usize> {
+    pub id: u32,
+    /// Current position (converged, start of the load step).
+    pub position: SVector<f64, D>,
+    pub host: Entity,
+}
+
+carried_point!(PressurePoint);
+
+/// The pressure's state during a load step.
+#[derive(Resource, Debug, Default)]
+pub struct PressureLoad<const D: usize> {
+    pub parts: Vec<Part>,
+    /// Start-of-step positions of the carried points, by id.
+    pub start: Vec<SVector<f64, D>>,
+    /// ŵ_j of every carried point, by id (module docs).
+    pub carry: Vec<Vec<(usize, f64)>>,
+    /// N_i(m_k) / Σ_active N of every part's load point, over the active nodes.
+    pub spread: Vec<Vec<(usize, f64)>>,
+    /// f̂_p by node: the pressure's force at λ = 1 now included in the external force.
+    pub added: Vec<SVector<f64, D>>,
+}
+
+/// A quarter turn clockwise, Q t (2D; zero in other dimensions, where no pressure is built).
+fn turn<const D: usize>(t: &SVector<f64, D>) -> SVector<f64, D> {
+    let mut n = SVector::zeros();
+    if D == 2 {
+        n[0] = t[1];
+        n[1] = -t[0];
+    }
+    n
+}
+
+/// x(Δu) = x⁰ + Σ_j ŵ_j Δu_j.
+pub fn carried_position<const D: usize>(
+    start: &SVector<f64, D>,
+    carry: &[(usize, f64)],
+    increment: &[SVector<f64, D>],
+) -> SVector<f64, D> {
+    carry
+        .iter()
+        .fold(*start, |x, &(node, w)| x + increment[node] * w)
+}
+
+/// The force of one part at λ = 1: s p Q (x_end − x_start).
+pub fn part_force<const D: usize>(part: &Part, positions: &[SVector<f64, D>]) -> SVector<f64, D> {
+    turn(&(positions[part.end] - positions[part.start])) * part.pressure
+}
+
+/// Adds every part's force at λ = 1, spread over its load point's active nodes, to `nodes`.
+pub fn add_pressure_forces<const D: usize>(
+    parts: &[Part],
+    spread: &[Vec<(usize, f64)>],
+    positions: &[SVector<f64, D>],
+    nodes: &mut [SVector<f64, D>],
+) {
+    for (part, spread) in parts.iter().zip(spread) {
+        let force = part_force(part, positions);
+        for &(node, w) in spread {
+            nodes[node] += force * w;
+        }
+    }
+}
+
+/// Calls `add(i, a, j, b, value)` for every entry of −λ ∂f_ext/∂Δu (module docs): node i,
+/// component a of the force; node j, component b of the increment.
+pub fn pressure_tangent<const D: usize>(
+    parts: &[Part],
+    spread: &[Vec<(usize, f64)>],
+    carry: &[Vec<(usize, f64)>],
+    factor: f64,
+    mut add: impl FnMut(usize, usize, usize, usize, f64),
+) {
+    let q = |a: usize, b: usize| match (a, b) {
+        (0, 1) => 1.0,
+        (1, 0) => -1.0,
+        _ => 0.0,
+    };
+    for (part, spread) in parts.iter().zip(spread) {
+        let ends = [(part.end, 1.0), (part.start, -1.0)];
+        for &(i, n_i) in spread {
+            for &(vertex, sign) in &ends {
+                for &(j, w_j) in &carry[vertex] {
+                    let scale = -factor * part.pressure * n_i * w_j * sign;
+                    for (a, b) in [(0, 1), (1, 0)] {
+                        if a < D && b < D {
+                            add(i, a, j, b, scale * q(a, b));
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The module: scheduled when a scene declares a non-zero pressure.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PressureModule;
+
+fn arc_call() -> CallSpec {
+    CallSpec::options(
+        "arc",
+        "a circular arc in 2D (for pressure(...)): centre, radius and the angles from and to, in degrees counter-clockwise from the x axis",
+        vec![
+            OptionSpec::required("centre", Kind::Numbers, "the centre [x, y]"),
+            OptionSpec::required("radius", Kind::Number(Range::Positive), "the radius"),
+            OptionSpec::required(
+                "from",
+                Kind::Number(Range::Any),
+                "the first angle (degrees)",
+            ),
+            OptionSpec::required(
+                "to",
+                Kind::Number(Range::Any),
+                "the last angle (degrees), not equal to `from`, at most 360 from it",
+            ),
+        ],
+        |_, options: &Options, _| {
+            let centre = options.numbers("centre").unwrap_or_default();
+            let [x, y] = centre else {
+                return Err(format!(
+                    "arc(...): 'centre' has {} coordinates; an arc is 2D: give [x, y]",
+                    centre.len()
+                ));
+            };
+            let from = options.number("from").unwrap_or(0.0);
+            let to = options.number("to").unwrap_or(0.0);
+            if from == to || (to - from).abs() > 360.0 {
+                return Err(format!(
+                    "arc(...): the angles from {from} to {to} (degrees) must differ by more than 0 and at most 360"
+                ));
+            }
+            Ok(Dynamic::from(ArcShape {
+                centre: [*x, *y],
+                radius: options.number("radius").unwrap_or(1.0),
+                from,
+                to,
+            }))
+        },
+    )
+}
+
+impl Plugin for PressureModule {
+    fn name(&self) -> &'static str {
+        "pressure"
+    }
+
+    fn scene_api(&self, api: &mut SceneApi) {
+        api.call(arc_call());
+        api.call(CallSpec::options(
+            "pressure",
+            "a follower pressure on a curved boundary (2D): force p per unit current length at load factor 1, normal to the current boundary and pushing into the body, with its load stiffness in the tangent (non-symmetric); carried by points that move with the material",
+            vec![
+                OptionSpec::required(
+                    "on",
+                    Kind::Value {
+                        what: "arc(#{ centre, radius, from, to })",
+                    },
+                    "the boundary: an arc on a body's boundary (the body on either side)",
+                ),
+                OptionSpec::required(
+                    "pressure",
+                    Kind::Number(Range::Any),
+                    "the pressure p (positive pushes into the body)",
+                ),
+                OptionSpec::new(
+                    "per_cell",
+                    Kind::Whole {
+                        min: 1,
+                        max: Some(1000),
+                    },
+                    "equal parts of the arc per cell of its length (default 2)",
+                ),
+            ],
+            |builder, options: &Options, at| {
+                let on = options.value("on").cloned().unwrap_or(Dynamic::UNIT);
+                let Some(arc) = on.try_cast::<ArcShape>() else {
+                    return Err(
+                        "pressure(...): option 'on' must be an arc(#{ centre, radius, from, to })"
+                            .to_string(),
+                    );
+                };
+                builder.declare(Located::new(
+                    PressureDeclaration {
+                        arc,
+                        pressure: options.number("pressure").unwrap_or(0.0),
+                        per_cell: options.whole("per_cell").unwrap_or(2),
+                    },
+                    at,
+                ));
+                Ok(Dynamic::UNIT)
+            },
+        ));
+    }
+
+    fn resolve(&self, scene: &mut Resolver) -> Result<(), ScriptError> {
+        let mut pressures = Pressures::default();
+        for declaration in scene.declarations::<PressureDeclaration>() {
+            let fail = |message: String| {
+                ScriptError::at(declaration.at, format!("pressure(...): {message}"))
+            };
+            if scene.spec.grid.basis == BasisKind::Fem {
+                return Err(fail(
+                    "a pressure is applied through the background grid's basis; basis \"fem\" has none"
+                        .into(),
+                ));
+            }
+            if crate::distributed::launched_by_mpirun().is_some_and(|p| p.size > 1) {
+                return Err(fail(
+                    "not supported under mpirun with more than one process yet".into(),
+                ));
+            }
+            let material_points = scene.spec.material_point_positions();
+            seed_pressure(
+                &scene.spec.grid,
+                &material_points,
+                &declaration.value,
+                declaration.at.line(),
+                &mut pressures,
+            )
+            .map_err(fail)?;
+        }
+        if !pressures.parts.is_empty() {
+            scene.spec.set_part(pressures);
+        }
+        Ok(())
+    }
+
+    fn describe(&self, spec: &SceneSpec) -> Option<String> {
+        let pressures = spec.part::<Pressures>()?;
+        let mut text = format!(
+            "{} parts of arcs carrying a follower pressure ({} carried points)",
+            pressures.parts.len(),
+            pressures.points.len()
+        );
+        for summary in &pressures.summaries {
+            text += "\n    ";
+            text += &summary.describe();
+        }
+        Some(text)
+    }
+
+    fn used_by(&self, spec: &SceneSpec) -> bool {
+        spec.part::<Pressures>()
+            .is_some_and(|p| p.parts.iter().any(|part| part.pressure != 0.0))
+    }
+
+    fn applies_to(&self, spec: &SceneSpec) -> bool {
+        spec.grid.basis != BasisKind::Fem && spec.dim() == 2
+    }
+
+    fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
+        let Some(pressures) = simulation.spec().part::<Pressures>() else {
+            return;
+        };
+        if D != 2 {
+            simulation.fail("pressure(...) on an arc needs a 2D grid");
+            return;
+        }
+        let entities = simulation.point_entities();
+        let mut batch = Vec::new();
+        for (id, point) in pressures.points.iter().enumerate() {
+            let Some(&host) = entities.get(point.host) else {
+                simulation.fail(format!("pressure point host {} does not exist", point.host));
+                return;
+            };
+            batch.push(PressurePoint::<D> {
+                id: id as u32,
+                position: SVector::from_fn(|a, _| point.position[a]),
+                host,
+            });
+        }
+        let load = PressureLoad::<D> {
+            parts: pressures.parts.clone(),
+            ..Default::default()
+        };
+        simulation.world().spawn_batch(batch);
+        simulation.world().insert_resource(load);
+        simulation
+            .nonsymmetric_tangent()
+            .checkpoint(CheckpointPart {
+                name: "pressure points",
+                save: save_positions::<D, PressurePoint<D>>,
+                restore: restore_positions::<D, PressurePoint<D>>,
+            })
+            .add_systems(Hook::Connectivity, find_pressure_weights::<D>)
+            .add_systems(Hook::Loads, apply_pressure::<D>)
+            .add_systems(Hook::AfterAssembly, follow_pressure::<D>)
+            .add_systems(Hook::PointUpdate, carry_pressure_points::<D>);
+    }
+}
+
+/// Seeds one `pressure(...)` into `pressures` (module docs): the parts, their vertices and load
+/// points with their hosts, and the side of the body.
+fn seed_pressure(
+    grid: &GridSpec,
+    material_points: &[&[f64]],
+    declaration: &PressureDeclaration,
+    line: Option<usize>,
+    pressures: &mut Pressures,
+) -> Result<(), String> {
+    if grid.dim() != 2 {
+        return Err(format!(
+            "a pressure on an arc needs a 2D grid, this one is {}-dimensional",
+            grid.dim()
+        ));
+    }
+    let arc = &declaration.arc;
+    let cell = (0..2)
+        .map(|a| (grid.upper[a] - grid.lower[a]) / grid.cells[a] as f64)
+        .fold(f64::INFINITY, f64::min);
+    let largest_cell = (0..2)
+        .map(|a| (grid.upper[a] - grid.lower[a]) / grid.cells[a] as f64)
+        .fold(0.0, f64::max);
+    let wanted = (declaration.per_cell as f64 * arc.length() / cell).ceil();
+    if wanted > crate::scene::MAX_SEED_CANDIDATES as f64 {
+        return Err(format!(
+            "{wanted} parts exceed the limit of {}; lower per_cell",
+            crate::scene::MAX_SEED_CANDIDATES
+        ));
+    }
+    let parts = (wanted as usize).max(1);
+    let (vertices, midpoints) = arc.divide(parts);
+    let outside = |x: &[f64; 2]| (0..2).any(|a| x[a] < grid.lower[a] || x[a] > grid.upper[a]);
+    if let Some(x) = vertices.iter().find(|x| outside(x)) {
+        return Err(format!(
+            "the arc's point {x:?} is outside the grid [{:?} .. {:?}]",
+            grid.lower, grid.upper
+        ));
+    }
+    let queries: Vec<Vec<f64>> = vertices
+        .iter()
+        .chain(&midpoints)
+        .map(|x| x.to_vec())
+        .collect();
+    let hosts = nearest_points(grid, material_points, &queries);
+    let mut found = Vec::with_capacity(hosts.len());
+    for (query, host) in queries.iter().zip(hosts) {
+        let host = host.ok_or("the scene has no material points")?;
+        let p = material_points[host];
+        let distance = ((p[0] - query[0]).powi(2) + (p[1] - query[1]).powi(2)).sqrt();
+        if distance > largest_cell {
+            return Err(format!(
+                "the arc's point {query:?} is {distance:.3e} from the nearest material point, farther than a cell: put the arc on a body's boundary"
+            ));
+        }
+        found.push(host);
+    }
+    // the body's side: s Q (V_{k+1} − V_k) must point towards the load points' hosts
+    let base = pressures.points.len();
+    let (mut towards, mut away) = (0, 0);
+    for k in 0..parts {
+        let t = [
+            vertices[k + 1][0] - vertices[k][0],
+            vertices[k + 1][1] - vertices[k][1],
+        ];
+        let host = material_points[found[parts + 1 + k]];
+        let side = t[1] * (host[0] - midpoints[k][0]) - t[0] * (host[1] - midpoints[k][1]);
+        if side > 0.0 {
+            towards += 1;
+        } else if side < 0.0 {
+            away += 1;
+        }
+    }
+    if towards > 0 && away > 0 || towards + away == 0 {
+        return Err(format!(
+            "material points lie on both sides of the arc ({towards} parts have their nearest point on one side, {away} on the other): put the arc on a body's boundary"
+        ));
+    }
+    let sign = if towards > 0 { 1.0 } else { -1.0 };
+    let pressure = sign * declaration.pressure;
+    pressures.points.extend(
+        vertices
+            .iter()
+            .chain(&midpoints)
+            .zip(&found)
+            .map(|(x, &host)| CarriedSpec { position: *x, host }),
+    );
+    pressures.parts.extend((0..parts).map(|k| Part {
+        start: base + k,
+        end: base + k + 1,
+        load_point: base + parts + 1 + k,
+        pressure,
+    }));
+    let chord = [
+        vertices[parts][0] - vertices[0][0],
+        vertices[parts][1] - vertices[0][1],
+    ];
+    pressures.summaries.push(LoadSummary::new(
+        line,
+        "pressure",
+        "pressure load points",
+        midpoints.iter().map(|x| &x[..]),
+        vec![pressure * chord[1], -pressure * chord[0]],
+    ));
+    Ok(())
+}
+
+/// Connectivity (start of the step): the carried points' host weights ŵ, the load points'
+/// spread weights over the active nodes, and the coupling of each part's nodes.
+#[allow(clippy::too_many_arguments)] // a system: its parameters are what it reads and writes
+pub fn find_pressure_weights<const D: usize>(
+    grid: Res<Grid<D>>,
+    step: Res<LoadStep>,
+    mut load: ResMut<PressureLoad<D>>,
+    mut fields: ResMut<GridFields<D>>,
+    mut status: ResMut<RunStatus>,
+    mut clock: ResMut<StageClock>,
+    mut scratch: Local<(BasisScratch, Vec<NodeWeight<D>>)>,
+    hosts: Query<(&Support<D>, &Position<D>)>,
+    points: Query<&PressurePoint<D>>,
+) {
+    let _timer = clock.time(Stage::Connectivity);
+    let (load, fields) = (&mut *load, &mut *fields);
+    let mut rows: Vec<&PressurePoint<D>> = points.iter().collect();
+    rows.sort_by_key(|point| point.id);
+    let fail = |what: String| SolverError::Module {
+        step: step.number,
+        what,
+        recoverable: false,
+    };
+    load.start = rows.iter().map(|point| point.position).collect();
+    load.carry.clear();
+    for point in &rows {
+        let Ok((support, x)) = hosts.get(point.host) else {
+            status.fail(fail(format!(
+                "pressure point {} has lost its host material point",
+                point.id
+            )));
+            return;
+        };
+        let weights = host_weights(&support.0, &(point.position - x.0));
+        load.carry
+            .push(weights.iter().map(|w| (w.node, w.value)).collect());
+    }
+    load.spread.clear();
+    let (scratch, support) = &mut *scratch;
+    for part in &load.parts {
+        let x = load.start[part.load_point];
+        let at = || x.iter().copied().collect::<Vec<_>>();
+        if grid.0.eval(&x, scratch, support).is_err() {
+            status.fail(fail(format!(
+                "pressure load point at {:?} left the background grid",
+                at()
+            )));
+            return;
+        }
+        let total = active_weight(support, &fields.active);
+        if total <= 0.0 {
+            status.fail(fail(format!(
+                "pressure load point at {:?} is not next to any material point (no node of its support is active)",
+                at()
+            )));
+            return;
+        }
+        let spread: Vec<(usize, f64)> = support
+            .iter()
+            .filter(|w| fields.active[w.node])
+            .map(|w| (w.node, w.value / total))
+            .collect();
+        let mut group: Vec<usize> = spread.iter().map(|&(node, _)| node).collect();
+        for vertex in [part.start, part.end] {
+            group.extend(load.carry[vertex].iter().map(|&(node, _)| node));
+        }
+        group.sort_unstable();
+        group.dedup();
+        fields.couplings.push(group);
+        load.spread.push(spread);
+    }
+}
+
+/// Loads: the pressure's force at the start-of-step configuration, λ f̂_p(0).
+pub fn apply_pressure<const D: usize>(
+    step: Res<LoadStep>,
+    mut load: ResMut<PressureLoad<D>>,
+    mut fields: ResMut<GridFields<D>>,
+    mut clock: ResMut<StageClock>,
+) {
+    let _timer = clock.time(Stage::Loads);
+    let load = &mut *load;
+    load.added.clear();
+    load.added
+        .resize(fields.external_force.len(), SVector::zeros());
+    add_pressure_forces(&load.parts, &load.spread, &load.start, &mut load.added);
+    for (f, added) in fields.external_force.iter_mut().zip(&load.added) {
+        *f += added * step.factor;
+    }
+}
+
+/// After the assembly of every Newton iteration: the force at the iterate replaces the one the
+/// external force holds (and the arc-length reference's, under arc-length control), and the
+/// load stiffness −λ ∂f̂_p/∂Δu joins the tangent (module docs).
+pub fn follow_pressure<const D: usize>(
+    step: Res<LoadStep>,
+    mut load: ResMut<PressureLoad<D>>,
+    mut fields: ResMut<GridFields<D>>,
+    mut newton: ResMut<Newton>,
+    mut clock: ResMut<StageClock>,
+    arc: Option<ResMut<ArcLength<D>>>,
+) {
+    let _timer = clock.time(Stage::Assembly);
+    let (load, fields) = (&mut *load, &mut *fields);
+    let positions: Vec<SVector<f64, D>> = load
+        .start
+        .iter()
+        .zip(&load.carry)
+        .map(|(x, carry)| carried_position(x, carry, &fields.increment))
+        .collect();
+    let mut now = vec![SVector::zeros(); fields.external_force.len()];
+    add_pressure_forces(&load.parts, &load.spread, &positions, &mut now);
+    let change: Vec<SVector<f64, D>> = now.iter().zip(&load.added).map(|(n, a)| n - a).collect();
+    for (f, df) in fields.external_force.iter_mut().zip(&change) {
+        *f += df * step.factor;
+    }
+    if let Some(mut arc) = arc {
+        arc.change_reference(&change, &fields.dofs);
+    }
+    load.added = now;
+    let dofs = &fields.dofs;
+    pressure_tangent::<D>(
+        &load.parts,
+        &load.spread,
+        &load.carry,
+        step.factor,
+        |i, a, j, b, value| {
+            let (row, col) = (dofs[i][a], dofs[j][b]);
+            if row != NO_DOF && col != NO_DOF {
+                newton.matrix.add(row, col, value);
+            }
+        },
+    );
+}
+
+/// Point update: the carried points move to x(Δu) of the converged step.
+pub fn carry_pressure_points<const D: usize>(
+    load: Res<PressureLoad<D>>,
+    fields: Res<GridFields<D>>,
+    mut points: Query<&mut PressurePoint<D>>,
+) {
+    for mut point in points.iter_mut() {
+        let id = point.id as usize;
+        if let (Some(start), Some(carry)) = (load.start.get(id), load.carry.get(id)) {
+            point.position = carried_position(start, carry, &fields.increment);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two parts on three vertices, load points with a few nodes each; vertices carried by
+    /// overlapping node sets.
+    /// Parts, spread weights, carry weights, start positions.
+    type Example = (
+        Vec<Part>,
+        Vec<Vec<(usize, f64)>>,
+        Vec<Vec<(usize, f64)>>,
+        Vec<SVector<f64, 2>>,
+    );
+
+    fn example() -> Example {
+        let parts = vec![
+            Part {
+                start: 0,
+                end: 1,
+                load_point: 3,
+                pressure: 2.5,
+            },
+            Part {
+                start: 1,
+                end: 2,
+                load_point: 4,
+                pressure: 2.5,
+            },
+        ];
+        let spread = vec![vec![(0, 0.2), (1, 0.5), (2, 0.3)], vec![(2, 0.6), (3, 0.4)]];
+        let carry = vec![
+            vec![(0, 0.7), (1, 0.4), (4, -0.1)],
+            vec![(1, 0.3), (2, 0.9), (3, -0.2)],
+            vec![(2, 0.25), (3, 0.5), (4, 0.25)],
+            vec![(0, 1.0)],
+            vec![(3, 1.0)],
+        ];
+        let start = vec![
+            SVector::from([1.0, 0.0]),
+            SVector::from([0.7, 0.7]),
+            SVector::from([0.0, 1.0]),
+            SVector::from([0.9, 0.4]),
+            SVector::from([0.4, 0.9]),
+        ];
+        (parts, spread, carry, start)
+    }
+
+    fn forces(
+        (parts, spread, carry, start): &Example,
+        increment: &[SVector<f64, 2>],
+    ) -> Vec<SVector<f64, 2>> {
+        let positions: Vec<_> = start
+            .iter()
+            .zip(carry)
+            .map(|(x, c)| carried_position(x, c, increment))
+            .collect();
+        let mut nodes = vec![SVector::zeros(); 5];
+        add_pressure_forces(parts, spread, &positions, &mut nodes);
+        nodes
+    }
+
+    /// The load stiffness is −λ ∂f̂/∂Δu: against central differences of the force at an
+    /// arbitrary increment (the force is linear in Δu, so they agree to round-off).
+    #[test]
+    fn the_load_stiffness_matches_finite_differences_of_the_force() {
+        let data = example();
+        let increment: Vec<SVector<f64, 2>> = (0..5)
+            .map(|k| SVector::from([0.03 * k as f64 - 0.05, 0.02 * (k * k) as f64 * 0.1]))
+            .collect();
+        let factor = 1.7;
+        let mut k = [[0.0; 10]; 10];
+        pressure_tangent::<2>(&data.0, &data.1, &data.2, factor, |i, a, j, b, v| {
+            k[2 * i + a][2 * j + b] += v
+        });
+        let h = 1e-6;
+        let (mut worst, mut scale) = (0.0f64, 0.0f64);
+        for j in 0..5 {
+            for b in 0..2 {
+                let (mut plus, mut minus) = (increment.clone(), increment.clone());
+                plus[j][b] += h;
+                minus[j][b] -= h;
+                let (fp, fm) = (forces(&data, &plus), forces(&data, &minus));
+                for i in 0..5 {
+                    for a in 0..2 {
+                        let fd = -factor * (fp[i][a] - fm[i][a]) / (2.0 * h);
+                        worst = worst.max((fd - k[2 * i + a][2 * j + b]).abs());
+                        scale = scale.max(fd.abs());
+                    }
+                }
+            }
+        }
+        assert!(scale > 0.1, "{scale}");
+        assert!(worst < 1e-9 * scale, "{worst:e} against {scale:e}");
+    }
+
+    /// The resultant of a uniform pressure on an open arc is p times its chord turned a quarter
+    /// (exactly, in any configuration): the quarter arc of radius 2, in its reference and in a
+    /// deformed configuration.
+    #[test]
+    fn the_resultant_is_the_pressure_times_the_chord() {
+        let arc = ArcShape {
+            centre: [0.0, 0.0],
+            radius: 2.0,
+            from: 0.0,
+            to: 90.0,
+        };
+        for parts in [1, 7, 64] {
+            let (vertices, _) = arc.divide(parts);
+            let part_list: Vec<Part> = (0..parts)
+                .map(|k| Part {
+                    start: k,
+                    end: k + 1,
+                    load_point: 0,
+                    pressure: 3.0,
+                })
+                .collect();
+            let spread: Vec<Vec<(usize, f64)>> =
+                (0..parts).map(|k| vec![(k, 0.25), (k + 1, 0.75)]).collect();
+            let reference: Vec<SVector<f64, 2>> =
+                vertices.iter().map(|x| SVector::from(*x)).collect();
+            // a deformation: stretched, sheared and swirled
+            let deformed: Vec<SVector<f64, 2>> = reference
+                .iter()
+                .map(|x| {
+                    SVector::from([
+                        1.3 * x[0] + 0.2 * x[1] + 0.1 * x[1].sin(),
+                        0.9 * x[1] + 0.05 * x[0] * x[0],
+                    ])
+                })
+                .collect();
+            for positions in [&reference, &deformed] {
+                let mut nodes = vec![SVector::zeros(); parts + 1];
+                add_pressure_forces(&part_list, &spread, positions, &mut nodes);
+                let resultant: SVector<f64, 2> = nodes.iter().sum();
+                let chord = positions[parts] - positions[0];
+                let expected = SVector::from([3.0 * chord[1], -3.0 * chord[0]]);
+                assert!(
+                    (resultant - expected).norm() < 1e-13,
+                    "{resultant} {expected}"
+                );
+            }
+            let mut nodes = vec![SVector::zeros(); parts + 1];
+            add_pressure_forces(&part_list, &spread, &reference, &mut nodes);
+            let magnitude = nodes.iter().sum::<SVector<f64, 2>>().norm();
+            assert!(
+                (magnitude - 3.0 * 2.0 * 2f64.sqrt()).abs() < 1e-13,
+                "{magnitude}"
+            );
+        }
+    }
+
+    #[test]
+    fn an_arc_is_divided_into_equal_parts() {
+        let arc = ArcShape {
+            centre: [1.0, -1.0],
+            radius: 0.5,
+            from: 90.0,
+            to: -90.0,
+        };
+        let (v, m) = arc.divide(4);
+        assert_eq!((v.len(), m.len()), (5, 4));
+        assert!((v[0][0] - 1.0).abs() < 1e-15 && (v[0][1] + 0.5).abs() < 1e-15);
+        assert!((v[4][1] + 1.5).abs() < 1e-15);
+        assert!((m[0][0] - (1.0 + 0.5 * 22.5f64.to_radians().sin())).abs() < 1e-15);
+        assert!((arc.length() - 0.5 * std::f64::consts::PI).abs() < 1e-15);
+    }
+}
