@@ -28,6 +28,13 @@
 //! 2-thread speed-up per stage. With `--chart STEM` it draws seconds per step against points
 //! (log-log), per stage, for each backend on the largest thread count.
 //!
+//! With `--heap` every run also prints where its heap goes: a counting global allocator
+//! ([`heap`]) gives the bytes live on the heap and their peak between marks, which systems at
+//! the method's hooks set at the end of each stage (connectivity, DOFs and loads, stress
+//! update, assembly, linear solve, point update, output, grid reset); and the live heap after
+//! the run is split by structure (points' components, supports, tangent, grid fields, the
+//! solver's hierarchy as the live heap it added at the step's first solve).
+//!
 //! Results are recorded in docs/performance.md (with the machine's load at the time).
 
 use std::collections::BTreeMap;
@@ -39,6 +46,115 @@ use impm::scene::{LinearBackend, Preconditioning};
 use impm::solver::Smoother;
 use impm::study::memory;
 use impm::study::{Series, chart};
+
+/// A counting global allocator: the bytes live on the heap and their peak since the last mark.
+/// (A tiny wrapper rather than a crate: `stats_alloc` counts totals allocated and freed but keeps
+/// no peak, and `dhat` records a backtrace per allocation, too slow for 1M points.)
+mod heap {
+    use std::alloc::{GlobalAlloc, Layout, System};
+    use std::sync::Mutex;
+    use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
+
+    pub struct Counting;
+
+    static LIVE: AtomicUsize = AtomicUsize::new(0);
+    static PEAK: AtomicUsize = AtomicUsize::new(0);
+
+    fn grown(bytes: usize) {
+        let now = LIVE.fetch_add(bytes, Relaxed) + bytes;
+        PEAK.fetch_max(now, Relaxed);
+    }
+
+    // SAFETY: every call is passed on to `System` unchanged; only counters are added.
+    unsafe impl GlobalAlloc for Counting {
+        unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+            let p = unsafe { System.alloc(layout) };
+            if !p.is_null() {
+                grown(layout.size());
+            }
+            p
+        }
+        unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+            let p = unsafe { System.alloc_zeroed(layout) };
+            if !p.is_null() {
+                grown(layout.size());
+            }
+            p
+        }
+        unsafe fn dealloc(&self, p: *mut u8, layout: Layout) {
+            unsafe { System.dealloc(p, layout) };
+            LIVE.fetch_sub(layout.size(), Relaxed);
+        }
+        unsafe fn realloc(&self, p: *mut u8, layout: Layout, size: usize) -> *mut u8 {
+            let q = unsafe { System.realloc(p, layout, size) };
+            if !q.is_null() {
+                LIVE.fetch_sub(layout.size(), Relaxed);
+                grown(size);
+            }
+            q
+        }
+    }
+
+    /// Bytes live on the heap now.
+    pub fn live() -> usize {
+        LIVE.load(Relaxed)
+    }
+
+    /// The peak since the last call (or the start), and restarts it from the live bytes.
+    pub fn take_peak() -> usize {
+        PEAK.swap(live(), Relaxed)
+    }
+
+    /// One mark: the stage that just ended, the bytes live at its end and their peak during it.
+    #[derive(Clone, Copy)]
+    pub struct Mark {
+        pub stage: &'static str,
+        pub live: usize,
+        pub peak: usize,
+    }
+
+    static MARKS: Mutex<Vec<Mark>> = Mutex::new(Vec::new());
+
+    /// Ends `stage`: records its mark.
+    pub fn mark(stage: &'static str) {
+        let peak = take_peak();
+        let mark = Mark {
+            stage,
+            live: live(),
+            peak,
+        };
+        MARKS.lock().unwrap_or_else(|e| e.into_inner()).push(mark);
+    }
+
+    /// The marks since the last call.
+    pub fn take_marks() -> Vec<Mark> {
+        std::mem::take(&mut *MARKS.lock().unwrap_or_else(|e| e.into_inner()))
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: heap::Counting = heap::Counting;
+
+/// Marks the end of each stage for [`heap`] (systems at the method's hooks; they touch no data
+/// of the world, so they order against nothing).
+struct HeapMarks;
+
+impl impm::plugin::Plugin for HeapMarks {
+    fn build<const D: usize>(&self, simulation: &mut impm::plugin::Extension<'_, D>) {
+        use impm::plugin::Hook;
+        for (hook, stage) in [
+            (Hook::Connectivity, "connectivity"),
+            (Hook::Loads, "dofs, loads"),
+            (Hook::Kinematics, "linear solve"),
+            (Hook::BeforeAssembly, "stress update"),
+            (Hook::Combine, "assembly"),
+            (Hook::PointUpdate, "update points"),
+            (Hook::Output, "output"),
+        ] {
+            simulation.add_systems(hook, move || heap::mark(stage));
+        }
+    }
+}
 
 /// The scene: a square (cube) block of side 1 under its own weight.
 fn scene_text(dim: usize) -> String {
@@ -102,6 +218,8 @@ struct Plan {
     /// Runs of each combination; each stage's figure is the minimum over them (load noise).
     repeat: usize,
     chart: Option<PathBuf>,
+    /// Print where each run's heap goes (`--heap`).
+    heap: bool,
 }
 
 fn parse() -> Result<Plan, String> {
@@ -112,6 +230,7 @@ fn parse() -> Result<Plan, String> {
         steps: 2,
         repeat: 1,
         chart: None,
+        heap: false,
     };
     let list = |s: &str| -> Result<Vec<usize>, String> {
         s.split(',')
@@ -160,6 +279,7 @@ fn parse() -> Result<Plan, String> {
                 plan.repeat = plan.repeat.max(1);
             }
             "--chart" => plan.chart = Some(PathBuf::from(value()?)),
+            "--heap" => plan.heap = true,
             block => {
                 let (dim, sizes) = block.split_once(':').ok_or(format!(
                     "'{block}': expected DIM:POINTS,.. (e.g. 2:10000,40000)"
@@ -184,6 +304,7 @@ fn run<const D: usize>(
     steps: usize,
     backend: Backend,
     threads: usize,
+    show_heap: bool,
 ) -> Figures {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
@@ -201,8 +322,23 @@ fn run<const D: usize>(
         let out = std::env::temp_dir().join(format!("impm-scale-{}", std::process::id()));
         let started = memory::begin_run();
         let mut sim = Simulation::<D>::new(&spec, &out).unwrap_or_else(|e| panic!("{e}"));
-        sim.run(|_| {}).unwrap_or_else(|e| panic!("{e}"));
+        if show_heap {
+            sim.add_plugin(&HeapMarks).unwrap_or_else(|e| panic!("{e}"));
+        }
+        let before = heap::live();
+        heap::take_peak();
+        heap::take_marks();
+        sim.run(|_| heap::mark("grid reset"))
+            .unwrap_or_else(|e| panic!("{e}"));
         let items = memory_items(&mut sim);
+        if show_heap {
+            print_heap(
+                &mut sim,
+                before,
+                &heap::take_marks(),
+                &memory::end_run(started),
+            );
+        }
         let used = memory::end_run(started);
         let _ = std::fs::remove_dir_all(&out);
         let summary = &sim.summary;
@@ -221,6 +357,120 @@ fn run<const D: usize>(
             ceiling,
         }
     })
+}
+
+/// Where the run's heap went (`--heap`): per stage, the bytes live at its end and their peak
+/// during it (the largest over steps and Newton iterations), and the live heap after the run
+/// split by structure; all in bytes per point.
+fn print_heap<const D: usize>(
+    sim: &mut Simulation<D>,
+    before: usize,
+    marks: &[heap::Mark],
+    used: &memory::MemoryUse,
+) {
+    use impm::basis::NodeWeight;
+    use impm::components::Support;
+    use impm::resources::GridFields;
+    let points = sim.summary.points.max(1) as f64;
+    let per_point = |bytes: usize| format!("{:.0}", bytes as f64 / points);
+    let cache = sim.world.resource::<impm::stages::ColouringCache>();
+    let (stages, _) = sim.summary.total_seconds();
+    let assembly = stages.get(Stage::Assembly).as_secs_f64();
+    println!(
+        "  colouring: made {} times, reused {} times, {:.3} s in all ({:.1} % of the assembly's \
+         {:.3} s; {:.3} s per colouring)",
+        cache.computed,
+        cache.reused,
+        cache.seconds.as_secs_f64(),
+        100.0 * cache.seconds.as_secs_f64() / assembly.max(1e-12),
+        assembly,
+        cache.seconds.as_secs_f64() / cache.computed.max(1) as f64
+    );
+    println!(
+        "  heap of {} points: {} B/point live before the first step",
+        sim.summary.points,
+        per_point(before)
+    );
+    println!("  | stage (end) | live at its end, B/point | peak during it, B/point |");
+    println!("  |---|---|---|");
+    let mut stages: Vec<(&str, usize, usize)> = Vec::new();
+    for mark in marks {
+        match stages.iter_mut().find(|(s, ..)| *s == mark.stage) {
+            Some(entry) => (entry.1, entry.2) = (entry.1.max(mark.live), entry.2.max(mark.peak)),
+            None => stages.push((mark.stage, mark.live, mark.peak)),
+        }
+    }
+    for (stage, live, peak) in &stages {
+        println!(
+            "  | {stage} | {} | {} |",
+            per_point(*live),
+            per_point(*peak)
+        );
+    }
+    let peak = marks.iter().map(|m| m.peak).max().unwrap_or(0);
+    let resident = used.peak_mib.map_or(0.0, |m| m * 1048576.0);
+    println!(
+        "  peak heap {} B/point; peak resident {:.0} B/point (the rest: the binary, \
+         allocator slack, pages freed but kept)",
+        per_point(peak),
+        resident / points
+    );
+    // The solver's own heap: what the step's first linear solve left live.
+    let first_solve = marks
+        .windows(2)
+        .find(|w| w[0].stage == "assembly" && w[1].stage == "linear solve")
+        .map_or(0, |w| w[1].live.saturating_sub(w[0].live));
+    // Live after the run, by structure.
+    let live = heap::live();
+    // The ECS tables: per row (entity slot) the entity, and per component its value and its
+    // two change ticks; slots are allocated to the table's capacity, empty or not.
+    let mut inline = 0usize;
+    let mut tables = std::collections::BTreeSet::new();
+    for archetype in sim.world.archetypes().iter() {
+        if !tables.insert(archetype.table_id().as_usize()) {
+            continue;
+        }
+        let Some(table) = sim.world.storages().tables.get(archetype.table_id()) else {
+            continue;
+        };
+        let row: usize = archetype
+            .table_components()
+            .filter_map(|id| sim.world.components().get_info(id))
+            .map(|info| info.layout().size() + 8)
+            .sum();
+        let entity = std::mem::size_of::<bevy_ecs::entity::Entity>();
+        inline += (row + entity) * table.entity_capacity();
+    }
+    let support: usize = sim
+        .world
+        .query::<&Support<D>>()
+        .iter(&sim.world)
+        .map(|s| s.0.capacity() * std::mem::size_of::<NodeWeight<D>>())
+        .sum();
+    let matrix = &sim.world.resource::<Newton>().matrix;
+    let tangent = matrix.nonzeros() * 16 + (matrix.size() + 1) * 8;
+    let fields = sim.world.resource::<GridFields<D>>();
+    let grid = fields.active.capacity()
+        + fields.constrained.capacity() * D
+        + fields.dofs.capacity() * 4 * D
+        + (fields.increment.capacity()
+            + fields.external_force.capacity()
+            + fields.internal_force.capacity())
+            * 8
+            * D;
+    let counted = inline + support + tangent + grid + first_solve;
+    println!(
+        "  live after the run {} B/point: ECS tables {} (components inline, points and grid \
+         nodes, empty slots included), supports {}, tangent (values, row indices, column starts) {}, grid fields \
+         {}, solver (left live by the first solve) {}, the rest {}",
+        per_point(live),
+        per_point(inline),
+        per_point(support),
+        per_point(tangent),
+        per_point(grid),
+        per_point(first_solve),
+        per_point(live.saturating_sub(counted))
+    );
 }
 
 /// The largest items of memory per point, counted from the data structures after the run.
@@ -396,8 +646,8 @@ fn main() {
                 for &threads in &plan.threads {
                     let f = (0..plan.repeat)
                         .map(|_| match dim {
-                            2 => run::<2>(&scene, cells, plan.steps, backend, threads),
-                            _ => run::<3>(&scene, cells, plan.steps, backend, threads),
+                            2 => run::<2>(&scene, cells, plan.steps, backend, threads, plan.heap),
+                            _ => run::<3>(&scene, cells, plan.steps, backend, threads, plan.heap),
                         })
                         .reduce(fastest)
                         .expect("at least one run");

@@ -573,6 +573,7 @@ fn core_world<const D: usize>(spec: &SceneSpec, out_dir: &Path) -> Result<World,
         solver: spec.solver.linear_solver(),
         ..Newton::default()
     });
+    world.insert_resource(crate::stages::ColouringCache::default());
     world.insert_resource(Convergence::default());
     world.insert_resource(RunStatus::default());
     world.insert_resource(StageClock::default());

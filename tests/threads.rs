@@ -161,6 +161,68 @@ fn iterative_solves_on_two_threads_equal_one_thread_bit_for_bit_and_repeat() {
     );
 }
 
+/// The colouring is made once per load step and kept through the step's Newton iterations
+/// (`stages::ColouringCache`, keyed on the pattern's generation): on the 2D column (4 steps, 2
+/// threads) it is made 4 times, once after each grid reset, and reused in every other assembly;
+/// the run is bit-identical to one that colours every assembly anew, and the colouring left
+/// in the cache equals the one made from the last step's supports.
+#[test]
+fn the_colouring_is_made_once_per_load_step_and_the_run_is_unchanged() {
+    use impm::components::Support;
+    use impm::resources::Grid;
+    use impm::stages::ColouringCache;
+    let set = [("cells", "16"), ("order", "2"), ("steps", "4")];
+    let outcome = |recolour: bool| {
+        on_threads(2, || {
+            let (mut sim, dir) = simulation::<2>("column_2d.rhai", &set, 2);
+            sim.world
+                .resource_mut::<ColouringCache>()
+                .recolour_every_assembly = recolour;
+            sim.run(|_| {}).unwrap();
+            let _ = std::fs::remove_dir_all(&dir);
+            let mut query = sim.world.query::<(&PointId, &Position<2>, &Trial<2>)>();
+            let mut state: Vec<(u32, Vec<u64>)> = query
+                .iter(&sim.world)
+                .map(|(id, x, t)| {
+                    let stress = t.0.cauchy();
+                    let values = x.0.iter().chain(stress.iter());
+                    (id.0, values.map(|v| v.to_bits()).collect())
+                })
+                .collect();
+            state.sort_by_key(|p| p.0);
+            let sizes = sim.world.resource::<Grid<2>>().0.nodes_per_axis();
+            let supports: Vec<Vec<usize>> = sim
+                .world
+                .query::<&Support<2>>()
+                .iter(&sim.world)
+                .map(|s| s.0.iter().map(|w| w.node).collect())
+                .collect();
+            let fresh = impm::colouring::colour_points(sizes, supports.len(), |p| {
+                supports[p].iter().copied()
+            });
+            let cache = sim.world.resource::<ColouringCache>();
+            let counts = (cache.computed, cache.reused);
+            assert!(fresh.is_some(), "the column is coloured");
+            assert_eq!(
+                cache.colouring(),
+                fresh.as_ref(),
+                "the cached colouring is current"
+            );
+            (state, counts, sim.summary.steps.len())
+        })
+    };
+    let (cached, (computed, reused), steps) = outcome(false);
+    let (fresh, (every, none), _) = outcome(true);
+    eprintln!(
+        "colouring: cached {computed} made + {reused} reused; recoloured {every} made + {none}"
+    );
+    assert_eq!(steps, 4);
+    assert_eq!(computed, 4, "one colouring per load step");
+    assert!(reused >= 4, "reused within the steps: {reused}");
+    assert_eq!((every, none), (computed + reused, 0));
+    assert!(cached == fresh, "the cached colouring changed the run");
+}
+
 #[test]
 fn the_threads_option_is_recorded_in_the_summary() {
     let out = temp_dir("threads", "cli");

@@ -10,6 +10,15 @@
 //! for the group; so the inner loop is D³ multiply-adds and D² additions per pair, and the
 //! scattered writes are paid per cell rather than per point.
 //!
+//! The colouring is made once per load step and kept in [`ColouringCache`] for the step's
+//! Newton iterations: the supports are evaluated at the step's start and do not change until
+//! the next step (or the rerun of a cut step), whose DOF stage rebuilds the tangent's pattern
+//! (`SparseMatrix::generation`). The cache is keyed on that generation, on the number of points
+//! assembled, and on whether any point's `Support` was written since the assembly last ran
+//! (change detection): any of them differing recomputes it. A colouring is a pure function of
+//! the supports in query order, so the cached one equals the one recomputed, and the sums are
+//! bit-identical to colouring every iteration.
+//!
 //! Points marked [`AssembledElsewhere`] are left out: in a distributed run each process sums
 //! the points of its own block of cells, and `Hook::Combine` adds the processes' sums.
 //!
@@ -170,6 +179,50 @@ pub struct AssemblyPart<const D: usize> {
     values: Vec<f64>,
 }
 
+/// The colouring of the current load step's points, kept through its Newton iterations
+/// (module docs), with counts of how often it was made and reused and the time spent making it.
+#[derive(Resource, Debug, Default)]
+pub struct ColouringCache {
+    /// The pattern generation and the number of points the colouring was made for.
+    key: Option<(u64, usize)>,
+    colouring: Option<Colouring>,
+    /// Colourings computed (one per load step, and per rerun of a cut step).
+    pub computed: u64,
+    /// Assemblies that used the cached colouring.
+    pub reused: u64,
+    /// Time spent computing colourings.
+    pub seconds: std::time::Duration,
+    /// Colour every assembly anew, as before the cache (for comparisons; off by default).
+    pub recolour_every_assembly: bool,
+}
+
+impl ColouringCache {
+    /// The colouring for `key` (pattern generation, number of points): the cached one when the
+    /// key is the cached one's and `changed` is false, else `make()`'s, which is then cached.
+    pub fn get(
+        &mut self,
+        key: (u64, usize),
+        changed: bool,
+        make: impl FnOnce() -> Option<Colouring>,
+    ) -> Option<&Colouring> {
+        if changed || self.recolour_every_assembly || self.key != Some(key) {
+            let start = std::time::Instant::now();
+            self.colouring = make();
+            self.seconds += start.elapsed();
+            self.key = Some(key);
+            self.computed += 1;
+        } else {
+            self.reused += 1;
+        }
+        self.colouring.as_ref()
+    }
+
+    /// The cached colouring (`None` before the first assembly and where there is none).
+    pub fn colouring(&self) -> Option<&Colouring> {
+        self.colouring.as_ref()
+    }
+}
+
 #[allow(clippy::too_many_arguments)]
 pub fn assemble<const D: usize>(
     mut fields: ResMut<GridFields<D>>,
@@ -179,7 +232,9 @@ pub fn assemble<const D: usize>(
     step: Res<LoadStep>,
     grid: Res<Grid<D>>,
     mut parts: Local<Vec<AssemblyPart<D>>>,
+    mut cache: ResMut<ColouringCache>,
     points: Query<(&Support<D>, &Trial<D>, &ReferenceVolume), Without<AssembledElsewhere>>,
+    supports: Query<Ref<Support<D>>, Without<AssembledElsewhere>>,
 ) {
     let _timer = clock.time(Stage::Assembly);
     let GridFields {
@@ -189,7 +244,9 @@ pub fn assemble<const D: usize>(
     } = &mut *fields;
     let symmetric = newton.symmetric;
     let mut points: Vec<_> = points.iter().collect();
-    let colouring = colour(&grid, &points);
+    let key = (newton.matrix.generation(), points.len());
+    let changed = supports.iter().any(|support| support.is_changed());
+    let colouring = cache.get(key, changed, || colour(&grid, &points));
     parts.resize_with(parallel::part_count(points.len()), Default::default);
     newton.matrix.with_values_apart(|system, values| {
         let target = (dofs.as_slice(), system, symmetric);
@@ -202,7 +259,7 @@ pub fn assemble<const D: usize>(
                 }
                 assemble_coloured(
                     &points,
-                    &colouring,
+                    colouring,
                     target,
                     &mut parts,
                     internal_force,

@@ -16,7 +16,6 @@ pub fn number_dofs<const D: usize>(
     mut fields: ResMut<GridFields<D>>,
     mut newton: ResMut<Newton>,
     mut clock: ResMut<StageClock>,
-    mut support_nodes: Local<(Vec<usize>, Vec<usize>)>,
     points: Query<&Support<D>>,
     grid: Res<Grid<D>>,
 ) {
@@ -41,9 +40,15 @@ pub fn number_dofs<const D: usize>(
     }
     fields.dof_count = count as usize;
 
-    let (offsets, flat) = &mut *support_nodes;
-    offsets.clear();
-    flat.clear();
+    // The supports' nodes, flat: built for the pattern and freed with it (not kept between
+    // steps: 9 node indices per 2D point, q = 2, would stay allocated through the solve).
+    let (count, entries) = points
+        .iter()
+        .fold((0, 0), |(n, m), support| (n + 1, m + support.0.len()));
+    let groups = fields.couplings.len();
+    let grouped: usize = fields.couplings.iter().map(Vec::len).sum();
+    let mut offsets = Vec::with_capacity(count + groups + 1);
+    let mut flat = Vec::with_capacity(entries + grouped);
     offsets.push(0);
     for support in points.iter() {
         flat.extend(support.0.iter().map(|w| w.node));

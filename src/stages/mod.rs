@@ -26,7 +26,7 @@ mod reset;
 pub mod stress;
 mod update;
 
-pub use assembly::assemble;
+pub use assembly::{ColouringCache, assemble};
 pub use connectivity::evaluate_basis;
 pub use dofs::number_dofs;
 pub use newton::{DIVERGENCE_GROWTH, check_convergence, solve_linear_system};

@@ -28,12 +28,19 @@ use crate::parallel;
 use crate::resources::{GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock};
 
 /// The point's constitutive model.
+///
+/// Stored in a sparse set, not in the points' table: the material module inserts it after the
+/// points are spawned, and a table component would move every point into a new table grown by
+/// doubling, leaving the spawn table allocated and empty (about 0.55 kB per 2D point; see
+/// docs/performance.md). A sparse-set component leaves the points where they are.
 #[derive(Component, Clone, Debug, PartialEq)]
+#[component(storage = "SparseSet")]
 pub struct PointMaterial<M: Material>(pub M);
 
 /// The history of a point whose model has one: committed at the end of the last converged
-/// load step, and that of the current Newton iterate.
+/// load step, and that of the current Newton iterate. In a sparse set, as [`PointMaterial`].
 #[derive(Component, Clone, Debug, PartialEq)]
+#[component(storage = "SparseSet")]
 pub struct PointHistory<M: Material> {
     pub committed: M::History,
     pub trial: M::History,
