@@ -10,8 +10,9 @@
 //!   Hook::AfterLinearSolve  correct_load_factor    K δu_f = f̂, δλ from the arc, Δu += δu_r + δλ δu_f
 //! ```
 //!
-//! The arc controls proportional loads f_ext = λ f̂: tractions, point loads and a body force
-//! that follow the load factor. It refuses, at the scene line that asks for them:
+//! The arc controls proportional loads f_ext = λ f̂: tractions, follower pressures
+//! (`effects::pressure`, whose f̂ follows the current shape), point loads and a body force that
+//! follow the load factor. It refuses, at the scene line that asks for them:
 //! * a prescribed displacement that is not zero (`displace`, `surface_displace` with a
 //!   `displacement`): its ramp would be a second load parameter the arc does not constrain;
 //!   supports (`fix`, zero displacements) are fine;
@@ -56,8 +57,9 @@ impl Plugin for ArcLengthModule {
                             "arc-length (Riks/Crisfield, cylindrical arc): the load factor is an \
                              unknown of each step, so the run follows a load-controlled problem \
                              past its limit load; the first load factor sizes the first arc, the \
-                             schedule's step count is the most steps; tractions, point loads and \
-                             a body force following the load factor are the controlled loads",
+                             schedule's step count is the most steps; tractions, pressures, \
+                             point loads and a body force following the load factor are the \
+                             controlled loads",
                         ),
                     },
                 ]),
@@ -130,7 +132,8 @@ impl Plugin for ArcLengthModule {
         let conflict = |what: &str, line: Option<usize>| {
             let line = line.map(|l| format!(" (line {l})")).unwrap_or_default();
             refuse(format!(
-                "control: \"arc_length\" controls tractions, point loads and a body force that \
+                "control: \"arc_length\" controls tractions, pressures, point loads and a body \
+                 force that \
                  follow the load factor; {what}{line} is not one of them: the arc cannot \
                  control two load parameters. Use supports (zero displacement) with \
                  arc-length, or load control for prescribed displacements"
