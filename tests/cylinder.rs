@@ -47,6 +47,7 @@ fn a_small_pressure_expands_the_cylinder_as_lame_says() {
             ("steps", "1"),
             ("fbar", "false"),
             ("cells", cells),
+            ("ppc", "2"),
         ];
         let mut sim = cylinder(&set, cells);
         sim.run(|_| {}).unwrap();
@@ -76,6 +77,7 @@ fn newton_converges_quadratically_under_the_follower_pressure() {
         ("steps", "4"),
         ("fbar", "false"),
         ("cells", "8"),
+        ("ppc", "2"),
     ];
     let mut sim = cylinder(&set, "newton");
     sim.run(|_| {}).unwrap();
@@ -221,7 +223,7 @@ fn the_wall_yields_from_the_elastic_limit_on_as_hill_says() {
 /// follower force of the current configuration).
 #[test]
 fn the_cylinder_reaches_the_limit_pressure_under_arc_length_control() {
-    let set = [("cells", "8"), ("ppc", "4"), ("target_iterations", "10")];
+    let set = [("cells", "8"), ("ppc", "4"), ("target_iterations", "10")]; // the defaults
     let mut sim = cylinder(&set, "limit");
     sim.run(|_| {}).unwrap();
     let limit = 2.0 / 3f64.sqrt() * (B / A).ln();
