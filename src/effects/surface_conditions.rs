@@ -1009,9 +1009,19 @@ fn resolve_conditions(scene: &Resolver) -> Result<Vec<SurfaceConditionSpec>, Scr
         )
         .map_err(fail)?;
         let normal = outward_normal(&d.corners, &seeded, &material_points);
-        // the material under the piece (module docs, "The material at the condition")
+        // the material under the piece (module docs, "The material at the condition"), within
+        // LAYER cells of its plane: the fit's neighbours are sought among these only
+        let depth = |x: &[f64]| -> f64 {
+            (0..dim)
+                .map(|a| normal[a] * (x[a] - d.corners[0][a]))
+                .sum::<f64>()
+                .abs()
+        };
         let under: Vec<usize> = (0..material_points.len())
-            .filter(|&k| under_piece(&d.corners, material_points[k], 1e-9 * cell))
+            .filter(|&k| {
+                let x = material_points[k];
+                depth(x) <= LAYER * cell && under_piece(&d.corners, x, 1e-9 * cell)
+            })
             .collect();
         let under_points: Vec<&[f64]> = under.iter().map(|&k| material_points[k]).collect();
         let count = default_neighbours(dim);
@@ -1087,6 +1097,12 @@ fn resolve_conditions(scene: &Resolver) -> Result<Vec<SurfaceConditionSpec>, Scr
     }
     Ok(resolved)
 }
+
+/// The depth, in cells of the smallest size, of the layer of material under a surface piece
+/// among which the material check's fit seeks its neighbours (2·2^D points lie within two cells
+/// at one point per cell and axis; when the layer does not determine a fit, all material
+/// points are searched).
+const LAYER: f64 = 3.0;
 
 /// Whether the reference position `x` lies under the surface piece `corners` (its projection
 /// onto the piece's line or plane falls within the piece, to `tolerance`): in 1D every
