@@ -195,7 +195,7 @@ fn names(systems: &[ScheduledSystem]) -> Vec<String> {
     systems.iter().map(|s| s.name.clone()).collect()
 }
 
-const OPTIONAL: [&str; 10] = [
+const OPTIONAL: [&str; 11] = [
     "body_force::apply_body_force",
     "point_loads::apply_point_loads",
     "point_loads::point_load_field",
@@ -205,7 +205,8 @@ const OPTIONAL: [&str; 10] = [
     "surface_conditions::find_boundary_supports",
     "surface_conditions::assemble_surface_conditions",
     "surface_conditions::update_boundary_points",
-    "surface_conditions::check_surface_separation",
+    "surface_conditions::measure_material_at_conditions",
+    "surface_conditions::check_surface_conditions",
 ];
 
 /// For several scenes, the schedule holds the systems of exactly the effects it uses, and
@@ -235,7 +236,8 @@ fn schedules_hold_only_the_effects_a_scene_uses() {
                 "surface_conditions::find_boundary_supports",
                 "surface_conditions::assemble_surface_conditions",
                 "surface_conditions::update_boundary_points",
-                "surface_conditions::check_surface_separation",
+                "surface_conditions::measure_material_at_conditions",
+                "surface_conditions::check_surface_conditions",
             ],
         ),
         ("embankment.rhai", &["body_force::apply_body_force"]),

@@ -263,6 +263,22 @@ pub fn material_point_near(spec: &SceneSpec, at: &[f64]) -> Result<usize, String
     Ok(nearest)
 }
 
+/// The `count` material points nearest to the reference position `at` (and any as near as the
+/// last) with the weights of their least-squares linear fit at `at` (module docs): the value of
+/// a field carried by the points there is Σ_k w_k f_k. Also used by the surface conditions'
+/// material check (`surface_conditions.rs`).
+pub fn fit_weights(
+    positions: &[&[f64]],
+    at: &[f64],
+    count: usize,
+) -> Result<Vec<(usize, f64)>, String> {
+    let near = nearest_points(positions, at, count);
+    let chosen: Vec<&[f64]> = near.iter().map(|&k| positions[k]).collect();
+    let weights = linear_fit_weights(&chosen, at)
+        .map_err(|why| format!("the {} nearest material points: {why}", chosen.len()))?;
+    Ok(near.into_iter().zip(weights).collect())
+}
+
 /// Every `probe(...)` with its neighbours and weights.
 fn resolve_probes(scene: &Resolver) -> Result<Vec<ProbeSpec>, ScriptError> {
     let dim = scene.spec.dim();
@@ -289,19 +305,13 @@ fn resolve_probes(scene: &Resolver) -> Result<Vec<ProbeSpec>, ScriptError> {
         }
         material_point_near(scene.spec, &probe.at).map_err(fail)?;
         let count = probe.neighbours.unwrap_or(default_neighbours(dim));
-        let near = nearest_points(&positions, &probe.at, count);
-        let chosen: Vec<&[f64]> = near.iter().map(|&k| positions[k]).collect();
-        let weights = linear_fit_weights(&chosen, &probe.at).map_err(|why| {
-            fail(format!(
-                "the {} nearest material points: {why}; give more 'neighbours'",
-                chosen.len()
-            ))
-        })?;
+        let weights = fit_weights(&positions, &probe.at, count)
+            .map_err(|why| fail(format!("{why}; give more 'neighbours'")))?;
         probes.push(ProbeSpec {
             name: name.clone(),
             line: declaration.at.line(),
             at: probe.at.clone(),
-            weights: near.into_iter().zip(weights).collect(),
+            weights,
             stress: probe.stress,
             deformation_gradient: probe.deformation_gradient,
         });

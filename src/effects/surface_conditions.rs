@@ -92,9 +92,31 @@
 //! 0.15 max |P λ ū| (the largest prescribed displacement so far; at least 0.01 h, h the smallest
 //! cell size: [`separation_threshold`]) the run warns, once per condition.
 //!
+//! # The material at the condition
+//! The separation reads the material's surface from one point, the host. The material check
+//! reads it from the material points under the surface piece (those whose reference position
+//! projects onto the piece: not the material beside a footing's edge, where the prescribed
+//! displacement does not act), by the least-squares linear fit probes use
+//! (`probes::fit_weights`, weights w_k fixed at the start over the 2·2^D nearest such points):
+//!
+//! ```text
+//!   ũ_s = Σ_k w_k (x_k − X_k),   offset = Σ_s A_s |P (ũ_s − λ ū)| / Σ_s A_s,
+//!   P̃_s = Σ_k w_k τ_k F_k⁻ᵀ,     material force = Σ_s P̃_s N A_s,
+//! ```
+//!
+//! recorded every step as `NAME_material_displacement_x`, ... (the area-weighted mean ũ),
+//! `NAME_material_offset`, `NAME_largest_material_offset` (max_s), `NAME_material_ratio`
+//! (offset over [`separation_threshold`]) and `NAME_material_force_x`, ... (the force the
+//! material's stress carries across the surface; the reaction's counterpart read from the
+//! material). Exact for homogeneous states. A mean offset above the threshold warns (the mean
+//! over the condition, not the largest: the fit is poor at a rough footing's edge, where the
+//! displacement gradient jumps). What it cannot see: an error of the method inside the body
+//! while the material does follow the condition (linear MPM's cell crossing, cubic splines in
+//! tension): docs/boundaries.md gives the measured ratios.
+//!
 //! Systems: [`find_boundary_supports`] (`Hook::Connectivity`), [`assemble_surface_conditions`]
 //! (`Hook::AfterAssembly`), [`update_boundary_points`] (`Hook::PointUpdate`),
-//! [`check_surface_separation`] (`Hook::AfterStep`).
+//! [`measure_material_at_conditions`] and [`check_surface_conditions`] (`Hook::AfterStep`).
 
 use bevy_ecs::prelude::*;
 use nalgebra::{SMatrix, SVector};
@@ -107,6 +129,7 @@ use crate::components::{DeformationGradient, Position, ReferencePosition, Suppor
 use crate::mechanics::embed;
 
 use super::declarations::{coordinate_range, round};
+use super::probes::{default_neighbours, fit_weights};
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{
     Grid, GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock,
@@ -147,6 +170,10 @@ pub struct BoundaryPointSpec {
     pub area: f64,
     /// The host material point (global point index).
     pub host: usize,
+    /// The material points nearest to the reference position and their least-squares linear
+    /// fit weights there (`probes::fit_weights`): the material's displacement and stress at the
+    /// boundary point (module docs, "The material at the condition").
+    pub fit: Vec<(usize, f64)>,
 }
 
 /// One `surface_displace(...)`, resolved.
@@ -211,6 +238,8 @@ pub struct BoundaryPoint<const D: usize> {
     pub position: SVector<f64, D>,
     pub area: f64,
     pub host: Entity,
+    /// The material points of the fit at the reference position, with their weights.
+    pub fit: Vec<(Entity, f64)>,
     /// The active nodes of the basis at `position` with the weights N̂_i (module docs).
     pub weights: Vec<(usize, f64)>,
 }
@@ -238,8 +267,20 @@ pub struct SurfaceCondition<const D: usize> {
     pub separation: f64,
     /// max |P λ ū| over the steps so far (the scale of the separation check).
     pub largest_prescribed: f64,
-    /// Whether the separation check has warned about this condition.
+    /// Whether the separation check or the material check has warned about this condition
+    /// (one warning per condition).
     pub warned: bool,
+    /// The material's displacement at the condition, Σ A_s ũ_s / Σ A_s with ũ_s the fitted
+    /// material displacement at X_s, at the last converged step.
+    pub material_displacement: SVector<f64, D>,
+    /// Σ A_s |P (ũ_s − λ ū)| / Σ A_s: how far, on average, the material at the condition is
+    /// from the prescribed displacement (a length).
+    pub material_offset: f64,
+    /// max_s |P (ũ_s − λ ū)|.
+    pub largest_material_offset: f64,
+    /// The force the material's stress carries across the surface, Σ_s P̃_s N A_s with P̃_s the
+    /// fitted first Piola stress at X_s (the reaction's counterpart read from the material).
+    pub material_force: SVector<f64, D>,
 }
 
 /// The conditions of the run, in declaration order.
@@ -417,24 +458,29 @@ impl Plugin for SurfaceConditionsModule {
             .add_systems(Hook::Connectivity, find_boundary_supports::<D>)
             .add_systems(Hook::AfterAssembly, assemble_surface_conditions::<D>)
             .add_systems(Hook::PointUpdate, update_boundary_points::<D>)
-            .add_systems(Hook::AfterStep, check_surface_separation::<D>);
+            .add_systems(Hook::AfterStep, measure_material_at_conditions::<D>)
+            .add_systems(Hook::AfterStep, check_surface_conditions::<D>);
     }
 }
 
 /// Names of the axes in measure names.
 pub const AXES: [&str; 3] = ["x", "y", "z"];
 
-/// `NAME_reaction_x`, `NAME_traction_x`, `NAME_displacement_x`, ... of condition `index`.
+/// `NAME_reaction_x`, `NAME_traction_x`, `NAME_displacement_x`, `NAME_material_displacement_x`,
+/// `NAME_material_force_x`, ..., `NAME_separation`, `NAME_material_offset`,
+/// `NAME_largest_material_offset` and `NAME_material_ratio` of condition `index`.
 fn add_condition_measures<const D: usize>(
     simulation: &mut Extension<'_, D>,
     index: usize,
     name: &str,
 ) {
     type Quantity<const D: usize> = fn(&SurfaceCondition<D>) -> SVector<f64, D>;
-    let quantities: [(&str, Quantity<D>); 3] = [
+    let quantities: [(&str, Quantity<D>); 5] = [
         ("reaction", |c| c.reaction),
         ("traction", |c| c.reaction / c.area),
         ("displacement", |c| c.mean_displacement),
+        ("material_displacement", |c| c.material_displacement),
+        ("material_force", |c| c.material_force),
     ];
     for (what, quantity) in quantities {
         for (axis, axis_name) in AXES.iter().enumerate().take(D) {
@@ -445,11 +491,22 @@ fn add_condition_measures<const D: usize>(
             });
         }
     }
-    let key = format!("{name}_separation");
-    simulation.add_measure(key, move |world, _| {
-        let set = world.get_resource::<SurfaceConditionSet<D>>()?;
-        Some(set.0.get(index)?.separation)
-    });
+    type Scalar<const D: usize> = fn(&SurfaceCondition<D>) -> f64;
+    let scalars: [(&str, Scalar<D>); 4] = [
+        ("separation", |c| c.separation),
+        ("material_offset", |c| c.material_offset),
+        ("largest_material_offset", |c| c.largest_material_offset),
+        ("material_ratio", |c| {
+            c.material_offset / separation_threshold(c.largest_prescribed, c.cell)
+        }),
+    ];
+    for (what, quantity) in scalars {
+        let key = format!("{name}_{what}");
+        simulation.add_measure(key, move |world, _| {
+            let set = world.get_resource::<SurfaceConditionSet<D>>()?;
+            Some(quantity(set.0.get(index)?))
+        });
+    }
 }
 
 /// The conditions' data in the world (vectors and matrices of dimension D).
@@ -479,6 +536,10 @@ fn world_conditions<const D: usize>(
             separation: 0.0,
             largest_prescribed: 0.0,
             warned: false,
+            material_displacement: SVector::zeros(),
+            material_offset: 0.0,
+            largest_material_offset: 0.0,
+            material_force: SVector::zeros(),
         });
     }
     Ok(SurfaceConditionSet(set))
@@ -500,7 +561,18 @@ fn spawn_boundary_points<const D: usize>(
                 .get(point.host)
                 .ok_or_else(|| format!("boundary point host {} does not exist", point.host))?;
             let position = SVector::from_column_slice(&point.position);
+            let fit = point
+                .fit
+                .iter()
+                .map(|&(k, w)| {
+                    entities
+                        .get(k)
+                        .map(|&e| (e, w))
+                        .ok_or_else(|| format!("material point {k} of a fit does not exist"))
+                })
+                .collect::<Result<Vec<_>, String>>()?;
             batch.push(BoundaryPoint::<D> {
+                fit,
                 condition,
                 id: batch.len() as u32,
                 reference_position: position,
@@ -750,30 +822,81 @@ pub fn update_boundary_points<const D: usize>(
     }
 }
 
-/// Threshold of [`check_surface_separation`]: the fraction of the largest prescribed
+/// Threshold of [`check_surface_conditions`]: the fraction of the largest prescribed
 /// displacement so far, max |P λ ū| (docs/boundaries.md).
 pub const SEPARATION_TOLERANCE: f64 = 0.15;
 
-/// Floor of the threshold of [`check_surface_separation`], in cells (a support, ū = 0, and
+/// Floor of the threshold of [`check_surface_conditions`], in cells (a support, ū = 0, and
 /// the first small steps).
 pub const SEPARATION_FLOOR: f64 = 0.01;
 
-/// The separation above which [`check_surface_separation`] warns: [`SEPARATION_TOLERANCE`]
+/// The separation above which [`check_surface_conditions`] warns: [`SEPARATION_TOLERANCE`]
 /// times the largest prescribed displacement so far, at least [`SEPARATION_FLOOR`] cells.
 pub fn separation_threshold(largest_prescribed: f64, cell: f64) -> f64 {
     (SEPARATION_TOLERANCE * largest_prescribed).max(SEPARATION_FLOOR * cell)
 }
 
-/// After a converged step: is the material where the condition holds it? The condition acts
-/// on the grid's displacement field at the boundary points; where the material points cannot
-/// determine that field at the surface (point-integrated B-splines of high order with few
-/// points per cell: the functions at the surface are supported by a sliver of points), the
-/// field there can satisfy the condition while the material does not follow, and the boundary
-/// points move through the material: the reaction is then that of the smaller deformation the
-/// material really has (its relative error is about the separation over the prescribed
-/// displacement). A [`SurfaceCondition::separation`] above [`separation_threshold`] is a
-/// warning (once per condition), in the log and in `summary.json`.
-pub fn check_surface_separation<const D: usize>(
+/// After a converged step: the material at every condition (module docs, "The material at the
+/// condition"): at each boundary point's reference position X_s the fitted material
+/// displacement ũ_s = Σ_k w_k (x_k − X_k) and first Piola stress P̃_s = Σ_k w_k τ_k F_k⁻ᵀ, then
+/// per condition the mean material displacement, the mean and largest offset |P (ũ_s − λ ū)|
+/// and the force the material's stress carries across the surface, Σ_s P̃_s N A_s.
+pub fn measure_material_at_conditions<const D: usize>(
+    step: Res<LoadStep>,
+    mut set: ResMut<SurfaceConditionSet<D>>,
+    material: Query<(&Position<D>, &ReferencePosition<D>, &Trial<D>)>,
+    points: Query<&BoundaryPoint<D>>,
+) {
+    for condition in set.0.iter_mut() {
+        condition.material_displacement = SVector::zeros();
+        condition.material_offset = 0.0;
+        condition.largest_material_offset = 0.0;
+        condition.material_force = SVector::zeros();
+    }
+    for point in points.iter() {
+        let mut u = SVector::<f64, D>::zeros();
+        let mut piola = SMatrix::<f64, D, D>::zeros();
+        for &(entity, w) in &point.fit {
+            let Ok((x, reference, trial)) = material.get(entity) else {
+                continue;
+            };
+            u += (x.0 - reference.0) * w;
+            let inverse = trial
+                .0
+                .deformation_gradient
+                .try_inverse()
+                .unwrap_or_else(SMatrix::identity);
+            piola += crate::mechanics::block::<D>(&trial.0.kirchhoff) * inverse.transpose() * w;
+        }
+        let condition = &mut set.0[point.condition];
+        let offset = (condition.projection * (u - condition.displacement * step.factor)).norm();
+        condition.material_displacement += u * point.area;
+        condition.material_offset += offset * point.area;
+        condition.largest_material_offset = condition.largest_material_offset.max(offset);
+        condition.material_force += piola * condition.normal * point.area;
+    }
+    for condition in set.0.iter_mut() {
+        condition.material_displacement /= condition.area;
+        condition.material_offset /= condition.area;
+    }
+}
+
+/// After a converged step and [`measure_material_at_conditions`]: is the material where the
+/// condition holds it (the separation), and does it have the prescribed displacement (the
+/// material check)? Both against [`separation_threshold`], which scales with the largest
+/// prescribed displacement so far, max |P λ ū|.
+///
+/// The condition acts on the grid's displacement field at the boundary points; where the
+/// material points cannot determine that field at the surface (point-integrated B-splines of
+/// high order with few points per cell: the functions at the surface are supported by a sliver
+/// of points), the field there can satisfy the condition while the material does not follow,
+/// and the boundary points move through the material: the reaction is then that of the
+/// smaller deformation the material really has (its relative error is about the separation
+/// over the prescribed displacement). A [`SurfaceCondition::separation`] or a mean material
+/// offset [`SurfaceCondition::material_offset`] above the threshold is a warning, once per
+/// condition (whichever check fires first), in the log and in `summary.json`; the ratio of the
+/// material offset to the threshold is recorded every step (`NAME_material_ratio`).
+pub fn check_surface_conditions<const D: usize>(
     step: Res<LoadStep>,
     names: Res<SurfaceConditionNames>,
     mut set: ResMut<SurfaceConditionSet<D>>,
@@ -783,7 +906,21 @@ pub fn check_surface_separation<const D: usize>(
         let prescribed = (condition.projection * condition.displacement * step.factor).amax();
         condition.largest_prescribed = condition.largest_prescribed.max(prescribed);
         let threshold = separation_threshold(condition.largest_prescribed, condition.cell);
-        if condition.warned || condition.separation <= threshold {
+        let ratio = condition.material_offset / threshold;
+        let (what, amount) = if condition.separation > threshold {
+            (
+                "the material's surface is {} ({of}) away from where the condition holds it: the grid field at the surface satisfies the condition but the material does not follow it",
+                condition.separation,
+            )
+        } else if ratio > 1.0 {
+            (
+                "the material at the condition is on average {} ({of}) away from the prescribed displacement (read from the material points under the surface by a linear fit)",
+                condition.material_offset,
+            )
+        } else {
+            continue;
+        };
+        if condition.warned {
             continue;
         }
         condition.warned = true;
@@ -792,17 +929,19 @@ pub fn check_surface_separation<const D: usize>(
         let of = if condition.largest_prescribed > 0.0 {
             format!(
                 "{:.0} % of the prescribed displacement {}",
-                100.0 * condition.separation / condition.largest_prescribed,
+                100.0 * amount / condition.largest_prescribed,
                 round(condition.largest_prescribed)
             )
         } else {
-            format!("{:.2} cells", condition.separation / condition.cell)
+            format!("{:.3} cells", amount / condition.cell)
         };
+        let what = what
+            .replacen("{}", &round(amount).to_string(), 1)
+            .replacen("{of}", &of, 1);
         warnings.0.push(format!(
-            "{line}surface condition '{name}': at step {} (load factor {}) the material's surface is {} ({of}) away from where the condition holds it: the grid field at the surface satisfies the condition but the material does not follow it, so the reaction and the achieved displacement are not to be trusted (use more points per cell, integration: \"domain\", GIMP or CPDI, or a lower order; docs/boundaries.md)",
+            "{line}surface condition '{name}': at step {} (load factor {}) {what}, so the reaction and the achieved displacement are not to be trusted (use more points per cell or a finer grid, integration: \"domain\", GIMP or CPDI, which integrate a homogeneous state exactly, or a lower order; docs/boundaries.md)",
             step.number,
             step.factor,
-            round(condition.separation),
         ));
     }
 }
@@ -870,6 +1009,29 @@ fn resolve_conditions(scene: &Resolver) -> Result<Vec<SurfaceConditionSpec>, Scr
         )
         .map_err(fail)?;
         let normal = outward_normal(&d.corners, &seeded, &material_points);
+        // the material under the piece (module docs, "The material at the condition"), within
+        // LAYER cells of its plane: the fit's neighbours are sought among these only
+        let depth = |x: &[f64]| -> f64 {
+            (0..dim)
+                .map(|a| normal[a] * (x[a] - d.corners[0][a]))
+                .sum::<f64>()
+                .abs()
+        };
+        let under: Vec<usize> = (0..material_points.len())
+            .filter(|&k| {
+                let x = material_points[k];
+                depth(x) <= LAYER * cell && under_piece(&d.corners, x, 1e-9 * cell)
+            })
+            .collect();
+        let under_points: Vec<&[f64]> = under.iter().map(|&k| material_points[k]).collect();
+        let count = default_neighbours(dim);
+        let fit = |at: &[f64]| -> Result<Vec<(usize, f64)>, ScriptError> {
+            match fit_weights(&under_points, at, count) {
+                Ok(weights) => Ok(weights.into_iter().map(|(k, w)| (under[k], w)).collect()),
+                Err(_) => fit_weights(&material_points, at, count)
+                    .map_err(|why| fail(format!("boundary point at {at:?}: {why}"))),
+            }
+        };
         let (projection, components) = match (&d.components, d.smooth) {
             (_, true) => (
                 (0..dim * dim)
@@ -914,12 +1076,16 @@ fn resolve_conditions(scene: &Resolver) -> Result<Vec<SurfaceConditionSpec>, Scr
             line: declaration.at.line(),
             points: seeded
                 .into_iter()
-                .map(|s| BoundaryPointSpec {
-                    position: s.position,
-                    area: s.area,
-                    host: s.host,
+                .map(|s| {
+                    let fit = fit(&s.position)?;
+                    Ok(BoundaryPointSpec {
+                        position: s.position,
+                        area: s.area,
+                        host: s.host,
+                        fit,
+                    })
                 })
-                .collect(),
+                .collect::<Result<Vec<_>, ScriptError>>()?,
             projection,
             normal,
             displacement,
@@ -930,6 +1096,41 @@ fn resolve_conditions(scene: &Resolver) -> Result<Vec<SurfaceConditionSpec>, Scr
         });
     }
     Ok(resolved)
+}
+
+/// The depth, in cells of the smallest size, of the layer of material under a surface piece
+/// among which the material check's fit seeks its neighbours (2·2^D points lie within two cells
+/// at one point per cell and axis; when the layer does not determine a fit, all material
+/// points are searched).
+const LAYER: f64 = 3.0;
+
+/// Whether the reference position `x` lies under the surface piece `corners` (its projection
+/// onto the piece's line or plane falls within the piece, to `tolerance`): in 1D every
+/// position, in 2D 0 ≤ t ≤ 1 for x = c0 + t (c1 − c0) + ..., in 3D 0 ≤ a, b ≤ 1 for
+/// x = c0 + a (c1 − c0) + b (c2 − c0) + ... (the edges' Gram system).
+fn under_piece(corners: &[Vec<f64>], x: &[f64], tolerance: f64) -> bool {
+    let dim = x.len();
+    let edge = |k: usize| -> Vec<f64> { (0..dim).map(|a| corners[k][a] - corners[0][a]).collect() };
+    let dot = |a: &[f64], b: &[f64]| -> f64 { a.iter().zip(b).map(|(p, q)| p * q).sum() };
+    let offset: Vec<f64> = (0..dim).map(|a| x[a] - corners[0][a]).collect();
+    let inside = |t: f64, length: f64| t >= -tolerance / length && t <= 1.0 + tolerance / length;
+    match dim {
+        1 => true,
+        2 => {
+            let e = edge(1);
+            let length2 = dot(&e, &e);
+            inside(dot(&offset, &e) / length2, length2.sqrt())
+        }
+        _ => {
+            let (e1, e2) = (edge(1), edge(2));
+            let (g11, g12, g22) = (dot(&e1, &e1), dot(&e1, &e2), dot(&e2, &e2));
+            let (r1, r2) = (dot(&offset, &e1), dot(&offset, &e2));
+            let det = g11 * g22 - g12 * g12;
+            let a = (g22 * r1 - g12 * r2) / det;
+            let b = (g11 * r2 - g12 * r1) / det;
+            inside(a, g11.sqrt()) && inside(b, g22.sqrt())
+        }
+    }
 }
 
 /// The unit normal of the surface piece (1D: the axis; 2D: the segment turned by 90°; 3D: the
