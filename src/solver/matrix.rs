@@ -7,6 +7,8 @@
 //! only the values are refilled (`clear_values` then `add_block`). Both triangles are stored, so
 //! a non-symmetric tangent is represented as it is.
 
+use std::sync::Arc;
+
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 
 /// Marker for a node component that has no DOF (fixed, or node inactive).
@@ -19,8 +21,10 @@ pub const NO_ENTRY: usize = usize::MAX;
 #[derive(Default, Clone, Debug)]
 pub struct SparseMatrix {
     size: usize,
-    col_ptr: Vec<usize>,
-    row_idx: Vec<usize>,
+    /// The pattern, shared (not copied) with a solver that keeps an operator on it (multigrid's
+    /// finest level); a rebuild makes new vectors.
+    col_ptr: Arc<Vec<usize>>,
+    row_idx: Arc<Vec<usize>>,
     values: Vec<f64>,
     /// Counts pattern rebuilds, so that solvers know when their analysis is stale.
     generation: u64,
@@ -90,26 +94,40 @@ impl SparseMatrix {
         }
 
         self.size = size;
-        self.col_ptr.clear();
-        self.row_idx.clear();
-        self.col_ptr.push(0);
+        // New vectors at their exact sizes (a solver may still hold the old pattern).
+        let dofs_of = |node: usize| node_dofs[node].iter().filter(|&&d| d != NO_DOF).count();
+        let entries: usize = (0..node_dofs.len())
+            .map(|j| {
+                dofs_of(j)
+                    * adjacency[j]
+                        .iter()
+                        .map(|&i| dofs_of(i as usize))
+                        .sum::<usize>()
+            })
+            .sum();
+        let mut col_ptr = Vec::with_capacity(size + 1);
+        let mut row_idx = Vec::with_capacity(entries);
+        col_ptr.push(0);
         // Columns in DOF order: nodes in index order, components in order (node-major numbering).
         for (j, dofs_j) in node_dofs.iter().enumerate() {
             for &col in dofs_j.iter() {
                 if col == NO_DOF {
                     continue;
                 }
-                debug_assert_eq!(col as usize, self.col_ptr.len() - 1);
+                debug_assert_eq!(col as usize, col_ptr.len() - 1);
                 for &i in &adjacency[j] {
                     for &row in node_dofs[i as usize].iter() {
                         if row != NO_DOF {
-                            self.row_idx.push(row as usize);
+                            row_idx.push(row as usize);
                         }
                     }
                 }
-                self.col_ptr.push(self.row_idx.len());
+                col_ptr.push(row_idx.len());
             }
         }
+        drop(adjacency);
+        self.col_ptr = Arc::new(col_ptr);
+        self.row_idx = Arc::new(row_idx);
         self.values.clear();
         self.values.resize(self.row_idx.len(), 0.0);
         self.generation += 1;
@@ -291,6 +309,12 @@ impl SparseMatrix {
     /// How many times the pattern was built (solvers redo their analysis when it changes).
     pub fn generation(&self) -> u64 {
         self.generation
+    }
+
+    /// The pattern as shared vectors (column pointers, row indices), for a solver that keeps an
+    /// operator on this pattern without a copy of it.
+    pub fn shared_pattern(&self) -> (Arc<Vec<usize>>, Arc<Vec<usize>>) {
+        (Arc::clone(&self.col_ptr), Arc::clone(&self.row_idx))
     }
 
     /// The pattern: column pointers and row indices (CSC).

@@ -86,16 +86,17 @@
 //! (`super::vectors`), the same for any thread count; the prolongation (`x += P e`) scatters
 //! along `P`'s columns into one buffer per thread, added in order (bit-identical for a thread
 //! count, round-off across counts). Gauss–Seidel sweeps and the coarsest solve are sequential.
-//! A symmetric level operator is stored once: its columns, read as its rows.
+//! A symmetric level operator is stored once: its columns, read as its rows. The finest
+//! level's `Â = S K S` keeps only its values: its pattern is the tangent's, shared with the
+//! `SparseMatrix` (`SparseMatrix::shared_pattern`), not copied (8 bytes per nonzero: ~200 bytes
+//! per 2D point, q = 2).
 
 use faer::linalg::solvers::SolveCore;
 use faer::sparse::linalg::matmul::sparse_sparse_matmul;
 use faer::sparse::linalg::solvers::{Llt, Lu, SymbolicLlt, SymbolicLu};
-use faer::sparse::{
-    SparseColMat, SparseColMatRef, SparseRowMat, SymbolicSparseColMat, SymbolicSparseRowMat,
-    Triplet,
-};
+use faer::sparse::{SparseColMat, SparseColMatRef, SparseRowMat, SymbolicSparseColMatRef, Triplet};
 use faer::{Conj, MatMut, Par, Side};
+use std::sync::Arc;
 
 use super::vectors::{self, ScatterParts, sparse_dot};
 use super::{DofLayout, LinearSolveError, Preconditioner, SparseMatrix};
@@ -225,10 +226,34 @@ impl Default for Multigrid {
     }
 }
 
+/// An operator by rows (row starts, column indices, values); the pattern may be shared with
+/// the tangent's (the finest level of a symmetric tangent).
+struct Rows {
+    row_ptr: Arc<Vec<usize>>,
+    col_idx: Arc<Vec<usize>>,
+    values: Vec<f64>,
+}
+
+impl Rows {
+    fn from_faer(rows: SparseRowMat<usize, f64>) -> Self {
+        let (symbolic, values) = rows.into_parts();
+        let (_, _, row_ptr, _, col_idx) = symbolic.into_parts();
+        Self {
+            row_ptr: Arc::new(row_ptr),
+            col_idx: Arc::new(col_idx),
+            values,
+        }
+    }
+
+    fn parts(&self) -> (&[usize], &[usize], &[f64]) {
+        (&self.row_ptr, &self.col_idx, &self.values)
+    }
+}
+
 /// One level above the coarsest.
 struct Level {
     /// The operator by rows (smoothing, residuals).
-    rows: SparseRowMat<usize, f64>,
+    rows: Rows,
     inverse_diagonal: Vec<f64>,
     /// Where each row's diagonal entry is in `rows` (its columns are sorted).
     diagonal: Vec<usize>,
@@ -274,7 +299,7 @@ impl Multigrid {
         let mut hierarchy = Hierarchy::default();
         for level in &self.levels {
             hierarchy.rows.push(level.x.len());
-            hierarchy.nonzeros.push(level.rows.val().len());
+            hierarchy.nonzeros.push(level.rows.values.len());
         }
         hierarchy.rows.push(self.coarse_rhs.len());
         hierarchy.nonzeros.push(self.coarse_nonzeros);
@@ -295,7 +320,7 @@ impl Preconditioner for Multigrid {
         }
         self.levels.clear();
         self.coarsest = Coarsest::Empty;
-        let mut operator = scale_symmetrically(matrix, &mut self.scaling)?;
+        let mut operator = Operator::Fine(scale_symmetrically(matrix, &mut self.scaling)?);
         let (mut blocks, mut near_null) = if rebuild {
             fine_blocks_and_modes(matrix.layout(), matrix.size())
         } else {
@@ -308,7 +333,7 @@ impl Preconditioner for Multigrid {
             }
         }
         loop {
-            let a = operator.as_ref();
+            let a = operator.view(matrix);
             let l = self.levels.len();
             if a.nrows() <= self.coarsest_size || l + 1 >= self.max_levels {
                 break;
@@ -335,8 +360,8 @@ impl Preconditioner for Multigrid {
                 Smoother::GaussSeidel => Vec::new(),
                 Smoother::Chebyshev(_) => vec![0.0; n],
             };
-            let (rows, diagonal) =
-                by_rows(std::mem::replace(&mut operator, next), symmetric, diagonal)?;
+            let finer = std::mem::replace(&mut operator, Operator::Coarse(next));
+            let (rows, diagonal) = by_rows(finer, matrix, symmetric, diagonal)?;
             self.levels.push(Level {
                 rows,
                 inverse_diagonal,
@@ -353,9 +378,10 @@ impl Preconditioner for Multigrid {
         if rebuild {
             self.tentatives.truncate(self.levels.len());
         }
-        self.coarse_rhs = vec![0.0; operator.nrows()];
-        self.coarse_nonzeros = operator.val().len();
-        self.coarsest = factorise(operator.as_ref(), symmetric)?;
+        let a = operator.view(matrix);
+        self.coarse_rhs = vec![0.0; a.nrows()];
+        self.coarse_nonzeros = a.val().len();
+        self.coarsest = factorise(a, symmetric)?;
         Ok(())
     }
 
@@ -447,11 +473,7 @@ impl Level {
         let (theta, delta) = (0.5 * (upper + lower), 0.5 * (upper - lower));
         let sigma = theta / delta;
         let mut rho = 1.0 / sigma;
-        let (row_ptr, col_idx, values) = (
-            self.rows.symbolic().row_ptr(),
-            self.rows.symbolic().col_idx(),
-            self.rows.val(),
-        );
+        let (row_ptr, col_idx, values) = self.rows.parts();
         let (x, b, r, d) = (&mut self.x, &self.b, &mut self.r, &mut self.direction);
         let inverse_diagonal = &self.inverse_diagonal;
         // r = b − A x
@@ -504,11 +526,7 @@ impl Level {
 
     /// One Gauss–Seidel sweep on `A x = b`.
     fn sweep(&mut self, direction: Direction) {
-        let (row_ptr, col_idx, values) = (
-            self.rows.symbolic().row_ptr(),
-            self.rows.symbolic().col_idx(),
-            self.rows.val(),
-        );
+        let (row_ptr, col_idx, values) = self.rows.parts();
         let n = self.x.len();
         let x = &mut self.x;
         let (b, inverse_diagonal) = (&self.b, &self.inverse_diagonal);
@@ -533,7 +551,8 @@ impl Level {
 
     /// `r = b − A x`.
     fn residual(&mut self) {
-        multiply_rows(&self.rows, &self.x, &mut self.r);
+        let (row_ptr, col_idx, values) = self.rows.parts();
+        vectors::gather(row_ptr, col_idx, values, &self.x, &mut self.r);
         let b = &self.b;
         vectors::update(&mut self.r, |range, r| {
             for (r, b) in r.iter_mut().zip(&b[range]) {
@@ -562,17 +581,6 @@ fn add(x: &mut [f64], y: &[f64]) {
             *x += y;
         }
     });
-}
-
-/// `y = A x` for a matrix stored by rows (on the threads).
-fn multiply_rows(a: &SparseRowMat<usize, f64>, x: &[f64], y: &mut [f64]) {
-    vectors::gather(
-        a.symbolic().row_ptr(),
-        a.symbolic().col_idx(),
-        a.val(),
-        x,
-        y,
-    );
 }
 
 /// `y = Pᵀ r` (a gather along `P`'s columns, on the threads).
@@ -607,12 +615,12 @@ fn out_of_memory(what: &str) -> LinearSolveError {
     LinearSolveError::Singular(format!("multigrid setup ran out of memory ({what})"))
 }
 
-/// `S K S` with `S = diag(|K_ii|^(-1/2))` (so unit diagonal); `scaling` becomes `S`. A zero or
-/// non-finite diagonal entry is an error.
+/// The values of `S K S` with `S = diag(|K_ii|^(-1/2))` (so unit diagonal), on `K`'s pattern;
+/// `scaling` becomes `S`. A zero or non-finite diagonal entry is an error.
 fn scale_symmetrically(
     matrix: &SparseMatrix,
     scaling: &mut Vec<f64>,
-) -> Result<SparseColMat<usize, f64>, LinearSolveError> {
+) -> Result<Vec<f64>, LinearSolveError> {
     let (col_ptr, row_idx) = matrix.pattern();
     let values = matrix.values();
     scaling.clear();
@@ -633,9 +641,28 @@ fn scale_symmetrically(
             scaled.push(values[k] * scaling[row_idx[k]] * scaling[col]);
         }
     }
-    let n = matrix.size();
-    let pattern = SymbolicSparseColMat::new_checked(n, n, col_ptr.to_vec(), None, row_idx.to_vec());
-    Ok(SparseColMat::new(pattern, scaled))
+    Ok(scaled)
+}
+
+/// A level's operator by columns while the hierarchy is built: the finest's values on the
+/// tangent's pattern, or a coarse level's own matrix.
+enum Operator {
+    Fine(Vec<f64>),
+    Coarse(SparseColMat<usize, f64>),
+}
+
+impl Operator {
+    fn view<'a>(&'a self, matrix: &'a SparseMatrix) -> SparseColMatRef<'a, usize, f64> {
+        match self {
+            Operator::Fine(values) => {
+                let (col_ptr, row_idx) = matrix.pattern();
+                let n = matrix.size();
+                let pattern = SymbolicSparseColMatRef::new_checked(n, n, col_ptr, None, row_idx);
+                SparseColMatRef::new(pattern, values)
+            }
+            Operator::Coarse(a) => a.as_ref(),
+        }
+    }
 }
 
 /// The inverse diagonal of `a` and where each column's diagonal entry is in its values; a
@@ -664,24 +691,44 @@ fn diagonal_of(
 /// The operator by rows (the smoother reads rows, with sorted columns) and where each row's
 /// diagonal entry is. A symmetric operator whose columns are sorted is taken as it is: its
 /// columns are its rows (`Aᵀ = A`, to round-off), with no copy and the diagonal where
-/// [`diagonal_of`] found it; otherwise it is transposed (faer's transposition leaves each
-/// row's columns sorted).
+/// [`diagonal_of`] found it (the finest level's pattern stays shared with the tangent's);
+/// otherwise it is transposed (faer's transposition leaves each row's columns sorted).
 fn by_rows(
-    a: SparseColMat<usize, f64>,
+    operator: Operator,
+    matrix: &SparseMatrix,
     symmetric: bool,
     diagonal: Vec<usize>,
-) -> Result<(SparseRowMat<usize, f64>, Vec<usize>), LinearSolveError> {
+) -> Result<(Rows, Vec<usize>), LinearSolveError> {
     let sorted = {
+        let a = operator.view(matrix);
         let (col_ptr, row_idx) = (a.symbolic().col_ptr(), a.symbolic().row_idx());
-        (0..a.ncols()).all(|j| row_idx[col_ptr[j]..col_ptr[j + 1]].is_sorted())
+        a.symbolic().col_nnz().is_none()
+            && (0..a.ncols()).all(|j| row_idx[col_ptr[j]..col_ptr[j + 1]].is_sorted())
     };
-    if symmetric && sorted && a.symbolic().col_nnz().is_none() {
-        let (symbolic, values) = a.into_parts();
-        let (nrows, ncols, col_ptr, _, row_idx) = symbolic.into_parts();
-        let pattern = SymbolicSparseRowMat::new_checked(ncols, nrows, col_ptr, None, row_idx);
-        return Ok((SparseRowMat::new(pattern, values), diagonal));
+    if symmetric && sorted {
+        let rows = match operator {
+            Operator::Fine(values) => {
+                let (col_ptr, row_idx) = matrix.shared_pattern();
+                Rows {
+                    row_ptr: col_ptr,
+                    col_idx: row_idx,
+                    values,
+                }
+            }
+            Operator::Coarse(a) => {
+                let (symbolic, values) = a.into_parts();
+                let (_, _, col_ptr, _, row_idx) = symbolic.into_parts();
+                Rows {
+                    row_ptr: Arc::new(col_ptr),
+                    col_idx: Arc::new(row_idx),
+                    values,
+                }
+            }
+        };
+        return Ok((rows, diagonal));
     }
-    let rows = a
+    let rows = operator
+        .view(matrix)
         .to_row_major()
         .map_err(|_| out_of_memory("operator by rows"))?;
     let (row_ptr, col_idx) = (rows.symbolic().row_ptr(), rows.symbolic().col_idx());
@@ -692,7 +739,7 @@ fn by_rows(
                 .unwrap_or(row_ptr[i])
         })
         .collect();
-    Ok((rows, positions))
+    Ok((Rows::from_faer(rows), positions))
 }
 
 /// An estimate of the spectral radius of `D⁻¹A` by power iterations (with `Aᵀ` for a
