@@ -1,5 +1,6 @@
 //! Points that are carried by the material but are not material points — traction and load
-//! points (`tractions.rs`), boundary points (`surface_conditions.rs`) — keep their current
+//! points (`tractions.rs`), pressure points (`pressure.rs`), boundary points
+//! (`surface_conditions.rs`) — keep their current
 //! position from one load step to the next; their checkpoint part is that position, saved and
 //! restored in the order of their ids.
 

@@ -122,7 +122,7 @@ use bevy_ecs::prelude::*;
 use nalgebra::{SMatrix, SVector};
 use rhai::Dynamic;
 
-use super::carried_points::{CarriedPoint, restore_positions, save_positions};
+use super::carried_points::{carried_point, restore_positions, save_positions};
 use crate::basis::{BasisKind, BasisScratch, NodeWeight};
 use crate::checkpoint::CheckpointPart;
 use crate::components::{DeformationGradient, Position, ReferencePosition, Support, Trial};
@@ -596,17 +596,7 @@ fn spawn_boundary_points<const D: usize>(
     Ok(())
 }
 
-impl<const D: usize> CarriedPoint<D> for BoundaryPoint<D> {
-    fn id(&self) -> u32 {
-        self.id
-    }
-    fn position(&self) -> SVector<f64, D> {
-        self.position
-    }
-    fn position_mut(&mut self) -> &mut SVector<f64, D> {
-        &mut self.position
-    }
-}
+carried_point!(BoundaryPoint);
 
 /// The weights N̂_i of a boundary point (module docs): the basis at the point, `support`, when
 /// all its nodes with a non-zero value are active; else the host's first-order extrapolation
