@@ -133,9 +133,8 @@ impl Plugin for ArcLengthModule {
             let line = line.map(|l| format!(" (line {l})")).unwrap_or_default();
             refuse(format!(
                 "control: \"arc_length\" controls tractions, pressures, point loads and a body \
-                 force that \
-                 follow the load factor; {what}{line} is not one of them: the arc cannot \
-                 control two load parameters. Use supports (zero displacement) with \
+                 force that follow the load factor; {what}{line} is not one of them: the arc \
+                 cannot control two load parameters. Use supports (zero displacement) with \
                  arc-length, or load control for prescribed displacements"
             ))
         };

@@ -235,14 +235,19 @@ struct Rows {
 }
 
 impl Rows {
-    fn from_faer(rows: SparseRowMat<usize, f64>) -> Self {
-        let (symbolic, values) = rows.into_parts();
-        let (_, _, row_ptr, _, col_idx) = symbolic.into_parts();
+    /// Rows owned by this operator (row starts, column indices, values).
+    fn owned(row_ptr: Vec<usize>, col_idx: Vec<usize>, values: Vec<f64>) -> Self {
         Self {
             row_ptr: Arc::new(row_ptr),
             col_idx: Arc::new(col_idx),
             values,
         }
+    }
+
+    fn from_faer(rows: SparseRowMat<usize, f64>) -> Self {
+        let (symbolic, values) = rows.into_parts();
+        let (_, _, row_ptr, _, col_idx) = symbolic.into_parts();
+        Self::owned(row_ptr, col_idx, values)
     }
 
     fn parts(&self) -> (&[usize], &[usize], &[f64]) {
@@ -716,13 +721,10 @@ fn by_rows(
                 }
             }
             Operator::Coarse(a) => {
+                // its columns, read as its rows
                 let (symbolic, values) = a.into_parts();
                 let (_, _, col_ptr, _, row_idx) = symbolic.into_parts();
-                Rows {
-                    row_ptr: Arc::new(col_ptr),
-                    col_idx: Arc::new(row_idx),
-                    values,
-                }
+                Rows::owned(col_ptr, row_idx, values)
             }
         };
         return Ok((rows, diagonal));
