@@ -11,6 +11,8 @@
 //! The parts write plain `f64`s in an order of their own (points in `PointId` order), which keeps
 //! them exact (no text round trip) and independent of memory layout.
 
+use std::sync::Arc;
+
 use bevy_ecs::prelude::*;
 
 use crate::output::PvdSeries;
@@ -82,6 +84,93 @@ fn series_file_name(series: &PvdSeries) -> String {
         .file_name()
         .map(|name| name.to_string_lossy().into_owned())
         .unwrap_or_default()
+}
+
+/// How an owner writes its state on one material point (see [`PointStatePart`]).
+pub type PackPoint = dyn Fn(EntityRef<'_>, &mut Vec<f64>) + Send + Sync;
+
+/// How an owner gives a point of a body (its `BodyIndex`) the state its [`PackPoint`] wrote.
+pub type UnpackPoint =
+    dyn Fn(&mut EntityWorldMut<'_>, u32, &[f64]) -> Result<(), String> + Send + Sync;
+
+/// One owner's state on a single material point: what must travel with a point that moves to
+/// another process (`distributed::respawn`). A [`CheckpointPart`] saves every point at once
+/// into a world built from the same scene, whose points already carry every module's
+/// components; a point that arrives from another process is spawned with the core's components
+/// only, so here each owner also gives back what it derives from the point's body (a material
+/// model, an F-bar marker) and what it recomputes every step (at a neutral value). Registered
+/// with `plugin::Extension::point_state`.
+#[derive(Clone)]
+pub struct PointStatePart {
+    pub name: &'static str,
+    /// Appends the point's state (possibly nothing).
+    pub pack: Arc<PackPoint>,
+    /// Gives the point its components from exactly what `pack` wrote and its body.
+    pub unpack: Arc<UnpackPoint>,
+}
+
+/// The point-state parts registered in a simulation's world, in registration order.
+#[derive(Resource, Default, Clone)]
+pub struct PointStateParts(pub Vec<PointStatePart>);
+
+/// Every registered owner's state on the point `entity`: for each part, in registration
+/// order, the number of its values and then the values.
+pub fn pack_point_state(world: &World, entity: Entity) -> Result<Vec<f64>, String> {
+    let point = world
+        .get_entity(entity)
+        .map_err(|_| format!("entity {entity} does not exist"))?;
+    let mut values = Vec::new();
+    for part in world
+        .get_resource::<PointStateParts>()
+        .map_or(&[][..], |parts| &parts.0)
+    {
+        let start = values.len();
+        values.push(0.0);
+        (part.pack)(point, &mut values);
+        values[start] = (values.len() - start - 1) as f64;
+    }
+    Ok(values)
+}
+
+/// Gives the point `entity` of body `body` every owner's state from `values`, as
+/// [`pack_point_state`] wrote it in a world built from the same scene.
+pub fn unpack_point_state(
+    world: &mut World,
+    entity: Entity,
+    body: u32,
+    mut values: &[f64],
+) -> Result<(), String> {
+    let parts = world
+        .get_resource::<PointStateParts>()
+        .cloned()
+        .unwrap_or_default();
+    let mut point = world
+        .get_entity_mut(entity)
+        .map_err(|_| format!("entity {entity} does not exist"))?;
+    for part in &parts.0 {
+        let (&length, rest) = values
+            .split_first()
+            .ok_or_else(|| format!("{}: no state left for it", part.name))?;
+        let length = length as usize;
+        if rest.len() < length {
+            return Err(format!(
+                "{}: {length} values announced, {} left",
+                part.name,
+                rest.len()
+            ));
+        }
+        (part.unpack)(&mut point, body, &rest[..length])
+            .map_err(|why| format!("{}: {why}", part.name))?;
+        values = &rest[length..];
+    }
+    if values.is_empty() {
+        Ok(())
+    } else {
+        Err(format!(
+            "{} values left over after every part",
+            values.len()
+        ))
+    }
 }
 
 /// A saved state: the number of load steps done and every part's numbers.

@@ -16,6 +16,7 @@ use bevy_ecs::prelude::*;
 use nalgebra::{SMatrix, SVector};
 
 use crate::basis::NodeWeight;
+use crate::distributed::migration::PointRecord;
 use crate::mechanics::TrialState;
 
 /// Stable index of a material point (its order in the scene and in the output).
@@ -88,3 +89,38 @@ pub struct ModifiedIncrement<const D: usize>(pub SMatrix<f64, D, D>);
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[component(storage = "SparseSet")]
 pub struct AssembledElsewhere;
+
+/// The core's components of a material point, as one bundle ([`core_point`]).
+pub type CorePoint<const D: usize> = (
+    (PointId, Position<D>, ReferencePosition<D>, Displacement<D>),
+    (DeformationGradient<D>, Mass),
+    (ReferenceVolume, Volume, BodyIndex),
+    (Support<D>, Trial<D>),
+);
+
+/// A material point's core components in the state `point` describes (its `history`, the
+/// modules' part, is not read: `checkpoint::unpack_point_state` gives it back). The stress is
+/// that of no deformation until the next stress update recomputes it from `F` and the history.
+pub fn core_point<const D: usize>(point: &PointRecord<D>) -> CorePoint<D> {
+    (
+        (
+            PointId(point.id),
+            Position(point.position),
+            ReferencePosition(point.reference_position),
+            Displacement(point.displacement),
+        ),
+        (
+            DeformationGradient(point.deformation_gradient),
+            Mass(point.mass),
+        ),
+        (
+            ReferenceVolume(point.reference_volume),
+            Volume(point.volume),
+            BodyIndex(point.body),
+        ),
+        (
+            Support::<D>::default(),
+            Trial(TrialState::<D>::unstressed()),
+        ),
+    )
+}

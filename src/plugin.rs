@@ -42,7 +42,10 @@ use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::IntoScheduleConfigs;
 use bevy_ecs::system::ScheduleSystem;
 
-use crate::checkpoint::{CheckpointPart, CheckpointParts, CheckpointSeries, SeriesAccess};
+use crate::checkpoint::{
+    CheckpointPart, CheckpointParts, CheckpointSeries, PointStatePart, PointStateParts,
+    SeriesAccess,
+};
 use crate::components::PointId;
 pub use crate::method::Hook;
 use crate::method::Providers;
@@ -368,6 +371,29 @@ impl<'w, const D: usize> Extension<'w, D> {
             .get_resource_or_init::<CheckpointParts>()
             .0
             .push(part);
+        self
+    }
+
+    /// Registers the plugin's state on single material points (see
+    /// `checkpoint::PointStatePart`): what a point must carry, and what the plugin gives a point
+    /// spawned from that record, when it moves to another process.
+    pub fn point_state(
+        &mut self,
+        name: &'static str,
+        pack: impl Fn(EntityRef<'_>, &mut Vec<f64>) + Send + Sync + 'static,
+        unpack: impl Fn(&mut EntityWorldMut<'_>, u32, &[f64]) -> Result<(), String>
+        + Send
+        + Sync
+        + 'static,
+    ) -> &mut Self {
+        self.world
+            .get_resource_or_init::<PointStateParts>()
+            .0
+            .push(PointStatePart {
+                name,
+                pack: Arc::new(pack),
+                unpack: Arc::new(unpack),
+            });
         self
     }
 

@@ -27,8 +27,8 @@ use crate::basis::GridBasis;
 use crate::checkpoint::{self, CheckpointPart, CheckpointParts, CheckpointSeries, SavedState};
 use crate::components::*;
 use crate::control::{Attempt, LoadStepControl, StepCutting};
+use crate::distributed::migration::PointRecord;
 use crate::effects;
-use crate::mechanics::TrialState;
 use crate::method::{
     OutputSchedule, RollbackSchedule, StepSchedule, add_core_schedules, add_default_providers,
     initialize_schedules,
@@ -671,27 +671,18 @@ fn spawn_points<const D: usize>(world: &mut World, spec: &SceneSpec) -> Result<(
                 )));
             }
             let x = SVector::<f64, D>::from_fn(|a, _| seed.position[a]);
-            batch.push((
-                (
-                    PointId(id),
-                    Position(x),
-                    ReferencePosition(x),
-                    Displacement(SVector::<f64, D>::zeros()),
-                ),
-                (
-                    DeformationGradient(SMatrix::<f64, D, D>::identity()),
-                    Mass(density * seed.volume),
-                ),
-                (
-                    ReferenceVolume(seed.volume),
-                    Volume(seed.volume),
-                    BodyIndex(body_index as u32),
-                ),
-                (
-                    Support::<D>::default(),
-                    Trial(TrialState::<D>::unstressed()),
-                ),
-            ));
+            batch.push(core_point(&PointRecord {
+                id,
+                body: body_index as u32,
+                position: x,
+                reference_position: x,
+                displacement: SVector::zeros(),
+                deformation_gradient: SMatrix::identity(),
+                mass: density * seed.volume,
+                reference_volume: seed.volume,
+                volume: seed.volume,
+                history: Vec::new(),
+            }));
             id += 1;
         }
         world.spawn_batch(batch);

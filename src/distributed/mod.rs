@@ -13,12 +13,14 @@
 //!
 //! Built in every configuration: the pure kernels [`partition`] (the slabs) and [`migration`]
 //! (a point's whole state as numbers, who sends which points where: the first pieces of the
-//! decomposition, not used by runs yet), and [`launched_by_mpirun`], which reads the
+//! decomposition, not used by runs yet), [`respawn`] (a point taken out of a world as a record
+//! and spawned back from it, with every module's part), and [`launched_by_mpirun`], which reads the
 //! environment so that any build can refuse what it cannot run under `mpirun`. The process
 //! bookkeeping (`start`, `processes`, `any`, `abort`) exists with the feature `mpi` only.
 
 pub mod migration;
 pub mod partition;
+pub mod respawn;
 
 #[cfg(feature = "mpi")]
 mod world;

@@ -232,6 +232,19 @@ impl Plugin for FbarModule {
             )
         }));
         world.insert_resource(FbarCells::default());
+        simulation.point_state(
+            "F-bar points",
+            |_, _| {},
+            move |point, body, _| {
+                if let Some(&(_, averaging)) = bodies.iter().find(|(b, _)| *b == body as usize) {
+                    point.insert((
+                        FbarPoint(averaging),
+                        ModifiedIncrement::<D>(SMatrix::identity()),
+                    ));
+                }
+                Ok(())
+            },
+        );
         simulation
             .add_systems(Hook::Connectivity, group_points_by_cell::<D>)
             .add_systems(Hook::Kinematics, average_volume_change::<D>)

@@ -129,6 +129,9 @@ impl<M: Material> Plugin for MaterialModule<M> {
             return;
         }
         simulation.add_systems(Hook::StressUpdate, update_stress::<D, M>);
+        simulation.point_state(M::MODEL, pack_point::<M>, move |point, body, values| {
+            unpack_point(&models, point, body, values)
+        });
         if M::HAS_HISTORY {
             simulation
                 .add_systems(Hook::PointUpdate, commit_history::<M>)
@@ -174,6 +177,43 @@ fn apply_initial_stress<const D: usize, M: Material>(
             point.trial = history.clone();
             point.committed = history;
         }
+    }
+    Ok(())
+}
+
+/// A point's committed history (a `checkpoint::PointStatePart`): nothing for a point of
+/// another model or a model without history.
+fn pack_point<M: Material>(point: EntityRef<'_>, values: &mut Vec<f64>) {
+    if let Some(history) = point.get::<PointHistory<M>>() {
+        history.committed.write(values);
+    }
+}
+
+/// Gives a point of `body` the body's model (`models`, by body, `None` for bodies of other
+/// models) and the committed history `values` (trial = committed, as at a step's start).
+fn unpack_point<M: Material>(
+    models: &[Option<M>],
+    point: &mut EntityWorldMut<'_>,
+    body: u32,
+    values: &[f64],
+) -> Result<(), String> {
+    let Some(model) = models.get(body as usize).cloned().flatten() else {
+        return match values.is_empty() {
+            true => Ok(()),
+            false => Err(format!(
+                "a history for a point of body {body}, not of this model"
+            )),
+        };
+    };
+    point.insert(PointMaterial(model));
+    if M::HAS_HISTORY {
+        let committed = M::History::read(values).ok_or("the history is not valid")?;
+        point.insert(PointHistory::<M> {
+            trial: committed.clone(),
+            committed,
+        });
+    } else if !values.is_empty() {
+        return Err("a history for a model without one".into());
     }
     Ok(())
 }

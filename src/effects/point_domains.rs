@@ -119,6 +119,23 @@ impl Plugin for PointDomainsModule {
             ));
         }
         simulation.world().insert_batch(batch);
+        simulation.point_state(
+            "point domains",
+            |point, values| {
+                if let Some(domain) = point.get::<ParticleDomain<D>>() {
+                    values.extend(domain.initial_half_lengths.iter());
+                }
+            },
+            |point, _, values| {
+                if values.len() != D {
+                    return Err(format!("{} half-lengths, not {D}", values.len()));
+                }
+                point.insert(ParticleDomain::<D> {
+                    initial_half_lengths: SVector::from_column_slice(values),
+                });
+                Ok(())
+            },
+        );
         simulation.provide(Hook::Basis, self.name(), evaluate_domain_basis::<D>);
     }
 }

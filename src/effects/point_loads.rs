@@ -182,6 +182,22 @@ impl Plugin for PointLoadsModule {
                 .insert(PointLoad(force));
         }
         simulation
+            .point_state(
+                "point loads",
+                |point, values| {
+                    if let Some(load) = point.get::<PointLoad<D>>() {
+                        values.extend(load.0.iter());
+                    }
+                },
+                |point, _, values| match values.len() {
+                    0 => Ok(()),
+                    n if n == D => {
+                        point.insert(PointLoad(SVector::<f64, D>::from_column_slice(values)));
+                        Ok(())
+                    }
+                    n => Err(format!("a force of {n} components in {D}D")),
+                },
+            )
             .add_systems(Hook::Loads, apply_point_loads::<D>)
             .add_systems(Hook::PointFields, point_load_field::<D>);
     }

@@ -138,6 +138,14 @@ impl Plugin for StressRecoveryModule {
                 .map(|entity| (entity, RecoveredStress(Matrix3::zeros()))),
         );
         simulation
+            .point_state(
+                "stress recovery",
+                |_, _| {},
+                |point, _, _| {
+                    point.insert(RecoveredStress(Matrix3::zeros()));
+                    Ok(())
+                },
+            )
             .add_systems(Hook::AfterStep, recover_stress::<D>)
             .add_systems(Hook::PointFields, recovered_stress_field);
         if let Some(analytic) = analytic {

@@ -92,6 +92,28 @@ impl Plugin for FemMeshModule {
                 save: save_mesh_nodes::<D>,
                 restore: restore_mesh_nodes::<D>,
             })
+            .point_state(
+                "element points",
+                |point, values| {
+                    if let Some(at) = point.get::<ElementPoint<D>>() {
+                        values.push(at.element as f64);
+                        values.extend(at.xi.iter());
+                    }
+                },
+                |point, _, values| match values.split_first() {
+                    Some((&element, xi)) if xi.len() == D => {
+                        point.insert(ElementPoint::<D> {
+                            element: element as usize,
+                            xi: SVector::from_column_slice(xi),
+                        });
+                        Ok(())
+                    }
+                    _ => Err(format!(
+                        "{} numbers, not an element and {D} coordinates",
+                        values.len()
+                    )),
+                },
+            )
             .provide(Hook::Basis, self.name(), evaluate_element_basis::<D>)
             .add_systems(Hook::PointUpdate, advance_mesh::<D>)
             .provide(Hook::GridOutput, self.name(), write_mesh::<D>);
