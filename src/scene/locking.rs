@@ -30,6 +30,12 @@ const ISOCHORIC_MODELS: [&str; 1] = ["von_mises"];
 /// The built-in plastic material models.
 const PLASTIC_MODELS: [&str; 3] = ["von_mises", "drucker_prager", "mohr_coulomb"];
 
+/// Whether `model` is one of the built-in plastic material models (a model of a plugin is
+/// taken as not plastic).
+pub fn is_plastic_model(model: &str) -> bool {
+    PLASTIC_MODELS.contains(&model)
+}
+
 /// One warning per material with isochoric plastic flow that a body uses without F-bar, and
 /// one per plastic material whose bodies use F-bar with B-splines of order 2 or more.
 pub fn locking_warnings(spec: &SceneSpec) -> Vec<String> {
