@@ -838,6 +838,62 @@ fn point_quadrature_is_warned_before_the_run() {
     assert!((r - exact).abs() < 0.01 * exact, "{r} vs {exact}");
 }
 
+/// A run resumed after a condition has warned does not warn again: the conditions' "already
+/// warned" flags and largest prescribed displacements are part of the saved state (checkpoint
+/// part "surface conditions"). The cubic 40-step compression warns at step 18 (its separation
+/// then grows to the end); a new simulation restored from the state after step 24, with the
+/// warnings recorded so far (as `--resume` restores them), runs to the end with the same one
+/// warning of the run's checks and the uninterrupted run's reaction (bit for bit).
+#[test]
+fn a_resumed_run_does_not_warn_twice() {
+    let set = [("order", "3"), ("steps", "40")];
+    let checks = |warnings: &[String]| {
+        warnings
+            .iter()
+            .filter(|w| w.contains("surface condition 'top'"))
+            .count()
+    };
+    let mut whole = scene_sim::<2>("resumed_whole", &uniaxial::<2>(), &set);
+    for _ in 0..24 {
+        whole.step().unwrap();
+    }
+    assert_eq!(
+        checks(&whole.summary.warnings),
+        1,
+        "{:?}",
+        whole.summary.warnings
+    );
+    let saved = whole.save_state();
+    let so_far = whole.summary.warnings.clone();
+    whole.run(|_| {}).unwrap();
+    assert_eq!(checks(&whole.summary.warnings), 1);
+    let mut resumed = scene_sim::<2>("resumed", &uniaxial::<2>(), &set);
+    resumed.restore_state(&saved).unwrap();
+    resumed.summary.warnings = so_far;
+    resumed.run(|_| {}).unwrap();
+    let last = |sim: &Simulation<2>| {
+        sim.summary
+            .steps
+            .last()
+            .unwrap()
+            .measure("top_reaction_y")
+            .unwrap()
+    };
+    eprintln!(
+        "resumed after step 24: warnings {:?}, reaction {} (uninterrupted {})",
+        resumed.summary.warnings,
+        last(&resumed),
+        last(&whole)
+    );
+    assert_eq!(
+        checks(&resumed.summary.warnings),
+        1,
+        "{:?}",
+        resumed.summary.warnings
+    );
+    assert_eq!(last(&resumed), last(&whole));
+}
+
 /// `history.csv` has one row per converged step with the step, the load factor and every
 /// recorded quantity, named from the scene, equal to the records of `summary.json`.
 #[test]

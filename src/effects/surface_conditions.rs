@@ -151,6 +151,10 @@
 //! Systems: [`find_boundary_supports`] (`Hook::Connectivity`), [`assemble_surface_conditions`]
 //! (`Hook::AfterAssembly`), [`update_boundary_points`] (`Hook::PointUpdate`),
 //! [`measure_material_at_conditions`] and [`check_surface_conditions`] (`Hook::AfterStep`).
+//! Checkpoint parts (a resumed run continues exactly and does not warn twice): "boundary
+//! points" (their positions) and "surface conditions" (per condition whether it has warned
+//! and the largest prescribed displacement so far). Symmetric Nitsche's frozen host state is
+//! not saved: it is taken again at the first iterate of every step.
 
 use bevy_ecs::prelude::*;
 use nalgebra::{SMatrix, SVector};
@@ -523,6 +527,11 @@ impl Plugin for SurfaceConditionsModule {
                 name: "boundary points",
                 save: save_positions::<D, BoundaryPoint<D>>,
                 restore: restore_positions::<D, BoundaryPoint<D>>,
+            })
+            .checkpoint(CheckpointPart {
+                name: "surface conditions",
+                save: save_condition_state::<D>,
+                restore: restore_condition_state::<D>,
             })
             .add_systems(Hook::Connectivity, find_boundary_supports::<D>)
             .add_systems(Hook::AfterAssembly, assemble_surface_conditions::<D>)
@@ -920,6 +929,42 @@ pub fn update_boundary_points<const D: usize>(
     for condition in set.0.iter_mut() {
         condition.mean_displacement /= condition.area;
     }
+}
+
+/// What a resumed run needs of the conditions besides their points (a `CheckpointPart::save`):
+/// per condition whether it has warned (a resumed run does not warn twice) and the largest
+/// prescribed displacement so far (the scale of its checks), in declaration order.
+fn save_condition_state<const D: usize>(world: &mut World) -> Vec<f64> {
+    world
+        .get_resource::<SurfaceConditionSet<D>>()
+        .map_or_else(Vec::new, |set| {
+            set.0
+                .iter()
+                .flat_map(|c| [f64::from(u8::from(c.warned)), c.largest_prescribed])
+                .collect()
+        })
+}
+
+/// Restores what [`save_condition_state`] saved (a `CheckpointPart::restore`).
+fn restore_condition_state<const D: usize>(
+    world: &mut World,
+    values: &[f64],
+) -> Result<(), String> {
+    let mut set = world
+        .get_resource_mut::<SurfaceConditionSet<D>>()
+        .ok_or("the run has no surface conditions")?;
+    if values.len() != 2 * set.0.len() {
+        return Err(format!(
+            "{} values saved for {} conditions (2 each)",
+            values.len(),
+            set.0.len()
+        ));
+    }
+    for (condition, saved) in set.0.iter_mut().zip(values.chunks_exact(2)) {
+        condition.warned = saved[0] != 0.0;
+        condition.largest_prescribed = saved[1];
+    }
+    Ok(())
 }
 
 /// Threshold of [`check_surface_conditions`]: the fraction of the largest prescribed
