@@ -779,7 +779,9 @@ fn point_quadrature_is_warned_before_the_run() {
         impm::scene::scene_warnings(&spec)
     };
     let linear: &[(&str, &str)] = &[("basis", "linear"), ("order", "1"), ("stretch", "1.2")];
-    let warned: [(&str, &[(&str, &str)], &str); 5] = [
+    // (scene, overrides, a figure the warning gives)
+    type Warned<'a> = (&'a str, &'a [(&'a str, &'a str)], &'a str);
+    let warned: [Warned; 5] = [
         (&text, linear, "14 % off in tension"),
         (
             &text,
