@@ -9,7 +9,7 @@ use bevy_ecs::system::RunSystemOnce;
 use impm::components::Trial;
 use impm::effects::surface_conditions::{assemble_surface_conditions, find_boundary_supports};
 use impm::records::StepRecord;
-use impm::resources::{GridFields, LoadStep};
+use impm::resources::{GridFields, LoadStep, Newton};
 use impm::run::{Simulation, load_scene};
 use impm::solver::NO_DOF;
 use impm::stages::{evaluate_basis, number_dofs};
@@ -75,6 +75,15 @@ load_steps(steps);
     )
 }
 
+/// The scene of [`uniaxial`] with `surface_displace`'s option `nitsche: variant` (the same
+/// lines: the line numbers of messages do not change).
+fn with_variant(text: &str, variant: &str) -> String {
+    text.replace(
+        "method: method,",
+        &format!("method: method, nitsche: \"{variant}\","),
+    )
+}
+
 /// Runs to the end; returns the simulation and the records.
 fn run<const D: usize>(
     name: &str,
@@ -127,23 +136,30 @@ fn uniaxial_errors<const D: usize>(sim: &mut Simulation<D>, stretch: f64) -> (f6
 /// Where the method integrates a homogeneous deformation exactly (GIMP, CPDI, B-splines with
 /// domain integration), Nitsche's method gives the exact Hencky state at every point, the
 /// prescribed top displacement and the exact reaction (σ times the unit top area) to 1e-6, in
-/// compression to 80 % and tension to 120 %, 2D and 3D, in 5 load steps.
+/// compression to 80 % and tension to 120 %, 2D and 3D, in 5 load steps; with the symmetric
+/// variant (the default on this elastic block) and, in 2D with GIMP, the non-symmetric one.
 #[test]
 fn nitsche_gives_the_exact_uniaxial_strain_where_the_method_is_exact() {
-    let cases: [&[(&str, &str)]; 3] = [
-        &[("basis", "gimp")],
-        &[("basis", "cpdi")],
-        &[("integration", "domain")],
+    let cases: [(&[(&str, &str)], &str); 4] = [
+        (&[("basis", "gimp")], "auto"),
+        (&[("basis", "gimp")], "nonsymmetric"),
+        (&[("basis", "cpdi")], "auto"),
+        (&[("integration", "domain")], "auto"),
     ];
     for stretch in ["0.8", "1.2"] {
-        for case in cases {
+        for (case, variant) in cases {
             let mut set = case.to_vec();
             set.extend([("method", "nitsche"), ("stretch", stretch)]);
             let s: f64 = stretch.parse().unwrap();
-            let (mut sim, steps) = run::<2>("exact2d", &uniaxial::<2>(), &set);
+            let text = with_variant(&uniaxial::<2>(), variant);
+            let (mut sim, steps) = run::<2>("exact2d", &text, &set);
+            let symmetric = steps.last().unwrap().measure("top_symmetric").unwrap();
+            assert_eq!(symmetric, if variant == "auto" { 1.0 } else { 0.0 });
             let (worst, u, r) = uniaxial_errors(&mut sim, s);
             let (exact, _) = hencky_uniaxial(s);
-            eprintln!("2D {set:?}: σ error {worst:.1e}, top u {u}, reaction {r} (exact {exact})");
+            eprintln!(
+                "2D {set:?} {variant}: σ error {worst:.1e}, top u {u}, reaction {r} (exact {exact})"
+            );
             assert_material_reads_the_prescribed_state(&steps, 2, s);
             assert!(worst < 1e-6, "2D {set:?}: σ off by {worst:e}");
             assert!(
@@ -382,13 +398,82 @@ fn exact_methods_give_the_same_answer_with_5_and_40_steps() {
     }
 }
 
+/// `method: "nitsche"` takes the symmetric variant on an elastic body and the non-symmetric
+/// one on a plastic body (von Mises); `nitsche: "symmetric"` / `"nonsymmetric"` forces either;
+/// `impm check` names the variant; the option with the penalty method is an error naming the
+/// line.
+#[test]
+fn nitsche_variant_follows_the_material_and_can_be_forced() {
+    use impm::effects::surface_conditions::{Imposition, SurfaceConditions};
+    use impm::plugin::Plugin;
+    let plastic = |text: &str| {
+        text.replace(
+            "density: 1.0 });",
+            "density: 1.0, model: \"von_mises\", sigma_y: 2.0, H: 300.0 });",
+        )
+    };
+    let imposition = |name: &str, text: &str| -> Result<(Imposition, String), String> {
+        let dir = common::temp_dir("boundaries", name);
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join(format!("{name}.rhai"));
+        std::fs::write(&path, text).unwrap();
+        let spec = load_scene(&path, &common::overrides(&[("method", "nitsche")]));
+        let _ = std::fs::remove_dir_all(&dir);
+        let spec = spec.map_err(|e| e.to_string())?;
+        let described = impm::effects::surface_conditions::SurfaceConditionsModule
+            .describe(&spec)
+            .unwrap();
+        Ok((
+            spec.part::<SurfaceConditions>().unwrap().0[0].imposition,
+            described,
+        ))
+    };
+    let elastic = uniaxial::<2>();
+    let cases = [
+        ("elastic", elastic.clone(), Imposition::SymmetricNitsche),
+        ("plastic", plastic(&elastic), Imposition::Nitsche),
+        (
+            "forced",
+            with_variant(&elastic, "nonsymmetric"),
+            Imposition::Nitsche,
+        ),
+        (
+            "forced_plastic",
+            with_variant(&plastic(&elastic), "symmetric"),
+            Imposition::SymmetricNitsche,
+        ),
+    ];
+    for (name, text, expected) in cases {
+        let (got, described) = imposition(name, &text).unwrap();
+        eprintln!("{name}: {described}");
+        assert_eq!(got, expected, "{name}");
+        assert!(described.contains(expected.word()), "{name}: {described}");
+    }
+    let text =
+        with_variant(&elastic, "symmetric").replace("method: method,", "method: \"penalty\",");
+    let error = imposition("penalty", &text).unwrap_err();
+    assert!(
+        error.contains("15") && error.contains("option 'nitsche'"),
+        "{error}"
+    );
+}
+
 /// The assembled tangent with a surface condition equals finite differences of the assembled
 /// internal force at a deformed state (after two steps of compression, the boundary inside a
-/// cell) and a large trial increment: penalty (symmetric) and Nitsche (not symmetric).
+/// cell) and a large trial increment: penalty (symmetric), non-symmetric Nitsche, and
+/// symmetric Nitsche with its adjoint term's tangent frozen at the step's first iterate (here
+/// that of step 2: the tangent is exact but not symmetric) and frozen at the state itself
+/// (Newton iteration 0: the tangent is exact and symmetric, to 1e-9 of its largest entry).
 #[test]
 fn surface_condition_tangents_match_finite_differences() {
-    for method in ["penalty", "nitsche"] {
-        let text = uniaxial::<2>();
+    let cases = [
+        ("penalty", "auto", false),
+        ("nitsche", "nonsymmetric", false),
+        ("nitsche", "symmetric", false),
+        ("nitsche", "symmetric", true),
+    ];
+    for (method, variant, frozen_here) in cases {
+        let text = with_variant(&uniaxial::<2>(), variant);
         let mut sim = scene_sim::<2>("fd", &text, &[("method", method), ("cells", "3")]);
         sim.step().unwrap();
         sim.step().unwrap();
@@ -420,10 +505,18 @@ fn surface_condition_tangents_match_finite_differences() {
                 .run_system_once(assemble_surface_conditions::<2>)
                 .unwrap();
         };
+        if frozen_here {
+            // the first iterate of a step: the adjoint term takes this state's tangent
+            sim.world.resource_mut::<Newton>().iterations = 0;
+            common::internal_force_of::<impm::material::Hencky>(&mut sim, &add);
+            sim.world.resource_mut::<Newton>().iterations = 1;
+        }
         let (worst, scale) = common::assert_tangent_matches_finite_differences_of::<
             impm::material::Hencky,
-        >(&mut sim, &add, method == "penalty");
-        eprintln!("{method}: max |K - K_fd| = {worst:.2e} of {scale:.2e}");
+        >(&mut sim, &add, method == "penalty" || frozen_here);
+        eprintln!(
+            "{method} {variant} (frozen here: {frozen_here}): max |K - K_fd| = {worst:.2e} of {scale:.2e}"
+        );
     }
 }
 
@@ -431,8 +524,17 @@ fn surface_condition_tangents_match_finite_differences() {
 /// each next one (above round-off, 1e-10: a stiff penalty raises it) is at most 10 r².
 #[test]
 fn newton_converges_quadratically_with_surface_conditions() {
-    for method in ["penalty", "nitsche"] {
-        let (_, steps) = run::<2>("quadratic", &uniaxial::<2>(), &[("method", method)]);
+    for (method, variant) in [
+        ("penalty", "auto"),
+        ("nitsche", "nonsymmetric"),
+        ("nitsche", "symmetric"),
+    ] {
+        let text = with_variant(&uniaxial::<2>(), variant);
+        let (_, steps) = run::<2>("quadratic", &text, &[("method", method)]);
+        eprintln!(
+            "{method} {variant}: residuals {:?}",
+            steps.iter().map(|s| &s.residuals).collect::<Vec<_>>()
+        );
         let mut checked = 0;
         for step in &steps {
             for pair in step.residuals.windows(2) {
@@ -598,10 +700,16 @@ fn surface_condition_warns_when_the_material_does_not_follow_it() {
         assert!((r - exact).abs() > 0.1 * exact.abs(), "{r} vs {exact}");
         assert!(worst > 1.5, "{set:?}: {worst}");
         assert!(material > 1.5, "{set:?}: material {material}");
+        // one warning of the run's checks, after the point-quadrature warning both get
+        // before the run (cubic splines; quadratic with 3 points per cell)
         let json = sim.summary.to_json();
         let warnings = json["warnings"].as_array().expect("a warning");
-        assert_eq!(warnings.len(), 1, "{warnings:?}");
-        let warning = warnings[0].as_str().unwrap();
+        assert_eq!(warnings.len(), 2, "{warnings:?}");
+        assert!(
+            warnings[0].as_str().unwrap().contains("quadrature"),
+            "{warnings:?}"
+        );
+        let warning = warnings[1].as_str().unwrap();
         assert!(
             warning.contains("line 15") && warning.contains("surface condition 'top'"),
             "{warning}"
@@ -622,13 +730,170 @@ fn surface_condition_warns_when_the_material_does_not_follow_it() {
             "{set:?}: reaction {r}, separation / threshold {worst}, material offset / threshold {material}"
         );
         assert!(material < 0.7, "{set:?}: material {material}");
-        assert!(
-            sim.summary.warnings.is_empty(),
-            "{set:?}: {:?}",
-            sim.summary.warnings
-        );
+        // the run's checks are silent (cubic splines get the point-quadrature warning before
+        // the run: `point_quadrature_is_warned_before_the_run`)
+        let checks: Vec<_> = sim
+            .summary
+            .warnings
+            .iter()
+            .filter(|w| !w.contains("quadrature"))
+            .collect();
+        assert!(checks.is_empty(), "{set:?}: {checks:?}");
         assert!(worst < 0.6, "{set:?}: {worst}");
     }
+}
+
+/// The silent wrong answers neither check of the run can see (the material follows the
+/// condition; the error is the point quadrature inside the body) are warned about before the
+/// run, in `scene_warnings` (`impm check`, the log) and `summary.json`: point-integrated linear
+/// MPM and cubic B-splines (measured on this block in tension to 120 %, 5 steps: reaction
+/// −14.1 % and −2.0 %), quadratic B-splines with 3 × 3 points per cell (material displacement
+/// −0.94 % in compression) and uGIMP (+2.3 % at 40 steps). The warning names the condition's
+/// line and the alternatives. Not warned: cpGIMP, CPDI, domain integration (exact), quadratic
+/// B-splines with 2 × 2 and 4 × 4 points (reaction −0.55 % and −0.04 %, material −2.9e-4),
+/// a support (zero displacement) on linear MPM, and linear FEM with a grid-node `displace`.
+/// Two coarse runs check that the warned case is wrong (linear MPM in tension, reaction off by
+/// more than 5 %) and the warning reaches `summary.json`, and that a silent case is right
+/// (quadratic B-splines, 2 × 2 points, tension: reaction within 1 %).
+#[test]
+fn point_quadrature_is_warned_before_the_run() {
+    let text = uniaxial::<2>();
+    let ugimp = text.replace(
+        "integration: integration",
+        "integration: integration, gimp: \"fixed\"",
+    );
+    let support = text.replace("displacement: [0.0, stretch - 1.0], ", "");
+    // linear FEM on the block (a body-fitted mesh: the grid ends at the top), the top's nodes
+    // displaced
+    let fem = text.replace("upper: [1.0, 1.2]", "upper: [1.0, 1.0]").replace(
+        "surface_displace(#{ on: [[0.0, 1.0], [1.0, 1.0]], displacement: [0.0, stretch - 1.0], method: method, name: \"top\" });",
+        "displace(|x| x[1] == 1.0, [1], [stretch - 1.0]);",
+    );
+    let warnings = |name: &str, text: &str, set: &[(&str, &str)]| {
+        let dir = common::temp_dir("boundaries", name);
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join(format!("{name}.rhai"));
+        std::fs::write(&path, text).unwrap();
+        let spec = load_scene(&path, &common::overrides(set)).unwrap_or_else(|e| panic!("{e}"));
+        let _ = std::fs::remove_dir_all(&dir);
+        impm::scene::scene_warnings(&spec)
+    };
+    let linear: &[(&str, &str)] = &[("basis", "linear"), ("order", "1"), ("stretch", "1.2")];
+    // (scene, overrides, a figure the warning gives)
+    type Warned<'a> = (&'a str, &'a [(&'a str, &'a str)], &'a str);
+    let warned: [Warned; 5] = [
+        (&text, linear, "14 % off in tension"),
+        (
+            &text,
+            &[("order", "3"), ("stretch", "1.2")],
+            "2.0 % off in tension",
+        ),
+        (&text, &[("order", "4")], "order 4"),
+        (&text, &[("ppc", "3")], "0.94 %"),
+        (&ugimp, &[("basis", "gimp")], "uGIMP"),
+    ];
+    for (text, set, figure) in warned {
+        let found = warnings("warned", text, set);
+        eprintln!("{set:?}: {found:?}");
+        assert_eq!(found.len(), 1, "{set:?}: {found:?}");
+        let w = &found[0];
+        for part in [
+            "line 15: 'top'",
+            figure,
+            "\"gimp\"",
+            "\"cpdi\"",
+            "integration: \"domain\"",
+            "basis \"fem\"",
+        ] {
+            assert!(w.contains(part), "{set:?}: '{part}' not in {w}");
+        }
+    }
+    let silent: [(&str, &[(&str, &str)]); 7] = [
+        (&text, &[("basis", "gimp")]),
+        (&text, &[("basis", "cpdi")]),
+        (&text, &[("order", "3"), ("integration", "domain")]),
+        (&text, &[("order", "2")]),
+        (&text, &[("order", "2"), ("ppc", "4")]),
+        (&support, linear),
+        (&fem, &[("basis", "fem"), ("ppc", "1")]),
+    ];
+    for (text, set) in silent {
+        let found = warnings("silent", text, set);
+        assert!(found.is_empty(), "{set:?}: {found:?}");
+    }
+    let (exact, _) = hencky_uniaxial(1.2);
+    let (sim, steps) = run::<2>("quadrature", &uniaxial::<2>(), linear);
+    let r = steps.last().unwrap().measure("top_reaction_y").unwrap();
+    eprintln!("linear MPM, tension: reaction {r} (exact {exact})");
+    assert!((r - exact).abs() > 0.05 * exact, "{r} vs {exact}");
+    let json = sim.summary.to_json();
+    let recorded = json["warnings"].as_array().expect("warnings");
+    assert!(
+        recorded
+            .iter()
+            .any(|w| w.as_str().unwrap().contains("line 15: 'top'")),
+        "{recorded:?}"
+    );
+    let (_, steps) = run::<2>("quadrature", &uniaxial::<2>(), &[("stretch", "1.2")]);
+    let r = steps.last().unwrap().measure("top_reaction_y").unwrap();
+    eprintln!("quadratic B-splines, 2 x 2 points, tension: reaction {r} (exact {exact})");
+    assert!((r - exact).abs() < 0.01 * exact, "{r} vs {exact}");
+}
+
+/// A run resumed after a condition has warned does not warn again: the conditions' "already
+/// warned" flags and largest prescribed displacements are part of the saved state (checkpoint
+/// part "surface conditions"). The cubic 40-step compression warns at step 18 (its separation
+/// then grows to the end); a new simulation restored from the state after step 24, with the
+/// warnings recorded so far (as `--resume` restores them), runs to the end with the same one
+/// warning of the run's checks and the uninterrupted run's reaction (bit for bit).
+#[test]
+fn a_resumed_run_does_not_warn_twice() {
+    let set = [("order", "3"), ("steps", "40")];
+    let checks = |warnings: &[String]| {
+        warnings
+            .iter()
+            .filter(|w| w.contains("surface condition 'top'"))
+            .count()
+    };
+    let mut whole = scene_sim::<2>("resumed_whole", &uniaxial::<2>(), &set);
+    for _ in 0..24 {
+        whole.step().unwrap();
+    }
+    assert_eq!(
+        checks(&whole.summary.warnings),
+        1,
+        "{:?}",
+        whole.summary.warnings
+    );
+    let saved = whole.save_state();
+    let so_far = whole.summary.warnings.clone();
+    whole.run(|_| {}).unwrap();
+    assert_eq!(checks(&whole.summary.warnings), 1);
+    let mut resumed = scene_sim::<2>("resumed", &uniaxial::<2>(), &set);
+    resumed.restore_state(&saved).unwrap();
+    resumed.summary.warnings = so_far;
+    resumed.run(|_| {}).unwrap();
+    let last = |sim: &Simulation<2>| {
+        sim.summary
+            .steps
+            .last()
+            .unwrap()
+            .measure("top_reaction_y")
+            .unwrap()
+    };
+    eprintln!(
+        "resumed after step 24: warnings {:?}, reaction {} (uninterrupted {})",
+        resumed.summary.warnings,
+        last(&resumed),
+        last(&whole)
+    );
+    assert_eq!(
+        checks(&resumed.summary.warnings),
+        1,
+        "{:?}",
+        resumed.summary.warnings
+    );
+    assert_eq!(last(&resumed), last(&whole));
 }
 
 /// `history.csv` has one row per converged step with the step, the load factor and every

@@ -621,7 +621,9 @@ fn corpus() -> Vec<Case> {
             "done: 2 steps",
         ),
         // a warning given mid-run (here: the material leaves its surface condition, cubic
-        // splines with 2x2 points per cell) is repeated on the last line, which stays on screen
+        // splines with 2x2 points per cell) is repeated on the last line, which stays on screen;
+        // counted with the one the scene gets before the run (cubic splines integrated at the
+        // points: a prescribed surface displacement is not to be trusted to 1 %)
         case(
             "warning repeated at the end",
             Some(
@@ -636,7 +638,7 @@ load_steps(40);
             ),
             &["run", "SCENE", "--out", "DIR/o"],
             0,
-            " s, 1 warning (above and in summary.json)\nresults: ",
+            " s, 2 warnings (above and in summary.json)\nresults: ",
         ),
         // a body with no support is named at the first solve, not after the step cuts
         Case {

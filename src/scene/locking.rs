@@ -30,6 +30,12 @@ const ISOCHORIC_MODELS: [&str; 1] = ["von_mises"];
 /// The built-in plastic material models.
 const PLASTIC_MODELS: [&str; 3] = ["von_mises", "drucker_prager", "mohr_coulomb"];
 
+/// Whether `model` is one of the built-in plastic material models (a model of a plugin is
+/// taken as not plastic).
+pub fn is_plastic_model(model: &str) -> bool {
+    PLASTIC_MODELS.contains(&model)
+}
+
 /// One warning per material with isochoric plastic flow that a body uses without F-bar, and
 /// one per plastic material whose bodies use F-bar with B-splines of order 2 or more.
 pub fn locking_warnings(spec: &SceneSpec) -> Vec<String> {
@@ -79,10 +85,30 @@ pub fn locking_warnings(spec: &SceneSpec) -> Vec<String> {
     warnings
 }
 
-/// Every warning a scene gets before it runs: rank deficiency (`rank_warnings`) and volumetric
-/// locking ([`locking_warnings`]).
+/// Warnings a module found about the scene while resolving its declarations (a combination
+/// the method is known to get wrong); [`scene_warnings`] lists them after its own. A module
+/// appends to it ([`ModuleWarnings::add`]).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ModuleWarnings(pub Vec<String>);
+
+impl ModuleWarnings {
+    /// Appends `warnings` to the scene's module warnings.
+    pub fn add(spec: &mut SceneSpec, warnings: impl IntoIterator<Item = String>) {
+        let mut all = spec.part::<ModuleWarnings>().cloned().unwrap_or_default();
+        all.0.extend(warnings);
+        if !all.0.is_empty() {
+            spec.set_part(all);
+        }
+    }
+}
+
+/// Every warning a scene gets before it runs: rank deficiency (`rank_warnings`), volumetric
+/// locking ([`locking_warnings`]) and the modules' ([`ModuleWarnings`]).
 pub fn scene_warnings(spec: &SceneSpec) -> Vec<String> {
     let mut warnings = super::rank_warnings(spec);
     warnings.extend(locking_warnings(spec));
+    if let Some(module) = spec.part::<ModuleWarnings>() {
+        warnings.extend(module.0.iter().cloned());
+    }
     warnings
 }

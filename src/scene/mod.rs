@@ -59,13 +59,15 @@ pub use error::{SceneError, ScriptError};
 pub use fem_seeding::{PartialCell, seed_element_points};
 pub use geometry::{point_in_polygon, polygon_double_area};
 pub use limits::{SceneLimits, memory_estimate, support_size};
-pub use locking::{LockingTreated, locking_warnings, scene_warnings};
+pub use locking::{
+    LockingTreated, ModuleWarnings, is_plastic_model, locking_warnings, scene_warnings,
+};
 pub use options::{
     Choice, Kind, OptionSpec, OptionValue, Options, Range, array_of, describe, function, number,
     numbers, string, whole_number, whole_numbers,
 };
 pub use params::Parameter;
-pub use rank::rank_warnings;
+pub use rank::{points_across, rank_warnings};
 pub use registry::{CallSpec, Declare, SceneApi};
 pub use schedule::{MAX_STEPS, phase_factors};
 pub use seeding::{
