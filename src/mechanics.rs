@@ -303,34 +303,6 @@ pub fn trial_state_with_history<const D: usize, M: Material>(
     previous_deformation_gradient: &SMatrix<f64, D, D>,
     increment_gradient: &SMatrix<f64, D, D>,
 ) -> Result<(TrialState<D>, M::History), KinematicsError> {
-    trial_state_evaluated(
-        material,
-        committed,
-        previous_deformation_gradient,
-        increment_gradient,
-        Evaluation::Trial,
-    )
-}
-
-/// How the material of a point is asked for its response.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum Evaluation {
-    /// `Material::respond`: the trial state.
-    #[default]
-    Trial,
-    /// `Material::respond_continuing`: the first iterate of a load step that continues the last
-    /// converged step's plastic flow (its tangent; the stress is the trial state's).
-    Continuing,
-}
-
-/// [`trial_state_with_history`] with the material asked as `evaluation` says.
-pub fn trial_state_evaluated<const D: usize, M: Material>(
-    material: &M,
-    committed: &M::History,
-    previous_deformation_gradient: &SMatrix<f64, D, D>,
-    increment_gradient: &SMatrix<f64, D, D>,
-    evaluation: Evaluation,
-) -> Result<(TrialState<D>, M::History), KinematicsError> {
     if increment_gradient.iter().any(|v| !v.is_finite()) {
         return Err(KinematicsError::SingularIncrement);
     }
@@ -345,14 +317,9 @@ pub fn trial_state_evaluated<const D: usize, M: Material>(
         .try_inverse()
         .map(|inv| block::<D>(&inv))
         .ok_or(KinematicsError::SingularIncrement)?;
-    let response = match evaluation {
-        Evaluation::Trial => material.respond(&f, increment_gradient, committed),
-        Evaluation::Continuing if M::continues_flow(committed) => {
-            material.respond_continuing(&f, increment_gradient, committed)
-        }
-        Evaluation::Continuing => material.respond(&f, increment_gradient, committed),
-    }
-    .map_err(KinematicsError::Material)?;
+    let response = material
+        .respond(&f, increment_gradient, committed)
+        .map_err(KinematicsError::Material)?;
     let state = TrialState {
         deformation_gradient: f,
         increment_inverse,
@@ -374,17 +341,15 @@ pub fn trial_state_with_modified_increment<const D: usize, M: Material>(
     previous_deformation_gradient: &SMatrix<f64, D, D>,
     own_increment: &SMatrix<f64, D, D>,
     seen_increment: &SMatrix<f64, D, D>,
-    evaluation: Evaluation,
 ) -> Result<(TrialState<D>, M::History), KinematicsError> {
     if own_increment.iter().any(|v| !v.is_finite()) {
         return Err(KinematicsError::SingularIncrement);
     }
-    let (mut state, history) = trial_state_evaluated(
+    let (mut state, history) = trial_state_with_history(
         material,
         committed,
         previous_deformation_gradient,
         seen_increment,
-        evaluation,
     )?;
     state.increment_inverse = embed(own_increment)
         .try_inverse()

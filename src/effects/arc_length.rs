@@ -27,7 +27,6 @@ use crate::method::Hook;
 use crate::plugin::{Extension, Plugin};
 use crate::resources::Ramp;
 use crate::scene::{Choice, Kind, OptionSpec, Range, Resolver, SceneApi, SceneSpec, ScriptError};
-use crate::stages::ContinuingTangent;
 use crate::stages::arc_length::{
     ArcLength, ArcLengthSpec, correct_load_factor, keep_going_forward, take_reference_load,
     unit_load,
@@ -219,10 +218,6 @@ impl Plugin for ArcLengthModule {
         simulation
             .world()
             .insert_resource(ArcLength::<D>::new(first));
-        // the predictor sees the plastic flow of the last converged step (stages::arc_length)
-        simulation
-            .world()
-            .insert_resource(ContinuingTangent::default());
         simulation
             .add_systems(Hook::AfterDofs, unit_load)
             .add_systems(Hook::BeforeSolve, take_reference_load::<D>)

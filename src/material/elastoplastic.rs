@@ -130,7 +130,7 @@ pub trait PrincipalReturnMap {
 }
 
 /// The methods of [`Material`](super::Material) shared by every [`PrincipalReturnMap`] model:
-/// output fields, the response through [`respond`] (and [`respond_continuing`]), the stiffness scale and initial stresses
+/// output fields, the response through [`respond`], the stiffness scale and initial stresses
 /// through [`history_from_stress`]. Used inside `impl Material for Model { .. }`.
 macro_rules! elastoplastic_material_methods {
     () => {
@@ -150,22 +150,6 @@ macro_rules! elastoplastic_material_methods {
         ) -> Result<Response<D, PlasticHistory>, String> {
             use elastoplastic::PrincipalReturnMap;
             elastoplastic::respond(self.elasticity(), increment, committed, |e, t, a| {
-                self.principal_return(e, t, a)
-            })
-        }
-
-        fn continues_flow(committed: &PlasticHistory) -> bool {
-            committed.yielding
-        }
-
-        fn respond_continuing<const D: usize>(
-            &self,
-            _deformation_gradient: &SMatrix<f64, D, D>,
-            increment: &SMatrix<f64, D, D>,
-            committed: &PlasticHistory,
-        ) -> Result<Response<D, PlasticHistory>, String> {
-            use elastoplastic::PrincipalReturnMap;
-            elastoplastic::respond_continuing(self.elasticity(), increment, committed, |e, t, a| {
                 self.principal_return(e, t, a)
             })
         }
@@ -274,55 +258,7 @@ pub fn respond<const D: usize>(
     elastic: &Hencky,
     increment: &SMatrix<f64, D, D>,
     committed: &PlasticHistory,
-    return_map: impl Fn(&Vector3<f64>, &Vector3<f64>, f64) -> Result<PrincipalReturn, String>,
-) -> Result<Response<D, PlasticHistory>, String> {
-    respond_with(elastic, increment, committed, return_map, false)
-}
-
-/// The relative outward push of the trial strain deviator that [`respond_continuing`] takes
-/// its tangent at: the tangent there differs from the continuum tangent by O(this).
-pub const CONTINUING_PUSH: f64 = 1e-7;
-
-/// The response as [`respond`], but where the trial state is elastic at a point that flowed in
-/// the step that produced `committed` (`yielding`), the tangent is the elasto-plastic one of a
-/// point that keeps flowing: `Material::respond_continuing`, the first iterate of an
-/// arc-length step. At `Δf = I` such a point sits on its yield surface with `Φ^tr ≈ 0`, and
-/// the return map calls it elastic; the tangent is taken instead from the return map at the
-/// trial strains with their deviator pushed outward by the factor 1 + h
-/// ([`CONTINUING_PUSH`]),
-///
-/// ```text
-///   ε^push = ε^tr + h dev ε^tr,   D = ∂τ/∂ε^tr at ε^push   → the continuum tangent as h → 0
-/// ```
-///
-/// (a plastic return with `Δγ = O(h)`: for von Mises `β = 1 − O(h)` and
-/// `D → K 1⊗1 + 2G (I − ⅓ 1⊗1) − 6G²/(3G + H) N⊗N`). The push is outward for every model
-/// whose deviatoric sections of the elastic domain are star-shaped about the hydrostatic axis
-/// (von Mises, Drucker–Prager, Mohr–Coulomb). The stress and the history stay those of the
-/// trial state: only the tangent changes. A point at an apex (no deviator) keeps the elastic
-/// tangent.
-pub fn respond_continuing<const D: usize>(
-    elastic: &Hencky,
-    increment: &SMatrix<f64, D, D>,
-    committed: &PlasticHistory,
-    return_map: impl Fn(&Vector3<f64>, &Vector3<f64>, f64) -> Result<PrincipalReturn, String>,
-) -> Result<Response<D, PlasticHistory>, String> {
-    respond_with(
-        elastic,
-        increment,
-        committed,
-        return_map,
-        committed.yielding,
-    )
-}
-
-/// [`respond`], or [`respond_continuing`] when `continuing`.
-fn respond_with<const D: usize>(
-    elastic: &Hencky,
-    increment: &SMatrix<f64, D, D>,
-    committed: &PlasticHistory,
-    return_map: impl Fn(&Vector3<f64>, &Vector3<f64>, f64) -> Result<PrincipalReturn, String>,
-    continuing: bool,
+    return_map: impl FnOnce(&Vector3<f64>, &Vector3<f64>, f64) -> Result<PrincipalReturn, String>,
 ) -> Result<Response<D, PlasticHistory>, String> {
     let df = embed(increment);
     let trial = df * committed.elastic_left_cauchy_green * df.transpose();
@@ -348,28 +284,12 @@ fn respond_with<const D: usize>(
             },
         yielding: returned.yielding,
     };
-    let pushed = if continuing && !returned.yielding {
-        let strain = strain + deviator(&strain) * CONTINUING_PUSH;
-        Some(return_map(
-            &strain,
-            &(elasticity(elastic) * strain),
-            committed.plastic_strain,
-        )?)
-        .filter(|pushed| pushed.yielding)
-    } else {
-        None
-    };
-    let (principal_tangent, pair_modulus) = pushed
-        .as_ref()
-        .map_or((&returned.tangent, returned.pair_modulus), |pushed| {
-            (&pushed.tangent, pushed.pair_modulus)
-        });
     let tangent = isotropic_tangent::<D>(
         &spectral,
         &strain,
         &returned.stress,
-        principal_tangent,
-        pair_modulus,
+        &returned.tangent,
+        returned.pair_modulus,
     );
     Ok(Response {
         kirchhoff: spectral.compose(&returned.stress),

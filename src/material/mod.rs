@@ -129,29 +129,6 @@ pub trait Material: Clone + Debug + PartialEq + Send + Sync + 'static {
         committed: &Self::History,
     ) -> Result<Response<D, Self::History>, String>;
 
-    /// Whether a point with the committed history `committed` flowed in the step that
-    /// produced it, so that the first iterate of the next step may continue that flow
-    /// ([`Material::respond_continuing`]). By default never (models without plastic flow).
-    fn continues_flow(_committed: &Self::History) -> bool {
-        false
-    }
-
-    /// The response of the first iterate of a load step at a point that continues the last
-    /// converged step's flow ([`Material::continues_flow`]; arc-length control asks for it,
-    /// `stages::stress::ContinuingTangent`): as [`Material::respond`], except that where the
-    /// trial state is elastic (at `Δf = I` the point sits on its yield surface) the tangent is
-    /// the elasto-plastic one of a point that keeps flowing (the continuum tangent;
-    /// `elastoplastic::respond_continuing`). The stress and history are `respond`'s. By
-    /// default exactly `respond`.
-    fn respond_continuing<const D: usize>(
-        &self,
-        deformation_gradient: &SMatrix<f64, D, D>,
-        increment: &SMatrix<f64, D, D>,
-        committed: &Self::History,
-    ) -> Result<Response<D, Self::History>, String> {
-        self.respond(deformation_gradient, increment, committed)
-    }
-
     /// A stiffness scale of the model (Young's modulus for isotropic models), used for the
     /// default penalty factors of the ghost penalty and of weakly imposed conditions.
     fn stiffness_scale(&self) -> f64;

@@ -68,7 +68,6 @@
 use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 
-use super::stress::ContinuingTangent;
 use crate::resources::{GridFields, LoadStep, Newton, RunStatus, SolverError};
 use crate::solver::NO_DOF;
 
@@ -184,12 +183,6 @@ pub struct ArcLength<const D: usize> {
     corrected: usize,
     /// Iterations of the current attempt whose δλ came from the linearised constraint.
     pub linearised: usize,
-    /// The next attempt's predictor continues the plastic flow (set when an attempt turned
-    /// back; [`keep_going_forward`]).
-    continue_flow: bool,
-    /// Attempts whose predictor continued the plastic flow, and those of them that converged
-    /// forward.
-    pub continuing_attempts: (usize, usize),
 }
 
 impl<const D: usize> ArcLength<D> {
@@ -205,8 +198,6 @@ impl<const D: usize> ArcLength<D> {
             current: Vec::new(),
             corrected: 0,
             linearised: 0,
-            continue_flow: false,
-            continuing_attempts: (0, 0),
         }
     }
 
@@ -263,9 +254,7 @@ pub fn take_reference_load<const D: usize>(
     mut fields: ResMut<GridFields<D>>,
     mut step: ResMut<LoadStep>,
     mut status: ResMut<RunStatus>,
-    mut continuing: ResMut<ContinuingTangent>,
 ) {
-    continuing.active = std::mem::take(&mut arc.continue_flow);
     let (arc, fields) = (&mut *arc, &mut *fields);
     arc.reference.clone_from(&fields.external_force);
     arc.reference_dofs.clear();
@@ -302,17 +291,13 @@ pub fn take_reference_load<const D: usize>(
 /// branch past a plastic limit). A genuine snap-back (load and displacement falling together)
 /// is refused the same way: this control does not follow one.
 pub fn keep_going_forward<const D: usize>(
-    mut arc: ResMut<ArcLength<D>>,
+    arc: Res<ArcLength<D>>,
     mut newton: ResMut<Newton>,
     step: Res<LoadStep>,
     mut status: ResMut<RunStatus>,
-    continuing: Res<ContinuingTangent>,
 ) {
     if newton.iterations == 0 {
         newton.converged = false;
-        if continuing.active {
-            arc.continuing_attempts.0 += 1;
-        }
         return;
     }
     if !newton.converged || arc.previous.is_empty() {
@@ -323,7 +308,6 @@ pub fn keep_going_forward<const D: usize>(
     let unloading = arc.factor < arc.start && work < 0.0;
     if along < 0.0 || unloading {
         newton.converged = false;
-        arc.continue_flow = true;
         let why = if unloading {
             format!("the load and the displacement under it both fall (f̂·Δu = {work:.3e})")
         } else {
@@ -338,8 +322,6 @@ pub fn keep_going_forward<const D: usize>(
             ),
             recoverable: true,
         });
-    } else if continuing.active {
-        arc.continuing_attempts.1 += 1;
     }
 }
 
@@ -358,7 +340,6 @@ pub fn correct_load_factor<const D: usize>(
     }
     arc.corrected = newton.iterations;
     let residual_part = newton.residual.clone();
-
     let mut increment = vec![0.0; residual_part.len()];
     let mut previous = vec![0.0; residual_part.len()];
     for (node, dofs) in fields.dofs.iter().enumerate() {

@@ -32,5 +32,5 @@ pub use dofs::number_dofs;
 pub use newton::{DIVERGENCE_GROWTH, check_convergence, solve_linear_system};
 pub use output::{write_grid, write_nodes, write_particles};
 pub use reset::reset_grid;
-pub use stress::{ContinuingTangent, PointHistory, PointMaterial, commit_history, update_stress};
+pub use stress::{PointHistory, PointMaterial, commit_history, update_stress};
 pub use update::update_points;

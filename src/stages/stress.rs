@@ -22,7 +22,7 @@ use bevy_ecs::prelude::*;
 use crate::components::{DeformationGradient, ModifiedIncrement, PointId, Support, Trial};
 use crate::material::Material;
 use crate::mechanics::{
-    Evaluation, increment_gradient, trial_state_evaluated, trial_state_with_modified_increment,
+    increment_gradient, trial_state_with_history, trial_state_with_modified_increment,
 };
 use crate::parallel;
 use crate::resources::{GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock};
@@ -55,21 +55,11 @@ impl<M: Material> Default for PointHistory<M> {
     }
 }
 
-/// Whether a load step's first iterate (Δu = 0) takes the tangent of the last converged
-/// step's plastic flow (`Material::respond_continuing`) instead of the elastic one its trial
-/// state has. Owned by arc-length control, which turns it on for the attempt after one that
-/// landed on the elastic unloading branch past a limit load (`stages::arc_length`).
-#[derive(Resource, Clone, Copy, Debug, Default)]
-pub struct ContinuingTangent {
-    pub active: bool,
-}
-
 #[allow(clippy::type_complexity)]
 pub fn update_stress<const D: usize, M: Material>(
     fields: Res<GridFields<D>>,
     step: Res<LoadStep>,
     newton: Res<Newton>,
-    continuing: Option<Res<ContinuingTangent>>,
     mut status: ResMut<RunStatus>,
     mut clock: ResMut<StageClock>,
     mut points: Query<(
@@ -85,10 +75,6 @@ pub fn update_stress<const D: usize, M: Material>(
     let _timer = clock.time(Stage::StressUpdate);
     let none = M::History::default();
     let mut points: Vec<_> = points.iter_mut().collect();
-    let evaluation = match continuing {
-        Some(continuing) if continuing.active && newton.iterations == 0 => Evaluation::Continuing,
-        _ => Evaluation::Trial,
-    };
     // One part per thread (`parallel`); each keeps the first point it could not update.
     let mut failures = vec![None; parallel::part_count(points.len())];
     parallel::for_each_part(&mut points, &mut failures, |_, part, failure| {
@@ -96,15 +82,10 @@ pub fn update_stress<const D: usize, M: Material>(
             let df = increment_gradient(&support.0, |node| fields.increment[node]);
             let committed = history.as_ref().map_or(&none, |h| &h.committed);
             let evaluated = match modified {
-                None => trial_state_evaluated(&material.0, committed, &f.0, &df, evaluation),
-                Some(seen) => trial_state_with_modified_increment(
-                    &material.0,
-                    committed,
-                    &f.0,
-                    &df,
-                    &seen.0,
-                    evaluation,
-                ),
+                None => trial_state_with_history(&material.0, committed, &f.0, &df),
+                Some(seen) => {
+                    trial_state_with_modified_increment(&material.0, committed, &f.0, &df, &seen.0)
+                }
             };
             match evaluated {
                 Ok((state, trial_history)) => {
