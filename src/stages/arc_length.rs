@@ -177,11 +177,8 @@ pub struct ArcLength<const D: usize> {
     pub first_increment: f64,
     /// Δu of the previous converged step, by node (empty before the first).
     previous: Vec<SVector<f64, D>>,
-    /// Δu of the current iterate less `offset`, by node: the step's move along the path.
+    /// Δu of the current iterate, by node.
     current: Vec<SVector<f64, D>>,
-    /// The predictor's δu_r, by node: the correction of the out-of-balance force the step
-    /// starts with (the grid reset's), which the arc does not measure.
-    offset: Vec<SVector<f64, D>>,
     /// `Newton::iterations` at the last correction.
     corrected: usize,
     /// Iterations of the current attempt whose δλ came from the linearised constraint.
@@ -199,7 +196,6 @@ impl<const D: usize> ArcLength<D> {
             first_increment,
             previous: Vec::new(),
             current: Vec::new(),
-            offset: Vec::new(),
             corrected: 0,
             linearised: 0,
         }
@@ -213,7 +209,6 @@ impl<const D: usize> ArcLength<D> {
         self.corrected = 0;
         self.linearised = 0;
         self.current.clear();
-        self.offset.clear();
     }
 
     /// A follower load's force at λ = 1 changed by `change` (by node) with the iterate: f̂ is
@@ -343,29 +338,15 @@ pub fn correct_load_factor<const D: usize>(
     if newton.iterations == arc.corrected {
         return; // no solve in this iteration
     }
-    let predictor = arc.corrected == 0;
     arc.corrected = newton.iterations;
-    let mut residual_part = newton.residual.clone();
-    if predictor {
-        // the start's out-of-balance correction is kept but not measured by the arc
-        arc.offset = vec![SVector::zeros(); fields.dofs.len()];
-        for (node, dofs) in fields.dofs.iter().enumerate() {
-            for (c, &dof) in dofs.iter().enumerate() {
-                if dof != NO_DOF {
-                    arc.offset[node][c] = residual_part[dof as usize];
-                }
-            }
-        }
-        residual_part.iter_mut().for_each(|r| *r = 0.0);
-    }
+    let residual_part = newton.residual.clone();
     let mut increment = vec![0.0; residual_part.len()];
     let mut previous = vec![0.0; residual_part.len()];
     for (node, dofs) in fields.dofs.iter().enumerate() {
         for (c, &dof) in dofs.iter().enumerate() {
             if dof != NO_DOF {
                 let dof = dof as usize;
-                increment[dof] =
-                    fields.increment[node][c] - residual_part[dof] - arc.offset[node][c];
+                increment[dof] = fields.increment[node][c] - residual_part[dof];
                 previous[dof] = arc.previous.get(node).map_or(0.0, |u| u[c]);
             }
         }
@@ -432,9 +413,6 @@ fn move_to<const D: usize>(
         *f = reference * arc.factor;
     }
     arc.current.clone_from(&fields.increment);
-    for (u, offset) in arc.current.iter_mut().zip(&arc.offset) {
-        *u -= offset;
-    }
     // inactive and constrained components carry no Δu
     for (node, dofs) in fields.dofs.iter().enumerate() {
         for (c, &dof) in dofs.iter().enumerate() {
