@@ -322,6 +322,8 @@ fn run<const D: usize>(
         let out = std::env::temp_dir().join(format!("impm-scale-{}", std::process::id()));
         let started = memory::begin_run();
         let mut sim = Simulation::<D>::new(&spec, &out).unwrap_or_else(|e| panic!("{e}"));
+        // The points are spawned: their seeds in the scene are no longer needed.
+        drop(spec);
         if show_heap {
             sim.add_plugin(&HeapMarks).unwrap_or_else(|e| panic!("{e}"));
         }

@@ -46,6 +46,9 @@ use crate::stages::output::{OutputPlan, PointFields};
 /// A simulation of dimension `D`: the world and its schedules.
 pub struct Simulation<const D: usize> {
     pub world: World,
+    /// The scene without its point seeds ([`SceneSpec::without_point_seeds`]): once spawned,
+    /// the points live only in the world (their components), so a plugin added later
+    /// ([`Simulation::add_plugin`]) reads them there, not from `spec.bodies`.
     pub spec: SceneSpec,
     pub summary: Summary,
     steps_done: usize,
@@ -107,7 +110,7 @@ impl<const D: usize> Simulation<D> {
         let active = world.resource::<GridFields<D>>().active.len();
         Ok(Self {
             world,
-            spec: spec.clone(),
+            spec: spec.without_point_seeds(),
             summary: Summary::new(spec, points, active, out_dir),
             steps_done: 0,
             control: Box::new(StepCutting::new(spec.solver.max_step_cuts)),

@@ -29,7 +29,7 @@ use std::io::{self, Write};
 use quick_xml::events::Event;
 
 use super::pvd::escape_attribute;
-use super::vtu::{Cells, Field, VtuContents};
+use super::vtu::{Cells, Field, Stream, VtuContents};
 
 /// Names of the nine components of a row-major 3x3 tensor.
 pub const TENSOR_COMPONENT_NAMES: [&str; 9] =
@@ -46,10 +46,21 @@ struct Array<'a> {
 
 enum Data<'a> {
     F64(&'a [f64]),
+    /// `len` values from a source, checked by the caller's wrapper (count, finiteness).
+    Stream {
+        len: usize,
+        emit: Stream<'a>,
+    },
     Points(&'a [[f64; 3]]),
     I64(&'a [u64]),
-    Offsets { count: usize, nodes: u64 },
-    U8 { count: usize, value: u8 },
+    Offsets {
+        count: usize,
+        nodes: u64,
+    },
+    U8 {
+        count: usize,
+        value: u8,
+    },
 }
 
 impl Data<'_> {
@@ -57,6 +68,7 @@ impl Data<'_> {
     fn byte_len(&self) -> usize {
         match self {
             Data::F64(v) => 8 * v.len(),
+            Data::Stream { len, .. } => 8 * len,
             Data::Points(p) => 24 * p.len(),
             Data::I64(v) => 8 * v.len(),
             Data::Offsets { count, .. } => 8 * count,
@@ -80,6 +92,7 @@ impl Data<'_> {
             }
         };
         match self {
+            Data::Stream { emit, .. } => emit(&mut |values| write_f64s(w, values)),
             #[cfg(target_endian = "little")]
             Data::F64(v) => w.write_all(bytemuck::cast_slice(v)),
             #[cfg(target_endian = "little")]
@@ -111,6 +124,22 @@ impl Data<'_> {
     }
 }
 
+/// The little-endian bytes of `values` into `w` (no copy on little-endian machines).
+fn write_f64s(w: &mut impl Write, values: &[f64]) -> io::Result<()> {
+    #[cfg(target_endian = "little")]
+    {
+        w.write_all(bytemuck::cast_slice(values))
+    }
+    #[cfg(target_endian = "big")]
+    {
+        for chunk in values.chunks(8192) {
+            let bytes: Vec<u8> = chunk.iter().flat_map(|x| x.to_le_bytes()).collect();
+            w.write_all(&bytes)?;
+        }
+        Ok(())
+    }
+}
+
 /// Writes one `.vtu` file with raw appended data to `w`. The input must have been validated
 /// (finite values, field lengths, connectivity in range) by the caller.
 pub(super) fn write_appended(
@@ -120,14 +149,61 @@ pub(super) fn write_appended(
     point_data: &[Field],
     cell_data: &[Field],
 ) -> io::Result<()> {
+    write_arrays(
+        w,
+        points.len(),
+        Data::Points(points),
+        cells,
+        field_arrays(point_data),
+        field_arrays(cell_data),
+    )
+}
+
+/// [`write_appended`] with the coordinates (3 per point) and the point data produced on
+/// demand, array after array (`(name, components, source)`), so that no array of the file is
+/// held whole in memory. The sources must have been wrapped by the caller to check what they
+/// produce (their count and finiteness: `vtu::write_vtu_streamed`).
+pub(super) fn write_appended_streamed(
+    w: &mut impl Write,
+    point_count: usize,
+    points: Stream,
+    cells: &Cells,
+    point_data: &[(&str, usize, Stream)],
+) -> io::Result<()> {
+    let point_arrays = point_data
+        .iter()
+        .map(|&(name, components, emit)| Array {
+            name: Some(name),
+            vtk_type: "Float64",
+            components,
+            data: Data::Stream {
+                len: components * point_count,
+                emit,
+            },
+        })
+        .collect();
+    let geometry = Data::Stream {
+        len: 3 * point_count,
+        emit: points,
+    };
+    write_arrays(w, point_count, geometry, cells, point_arrays, Vec::new())
+}
+
+/// The file: the header with every array's offset, then the appended block.
+fn write_arrays(
+    w: &mut impl Write,
+    point_count: usize,
+    geometry: Data,
+    cells: &Cells,
+    point_arrays: Vec<Array>,
+    cell_arrays: Vec<Array>,
+) -> io::Result<()> {
     let cell_count = cells.count();
-    let point_arrays = field_arrays(point_data);
-    let cell_arrays = field_arrays(cell_data);
     let geometry = [Array {
         name: None,
         vtk_type: "Float64",
         components: 3,
-        data: Data::Points(points),
+        data: geometry,
     }];
     let topology = [
         Array {
@@ -173,8 +249,7 @@ pub(super) fn write_appended(
         "  <UnstructuredGrid>\n"
     ));
     header.push_str(&format!(
-        "    <Piece NumberOfPoints=\"{}\" NumberOfCells=\"{cell_count}\">\n",
-        points.len()
+        "    <Piece NumberOfPoints=\"{point_count}\" NumberOfCells=\"{cell_count}\">\n"
     ));
     section(&mut header, "PointData", &point_arrays);
     section(&mut header, "CellData", &cell_arrays);

@@ -61,8 +61,9 @@ pub use folder::{FolderLock, clear_after_step, clear_earlier_run, is_checkpoint_
 pub use pvd::PvdSeries;
 pub use pvtu::{POINT_ID, merge_pieces, merge_pvtu, pvtu_pieces, write_pvtu};
 pub use vtu::{
-    CellKind, Cells, Encoding, Field, VtuContents, lattice_cells, pad_points, read_vtu,
-    try_lattice_cells, vertex_cells, write_vtu, write_vtu_with,
+    CellKind, Cells, Encoding, Field, Sink, Stream, StreamedField, VtuContents, lattice_cells,
+    pad_points, read_vtu, try_lattice_cells, vertex_cells, write_vtu, write_vtu_streamed,
+    write_vtu_with,
 };
 
 /// The conventional name of the file of output step `step` of a series `stem`:

@@ -250,6 +250,102 @@ pub fn write_vtu(
     )
 }
 
+/// Values produced on demand for [`write_vtu_streamed`]: called once while the file is
+/// written, it passes every value of its array, in order, to the sink in runs of any length,
+/// and returns the sink's first error as it is.
+pub type Stream<'a> = &'a dyn Fn(&mut Sink) -> io::Result<()>;
+
+/// Where a [`Stream`] passes its values.
+pub type Sink<'s> = dyn FnMut(&[f64]) -> io::Result<()> + 's;
+
+/// A point data array produced on demand ([`Stream`]): `components` values per point.
+#[derive(Clone, Copy)]
+pub struct StreamedField<'a> {
+    pub name: &'a str,
+    pub components: usize,
+    pub values: Stream<'a>,
+}
+
+/// [`write_vtu`] (raw appended data) for `point_count` points whose coordinates (3 per point)
+/// and point data are produced on demand, array after array, so that no array is held whole
+/// in memory: the file is byte for byte the one [`write_vtu`] writes from the same values.
+///
+/// The names, component counts and cells are checked before anything is written; the values
+/// as they are produced: a NaN or infinity (named with its index, as in [`write_vtu`]) or a
+/// source that produces more or fewer values than `components * point_count` is an
+/// `InvalidInput` error, and the file is not written (the partial file is discarded).
+pub fn write_vtu_streamed(
+    path: &Path,
+    point_count: usize,
+    points: Stream,
+    cells: &Cells,
+    point_data: &[StreamedField],
+) -> io::Result<()> {
+    validate_cells(cells, point_count)?;
+    for (n, f) in point_data.iter().enumerate() {
+        let earlier = point_data[..n].iter().map(|g| g.name);
+        validate_declaration("point", n, f.name, f.components, earlier)?;
+    }
+    let coordinates = |sink: &mut Sink| {
+        checked(points, 3 * point_count, "the coordinates", sink, |i, x| {
+            format!(
+                "point {} has a non-finite coordinate {x} (axis {})",
+                i / 3,
+                i % 3
+            )
+        })
+    };
+    let sources: Vec<_> = point_data
+        .iter()
+        .map(|f| {
+            move |sink: &mut Sink| {
+                let what = format!("point data field {:?}", f.name);
+                checked(f.values, f.components * point_count, &what, sink, |i, x| {
+                    non_finite_message("point", f.name, f.components, i, x)
+                })
+            }
+        })
+        .collect();
+    let arrays: Vec<(&str, usize, Stream)> = point_data
+        .iter()
+        .zip(&sources)
+        .map(|(f, source)| (f.name, f.components, source as Stream))
+        .collect();
+    write_atomic_with(path, |w| {
+        super::appended::write_appended_streamed(w, point_count, &coordinates, cells, &arrays)
+    })
+}
+
+/// Passes `values` on to `sink`, checking that they are finite (`non_finite(index, value)`
+/// names the first that is not) and that there are exactly `expected` of them.
+fn checked(
+    values: Stream,
+    expected: usize,
+    what: &str,
+    sink: &mut Sink,
+    non_finite: impl Fn(usize, f64) -> String,
+) -> io::Result<()> {
+    let mut at = 0usize;
+    values(&mut |run: &[f64]| {
+        if run.len() > expected - at {
+            return Err(invalid(format!(
+                "{what} produced more than the {expected} values expected"
+            )));
+        }
+        if let Some(i) = run.iter().position(|x| !x.is_finite()) {
+            return Err(invalid(non_finite(at + i, run[i])));
+        }
+        at += run.len();
+        sink(run)
+    })?;
+    if at != expected {
+        return Err(invalid(format!(
+            "{what} produced {at} values, expected {expected}"
+        )));
+    }
+    Ok(())
+}
+
 /// [`write_vtu`] with a choice of [`Encoding`].
 pub fn write_vtu_with(
     path: &Path,
@@ -359,6 +455,13 @@ fn validate(
             )));
         }
     }
+    validate_cells(cells, points.len())?;
+    validate_fields("point", points.len(), point_data)?;
+    validate_fields("cell", cells.count(), cell_data)
+}
+
+/// The connectivity: whole cells, every entry one of the `point_count` points.
+fn validate_cells(cells: &Cells, point_count: usize) -> io::Result<()> {
     let nodes = cells.kind.nodes_per_cell();
     if !cells.connectivity.len().is_multiple_of(nodes) {
         return Err(invalid(format!(
@@ -371,35 +474,53 @@ fn validate(
         .connectivity
         .iter()
         .enumerate()
-        .find(|&(_, &node)| node >= points.len() as u64)
+        .find(|&(_, &node)| node >= point_count as u64)
     {
         return Err(invalid(format!(
-            "connectivity entry {i} (cell {}) refers to point {node}, but there are only {} points",
+            "connectivity entry {i} (cell {}) refers to point {node}, but there are only {point_count} points",
             i / nodes,
-            points.len()
         )));
     }
-    validate_fields("point", points.len(), point_data)?;
-    validate_fields("cell", cells.count(), cell_data)
+    Ok(())
+}
+
+/// Field `n`'s name (non-empty, not one of the `earlier` names) and component count.
+fn validate_declaration<'a>(
+    what: &str,
+    n: usize,
+    name: &str,
+    components: usize,
+    mut earlier: impl Iterator<Item = &'a str>,
+) -> io::Result<()> {
+    if name.is_empty() {
+        return Err(invalid(format!("{what} data field #{n} has an empty name")));
+    }
+    if earlier.any(|g| g == name) {
+        return Err(invalid(format!(
+            "{what} data field {name:?} appears more than once"
+        )));
+    }
+    if components == 0 || u32::try_from(components).is_err() {
+        return Err(invalid(format!(
+            "{what} data field {name:?} has an invalid component count {components}"
+        )));
+    }
+    Ok(())
+}
+
+/// The message for a NaN or infinite `value` at index `i` of a field.
+fn non_finite_message(what: &str, name: &str, components: usize, i: usize, value: f64) -> String {
+    format!(
+        "{what} data field {name:?} has a non-finite value {value} at index {i} ({what} {}, component {})",
+        i / components,
+        i % components
+    )
 }
 
 fn validate_fields(what: &str, count: usize, fields: &[Field]) -> io::Result<()> {
     for (n, f) in fields.iter().enumerate() {
-        if f.name.is_empty() {
-            return Err(invalid(format!("{what} data field #{n} has an empty name")));
-        }
-        if fields[..n].iter().any(|g| g.name == f.name) {
-            return Err(invalid(format!(
-                "{what} data field {:?} appears more than once",
-                f.name
-            )));
-        }
-        if f.components == 0 || u32::try_from(f.components).is_err() {
-            return Err(invalid(format!(
-                "{what} data field {:?} has an invalid component count {}",
-                f.name, f.components
-            )));
-        }
+        let earlier = fields[..n].iter().map(|g| g.name);
+        validate_declaration(what, n, f.name, f.components, earlier)?;
         if f.components.checked_mul(count) != Some(f.values.len()) {
             return Err(invalid(format!(
                 "{what} data field {:?} has {} values, expected {} components x {count} {what}s = {}",
@@ -410,13 +531,8 @@ fn validate_fields(what: &str, count: usize, fields: &[Field]) -> io::Result<()>
             )));
         }
         if let Some(i) = f.values.iter().position(|x| !x.is_finite()) {
-            return Err(invalid(format!(
-                "{what} data field {:?} has a non-finite value {} at index {i} ({what} {}, component {})",
-                f.name,
-                f.values[i],
-                i / f.components,
-                i % f.components
-            )));
+            let message = non_finite_message(what, f.name, f.components, i, f.values[i]);
+            return Err(invalid(message));
         }
     }
     Ok(())
@@ -789,6 +905,85 @@ mod tests {
     }
 
     const THREE: [[f64; 3]; 3] = [[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+
+    /// A stream of `values` in runs of `run` values (not whole points).
+    fn in_runs(values: &[f64], run: usize) -> impl Fn(&mut Sink) -> io::Result<()> + '_ {
+        move |sink| values.chunks(run).try_for_each(sink)
+    }
+
+    #[test]
+    fn streamed_arrays_write_the_same_bytes_and_are_checked() {
+        let dir = TestDir::new("streamed");
+        let (whole, streamed) = (
+            dir.path().join("whole.vtu"),
+            dir.path().join("streamed.vtu"),
+        );
+        let stress = ramp(27, 0.37);
+        let mass = ramp(3, 1.5);
+        let fields = [
+            Field::new("cauchy_stress", 9, &stress),
+            Field::scalar("mass", &mass),
+        ];
+        write_vtu(&whole, &THREE, &vertex_cells(3), &fields, &[]).unwrap();
+        let coordinates: Vec<f64> = THREE.iter().flatten().copied().collect();
+        let (xyz, s, m) = (
+            in_runs(&coordinates, 4),
+            in_runs(&stress, 5),
+            in_runs(&mass, 1),
+        );
+        let streams = [
+            StreamedField {
+                name: "cauchy_stress",
+                components: 9,
+                values: &s,
+            },
+            StreamedField {
+                name: "mass",
+                components: 1,
+                values: &m,
+            },
+        ];
+        write_vtu_streamed(&streamed, 3, &xyz, &vertex_cells(3), &streams).unwrap();
+        assert_eq!(
+            std::fs::read(&whole).unwrap(),
+            std::fs::read(&streamed).unwrap()
+        );
+
+        let bad = dir.path().join("bad.vtu");
+        let mut nan = stress.clone();
+        nan[13] = f64::NAN;
+        let n = in_runs(&nan, 5);
+        let short = in_runs(&mass[..2], 1);
+        let cases: [(StreamedField, &[&str]); 2] = [
+            (
+                StreamedField {
+                    name: "cauchy_stress",
+                    components: 9,
+                    values: &n,
+                },
+                &["cauchy_stress", "NaN", "index 13", "point 1, component 4"],
+            ),
+            (
+                StreamedField {
+                    name: "mass",
+                    components: 1,
+                    values: &short,
+                },
+                &["\"mass\"", "produced 2 values, expected 3"],
+            ),
+        ];
+        for (field, expect) in cases {
+            let err = write_vtu_streamed(&bad, 3, &xyz, &vertex_cells(3), &[field]).unwrap_err();
+            assert_eq!(err.kind(), io::ErrorKind::InvalidInput, "{err}");
+            for e in expect {
+                assert!(err.to_string().contains(e), "{err} lacks {e:?}");
+            }
+            assert!(!bad.exists());
+        }
+        let mut names = dir.file_names();
+        names.sort();
+        assert_eq!(names, ["streamed.vtu", "whole.vtu"]);
+    }
 
     #[test]
     fn wrong_point_field_length_is_rejected() {

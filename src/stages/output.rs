@@ -27,7 +27,10 @@ use crate::components::{
     Position, ReferencePosition, ReferenceVolume, Trial, Volume,
 };
 use crate::mechanics::{embed, interpolate};
-use crate::output::{Field, POINT_ID, PvdSeries, lattice_cells, vertex_cells, write_vtu};
+use crate::output::{
+    Field, POINT_ID, PvdSeries, Sink, StreamedField, lattice_cells, vertex_cells, write_vtu,
+    write_vtu_streamed,
+};
 use crate::resources::{Grid, GridFields, LoadStep, RunStatus, SolverError, Stage, StageClock};
 
 /// The core's particle fields, in file order, with their meaning (`output(#{ fields: [..] })`
@@ -181,6 +184,30 @@ pub fn pad<const D: usize>(v: &SVector<f64, D>) -> [f64; 3] {
     std::array::from_fn(|k| if k < D { v[k] } else { 0.0 })
 }
 
+/// One point as the particle file reads it.
+type Particle<'a, const D: usize> = (
+    (&'a PointId, bool, Entity),
+    &'a Position<D>,
+    &'a ReferencePosition<D>,
+    &'a ReferenceVolume,
+    &'a Volume,
+    &'a Mass,
+    &'a Displacement<D>,
+    &'a DeformationGradient<D>,
+    &'a Trial<D>,
+    &'a BodyIndex,
+);
+
+/// Appends one point's values of an array.
+type Values<const D: usize> = fn(&Particle<'_, D>, &mut Vec<f64>);
+
+/// Points per run of values handed to the writer: the only buffer an array needs.
+const RUN: usize = 4096;
+
+/// The particle file. Its arrays are produced from the points' components run by run while
+/// the file is written ([`write_vtu_streamed`]): besides the points' entities in `PointId`
+/// order (16 B per point), no array is held whole in memory (the file is the one the same
+/// arrays written whole would give, byte for byte).
 #[allow(clippy::type_complexity)]
 pub fn write_particles<const D: usize>(
     step: Res<LoadStep>,
@@ -190,7 +217,7 @@ pub fn write_particles<const D: usize>(
     mut clock: ResMut<StageClock>,
     mut pieces: Option<ResMut<ParticlePieces>>,
     points: Query<(
-        (&PointId, Has<AssembledElsewhere>),
+        (&PointId, Has<AssembledElsewhere>, Entity),
         &Position<D>,
         &ReferencePosition<D>,
         &ReferenceVolume,
@@ -206,61 +233,49 @@ pub fn write_particles<const D: usize>(
         return;
     }
     let _timer = clock.time(Stage::Output);
-    let mut rows: Vec<_> = points
+    // the points written (by PointId, over all points) and their entities
+    let mut keyed: Vec<(u32, Entity)> = points
         .iter()
         .filter(|row| pieces.is_none() || !row.0.1)
+        .map(|row| (row.0.0.0, row.0.2))
         .collect();
-    rows.sort_by_key(|row| row.0.0.0);
-    // the points written, for the extra fields (indexed by PointId over all points)
-    let ids: Vec<usize> = rows.iter().map(|row| row.0.0.0 as usize).collect();
-    let n = rows.len();
-    let mut positions = Vec::with_capacity(n);
-    let mut reference = Vec::with_capacity(3 * n);
-    let mut reference_volume = Vec::with_capacity(n);
-    let mut volume = Vec::with_capacity(n);
-    let mut mass = Vec::with_capacity(n);
-    let mut displacement = Vec::with_capacity(3 * n);
-    let mut stress = Vec::with_capacity(9 * n);
-    let mut deformation = Vec::with_capacity(9 * n);
-    let mut body = Vec::with_capacity(n);
-    for (_, x, xr, v0, v, m, u, f, trial, b) in rows {
-        positions.push(pad(&x.0));
-        reference.extend(pad(&xr.0));
-        reference_volume.push(v0.0);
-        volume.push(v.0);
-        mass.push(m.0);
-        displacement.extend(pad(&u.0));
-        stress.extend(row_major(&trial.0.cauchy()));
-        deformation.extend(row_major(&embed(&f.0)));
-        body.push(b.0 as f64);
-    }
+    keyed.sort_unstable_by_key(|&(id, _)| id);
+    let n = keyed.len();
+    let (keyed, query) = (&keyed, &points);
+    let stream = |values: Values<D>| {
+        move |sink: &mut Sink| {
+            let mut run = Vec::with_capacity(9 * RUN);
+            for chunk in keyed.chunks(RUN) {
+                run.clear();
+                for point in query.iter_many(chunk.iter().map(|&(_, entity)| entity)) {
+                    values(&point.map_err(std::io::Error::other)?, &mut run);
+                }
+                sink(&run)?;
+            }
+            Ok(())
+        }
+    };
+    let coordinates = stream(|p, out| out.extend(pad(&p.1.0)));
     // in the order of PARTICLE_FIELDS
-    let columns: [(usize, &[f64]); 8] = [
-        (3, &reference),
-        (1, &reference_volume),
-        (1, &volume),
-        (1, &mass),
-        (3, &displacement),
-        (9, &stress),
-        (9, &deformation),
-        (1, &body),
+    let columns: [(usize, Values<D>); 8] = [
+        (3, |p, out| out.extend(pad(&p.2.0))),
+        (1, |p, out| out.push(p.3.0)),
+        (1, |p, out| out.push(p.4.0)),
+        (1, |p, out| out.push(p.5.0)),
+        (3, |p, out| out.extend(pad(&p.6.0))),
+        (9, |p, out| out.extend(row_major(&p.8.0.cauchy()))),
+        (9, |p, out| out.extend(row_major(&embed(&p.7.0)))),
+        (1, |p, out| out.push(p.9.0 as f64)),
     ];
-    let mut fields: Vec<Field> = PARTICLE_FIELDS
-        .iter()
-        .zip(columns)
-        .map(|(&(name, _), (components, values))| Field {
-            name,
-            components,
-            values,
-        })
-        .collect();
+    let columns = columns.map(|(components, values)| (components, stream(values)));
     let mut extra = std::mem::take(&mut extra.0);
     let all_points = points.iter().len();
     if n < all_points {
         for field in &mut extra {
             let c = field.components;
             let mut kept = Vec::with_capacity(c * n);
-            for &id in &ids {
+            for &(id, _) in keyed {
+                let id = id as usize;
                 match field.values.get(c * id..c * (id + 1)) {
                     Some(values) => kept.extend_from_slice(values),
                     None => kept.resize(kept.len() + c, 0.0),
@@ -269,26 +284,51 @@ pub fn write_particles<const D: usize>(
             field.values = kept;
         }
     }
-    fields.extend(extra.iter().map(|field| Field {
-        name: field.name,
-        components: field.components,
-        values: &field.values,
-    }));
+    let extra_values: Vec<_> = extra.iter().map(|field| whole(&field.values)).collect();
+    let mut fields: Vec<StreamedField> = PARTICLE_FIELDS
+        .iter()
+        .zip(&columns)
+        .map(|(&(name, _), (components, values))| StreamedField {
+            name,
+            components: *components,
+            values,
+        })
+        .chain(
+            extra
+                .iter()
+                .zip(&extra_values)
+                .map(|(field, values)| StreamedField {
+                    name: field.name,
+                    components: field.components,
+                    values,
+                }),
+        )
+        .collect();
     fields.retain(|field| plan.writes_field(field.name));
     if let Some(pieces) = pieces.as_deref_mut() {
-        let point_id: Vec<f64> = ids.iter().map(|&id| id as f64).collect();
-        fields.push(Field::scalar(POINT_ID, &point_id));
+        let point_id = |sink: &mut Sink| {
+            for chunk in keyed.chunks(RUN) {
+                let ids: Vec<f64> = chunk.iter().map(|&(id, _)| id as f64).collect();
+                sink(&ids)?;
+            }
+            Ok(())
+        };
+        fields.push(StreamedField {
+            name: POINT_ID,
+            components: 1,
+            values: &point_id,
+        });
         let name = format!("particles_{:04}_p{}.vtu", step.number, pieces.piece);
         let arrays = fields
             .iter()
             .map(|f| (f.name.to_string(), f.components))
             .collect();
-        let result = write_vtu(
+        let result = write_vtu_streamed(
             &pieces.dir.join(&name),
-            &positions,
+            n,
+            &coordinates,
             &vertex_cells(n),
             &fields,
-            &[],
         );
         pieces.written = Some(match result {
             Ok(()) => Ok(WrittenPiece { file: name, arrays }),
@@ -297,12 +337,12 @@ pub fn write_particles<const D: usize>(
         return;
     }
     let name = format!("particles_{:04}.vtu", step.number);
-    let result = write_vtu(
+    let result = write_vtu_streamed(
         &plan.dir.join(&name),
-        &positions,
+        n,
+        &coordinates,
         &vertex_cells(n),
         &fields,
-        &[],
     )
     .and_then(|()| plan.particles.push(step.factor, &name));
     if let Err(e) = result {
@@ -311,6 +351,11 @@ pub fn write_particles<const D: usize>(
             why: format!("{name}: {e}"),
         });
     }
+}
+
+/// An array held whole, as a stream of one run.
+fn whole(values: &[f64]) -> impl Fn(&mut Sink) -> std::io::Result<()> + '_ {
+    move |sink| sink(values)
 }
 
 /// The default grid file (`Hook::GridOutput`): the background grid.

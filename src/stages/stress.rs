@@ -55,6 +55,9 @@ impl<M: Material> Default for PointHistory<M> {
     }
 }
 
+/// Points per batch of the stress update.
+const STRESS_BATCH: usize = 1 << 16;
+
 #[allow(clippy::type_complexity)]
 pub fn update_stress<const D: usize, M: Material>(
     fields: Res<GridFields<D>>,
@@ -74,35 +77,51 @@ pub fn update_stress<const D: usize, M: Material>(
 ) {
     let _timer = clock.time(Stage::StressUpdate);
     let none = M::History::default();
-    let mut points: Vec<_> = points.iter_mut().collect();
-    // One part per thread (`parallel`); each keeps the first point it could not update.
-    let mut failures = vec![None; parallel::part_count(points.len())];
-    parallel::for_each_part(&mut points, &mut failures, |_, part, failure| {
-        for (id, support, f, material, trial, history, modified) in part.iter_mut() {
-            let df = increment_gradient(&support.0, |node| fields.increment[node]);
-            let committed = history.as_ref().map_or(&none, |h| &h.committed);
-            let evaluated = match modified {
-                None => trial_state_with_history(&material.0, committed, &f.0, &df),
-                Some(seen) => {
-                    trial_state_with_modified_increment(&material.0, committed, &f.0, &df, &seen.0)
-                }
-            };
-            match evaluated {
-                Ok((state, trial_history)) => {
-                    trial.0 = state;
-                    if let Some(history) = history {
-                        history.trial = trial_history;
+    // The points a batch at a time (their rows of references take ~120 B a point: collected
+    // all at once they were the stress update's peak of memory); each batch in one part per
+    // thread (`parallel`), each part keeping the first point it could not update.
+    let mut rows = points.iter_mut();
+    let mut batch = Vec::with_capacity(STRESS_BATCH.min(rows.len()));
+    let mut first_failure = None;
+    while first_failure.is_none() {
+        batch.clear();
+        batch.extend(rows.by_ref().take(STRESS_BATCH));
+        if batch.is_empty() {
+            break;
+        }
+        let mut failures = vec![None; parallel::part_count(batch.len())];
+        parallel::for_each_part(&mut batch, &mut failures, |_, part, failure| {
+            for (id, support, f, material, trial, history, modified) in part.iter_mut() {
+                let df = increment_gradient(&support.0, |node| fields.increment[node]);
+                let committed = history.as_ref().map_or(&none, |h| &h.committed);
+                let evaluated = match modified {
+                    None => trial_state_with_history(&material.0, committed, &f.0, &df),
+                    Some(seen) => trial_state_with_modified_increment(
+                        &material.0,
+                        committed,
+                        &f.0,
+                        &df,
+                        &seen.0,
+                    ),
+                };
+                match evaluated {
+                    Ok((state, trial_history)) => {
+                        trial.0 = state;
+                        if let Some(history) = history {
+                            history.trial = trial_history;
+                        }
+                    }
+                    Err(why) => {
+                        *failure = Some((id.0, why.to_string()));
+                        return;
                     }
                 }
-                Err(why) => {
-                    *failure = Some((id.0, why.to_string()));
-                    return;
-                }
             }
-        }
-    });
+        });
+        first_failure = failures.into_iter().flatten().next();
+    }
     // The first failing point in the points' order, whatever the thread count.
-    if let Some((point, why)) = failures.into_iter().flatten().next() {
+    if let Some((point, why)) = first_failure {
         status.fail(SolverError::BadPointState {
             point,
             step: step.number,
