@@ -169,7 +169,8 @@ pub struct Summary {
     /// The threads the stages ran on (`parallel::thread_count` when the run was built).
     pub threads: usize,
     /// Under arc-length control: the peak load factor, whether the run passed it, why it
-    /// ended (`stages::arc_length::ArcLengthControl::to_json`).
+    /// ended (`stages::arc_length::ArcLengthControl::to_json`); after a failure too, with
+    /// `"end": "failed"` and the failure (`run::failed_arc_length`).
     pub arc_length: Option<Value>,
 }
 

@@ -393,6 +393,9 @@ impl<const D: usize> Simulation<D> {
         };
         record.seconds = self.world.resource::<StageClock>().clone();
         record.wall_seconds = clock.elapsed().as_secs_f64();
+        if let Some(arc) = &self.arc {
+            self.summary.arc_length = Some(failed_arc_length(arc, record.step, &error));
+        }
         self.summary.fail(record, &error);
         let _ = self.summary.write();
         error
@@ -539,6 +542,37 @@ impl<const D: usize> Simulation<D> {
         out.sort_by(|a, b| a.0.total_cmp(&b.0));
         out
     }
+}
+
+/// `summary.json`'s `"arc_length"` entry of a run that failed at step `step` under arc-length
+/// control: the control's record of its converged steps (the largest load factor, its step,
+/// whether the load had passed it) with `"end": "failed"`, the failure, and a report that says
+/// what the largest load factor is worth — the limit load only when the load had come down
+/// from it before the failure.
+fn failed_arc_length(
+    arc: &ArcLengthControl,
+    step: usize,
+    failure: &SolverError,
+) -> serde_json::Value {
+    let mut entry = arc.to_json();
+    let report = match arc.peak() {
+        None => {
+            format!("arc-length control: the run failed at step {step} before any step converged")
+        }
+        Some((peak, at)) if arc.passed_peak() => format!(
+            "arc-length control: the run failed at step {step} after passing the limit load; \
+             the largest load factor of its converged steps was {peak:.6e} at step {at}"
+        ),
+        Some((peak, at)) => format!(
+            "arc-length control: the run failed at step {step} before passing a limit load: \
+             the largest load factor of its converged steps, {peak:.6e} at step {at}, was \
+             still rising, so it is not the limit load"
+        ),
+    };
+    entry["end"] = "failed".into();
+    entry["failure"] = failure.to_string().into();
+    entry["report"] = report.into();
+    entry
 }
 
 /// The world of the fixed core: grid nodes, material points with their kinematic state, the
@@ -888,4 +922,61 @@ impl std::error::Error for RunError {}
 /// The default output folder of a scene: `out/<scene name>/`.
 pub fn default_output_dir(spec: &SceneSpec) -> PathBuf {
     Path::new("out").join(&spec.name)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The failure's entry keeps the control's figures and says what the largest load factor is
+    /// worth: the limit load only when the load had come down from it.
+    #[test]
+    fn a_failed_arc_length_run_says_whether_its_largest_load_factor_is_the_limit() {
+        let spec = ArcLengthSpec {
+            target_iterations: 5,
+            max_load_factor: f64::INFINITY,
+        };
+        let failure = SolverError::BadPointState {
+            point: 7,
+            step: 4,
+            iteration: 3,
+            why: "det F <= 0".to_string(),
+        };
+        let mut arc = ArcLengthControl::new(spec, 8, 0.1);
+        let entry = failed_arc_length(&arc, 1, &failure);
+        assert_eq!(entry["end"], "failed");
+        assert_eq!(entry["failure"], failure.to_string());
+        assert!(entry["peak_load_factor"].is_null());
+        assert!(
+            entry["report"]
+                .as_str()
+                .unwrap()
+                .contains("before any step converged")
+        );
+
+        arc.succeeded(1, 1.0, 5, 0.2, 0);
+        arc.succeeded(2, 2.0, 5, 0.2, 0);
+        arc.succeeded(3, 3.0, 5, 0.2, 0);
+        let entry = failed_arc_length(&arc, 4, &failure);
+        assert_eq!(entry["peak_load_factor"], 3.0);
+        assert_eq!(entry["peak_step"], 3);
+        assert_eq!(entry["passed_limit"], false);
+        let report = entry["report"].as_str().unwrap();
+        assert!(
+            report.contains("failed at step 4 before passing a limit load"),
+            "{report}"
+        );
+        assert!(report.contains("not the limit load"), "{report}");
+
+        arc.succeeded(4, 2.5, 5, 0.2, 0);
+        let entry = failed_arc_length(&arc, 5, &failure);
+        assert_eq!(entry["peak_load_factor"], 3.0);
+        assert_eq!(entry["passed_limit"], true);
+        let report = entry["report"].as_str().unwrap();
+        assert!(
+            report.contains("failed at step 5 after passing the limit load"),
+            "{report}"
+        );
+        assert!(!report.contains("not the limit load"), "{report}");
+    }
 }

@@ -78,3 +78,67 @@ fn a_vertical_cut_fails_at_the_limit_analysis_stability_number_from_above() {
         assert!(lambda_f / UPPER_BOUND - 1.0 < tolerance, "{found:?}");
     }
 }
+
+/// A run that fails under arc-length control still records in `summary.json` what the control
+/// found before the failure: at 8 cells across H, 14 steps asked, step 12 inverts a point under
+/// F-bar after 8 cuts (docs/plasticity.md, "Benchmark 6"); `arc_length` holds the largest load
+/// factor of the 11 completed steps (exactly the largest of their `load_factor`s), that the load
+/// had not passed it, `"end": "failed"` and the failure; the exit status stays non-zero.
+#[test]
+fn a_failed_arc_length_run_records_its_largest_load_factor_and_why_it_ended() {
+    let dir = common::temp_dir("slope_collapse", "failed_arc");
+    let out = common::impm(&[
+        "run",
+        common::shipped_scene("slope_collapse.rhai")
+            .to_str()
+            .unwrap(),
+        "--set",
+        "cells=8",
+        "--set",
+        "steps=14",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "the run should fail: {stderr}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["status"], "failed");
+    let steps = summary["steps"].as_array().unwrap();
+    assert!(
+        !steps.is_empty() && steps.len() < 14,
+        "{} steps",
+        steps.len()
+    );
+    let (largest_step, largest) = steps
+        .iter()
+        .map(|s| {
+            (
+                s["step"].as_u64().unwrap(),
+                s["load_factor"].as_f64().unwrap(),
+            )
+        })
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .unwrap();
+    let arc = &summary["arc_length"];
+    println!(
+        "{} steps completed, largest load factor {largest:.6} at step {largest_step}; arc_length: {arc}",
+        steps.len()
+    );
+    assert_eq!(arc["peak_load_factor"].as_f64(), Some(largest), "{arc}");
+    assert_eq!(arc["peak_step"].as_u64(), Some(largest_step), "{arc}");
+    // the load factor was still rising when the run failed: no limit was passed, and the
+    // report says that the largest load factor is not the limit load
+    assert_eq!(arc["passed_limit"], false, "{arc}");
+    assert_eq!(arc["end"], "failed", "{arc}");
+    assert_eq!(arc["failure"], summary["failure"], "{arc}");
+    assert!(arc["failure"].as_str().unwrap().contains("det"), "{arc}");
+    let report = arc["report"].as_str().unwrap();
+    let failed_step = steps.len() + 1;
+    assert!(
+        report.contains(&format!("failed at step {failed_step}"))
+            && report.contains("not the limit load"),
+        "{report}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -9,7 +9,7 @@
 //! with `η, ξ` from the friction angle φ and `η̄` from the dilation angle ψ by one of the usual
 //! matchings to Mohr–Coulomb (de Souza Neto et al., sec. 6.4.2):
 //!
-//! | `match` | η (η̄ with ψ) | ξ |
+//! | `matching` | η (η̄ with ψ) | ξ |
 //! |---|---|---|
 //! | `outer` (compressive meridians) | 6 sin φ / (√3 (3 − sin φ)) | 6 cos φ / (√3 (3 − sin φ)) |
 //! | `inner` (tensile meridians) | 6 sin φ / (√3 (3 + sin φ)) | 6 cos φ / (√3 (3 + sin φ)) |
@@ -27,6 +27,10 @@
 //!
 //! (`β = 1 − Δγ/(√2 ‖e‖)`, `I_d = I − ⅓ 1⊗1`). `D` is symmetric only for associated flow
 //! (`ψ = φ`).
+//!
+//! The option was first called `match`, a reserved word in Rhai: `match: ".."` is a syntax
+//! error, only the quoted key `"match": ".."` parses. `matching` replaces it; `"match"` stays
+//! accepted as its alias so scenes written with it keep running (giving both is an error).
 
 use nalgebra::{Matrix3, SMatrix, Vector3};
 
@@ -37,6 +41,9 @@ use super::{
     Hencky, Material, MaterialParameters, ParameterKind, ParameterSpec, ParameterValue, Range,
     Response,
 };
+
+/// The former name of the `matching` option (module docs), still accepted.
+pub const MATCHING_ALIAS: &str = "match";
 
 /// How the cone is matched to Mohr–Coulomb (module docs).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -233,19 +240,36 @@ impl Material for DruckerPrager {
 
     fn parameters() -> Vec<ParameterSpec> {
         let mut parameters = strength_parameters();
-        parameters.push(ParameterSpec {
-            name: "match",
-            meaning: "matching to Mohr-Coulomb: outer (compressive meridians, default), inner (tensile meridians) or plane_strain (same plane-strain collapse loads)",
-            label: Some("matching to Mohr-Coulomb"),
-            kind: ParameterKind::Word(Matching::WORDS),
-            required: false,
-        });
+        parameters.extend([
+            ParameterSpec {
+                name: "matching",
+                meaning: "matching to Mohr-Coulomb: outer (compressive meridians, default), inner (tensile meridians) or plane_strain (same plane-strain collapse loads)",
+                label: Some("matching to Mohr-Coulomb"),
+                kind: ParameterKind::Word(Matching::WORDS),
+                required: false,
+            },
+            ParameterSpec {
+                name: MATCHING_ALIAS,
+                meaning: "the former name of matching, accepted so older scenes run; match is a reserved word in Rhai, so only the quoted key \"match\": .. parses (write matching)",
+                label: Some("matching to Mohr-Coulomb (\"match\")"),
+                kind: ParameterKind::Word(Matching::WORDS),
+                required: false,
+            },
+        ]);
         parameters
     }
 
     fn from_parameters(parameters: &MaterialParameters) -> Result<Self, String> {
         let (elastic, cohesion, friction, dilation) = read_strength(parameters)?;
-        let matching = match parameters.get("match") {
+        let (key, given) = match (parameters.get("matching"), parameters.get(MATCHING_ALIAS)) {
+            (Some(_), Some(_)) => {
+                return Err("give matching or its former name \"match\", not both".to_string());
+            }
+            (Some(given), None) => ("matching", Some(given)),
+            (None, Some(given)) => (MATCHING_ALIAS, Some(given)),
+            (None, None) => ("matching", None),
+        };
+        let matching = match given {
             None => Matching::Outer,
             Some(ParameterValue::Text(word)) => match word.as_str() {
                 "outer" => Matching::Outer,
@@ -253,12 +277,12 @@ impl Material for DruckerPrager {
                 "plane_strain" => Matching::PlaneStrain,
                 other => {
                     return Err(format!(
-                        "match must be one of {:?}, got '{other}'",
+                        "{key} must be one of {:?}, got '{other}'",
                         Matching::WORDS
                     ));
                 }
             },
-            Some(other) => return Err(format!("match must be a word, got {other:?}")),
+            Some(other) => return Err(format!("{key} must be a word, got {other:?}")),
         };
         Self::new(elastic, cohesion, friction, dilation, matching)
     }
