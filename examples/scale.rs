@@ -35,6 +35,11 @@
 //! the run is split by structure (points' components, supports, tangent, grid fields, the
 //! solver's hierarchy as the live heap it added at the step's first solve).
 //!
+//! With `--bandwidth` it first measures the STREAM triad a = b + s·c (1 and 2 threads, arrays
+//! far larger than the caches, [`triad`]) and prints, per run, the bytes each point moves per
+//! pass of the stress update and of the assembly, counted from the data structures
+//! ([`traffic`]), the GB/s they achieve and their share of the triad's.
+//!
 //! Results are recorded in docs/performance.md (with the machine's load at the time).
 
 use std::collections::BTreeMap;
@@ -208,6 +213,9 @@ struct Figures {
     /// The speed-up of a perfectly parallel loop on this run's threads against one thread,
     /// measured just before the run: what the machine's load allowed at the time.
     ceiling: f64,
+    /// Bytes each point moves per Newton iteration in the stress update and the assembly
+    /// (the model of [`traffic`]).
+    traffic: [f64; 2],
 }
 
 struct Plan {
@@ -220,6 +228,8 @@ struct Plan {
     chart: Option<PathBuf>,
     /// Print where each run's heap goes (`--heap`).
     heap: bool,
+    /// The STREAM-like triad's GB/s per thread count (`--bandwidth`), measured at the start.
+    triad: Vec<(usize, f64)>,
 }
 
 fn parse() -> Result<Plan, String> {
@@ -231,7 +241,9 @@ fn parse() -> Result<Plan, String> {
         repeat: 1,
         chart: None,
         heap: false,
+        triad: Vec::new(),
     };
+    let mut bandwidth = false;
     let list = |s: &str| -> Result<Vec<usize>, String> {
         s.split(',')
             .map(|v| v.trim().parse().map_err(|_| format!("not a number: '{v}'")))
@@ -280,6 +292,7 @@ fn parse() -> Result<Plan, String> {
             }
             "--chart" => plan.chart = Some(PathBuf::from(value()?)),
             "--heap" => plan.heap = true,
+            "--bandwidth" => bandwidth = true,
             block => {
                 let (dim, sizes) = block.split_once(':').ok_or(format!(
                     "'{block}': expected DIM:POINTS,.. (e.g. 2:10000,40000)"
@@ -294,6 +307,9 @@ fn parse() -> Result<Plan, String> {
     }
     if plan.blocks.is_empty() {
         plan.blocks = vec![(2, vec![10_000, 40_000]), (3, vec![10_000])];
+    }
+    if bandwidth {
+        plan.triad = [1, 2].map(|t| (t, triad(t))).to_vec();
     }
     Ok(plan)
 }
@@ -333,6 +349,7 @@ fn run<const D: usize>(
         sim.run(|_| heap::mark("grid reset"))
             .unwrap_or_else(|e| panic!("{e}"));
         let items = memory_items(&mut sim);
+        let traffic = traffic(&mut sim);
         if show_heap {
             print_heap(
                 &mut sim,
@@ -357,6 +374,7 @@ fn run<const D: usize>(
             baseline_mib: used.baseline_mib,
             items,
             ceiling,
+            traffic,
         }
     })
 }
@@ -494,6 +512,130 @@ fn memory_items<const D: usize>(sim: &mut Simulation<D>) -> Vec<(&'static str, f
         ("trial state", trial),
         ("tangent (values, pattern)", tangent / points),
     ]
+}
+
+/// Per run, for the stress update and the assembly: the bytes a point moves per Newton
+/// iteration ([`traffic`]), the GB/s achieved (bytes × points × passes / stage seconds, a pass
+/// per Newton iteration and one at the converged iterate)
+/// and its ratio to the triad's GB/s on the same thread count (`--bandwidth`).
+fn bandwidth(plan: &Plan, results: &BTreeMap<(usize, String, usize), Vec<Figures>>) {
+    println!(
+        "\nbytes per point per Newton iteration (counted from the data) against the STREAM triad: {}",
+        plan.triad
+            .iter()
+            .map(|(t, gbs)| format!("{t} thread(s) {gbs:.2} GB/s"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    println!(
+        "| dim | points | backend | threads | stage | B per point per pass | s per pass | GB/s | of triad |"
+    );
+    println!("|{}", "---|".repeat(9));
+    for ((dim, backend, threads), runs) in results {
+        let Some(&(_, triad)) = plan.triad.iter().find(|(t, _)| t == threads) else {
+            continue;
+        };
+        for f in runs {
+            // One stress update and assembly per linear solve, and one more at the converged
+            // iterate (its residual is checked).
+            let passes = f.iterations as f64 / plan.steps as f64 + 1.0;
+            for (k, stage) in [Stage::StressUpdate, Stage::Assembly]
+                .into_iter()
+                .enumerate()
+            {
+                let seconds = f.stages[stage_index(stage)] / passes;
+                let gbs = f.traffic[k] * f.points as f64 / seconds.max(1e-12) / 1e9;
+                println!(
+                    "| {dim} | {} | {backend} | {threads} | {} | {:.0} | {seconds:.3} | {gbs:.2} | {:.0} % |",
+                    f.points,
+                    stage.name(),
+                    f.traffic[k],
+                    100.0 * gbs / triad,
+                );
+            }
+        }
+    }
+}
+
+/// The bytes a point moves per Newton iteration in the stress update and in the assembly,
+/// counted from the data structures (`size_of`, the supports' lengths), each byte read or
+/// written once (no write-allocate, no cache reuse across points except where stated):
+///
+/// - stress update: its support (n `NodeWeight`s: node, weight, gradient, and the `Vec`
+///   header), F (D² f64), the n nodes' increments Δu_i (n·D f64, gathered), its `Trial`
+///   written (F, Δf⁻¹, J, b, τ, the tangent c);
+/// - assembly: its support, its `Trial` and V0 read; the force on its n nodes read and
+///   written (2·n·D f64); the tangent values of its group (the points of one cell share one
+///   support and scatter their summed blocks once): the group's n²·D² values read and
+///   written (16 B each) and one row index per block column found (n²·D `usize`), divided
+///   by the group's points.
+///
+/// The node-indexed reads (increments, forces, tangent values) are scattered; neighbouring
+/// cells share most of them, so caches can serve part of them: the model is what the kernel
+/// touches, not what must come from memory.
+fn traffic<const D: usize>(sim: &mut Simulation<D>) -> [f64; 2] {
+    use impm::basis::NodeWeight;
+    use impm::components::{DeformationGradient, ReferenceVolume, Support, Trial};
+    use std::mem::size_of;
+    let f64s = size_of::<f64>() as f64;
+    let (mut points, mut weights, mut scattered) = (0usize, 0usize, 0.0f64);
+    let mut group: Option<(usize, usize)> = None;
+    for s in sim.world.query::<&Support<D>>().iter(&sim.world) {
+        let n = s.0.len();
+        points += 1;
+        weights += n;
+        // A new group where the support differs (first node, length) from the last point's.
+        let key = (s.0.first().map_or(usize::MAX, |w| w.node), n);
+        if group != Some(key) {
+            group = Some(key);
+            scattered +=
+                (n * n * D * D) as f64 * 2.0 * f64s + (n * n * D * size_of::<usize>()) as f64;
+        }
+    }
+    let points = points.max(1) as f64;
+    let n = weights as f64 / points;
+    let support = n * size_of::<NodeWeight<D>>() as f64 + size_of::<Support<D>>() as f64;
+    let trial = size_of::<Trial<D>>() as f64;
+    let stress = support + size_of::<DeformationGradient<D>>() as f64 + n * D as f64 * f64s + trial;
+    let assembly = support
+        + trial
+        + size_of::<ReferenceVolume>() as f64
+        + 2.0 * n * D as f64 * f64s
+        + scattered / points;
+    [stress, assembly]
+}
+
+/// The STREAM triad a = b + s·c on `threads` threads over arrays of 2^24 f64 (128 MiB each,
+/// far larger than any cache), best of 5: GB/s, counting 24 bytes per element (two reads, one
+/// write; the write-allocate read is not counted, as STREAM does not).
+fn triad(threads: usize) -> f64 {
+    use rayon::prelude::*;
+    const N: usize = 1 << 24;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("thread pool");
+    let b = vec![1.0f64; N];
+    let c = vec![2.0f64; N];
+    let mut a = vec![0.0f64; N];
+    let chunk = N / threads;
+    let mut best = f64::INFINITY;
+    for repeat in 0..5 {
+        let s = 3.0 + repeat as f64;
+        let start = std::time::Instant::now();
+        pool.install(|| {
+            a.par_chunks_mut(chunk)
+                .zip(b.par_chunks(chunk).zip(c.par_chunks(chunk)))
+                .for_each(|(a, (b, c))| {
+                    for ((a, b), c) in a.iter_mut().zip(b).zip(c) {
+                        *a = b + s * c;
+                    }
+                });
+        });
+        best = best.min(start.elapsed().as_secs_f64());
+        std::hint::black_box(&a);
+    }
+    (3 * N * size_of::<f64>()) as f64 / best / 1e9
 }
 
 /// The speed-up of a loop without memory traffic or synchronisation (square roots, summed)
@@ -683,6 +825,9 @@ fn main() {
 }
 
 fn report(plan: &Plan, results: &BTreeMap<(usize, String, usize), Vec<Figures>>) {
+    if !plan.triad.is_empty() {
+        bandwidth(plan, results);
+    }
     println!("\nexponent p of seconds per step ∝ points^p (least squares, log-log):");
     println!(
         "| dim | backend | threads | {} | whole step |",
