@@ -5,7 +5,7 @@
 
 use impm::plugin::Plugin;
 use impm::run::Simulation;
-use impm::stages::arc_length::ArcLength;
+use impm::stages::arc_length::{ArcLength, START_IMBALANCE};
 
 mod common;
 
@@ -159,6 +159,30 @@ load_factors(3, |k| 1.0 * k);
     // observed orders a little below 2 from so few iterations
     assert!(all.len() >= sim.summary.steps.len());
     assert!(all.iter().all(|&p| p > 1.6), "quadratic: {all:?}");
+    // elastic, no point near a cell face: each step starts from (near) equilibrium, so no
+    // start-imbalance warning; step 1 starts at λ = 0 (no external force: no measure)
+    let starts = start_imbalances(&sim.summary.steps);
+    println!("initial_imbalance by step: {starts:?}");
+    assert_eq!(starts[0], None);
+    assert!(
+        starts[1..]
+            .iter()
+            .all(|s| s.is_some_and(|s| s < START_IMBALANCE))
+    );
+    assert!(
+        !sim.summary
+            .warnings
+            .iter()
+            .any(|w| w.contains("out of balance"))
+    );
+}
+
+/// Each step's `initial_imbalance` (the out-of-balance force it started with).
+fn start_imbalances(steps: &[impm::records::StepRecord]) -> Vec<Option<f64>> {
+    steps
+        .iter()
+        .map(|s| s.measure("initial_imbalance"))
+        .collect()
 }
 
 #[test]
@@ -210,6 +234,43 @@ fn the_footing_under_a_uniform_pressure_passes_prandtls_limit() {
     assert!(last.load_factor < peak);
     assert!(last.measure("settlement").unwrap() > first_peak.1);
     assert!(off_arc < 1e-9, "{off_arc:e}");
+    // points cross cell faces past the peak: a step then starts far out of balance, and the
+    // run says so once, naming the first such step and its figure
+    let starts = start_imbalances(steps);
+    println!(
+        "initial_imbalance by step: {}",
+        starts
+            .iter()
+            .map(|s| s.map_or("-".to_string(), |s| format!("{s:.2e}")))
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
+    let first = starts
+        .iter()
+        .position(|s| s.is_some_and(|s| s > START_IMBALANCE))
+        .expect("a step starting out of balance")
+        + 1;
+    let warned: Vec<_> = sim
+        .summary
+        .warnings
+        .iter()
+        .filter(|w| w.contains("starts out of balance"))
+        .collect();
+    assert_eq!(warned.len(), 1, "{warned:?}");
+    assert!(
+        warned[0].starts_with(&format!("step {first} ")),
+        "{warned:?}"
+    );
+    // before the peak the steps start near equilibrium
+    let peak_step = steps
+        .iter()
+        .position(|s| s.load_factor == first_peak.0)
+        .unwrap();
+    assert!(
+        starts[1..=peak_step]
+            .iter()
+            .all(|s| s.is_some_and(|s| s < START_IMBALANCE))
+    );
 }
 
 /// The scene of the refusals: a 2D block with a traction, and `extra` on line 6.
@@ -374,6 +435,7 @@ fn the_arc_is_scheduled_only_when_asked() {
     let expected = [
         ("Hook::AfterDofs", "arc_length::unit_load"),
         ("Hook::BeforeSolve", "arc_length::take_reference_load"),
+        ("Hook::Convergence", "arc_length::record_start_imbalance"),
         ("Hook::Convergence", "arc_length::keep_going_forward"),
         ("Hook::AfterLinearSolve", "arc_length::correct_load_factor"),
     ];

@@ -1,11 +1,13 @@
 //! Arc-length load control as a scene option: `solver(#{ control: "arc_length",
 //! target_iterations: 5, max_load_factor: 2.0 })`. The method is in `stages::arc_length`; this
-//! module reads the options, refuses what the arc cannot control, and adds the arc's four
-//! systems at their hooks (scenes without the option schedule none of them):
+//! module reads the options, refuses what the arc cannot control, adds the arc's five systems
+//! at their hooks (scenes without the option schedule none of them) and the measure
+//! `initial_imbalance` (each step's out-of-balance force at its start, relative to λ_n f̂):
 //!
 //! ```text
 //!   Hook::AfterDofs         unit_load              the loads are evaluated at λ = 1 ...
 //!   Hook::BeforeSolve       take_reference_load    ... and kept as f̂; f_ext = λ_n f̂
+//!   Hook::Convergence       record_start_imbalance the step's start residual, warned when large
 //!   Hook::Convergence       keep_going_forward     a converged iterate that went back is refused
 //!   Hook::AfterLinearSolve  correct_load_factor    K δu_f = f̂, δλ from the arc, Δu += δu_r + δλ δu_f
 //! ```
@@ -28,8 +30,8 @@ use crate::plugin::{Extension, Plugin};
 use crate::resources::Ramp;
 use crate::scene::{Choice, Kind, OptionSpec, Range, Resolver, SceneApi, SceneSpec, ScriptError};
 use crate::stages::arc_length::{
-    ArcLength, ArcLengthSpec, correct_load_factor, keep_going_forward, take_reference_load,
-    unit_load,
+    ArcLength, ArcLengthSpec, correct_load_factor, keep_going_forward, record_start_imbalance,
+    take_reference_load, unit_load,
 };
 
 /// The module: built when the scene asks for arc-length control.
@@ -221,7 +223,11 @@ impl Plugin for ArcLengthModule {
         simulation
             .add_systems(Hook::AfterDofs, unit_load)
             .add_systems(Hook::BeforeSolve, take_reference_load::<D>)
+            .add_systems(Hook::Convergence, record_start_imbalance::<D>)
             .add_systems(Hook::Convergence, keep_going_forward::<D>)
-            .add_systems(Hook::AfterLinearSolve, correct_load_factor::<D>);
+            .add_systems(Hook::AfterLinearSolve, correct_load_factor::<D>)
+            .add_measure("initial_imbalance", |world, _| {
+                world.resource::<ArcLength<D>>().start_imbalance
+            });
     }
 }

@@ -53,7 +53,30 @@
 //! increment that goes back along the path, Δu·Δu_{n−1} < 0, or unloads, Δλ < 0 with
 //! f̂·Δu < 0, is refused and the arc cut ([`keep_going_forward`]): past a plastic limit Newton
 //! can land on the elastic unloading branch, which is on the arc and in equilibrium but is the
-//! path already traced. (So a genuine snap-back is not followed either.)
+//! path already traced. (So a genuine snap-back is not followed either.) Both tests are on the
+//! cosines, relative to the lengths ([`turns_back`]): a dot product counts as negative below
+//! −[`TURN_BACK_COSINE`] |a| |b|. Δu is a sum of Newton corrections, each with round-off of
+//! about ε times its own size, so once cuts have shrunk the arc far below the corrections a
+//! step makes, Δu·f̂ of order −1e-15 is noise, not a turn-back (the 8-cell footing was cut on
+//! such values); a real turn-back onto the unloading branch has a cosine of order 0.1 to 1.
+//!
+//! # A step that starts out of balance
+//!
+//! At Δu = 0 the residual is λ_n f̂ − f_int(u_n) on the new grid: the previous step's converged
+//! state seen by the reset grid, so it is exactly the out-of-balance force the step inherits.
+//! [`record_start_imbalance`] keeps
+//!
+//! ```text
+//!   initial_imbalance = ‖λ_n f̂ − f_int(u_n)‖_free / ‖λ_n f̂‖     (summary.json, per step)
+//! ```
+//!
+//! and warns once when it exceeds [`START_IMBALANCE`] = 0.1: measured on the 8-cell footing
+//! (`scripts/footing_pressure_arc.rhai`), 0.017 to 0.061 on the steps before its peak and 0.72,
+//! 0.64, 0.41 at the three steps after points crossed cell faces (linear MPM's gradients jump
+//! there), where the arc collapses; on the thick cylinder at most 0.045. Such a step does not
+//! start from equilibrium; near a limit load its answer may depend on the resolution. (Under
+//! load control the first residual holds the step's load increment too, so this measure is
+//! the arc's only.)
 //!
 //! # Step control
 //!
@@ -68,7 +91,7 @@
 use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 
-use crate::resources::{GridFields, LoadStep, Newton, RunStatus, SolverError};
+use crate::resources::{GridFields, LoadStep, Newton, RunStatus, SolverError, Warnings};
 use crate::solver::NO_DOF;
 
 /// The scene's arc-length options (a part of the scene: `solver(#{ control: "arc_length" })`).
@@ -183,6 +206,10 @@ pub struct ArcLength<const D: usize> {
     corrected: usize,
     /// Iterations of the current attempt whose δλ came from the linearised constraint.
     pub linearised: usize,
+    /// ‖r‖ / ‖λ_n f̂‖ at the current step's start ([`record_start_imbalance`]).
+    pub start_imbalance: Option<f64>,
+    /// Whether a step's start imbalance was warned about (once per run).
+    warned_imbalance: bool,
 }
 
 impl<const D: usize> ArcLength<D> {
@@ -198,6 +225,8 @@ impl<const D: usize> ArcLength<D> {
             current: Vec::new(),
             corrected: 0,
             linearised: 0,
+            start_imbalance: None,
+            warned_imbalance: false,
         }
     }
 
@@ -303,10 +332,16 @@ pub fn keep_going_forward<const D: usize>(
     if !newton.converged || arc.previous.is_empty() {
         return;
     }
+    let length = |u: &[SVector<f64, D>]| u.iter().map(|v| v.norm_squared()).sum::<f64>().sqrt();
+    let (current, previous, reference) = (
+        length(&arc.current),
+        length(&arc.previous),
+        length(&arc.reference),
+    );
     let along = node_dot(&arc.current, &arc.previous);
     let work = node_dot(&arc.current, &arc.reference);
-    let unloading = arc.factor < arc.start && work < 0.0;
-    if along < 0.0 || unloading {
+    let unloading = arc.factor < arc.start && turns_back(work, current, reference);
+    if turns_back(along, current, previous) || unloading {
         newton.converged = false;
         let why = if unloading {
             format!("the load and the displacement under it both fall (f̂·Δu = {work:.3e})")
@@ -323,6 +358,72 @@ pub fn keep_going_forward<const D: usize>(
             recoverable: true,
         });
     }
+}
+
+/// Below −this times |a| |b|, a dot product a·b counts as negative in the turn-back test
+/// ([`turns_back`]; the module docs say why round-off is far smaller and a turn-back far larger).
+pub const TURN_BACK_COSINE: f64 = 1e-6;
+
+/// Whether `dot` = a·b, with |a| = `a` and |b| = `b`, is negative beyond round-off: its cosine
+/// below −[`TURN_BACK_COSINE`] (false when a length is zero).
+pub fn turns_back(dot: f64, a: f64, b: f64) -> bool {
+    dot < -TURN_BACK_COSINE * a * b
+}
+
+/// Above this, the out-of-balance force a step starts with (relative to the external force of
+/// the last converged step) gets a warning (module docs, "A step that starts out of balance").
+pub const START_IMBALANCE: f64 = 0.1;
+
+/// `Hook::Convergence`, before [`keep_going_forward`]: at the step's first check (Δu = 0,
+/// f_ext = λ_n f̂) keeps the out-of-balance force it starts with, relative to λ_n f̂
+/// (`initial_imbalance`; none at λ_n = 0), and warns once per run when it exceeds
+/// [`START_IMBALANCE`].
+pub fn record_start_imbalance<const D: usize>(
+    mut arc: ResMut<ArcLength<D>>,
+    fields: Res<GridFields<D>>,
+    newton: Res<Newton>,
+    step: Res<LoadStep>,
+    mut warnings: ResMut<Warnings>,
+) {
+    if newton.iterations != 0 || newton.residuals.len() != 1 {
+        return;
+    }
+    let free = newton.residual.iter().map(|r| r * r).sum::<f64>().sqrt();
+    let external = fields
+        .external_force
+        .iter()
+        .zip(&fields.active)
+        .filter(|(_, active)| **active)
+        .map(|(f, _)| f.norm_squared())
+        .sum::<f64>()
+        .sqrt();
+    arc.start_imbalance = start_imbalance(free, external);
+    if let Some(imbalance) = arc.start_imbalance
+        && imbalance > START_IMBALANCE
+        && !arc.warned_imbalance
+    {
+        arc.warned_imbalance = true;
+        warnings.0.push(imbalance_warning(step.number, imbalance));
+    }
+}
+
+/// ‖r‖ / ‖f_ext‖ at a step's start; `None` without an external force or for a value that is
+/// not finite.
+pub fn start_imbalance(residual: f64, external: f64) -> Option<f64> {
+    let ratio = residual / external;
+    (external > 0.0 && ratio.is_finite()).then_some(ratio)
+}
+
+/// The warning of a step that starts with the out-of-balance force `imbalance`.
+pub fn imbalance_warning(step: usize, imbalance: f64) -> String {
+    format!(
+        "step {step} starts out of balance: the out-of-balance force of the converged state \
+         on the new grid is {imbalance:.3e} of the external force (above {START_IMBALANCE}; \
+         summary.json steps' initial_imbalance). Points crossed cell faces, where linear \
+         MPM's gradients jump: near a limit load the answer may depend on the resolution; \
+         check it with a finer grid or a smoother basis (docs/plasticity.md, \"Past the limit \
+         load\")"
+    )
 }
 
 /// `Hook::AfterLinearSolve`, after `K δu_r = r` (already added to Δu): solves `K δu_f = f̂`, finds
@@ -638,6 +739,31 @@ mod tests {
         let ratio = control.stalled().expect("stalled");
         assert!((ratio - STALLED_ARC / 2.0).abs() < 1e-15, "{ratio}");
         assert!(control.stalled_warning().unwrap().contains("not traced"));
+    }
+
+    #[test]
+    fn a_round_off_negative_dot_product_is_not_a_turn_back() {
+        // the collapsed arc of the 8-cell footing: f̂·Δu ≈ −2e-15 on tiny increments
+        let (a, b) = (1e-6, 10.0);
+        assert!(!turns_back(-2e-15, a, b), "cosine −2e-10: round-off");
+        assert!(!turns_back(-0.99 * TURN_BACK_COSINE * a * b, a, b));
+        assert!(turns_back(-1.01 * TURN_BACK_COSINE * a * b, a, b));
+        // a real turn-back, onto the unloading branch: a cosine of −0.1
+        assert!(turns_back(-0.1 * a * b, a, b));
+        assert!(!turns_back(0.0, 0.0, b) && !turns_back(-1e-300, 0.0, b));
+    }
+
+    #[test]
+    fn a_large_start_imbalance_is_measured_and_named() {
+        assert_eq!(start_imbalance(1.0, 0.0), None, "no external force");
+        assert_eq!(start_imbalance(f64::NAN, 1.0), None);
+        assert_eq!(start_imbalance(0.43, 1.0), Some(0.43));
+        let warning = imbalance_warning(9, 0.43);
+        assert!(
+            warning.contains("step 9") && warning.contains("4.300e-1"),
+            "{warning}"
+        );
+        assert!(warning.contains("crossed cell faces"));
     }
 
     #[test]
