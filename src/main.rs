@@ -411,6 +411,9 @@ fn run_command(
         steps,
         out_dir.display()
     ));
+    for line in impm::scene::scene_notes(&spec) {
+        note(&line);
+    }
     for warning in scene_warnings(&spec) {
         note(&format!("warning: {warning}"));
     }

@@ -400,8 +400,8 @@ fn exact_methods_give_the_same_answer_with_5_and_40_steps() {
 
 /// `method: "nitsche"` takes the symmetric variant on an elastic body and the non-symmetric
 /// one on a plastic body (von Mises); `nitsche: "symmetric"` / `"nonsymmetric"` forces either;
-/// `impm check` names the variant; the option with the penalty method is an error naming the
-/// line.
+/// `impm check` and the run's log (`scene::scene_notes`) name the variant; the option with the
+/// penalty method is an error naming the line.
 #[test]
 fn nitsche_variant_follows_the_material_and_can_be_forced() {
     use impm::effects::surface_conditions::{Imposition, SurfaceConditions};
@@ -423,10 +423,13 @@ fn nitsche_variant_follows_the_material_and_can_be_forced() {
         let described = impm::effects::surface_conditions::SurfaceConditionsModule
             .describe(&spec)
             .unwrap();
-        Ok((
-            spec.part::<SurfaceConditions>().unwrap().0[0].imposition,
-            described,
-        ))
+        let imposition = spec.part::<SurfaceConditions>().unwrap().0[0].imposition;
+        let notes = impm::scene::scene_notes(&spec);
+        assert!(
+            notes.len() == 1 && notes[0].ends_with(&format!("imposed by {}", imposition.word())),
+            "{name}: {notes:?}"
+        );
+        Ok((imposition, described))
     };
     let elastic = uniaxial::<2>();
     let cases = [

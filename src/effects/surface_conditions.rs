@@ -75,8 +75,9 @@
 //! variant unless a body the condition acts on is of a plastic model
 //! (`scene::is_plastic_model`: von_mises, drucker_prager, mohr_coulomb; their tangents change
 //! within a step as points yield), then the non-symmetric one; `nitsche: "symmetric"` or
-//! `"nonsymmetric"` forces either. `impm check` names the variant, and the run records it as
-//! `NAME_symmetric` (1 or 0) in `summary.json` and `history.csv`.
+//! `"nonsymmetric"` forces either. `impm check` and the run's log (before step 1,
+//! [`imposition_notes`]) name the variant, and the run records it as `NAME_symmetric` (1 or 0)
+//! in `summary.json` and `history.csv`.
 //!
 //! # Penalty factor
 //! α = γ E / h, with E the largest stiffness scale of the scene's materials
@@ -173,8 +174,8 @@ use crate::resources::{
     Grid, GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock,
 };
 use crate::scene::{
-    CallSpec, Choice, Kind, Located, ModuleWarnings, OptionSpec, Options, Range, Resolver,
-    SceneApi, SceneSpec, ScriptError, SurfacePointSeed, is_plastic_model, points_across,
+    CallSpec, Choice, Kind, Located, ModuleNotes, ModuleWarnings, OptionSpec, Options, Range,
+    Resolver, SceneApi, SceneSpec, ScriptError, SurfacePointSeed, is_plastic_model, points_across,
     seed_surface,
 };
 
@@ -461,6 +462,7 @@ impl Plugin for SurfaceConditionsModule {
         if !resolved.is_empty() {
             let warning = quadrature_warning(scene.spec, &resolved);
             ModuleWarnings::add(scene.spec, warning);
+            ModuleNotes::add(scene.spec, imposition_notes(&resolved));
             scene.spec.set_part(SurfaceConditions(resolved));
         }
         Ok(())
@@ -1124,6 +1126,24 @@ fn quadrature_error(spec: &SceneSpec) -> Option<&'static str> {
         ),
         _ => None,
     }
+}
+
+/// One line per Nitsche condition naming the variant it resolved to (the run's log; `impm
+/// check` and `NAME_symmetric` in summary.json say it too): "auto" picks by the bodies'
+/// materials, so a reader of the log should not have to work it out.
+pub fn imposition_notes(conditions: &[SurfaceConditionSpec]) -> Vec<String> {
+    conditions
+        .iter()
+        .filter(|c| c.imposition.is_nitsche())
+        .map(|c| {
+            let line = c.line.map(|l| format!("line {l}: ")).unwrap_or_default();
+            format!(
+                "surface conditions {line}'{}' imposed by {}",
+                c.name,
+                c.imposition.word()
+            )
+        })
+        .collect()
 }
 
 /// The warning a scene gets before it runs when it prescribes a surface displacement on a

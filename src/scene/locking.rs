@@ -17,7 +17,7 @@
 //! plastic soil cannot do: the run converges to a spurious equilibrium and says nothing else
 //! about it. Linear MPM and GIMP with F-bar show no such fall at the resolutions measured.
 
-use super::SceneSpec;
+use super::{ScenePart, SceneSpec};
 
 /// The bodies (indices into `SceneSpec::bodies`) that a module treats against volumetric
 /// locking (F-bar): they get no locking warning.
@@ -94,12 +94,42 @@ pub struct ModuleWarnings(pub Vec<String>);
 impl ModuleWarnings {
     /// Appends `warnings` to the scene's module warnings.
     pub fn add(spec: &mut SceneSpec, warnings: impl IntoIterator<Item = String>) {
-        let mut all = spec.part::<ModuleWarnings>().cloned().unwrap_or_default();
-        all.0.extend(warnings);
-        if !all.0.is_empty() {
-            spec.set_part(all);
-        }
+        append_lines(spec, warnings, |part: &mut ModuleWarnings| &mut part.0);
     }
+}
+
+/// What a module resolved that the run's log should name before it runs (not a warning: a
+/// choice the scene left to the module, e.g. which variant of Nitsche's method a condition
+/// uses); appended to like [`ModuleWarnings`], listed by [`scene_notes`].
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ModuleNotes(pub Vec<String>);
+
+impl ModuleNotes {
+    /// Appends `notes` to the scene's module notes.
+    pub fn add(spec: &mut SceneSpec, notes: impl IntoIterator<Item = String>) {
+        append_lines(spec, notes, |part: &mut ModuleNotes| &mut part.0);
+    }
+}
+
+/// Appends `lines` to the list `lines_of` picks out of the scene's part `P` (created when the
+/// first line arrives).
+fn append_lines<P: ScenePart + Clone + Default>(
+    spec: &mut SceneSpec,
+    lines: impl IntoIterator<Item = String>,
+    lines_of: impl Fn(&mut P) -> &mut Vec<String>,
+) {
+    let mut all = spec.part::<P>().cloned().unwrap_or_default();
+    lines_of(&mut all).extend(lines);
+    if !lines_of(&mut all).is_empty() {
+        spec.set_part(all);
+    }
+}
+
+/// The modules' notes on a scene ([`ModuleNotes`]), for the run's log.
+pub fn scene_notes(spec: &SceneSpec) -> Vec<String> {
+    spec.part::<ModuleNotes>()
+        .map(|notes| notes.0.clone())
+        .unwrap_or_default()
 }
 
 /// Every warning a scene gets before it runs: rank deficiency (`rank_warnings`), volumetric

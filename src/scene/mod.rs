@@ -60,7 +60,8 @@ pub use fem_seeding::{PartialCell, seed_element_points};
 pub use geometry::{point_in_polygon, polygon_double_area};
 pub use limits::{SceneLimits, memory_estimate, support_size};
 pub use locking::{
-    LockingTreated, ModuleWarnings, is_plastic_model, locking_warnings, scene_warnings,
+    LockingTreated, ModuleNotes, ModuleWarnings, is_plastic_model, locking_warnings, scene_notes,
+    scene_warnings,
 };
 pub use options::{
     Choice, Kind, OptionSpec, OptionValue, Options, Range, array_of, describe, function, number,
