@@ -367,7 +367,7 @@ pub const TURN_BACK_COSINE: f64 = 1e-6;
 /// Whether `dot` = a·b, with |a| = `a` and |b| = `b`, is negative beyond round-off: its cosine
 /// below −[`TURN_BACK_COSINE`] (false when a length is zero).
 pub fn turns_back(dot: f64, a: f64, b: f64) -> bool {
-    dot < -TURN_BACK_COSINE * a * b
+    a > 0.0 && b > 0.0 && dot < -TURN_BACK_COSINE * a * b
 }
 
 /// Above this, the out-of-balance force a step starts with (relative to the external force of
