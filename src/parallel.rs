@@ -3,11 +3,20 @@
 //! A stage collects its points (query items, in the query's fixed order) into a slice and hands
 //! it to [`for_each_part`] with one state per part (its scratch memory and what it returns: a
 //! partial sum, the first error). The slice is cut into [`part_count`] contiguous parts, one per
-//! thread of the current rayon pool, and each part runs on its own state; the stage then
-//! combines the states **in part order** ([`add_parts`] for summed arrays). The cut depends only
-//! on the number of points and the number of threads, never on timing, so a run is bit-identical
-//! from one repetition to the next for a given thread count. Per-point work without sums (stress
-//! update, basis evaluation) is identical for any thread count.
+//! thread of the current rayon pool but none with fewer than [`grain`] points, and each part
+//! runs on its own state; the stage then combines the states **in part order** ([`add_parts`]
+//! for summed arrays). The cut depends only on the number of points, the number of threads and
+//! the grain, never on timing, so a run is bit-identical from one repetition to the next for a
+//! given thread count. Per-point work without sums (stress update, basis evaluation) is
+//! identical for any thread count.
+//!
+//! **The grain.** Handing a part to another thread and waiting for it costs microseconds on an
+//! idle machine and up to milliseconds when the cores are busy, once per stage per Newton
+//! iteration; the light per-point kernels cost ~0.4 µs (1D stress update) to ~1 µs (2D cubic
+//! assembly) a point. Below [`DEFAULT_GRAIN`] points a part the hand-over would cost more than
+//! the second thread saves, so small problems (the paper's 1D and 2D columns) run on the calling
+//! thread, as they did before threads existed (`docs/performance.md`, "Small problems"). Tests
+//! and benchmarks that compare thread counts on small problems lower it with [`set_grain`].
 //!
 //! Sums over points into one array (the assembly's internal force and tangent) go through
 //! [`for_each_colour`] instead: the points come in the colour order of `crate::colouring`, and
@@ -30,6 +39,7 @@
 
 use std::marker::PhantomData;
 use std::ops::Range;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use rayon::prelude::*;
 
@@ -50,9 +60,39 @@ pub fn use_threads(threads: usize) -> Result<(), String> {
         .map_err(|e| format!("--threads {threads}: {e}"))
 }
 
-/// How many parts `n` items are cut into: one per thread, none empty (at least one part).
+/// The fewest points a part is given by default (module docs, "The grain").
+pub const DEFAULT_GRAIN: usize = 1024;
+
+static GRAIN: AtomicUsize = AtomicUsize::new(DEFAULT_GRAIN);
+
+/// The fewest items a part is given: [`DEFAULT_GRAIN`] unless [`set_grain`] changed it.
+pub fn grain() -> usize {
+    GRAIN.load(Ordering::Relaxed)
+}
+
+/// Sets the fewest items a part is given, for the whole process (at least 1): tests and
+/// benchmarks that compare thread counts on small problems set 1. Set it before a run, not
+/// during one (a run's parts would change between its stages' calls).
+pub fn set_grain(items: usize) {
+    GRAIN.store(items.max(1), Ordering::Relaxed);
+}
+
+/// How many parts `n` items are cut into: one per thread, each of at least [`grain`] items
+/// (at least one part).
 pub fn part_count(n: usize) -> usize {
-    thread_count().min(n).max(1)
+    parts_for(n, thread_count(), grain())
+}
+
+/// Whether `n` items are enough for two parts on some thread count (at least twice the grain):
+/// a stage may then choose a different summation order (the assembly's colouring) that must not
+/// depend on how many threads there are.
+pub fn can_split(n: usize) -> bool {
+    n / grain() >= 2
+}
+
+/// `threads` parts of `n` items, fewer where a part would hold under `grain` items, at least one.
+fn parts_for(n: usize, threads: usize, grain: usize) -> usize {
+    threads.min(n / grain.max(1)).max(1)
 }
 
 /// The `parts` contiguous ranges covering `0..n`, their lengths differing by at most one.
@@ -103,6 +143,15 @@ pub fn add_parts<T: Copy + Send + Sync + std::ops::AddAssign>(target: &mut [T], 
         return;
     }
     const CHUNK: usize = 1 << 14;
+    if target.len() <= CHUNK {
+        // One chunk: the same additions in the same order, without the hand-over.
+        for part in parts {
+            for (t, v) in target.iter_mut().zip(part.iter()) {
+                *t += *v;
+            }
+        }
+        return;
+    }
     target
         .par_chunks_mut(CHUNK)
         .enumerate()
@@ -119,6 +168,10 @@ pub fn add_parts<T: Copy + Send + Sync + std::ops::AddAssign>(target: &mut [T], 
 /// Sets every element of `target` to `value`, in parallel over chunks.
 pub fn fill<T: Copy + Send + Sync>(target: &mut [T], value: T) {
     const CHUNK: usize = 1 << 14;
+    if target.len() <= CHUNK {
+        target.fill(value);
+        return;
+    }
     target
         .par_chunks_mut(CHUNK)
         .for_each(|chunk| chunk.fill(value));
@@ -241,7 +294,7 @@ mod tests {
             .unwrap();
         pool.install(|| {
             let mut items: Vec<usize> = (0..10).collect();
-            let mut sums = vec![(usize::MAX, 0usize); part_count(items.len())];
+            let mut sums = vec![(usize::MAX, 0usize); parts_for(items.len(), 3, 1)];
             assert_eq!(sums.len(), 3);
             for_each_part(&mut items, &mut sums, |p, items, state| {
                 *state = (p, items.iter().sum());
@@ -253,13 +306,33 @@ mod tests {
     }
 
     #[test]
+    fn parts_hold_at_least_the_grain_and_there_is_at_most_one_per_thread() {
+        // (items, threads, grain) -> parts
+        for (n, threads, grain, parts) in [
+            (0, 2, 1024, 1),
+            (200, 2, 1024, 1),
+            (2047, 2, 1024, 1),
+            (2048, 2, 1024, 2),
+            (1_000_000, 2, 1024, 2),
+            (3200, 8, 1024, 3),
+            (10, 3, 1, 3),
+            (2, 3, 1, 2),
+            (5, 2, 0, 2),
+        ] {
+            assert_eq!(parts_for(n, threads, grain), parts, "{n} {threads} {grain}");
+        }
+    }
+
+    #[test]
     fn add_parts_adds_every_part() {
-        let n = 40_000;
-        let mut target: Vec<f64> = (0..n).map(|k| k as f64).collect();
-        let a: Vec<f64> = vec![0.5; n];
-        let b: Vec<f64> = (0..n).map(|k| -(k as f64)).collect();
-        add_parts(&mut target, &[&a, &b]);
-        assert!(target.iter().all(|&t| t == 0.5));
+        // Above and below one chunk (the serial path).
+        for n in [40_000, 100] {
+            let mut target: Vec<f64> = (0..n).map(|k| k as f64).collect();
+            let a: Vec<f64> = vec![0.5; n];
+            let b: Vec<f64> = (0..n).map(|k| -(k as f64)).collect();
+            add_parts(&mut target, &[&a, &b]);
+            assert!(target.iter().all(|&t| t == 0.5));
+        }
     }
 
     #[test]

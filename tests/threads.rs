@@ -26,8 +26,10 @@ struct Outcome {
     points: Vec<PointState>,
 }
 
-/// `work` on a pool of `threads` threads.
+/// `work` on a pool of `threads` threads, every stage cut into one part per thread however few
+/// its points (the grain set to 1 for the whole binary: the scenes here are small).
 fn on_threads<R: Send>(threads: usize, work: impl FnOnce() -> R + Send) -> R {
+    impm::parallel::set_grain(1);
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()

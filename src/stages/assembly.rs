@@ -33,7 +33,9 @@
 //! into one contiguous part per
 //! thread, each part sums into its own internal force and copy of the tangent values, and the
 //! copies are added in part order: bit-identical for a given thread count, equal to round-off
-//! across counts.
+//! across counts. Where the points are too few to be split at all (under twice
+//! `parallel::grain`: the paper's small columns) they are summed in one part, in query order,
+//! with no colouring: the same sums for every thread count.
 
 use bevy_ecs::prelude::*;
 use nalgebra::{SMatrix, SVector};
@@ -246,7 +248,12 @@ pub fn assemble<const D: usize>(
     let mut points: Vec<_> = points.iter().collect();
     let key = (newton.matrix.generation(), points.len());
     let changed = supports.iter().any(|support| support.is_changed());
-    let colouring = cache.get(key, changed, || colour(&grid, &points));
+    // Too few points for two parts on any thread count: the plain loop, as on one thread.
+    let colouring = if parallel::can_split(points.len()) {
+        cache.get(key, changed, || colour(&grid, &points))
+    } else {
+        None
+    };
     parts.resize_with(parallel::part_count(points.len()), Default::default);
     newton.matrix.with_values_apart(|system, values| {
         let target = (dofs.as_slice(), system, symmetric);
