@@ -10,7 +10,8 @@
 //! tolerance
 //! (default 1e-10, well below Newton's normalised tolerance so that Newton keeps its quadratic
 //! rate; an inexact Newton loosens it for one solve, [`LinearSolver::request_tolerance`], to its
-//! forcing term, `super::EisenstatWalker`). The work vectors are kept between solves. The
+//! forcing term, `super::EisenstatWalker`). The work vectors live for one solve only (kept, they
+//! would sit beside the assembly and the output, the run's memory peaks). The
 //! preconditioner is the inverse diagonal of `K` (Jacobi): cheap, parallel, and enough to show
 //! the layer working, but its iteration count grows like the square root of the condition
 //! number — roughly with the number of cells along the longest direction. Smoothed-aggregation
@@ -107,7 +108,7 @@ pub struct KrylovSolver {
     pub last_iterations: usize,
     /// A looser tolerance for the next solve only (an inexact Newton's forcing term).
     requested: Option<f64>,
-    /// Work vectors, kept between solves so that Newton iterations do not allocate them.
+    /// Work vectors of the solve under way (released when it ends: see `solve`).
     work: Work,
 }
 
@@ -419,12 +420,17 @@ impl LinearSolver for KrylovSolver {
             return Ok(SolverKind::None);
         }
         self.preconditioner.setup(matrix, symmetric)?;
-        if symmetric {
-            self.conjugate_gradients(matrix, rhs, tolerance)?;
-            Ok(SolverKind::ConjugateGradients)
+        let result = if symmetric {
+            self.conjugate_gradients(matrix, rhs, tolerance)
+                .map(|()| SolverKind::ConjugateGradients)
         } else {
-            self.bicgstab(matrix, rhs, tolerance)?;
-            Ok(SolverKind::BiCgStab)
-        }
+            self.bicgstab(matrix, rhs, tolerance)
+                .map(|()| SolverKind::BiCgStab)
+        };
+        // not kept for the next solve: the assembly and the output, the run's peaks, would hold
+        // them (CG's five vectors are ~20 bytes per 2D point); allocating them again costs
+        // milliseconds against the seconds of a solve that needs them
+        self.work = Work::default();
+        result
     }
 }

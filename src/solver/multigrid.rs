@@ -43,7 +43,8 @@
 //!    coarse near-null space is `B_{l+1} = R`, so `T B_{l+1} = B_l` exactly.
 //! 3. *Smoothed prolongator* `P = (I − ω D⁻¹ A) T`, `ω = 4 / (3 ρ(D⁻¹A))` with `ρ` from
 //!    power iterations; coarse operator `A_{l+1} = Pᵀ A P` (Galerkin: symmetric and positive
-//!    definite when `A` is).
+//!    definite when `A` is), formed a block `J` of `P`'s columns at a time as
+//!    `(Pᵀ A P)_{:,J} = ((A P_J)ᵀ P)ᵀ`, so `Pᵀ` is never formed ([`galerkin_product`]).
 //! 4. Until the coarsest level has at most [`Multigrid::coarsest_size`] DOFs, which is
 //!    factorised (faer's sparse Cholesky, LU if the tangent is not symmetric or Cholesky fails).
 //!
@@ -60,7 +61,8 @@
 //! much within a step (a body yielding) the count may grow (no scene word turns reuse off yet;
 //! the field does, through the library). With it off, the
 //! aggregates and `T` (which depend on the pattern and the positions only) are kept and `P`,
-//! the coarse operators and the coarsest factor are rebuilt from each tangent.
+//! the coarse operators and the coarsest factor are rebuilt from each tangent; with it on, `T`
+//! is dropped once the hierarchy is built (a new pattern rebuilds the aggregates anyway).
 //!
 //! **Scaling.** Nodes at the edge of a body whose basis functions barely touch a material point
 //! have diagonal entries many orders of magnitude below the others (1e-124 of them measured on
@@ -107,6 +109,9 @@ use super::{DofLayout, LinearSolveError, Preconditioner, SparseMatrix};
 /// Relative strength of connection below which blocks are not aggregated together, when the
 /// nodes' positions are not known.
 const STRENGTH_THRESHOLD: f64 = 0.08;
+
+/// The key of no pattern (a new multigrid, or one whose setup failed).
+const NO_PATTERN: (u64, usize, usize) = (u64::MAX, 0, 0);
 
 /// Power iterations estimating the spectral radius of `D⁻¹A`.
 const POWER_ITERATIONS: usize = 15;
@@ -218,7 +223,7 @@ impl Default for Multigrid {
             aggregate_width: 4,
             keep_hierarchy: true,
             smoother: Smoother::default(),
-            key: (u64::MAX, 0, 0),
+            key: NO_PATTERN,
             tentatives: Vec::new(),
             scaling: Vec::new(),
             levels: Vec::new(),
@@ -313,15 +318,16 @@ impl Multigrid {
         hierarchy.nonzeros.push(self.coarse_nonzeros);
         hierarchy
     }
-}
 
-impl Preconditioner for Multigrid {
-    fn setup(&mut self, matrix: &SparseMatrix, symmetric: bool) -> Result<(), LinearSolveError> {
+    /// The hierarchy for `matrix` (see the module docs), or the one kept for its pattern.
+    fn build(&mut self, matrix: &SparseMatrix, symmetric: bool) -> Result<(), LinearSolveError> {
         let key = (matrix.generation(), matrix.size(), matrix.nonzeros());
-        let rebuild = key != self.key;
-        if !rebuild && self.keep_hierarchy && !matches!(self.coarsest, Coarsest::Empty) {
+        let same_pattern = key == self.key;
+        if same_pattern && self.keep_hierarchy && !matches!(self.coarsest, Coarsest::Empty) {
             return Ok(());
         }
+        // a kept hierarchy's setup drops the tentative prolongators (below): rebuild them
+        let rebuild = !same_pattern || self.tentatives.len() < self.levels.len();
         if rebuild {
             self.tentatives.clear();
             self.key = key;
@@ -390,7 +396,25 @@ impl Preconditioner for Multigrid {
         self.coarse_rhs = vec![0.0; a.nrows()];
         self.coarse_nonzeros = a.val().len();
         self.coarsest = factorise(a, symmetric)?;
+        if self.keep_hierarchy {
+            // the hierarchy serves the whole load step and a new pattern rebuilds the
+            // aggregates anyway: the tentative prolongators (~24 bytes per 2D point) are not
+            // needed again
+            self.tentatives = Vec::new();
+        }
         Ok(())
+    }
+}
+
+impl Preconditioner for Multigrid {
+    fn setup(&mut self, matrix: &SparseMatrix, symmetric: bool) -> Result<(), LinearSolveError> {
+        let result = self.build(matrix, symmetric);
+        if result.is_err() {
+            // what a failed setup left is not a hierarchy: the next one starts afresh
+            self.key = NO_PATTERN;
+            self.tentatives.clear();
+        }
+        result
     }
 
     fn hierarchy(&self) -> Option<Hierarchy> {
@@ -849,18 +873,23 @@ fn smooth_prolongator(
 /// Column blocks of `P` in which [`galerkin_product`] forms `A P`.
 const GALERKIN_BLOCKS: usize = 16;
 
-/// `Pᵀ A P`, a block of `P`'s columns at a time: `C_J = Pᵀ (A P_J)`, so that `A P` (as many
-/// entries as `P`, ~130 bytes per 2D point at q = 2) is never held whole beside `P` and `Pᵀ`.
-/// Each column of a sparse product is formed from that column of its right factor alone, so
-/// `C` is, entry for entry, the product taken whole.
+/// `C = Pᵀ A P`, a block `J` of `P`'s columns at a time, without forming `Pᵀ`:
+///
+/// ```text
+/// W_J = A P_J,    C_J = Pᵀ W_J = (W_Jᵀ P)ᵀ,    (W_Jᵀ P)_ji = Σ_r W_rj P_ri,
+/// ```
+///
+/// so only the block's `W_J` and `W_Jᵀ` (1/16 of `A P`, which has as many entries as `P`:
+/// ~130 bytes per 2D point at q = 2) and the block's rows of `C` are held beside `P`; the
+/// transpose `Pᵀ` (another ~130 bytes per point) is not formed. No symmetry of `A` is used.
+/// The sums are the ones `Pᵀ (A P)` takes, term for term and in the same order (a sparse
+/// product sums, for each entry, over the shared index `r` in increasing order: the rows of
+/// `W_j` there, the rows of `P_i` here, both sorted), so `C` is bit for bit the whole product
+/// (unit tests). Each column block of `C` comes out with its rows sorted.
 fn galerkin_product(
     a: SparseColMatRef<'_, usize, f64>,
     p: SparseColMatRef<'_, usize, f64>,
 ) -> Result<SparseColMat<usize, f64>, LinearSolveError> {
-    let pt = p
-        .transpose()
-        .to_col_major()
-        .map_err(|_| out_of_memory("Pᵀ"))?;
     let (p_ptr, p_idx, p_val) = (p.symbolic().col_ptr(), p.symbolic().row_idx(), p.val());
     let (rows, columns) = (p.ncols(), p.ncols());
     let mut col_ptr = vec![0usize; columns + 1];
@@ -882,7 +911,19 @@ fn galerkin_product(
         );
         let ap =
             sparse_sparse_matmul(a, block, 1.0, Par::rayon(0)).map_err(|_| out_of_memory("A P"))?;
-        let c = sparse_sparse_matmul(pt.as_ref(), ap.as_ref(), 1.0, Par::rayon(0))
+        let apt = ap
+            .as_ref()
+            .transpose()
+            .to_col_major()
+            .map_err(|_| out_of_memory("(A P)ᵀ"))?;
+        drop(ap);
+        let ct = sparse_sparse_matmul(apt.as_ref(), p, 1.0, Par::rayon(0))
+            .map_err(|_| out_of_memory("(A P)ᵀ P"))?;
+        drop(apt);
+        let c = ct
+            .as_ref()
+            .transpose()
+            .to_col_major()
             .map_err(|_| out_of_memory("Pᵀ A P"))?;
         let c_ptr = c.symbolic().col_ptr();
         for j in 0..last - first {
@@ -1324,11 +1365,10 @@ mod tests {
         }
     }
 
-    /// The in-place smoothed prolongator and the blocked Galerkin product give, bit for bit,
-    /// what the triplets (`P = −ω D⁻¹ A T + T`) and the whole product `Pᵀ (A P)` gave.
-    #[test]
-    fn the_prolongator_and_galerkin_product_equal_the_whole_products_bit_for_bit() {
-        let (mut matrix, supports) = grid_pattern(13, 11);
+    /// A diagonally dominant operator on [`grid_pattern`]'s `nx` x `ny` grid, symmetric or,
+    /// with `skew`, not (a skew part added off the diagonal).
+    fn grid_operator(nx: usize, ny: usize, skew: f64) -> SparseMatrix {
+        let (mut matrix, supports) = grid_pattern(nx, ny);
         for support in &supports {
             for &m in support {
                 for &n in support {
@@ -1337,13 +1377,23 @@ mod tests {
                         let value = if r == c {
                             8.0 + (r % 5) as f64 * 0.37
                         } else {
+                            let sign = if r < c { 1.0 } else { -1.0 };
                             -0.1 - ((r.min(c) * 7 + r.max(c) * 3) % 11) as f64 * 0.013
+                                + sign * skew * ((r + 2 * c) % 3) as f64
                         };
                         matrix.add(r as u32, c as u32, value);
                     }
                 }
             }
         }
+        matrix
+    }
+
+    /// The in-place smoothed prolongator and the blocked Galerkin product give, bit for bit,
+    /// what the triplets (`P = −ω D⁻¹ A T + T`) and the whole product `Pᵀ (A P)` gave.
+    #[test]
+    fn the_prolongator_and_galerkin_product_equal_the_whole_products_bit_for_bit() {
+        let matrix = grid_operator(13, 11, 0.0);
         let a = matrix.matrix();
         let (blocks, modes) = fine_blocks_and_modes(matrix.layout(), matrix.size());
         let (t, ..) = aggregate(a, &blocks, &modes, 3).unwrap();
@@ -1383,6 +1433,105 @@ mod tests {
         let pt = p.as_ref().transpose().to_col_major().unwrap();
         let whole = sparse_sparse_matmul(pt.as_ref(), ap.as_ref(), 1.0, Par::Seq).unwrap();
         assert_eq!(parts(c.as_ref()), parts(whole.as_ref()));
+    }
+
+    /// The Galerkin product without `Pᵀ` is `Pᵀ A P` formed explicitly (dense `Pᵀ`, `A`, `P`,
+    /// multiplied by faer's dense product, which sums in another order), to round-off: every
+    /// entry within 1e-14 of the largest, and no entry of the explicit product outside the
+    /// sparse one's pattern; for a symmetric `A` and for a non-symmetric one (the product uses
+    /// no symmetry).
+    #[test]
+    fn the_galerkin_product_is_the_explicit_triple_product_to_round_off() {
+        for skew in [0.0, 0.03] {
+            let matrix = grid_operator(13, 11, skew);
+            let a = matrix.matrix();
+            let (blocks, modes) = fine_blocks_and_modes(matrix.layout(), matrix.size());
+            let (t, ..) = aggregate(a, &blocks, &modes, 3).unwrap();
+            let (inverse_diagonal, _) = diagonal_of(a, 0).unwrap();
+            let omega = 4.0 / (3.0 * spectral_radius(a, &inverse_diagonal, skew == 0.0));
+            let p = smooth_prolongator(a, t.as_ref(), &inverse_diagonal, omega).unwrap();
+            assert!(p.ncols() > 2 * GALERKIN_BLOCKS, "{} coarse DOFs", p.ncols());
+            let c = galerkin_product(a, p.as_ref()).unwrap();
+            let p_dense = p.as_ref().to_dense();
+            let explicit = p_dense.transpose() * a.to_dense() * &p_dense;
+            let c_dense = c.as_ref().to_dense();
+            let largest = (0..p.ncols())
+                .flat_map(|j| (0..p.ncols()).map(move |i| (i, j)))
+                .map(|(i, j)| explicit[(i, j)].abs())
+                .fold(0.0, f64::max);
+            let in_pattern = |i: usize, j: usize| {
+                let col = c.symbolic().col_ptr()[j]..c.symbolic().col_ptr()[j + 1];
+                c.symbolic().row_idx()[col].contains(&i)
+            };
+            let mut worst = 0.0f64;
+            for j in 0..p.ncols() {
+                for i in 0..p.ncols() {
+                    let difference = (c_dense[(i, j)] - explicit[(i, j)]).abs();
+                    worst = worst.max(difference);
+                    assert!(
+                        in_pattern(i, j) || explicit[(i, j)] == 0.0,
+                        "skew {skew}: ({i}, {j}) = {:e} is not in the pattern",
+                        explicit[(i, j)]
+                    );
+                }
+            }
+            println!("skew {skew}: |C − Pᵀ A P| = {worst:e}, largest entry {largest:e}");
+            assert!(
+                worst <= 1e-14 * largest,
+                "skew {skew}: |C − Pᵀ A P| = {worst:e} against {largest:e}"
+            );
+            // and the non-symmetric product really is not symmetric
+            let asymmetry = (0..p.ncols())
+                .flat_map(|j| (0..p.ncols()).map(move |i| (i, j)))
+                .map(|(i, j)| (c_dense[(i, j)] - c_dense[(j, i)]).abs())
+                .fold(0.0, f64::max);
+            assert_eq!(
+                skew == 0.0,
+                asymmetry <= 1e-14 * largest,
+                "asymmetry {asymmetry:e}"
+            );
+        }
+    }
+
+    /// A kept hierarchy drops the tentative prolongators after its setup; a setup for the same
+    /// pattern without keeping rebuilds them, and so does one after a failed setup: each gives
+    /// the same preconditioner, bit for bit.
+    #[test]
+    fn a_kept_hierarchy_drops_the_tentative_prolongators_and_rebuilds_them() {
+        let mut matrix = grid_operator(13, 11, 0.0);
+        let mut multigrid = Multigrid::with_coarsest_size(30);
+        multigrid.aggregate_width = 3;
+        multigrid.setup(&matrix, true).unwrap();
+        assert!(multigrid.level_count() >= 3, "{}", multigrid.level_count());
+        assert!(multigrid.tentatives.is_empty());
+        let sizes = multigrid.level_sizes();
+        let r: Vec<f64> = (0..matrix.size()).map(|i| (i as f64 * 0.7).sin()).collect();
+        let bits = |multigrid: &mut Multigrid| {
+            let mut z = vec![0.0; r.len()];
+            multigrid.apply(&r, &mut z);
+            z.iter().map(|x| x.to_bits()).collect::<Vec<_>>()
+        };
+        let first = bits(&mut multigrid);
+        // not kept: the aggregates are rebuilt and stay for the tangents of the pattern
+        multigrid.keep_hierarchy = false;
+        multigrid.setup(&matrix, true).unwrap();
+        assert_eq!(multigrid.tentatives.len(), multigrid.level_count() - 1);
+        assert_eq!(
+            (multigrid.level_sizes(), bits(&mut multigrid)),
+            (sizes.clone(), first.clone())
+        );
+        // a failed setup (a zero diagonal entry) leaves nothing to reuse
+        let diagonal = matrix.get(0, 0);
+        matrix.add(0, 0, -diagonal);
+        assert!(multigrid.setup(&matrix, true).is_err());
+        assert!(multigrid.tentatives.is_empty());
+        matrix.add(0, 0, diagonal);
+        multigrid.keep_hierarchy = true;
+        multigrid.setup(&matrix, true).unwrap();
+        assert_eq!(
+            (multigrid.level_sizes(), bits(&mut multigrid)),
+            (sizes, first)
+        );
     }
 
     /// The active nodes of a quadratic B-spline grid (Greville abscissae: `h/2` apart at the
