@@ -209,6 +209,63 @@ fn a_gravity_stage_then_a_footing_pushed_from_zero_settlement() {
     }
 }
 
+/// [`footing`] with the footing pushed down by 0.01 B through a rough `surface_displace`.
+fn surface_footing(zero: bool) -> String {
+    let text = footing(zero).replace(
+        "traction(#{ on: [[0.0, 2], [0.5, 2]], traction: [0.0, -200.0] });",
+        "surface_displace(#{ on: [[0.0, 2], [0.5, 2]], displacement: [0.0, -0.01], name: \"footing\" });",
+    );
+    assert!(text.contains("surface_displace"), "{text}");
+    text
+}
+
+/// The footing of [`footing`] pushed down by 0.01 B through a rough `surface_displace` of
+/// stage "footing" (line 10) instead of the traction. In stage "gravity" the condition does
+/// nothing: the stresses are the uniaxial-strain ones to 1e-6 of γH as without it (a
+/// condition acting then would hold the footing's surface up against the weight) and its
+/// displacement and reaction measures are zero. In stage 2 it prescribes the settlement from
+/// the stage's start: the footing's mean displacement is λ × 0.01 B after each step (to 1e-3
+/// of the step's settlement: the penalty's gap, measured 6e-5), from zero, while the weight's settlement before
+/// it (3.0e-4 at the surface) is not counted; the footing carries a growing pressure.
+#[test]
+fn a_footing_pushed_by_a_surface_displace_of_the_second_stage_settles_from_zero() {
+    let (mut sim, dir) = build("surface-footing", &surface_footing(false));
+    let measure = |sim: &Simulation<2>, name: &str| sim.summary.final_measure(name).unwrap();
+    for _ in 0..2 {
+        sim.step().unwrap();
+        let (u, reaction) = (
+            measure(&sim, "footing_displacement_y"),
+            measure(&sim, "footing_reaction_y"),
+        );
+        assert_eq!((u, reaction), (0.0, 0.0));
+    }
+    let (worst, count) = uniaxial_strain_departure(&mut sim, 0.0);
+    eprintln!(
+        "end of stage 1 with the footing's condition waiting: {count} points, max |σ − σ_uniaxial| {worst:.2e}"
+    );
+    assert!(worst < 1e-6 * GAMMA * DEPTH, "{worst:e}");
+    let mut pressures = Vec::new();
+    for (k, step) in (3..=5).enumerate() {
+        sim.step().unwrap();
+        let expected = -0.01 * (k + 1) as f64 / 3.0;
+        let settlement = measure(&sim, "footing_displacement_y");
+        let pressure = -measure(&sim, "footing_traction_y");
+        eprintln!(
+            "step {step}: footing settlement {settlement:.6e} (prescribed {expected:.6e}), pressure {pressure:.4e}"
+        );
+        assert!(
+            (settlement - expected).abs() < 1e-3 * expected.abs(),
+            "{settlement} {expected}"
+        );
+        pressures.push(pressure);
+    }
+    assert!(
+        pressures[0] > 0.0 && pressures.windows(2).all(|w| w[1] > w[0]),
+        "{pressures:?}"
+    );
+    let _ = std::fs::remove_dir_all(dir);
+}
+
 /// A column 1 wide and 10 high under its weight and a traction on its top (`extra`).
 fn column(loads: &str, schedule: &str) -> String {
     format!(
@@ -305,11 +362,12 @@ fn one_stage_is_the_scene_without_stages_and_later_stages_hold_the_earlier_loads
 
 /// A run stopped in the middle of stage 2 (its checkpoint after step 4 of 5) and resumed
 /// writes the files of the run that was never stopped: `history.csv` and the last
-/// `particles_0005.vtu` byte for byte (the displacement field measured from stage 2's start
-/// included, its origins restored from the checkpoint).
+/// `particles_0005.vtu` byte for byte (the displacement field and probe measured from stage
+/// 2's start, its origins restored from the checkpoint; the footing's surface_displace of
+/// stage 2 measured from its start, restored too).
 #[test]
 fn a_run_resumed_within_a_stage_gives_the_results_of_the_run_not_stopped() {
-    let spec = scene("resume", &footing(true)).unwrap();
+    let spec = scene("resume", &surface_footing(true)).unwrap();
     let plan = RestartPlan {
         identity: impm::restart::RunIdentity {
             scene: "footing.rhai".into(),

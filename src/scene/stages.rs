@@ -20,12 +20,16 @@
 //!
 //! The scene's load steps are the stages' steps in order (`SceneSpec::load_factors` holds each
 //! stage's own factors; [`Stages::of_step`] says which stage a step is in and whether it
-//! starts it, so that the driver steps from λ = 0 there). Conditions (`fix`, `displace`,
-//! `surface_displace`), the loads that do not follow stages yet (`point_load`,
-//! `point_load_total`, `pressure`) and everything else than the loads that do (`body_force`,
-//! `traction`, `point_load_at`) and the observers (`record`, `probe`, `reference`) belong to
-//! every stage: a scene of two or more stages refuses them after its second `stage(...)` call,
-//! and refuses the λ-following ones that cannot tell the stages apart anywhere, naming the line.
+//! starts it, so that the driver steps from λ = 0 there). A `surface_displace` of stage k acts
+//! from stage k's start on and prescribes the displacement from there
+//! (`effects::surface_conditions`, "Stages"): the footing pushed after a gravity stage. The
+//! other conditions (`fix`, `displace`), the loads that do not follow stages yet
+//! (`point_load`, `point_load_total`, `pressure`) and everything else than the calls that do
+//! (`body_force`, `traction`, `point_load_at`, `surface_displace`) and the observers (`record`,
+//! `probe`, `reference`) belong to every stage: a scene of two or more stages refuses them
+//! after its second `stage(...)` call, and refuses the λ-following ones that cannot tell the
+//! stages apart (`displace`, `point_load`, `point_load_total`, `pressure`) anywhere, naming the
+//! line.
 //! A scene with one stage is the scene without it, with the stage's schedule.
 
 use rhai::{Dynamic, Position};
@@ -87,7 +91,12 @@ impl Stages {
 }
 
 /// The calls that follow stages: declared in any stage, they belong to it.
-const STAGED_CALLS: &[&str] = &["body_force", "traction", "point_load_at"];
+const STAGED_CALLS: &[&str] = &[
+    "body_force",
+    "traction",
+    "point_load_at",
+    "surface_displace",
+];
 
 /// The calls that may come after the second `stage(...)` call besides those: the stages
 /// themselves, region shapes and what only observes the run.
@@ -103,13 +112,7 @@ const ANYWHERE_CALLS: &[&str] = &[
 
 /// The calls that follow the one load factor λ without telling stages apart: refused in a
 /// scene of two or more stages (their loads would restart from zero in every stage).
-const UNSTAGED_LOADS: &[&str] = &[
-    "point_load",
-    "point_load_total",
-    "pressure",
-    "displace",
-    "surface_displace",
-];
+const UNSTAGED_LOADS: &[&str] = &["point_load", "point_load_total", "pressure", "displace"];
 
 /// The `stage(...)` call.
 pub fn stage_call() -> CallSpec {
@@ -214,7 +217,7 @@ pub fn resolve_stages(builder: &SceneBuilder) -> Result<Option<(Stages, Vec<f64>
                 return Err(ScriptError::at(
                     call.at,
                     format!(
-                        "{name}(...) does not follow stages yet (its load would restart from zero in every stage); in a scene of several stages use body_force, traction or point_load_at, or run it without stage(...)"
+                        "{name}(...) does not follow stages yet (its load would restart from zero in every stage); in a scene of several stages use body_force, traction, point_load_at or surface_displace, or run it without stage(...)"
                     ),
                 ));
             }
