@@ -480,3 +480,38 @@ fn bad_stages_are_refused_with_the_scene_line() {
         }
     }
 }
+
+/// The shipped staged footing (`scripts/strip_footing.rhai --set staged=true`, elastic, its
+/// default resolution): `impm check` lists the stages; the run's settlement is 0 in stage
+/// "gravity" (the footing waits for its stage) and the prescribed 0.01 B at the end of stage
+/// "footing" (to 1e-3 of it), its pressure positive.
+#[test]
+fn the_shipped_staged_footing_runs_in_its_two_stages() {
+    let scene = common::shipped_scene("strip_footing.rhai");
+    let out = common::impm(&["check", scene.to_str().unwrap(), "--set", "staged=true"]);
+    let text = String::from_utf8_lossy(&out.stdout).into_owned()
+        + String::from_utf8_lossy(&out.stderr).as_ref();
+    eprintln!("{text}");
+    assert!(out.status.success(), "{text}");
+    assert!(
+        text.contains("stages (each from load factor 0")
+            && text.contains("'gravity' 2 steps")
+            && text.contains("'footing' 5 steps")
+            && text.contains("displacements from its start"),
+        "{text}"
+    );
+    let sim = common::run_shipped::<2>("strip_footing.rhai", &[("staged", "true")]);
+    let steps = &sim.summary.steps;
+    assert_eq!(steps.len(), 7);
+    for step in &steps[..2] {
+        assert_eq!(step.stage, Some((0, "gravity".to_string())));
+        assert_eq!(step.measure("settlement"), Some(0.0));
+    }
+    let last = steps.last().unwrap();
+    assert_eq!(last.stage, Some((1, "footing".to_string())));
+    let settlement = last.measure("settlement").unwrap();
+    let pressure = last.measure("footing_pressure").unwrap();
+    eprintln!("end: settlement / B {settlement:.6e}, pressure {pressure:.4e}");
+    assert!((settlement - 0.01).abs() < 1e-5, "{settlement}");
+    assert!(pressure > 0.0, "{pressure}");
+}
