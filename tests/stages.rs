@@ -457,6 +457,12 @@ fn bad_stages_are_refused_with_the_scene_line() {
             vec!["point_load", "does not follow stages"],
         ),
         (
+            "unstaged column solution",
+            "stage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"b\", steps: 1 });\nanalytic_column(#{ axis: 1, height: 1.0, material: soil, body_force: -10.0 });",
+            7,
+            vec!["analytic_column", "does not follow stages"],
+        ),
+        (
             "condition in a later stage",
             "stage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"b\", steps: 1 });\nfix(|x| x[0] == 0.0, [0]);",
             7,

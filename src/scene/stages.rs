@@ -23,13 +23,14 @@
 //! starts it, so that the driver steps from λ = 0 there). A `surface_displace` of stage k acts
 //! from stage k's start on and prescribes the displacement from there
 //! (`effects::surface_conditions`, "Stages"): the footing pushed after a gravity stage. The
-//! other conditions (`fix`, `displace`), the loads that do not follow stages yet
-//! (`point_load`, `point_load_total`, `pressure`) and everything else than the calls that do
-//! (`body_force`, `traction`, `point_load_at`, `surface_displace`) and the observers (`record`,
-//! `probe`, `reference`) belong to every stage: a scene of two or more stages refuses them
-//! after its second `stage(...)` call, and refuses the λ-following ones that cannot tell the
-//! stages apart (`displace`, `point_load`, `point_load_total`, `pressure`) anywhere, naming the
-//! line.
+//! calls that do not follow the load factor (`grid`, `material`, `body`, `fix`, `solver`,
+//! `output`, `stress_recovery`, `initial_stress`) belong to every stage: a scene of two or
+//! more stages refuses them after its second `stage(...)` call (only the calls that follow
+//! stages, `body_force`, `traction`, `point_load_at`, `surface_displace`, and the observers,
+//! `record`, `probe`, `reference`, may come there), and refuses anywhere the calls that
+//! follow the one load factor without telling stages apart (`displace`, `point_load`,
+//! `point_load_total`, `pressure`, `analytic_column`, and any call these lists do not know:
+//! a module's new load is refused until it follows stages), naming the line.
 //! A scene with one stage is the scene without it, with the stage's schedule.
 
 use rhai::{Dynamic, Position};
@@ -110,9 +111,22 @@ const ANYWHERE_CALLS: &[&str] = &[
     "reference",
 ];
 
-/// The calls that follow the one load factor λ without telling stages apart: refused in a
-/// scene of two or more stages (their loads would restart from zero in every stage).
-const UNSTAGED_LOADS: &[&str] = &["point_load", "point_load_total", "pressure", "displace"];
+/// The calls a scene of two or more stages may make before its second `stage(...)` besides
+/// those: what does not follow the load factor (the grid, materials, bodies, supports, solver,
+/// output and recovery controls, initial stresses). Any other call (`point_load`,
+/// `point_load_total`, `pressure`, grid-node `displace`, `analytic_column`, or a call of a
+/// module this list does not know) follows the one load factor λ, which restarts in every
+/// stage: refused.
+const STAGE_FREE_CALLS: &[&str] = &[
+    "grid",
+    "material",
+    "body",
+    "fix",
+    "solver",
+    "output",
+    "stress_recovery",
+    "initial_stress",
+];
 
 /// The `stage(...)` call.
 pub fn stage_call() -> CallSpec {
@@ -213,15 +227,16 @@ pub fn resolve_stages(builder: &SceneBuilder) -> Result<Option<(Stages, Vec<f64>
     }
     if builder.stages.len() > 1 {
         for (name, call) in &builder.calls {
-            if UNSTAGED_LOADS.contains(name) {
+            let known = STAGED_CALLS.contains(name) || ANYWHERE_CALLS.contains(name);
+            if !known && !STAGE_FREE_CALLS.contains(name) {
                 return Err(ScriptError::at(
                     call.at,
                     format!(
-                        "{name}(...) does not follow stages yet (its load would restart from zero in every stage); in a scene of several stages use body_force, traction, point_load_at or surface_displace, or run it without stage(...)"
+                        "{name}(...) does not follow stages yet (what follows the load factor would restart from zero in every stage); in a scene of several stages use body_force, traction, point_load_at or surface_displace, or run it without stage(...)"
                     ),
                 ));
             }
-            if call.stage > 0 && !STAGED_CALLS.contains(name) && !ANYWHERE_CALLS.contains(name) {
+            if call.stage > 0 && !known {
                 let stage = &builder.stages[call.stage];
                 return Err(ScriptError::at(
                     call.at,
