@@ -640,6 +640,33 @@ fn check_command(
         spec.load_factors.len(),
         describe_factors(&spec.load_factors)
     );
+    if let Some(stages) = spec.part::<impm::scene::Stages>() {
+        let list: Vec<String> = stages
+            .0
+            .iter()
+            .map(|stage| {
+                format!(
+                    "'{}' {} steps{}{}",
+                    stage.name,
+                    stage.steps,
+                    stage
+                        .line
+                        .map(|l| format!(" (line {l})"))
+                        .unwrap_or_default(),
+                    if stage.zero_displacements {
+                        ", displacements from its start"
+                    } else {
+                        ""
+                    }
+                )
+            })
+            .collect();
+        let _ = writeln!(
+            text,
+            "stages (each from load factor 0, loads held after their stage): {}",
+            list.join(", ")
+        );
+    }
     let used: Vec<&dyn Module> = modules.iter().filter(|m| m.used_by(&spec)).collect();
     for module in &used {
         if let Some(description) = module.describe(&spec) {

@@ -38,6 +38,9 @@ impl MeasuredValues {
 pub struct StepRecord {
     pub step: usize,
     pub load_factor: f64,
+    /// The stage of the step (index and name) in a scene with stages (`scene::Stages`); the
+    /// load factor is then the stage's own.
+    pub stage: Option<(usize, String)>,
     /// Linear solves (Newton iterations).
     pub iterations: usize,
     /// Normalised out-of-balance force of each iterate.
@@ -80,6 +83,7 @@ impl StepRecord {
         Self {
             step,
             load_factor,
+            stage: None,
             iterations: 0,
             residuals: Vec::new(),
             linear_iterations: Vec::new(),
@@ -198,6 +202,10 @@ fn step_json(r: &StepRecord) -> Value {
         "seconds": stage_seconds(&r.seconds),
         "wall_seconds": number(r.wall_seconds),
     });
+    if let Some((index, name)) = &r.stage {
+        v["stage"] = json!(index);
+        v["stage_name"] = json!(name);
+    }
     if !r.linear_iterations.is_empty() {
         v["linear_iterations"] = json!(r.linear_iterations);
     }
@@ -417,6 +425,10 @@ pub fn step_from_json(value: &Value, measures: &[String]) -> Result<StepRecord, 
             .unwrap_or_default()
     };
     let mut record = StepRecord::new(count("step")?, real(&value["load_factor"]));
+    if let Some(index) = value["stage"].as_u64() {
+        let name = value["stage_name"].as_str().unwrap_or_default();
+        record.stage = Some((index as usize, name.to_string()));
+    }
     record.iterations = count("iterations")?;
     record.residuals = reals(&value["residuals"]);
     record.linear_iterations = counts(&value["linear_iterations"]);
@@ -483,6 +495,8 @@ pub fn step_from_json(value: &Value, measures: &[String]) -> Result<StepRecord, 
 const STEP_KEYS: &[&str] = &[
     "step",
     "load_factor",
+    "stage",
+    "stage_name",
     "iterations",
     "residuals",
     "linear_iterations",
@@ -521,14 +535,25 @@ pub fn history_csv(steps: &[StepRecord]) -> String {
             }
         }
     }
-    let mut text = String::from("step,load_factor");
+    let staged = steps.iter().any(|s| s.stage.is_some());
+    let mut text = String::from(if staged {
+        "step,stage,load_factor"
+    } else {
+        "step,load_factor"
+    });
     for name in &names {
         text += ",";
         text += name;
     }
     text += "\n";
     for step in steps {
-        text += &format!("{},{}", step.step, step.load_factor);
+        match (&step.stage, staged) {
+            (Some((stage, _)), _) => {
+                text += &format!("{},{},{}", step.step, stage, step.load_factor);
+            }
+            (None, true) => text += &format!("{},,{}", step.step, step.load_factor),
+            (None, false) => text += &format!("{},{}", step.step, step.load_factor),
+        }
         for &name in &names {
             let value = if name == "error" {
                 step.error

@@ -79,30 +79,70 @@ pub struct LoadStep {
 }
 
 impl LoadStep {
-    /// The factor a load of the given [`Ramp`] is applied with in this step: the step's load
-    /// factor λ, or 1 for a held load.
+    /// The factor a load of the given [`Ramp`] is applied with in this step of a scene without
+    /// stages: the step's load factor λ, or 1 for a held load.
     pub fn factor_of(&self, ramp: Ramp) -> f64 {
-        match ramp {
-            Ramp::Schedule => self.factor,
-            Ramp::Held => 1.0,
+        self.factor_in(ramp, 0)
+    }
+
+    /// The factor a load of the given [`Ramp`] is applied with in this step of stage `stage`
+    /// (`scene::stages`; λ is the stage's own load factor, from 0 to 1 over the stage): a load
+    /// of stage k is absent before stage k, follows λ in it (or is held in full from its start)
+    /// and is held at its final value after it.
+    pub fn factor_in(&self, ramp: Ramp, stage: usize) -> f64 {
+        let (own, held) = match ramp {
+            Ramp::Schedule => (0, false),
+            Ramp::Held => (0, true),
+            Ramp::Stage(k) => (k, false),
+            Ramp::HeldFrom(k) => (k, true),
+        };
+        match stage.cmp(&own) {
+            std::cmp::Ordering::Less => 0.0,
+            std::cmp::Ordering::Equal if !held => self.factor,
+            _ => 1.0,
         }
     }
 }
 
+/// The stage the load step belongs to (`scene::stages`; 0 in a scene without stages): set by
+/// the driver before each step.
+#[derive(Resource, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CurrentStage(pub usize);
+
 /// How a load follows the load schedule: ramped with the load factor λ (the default), or held
 /// at its full value from the first step on (`held: true` in scenes: the weight that balances
-/// a geostatic initial stress while a footing is pushed).
+/// a geostatic initial stress while a footing is pushed). In a scene with stages a load
+/// declared in stage k > 0 is `Stage(k)` or `HeldFrom(k)` (`Schedule` and `Held` are stage 0's).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Ramp {
     #[default]
     Schedule,
     Held,
+    /// Absent before stage k, ramped over it, held in full after it.
+    Stage(usize),
+    /// Absent before stage k, held in full from its first step on.
+    HeldFrom(usize),
 }
 
 impl Ramp {
     /// `Held` when `held`, else `Schedule`.
     pub fn held_if(held: bool) -> Self {
-        if held { Self::Held } else { Self::Schedule }
+        Self::staged(held, 0)
+    }
+
+    /// The ramp of a load declared in stage `stage`, held or following the stage's schedule.
+    pub fn staged(held: bool, stage: usize) -> Self {
+        match (held, stage) {
+            (false, 0) => Self::Schedule,
+            (true, 0) => Self::Held,
+            (false, k) => Self::Stage(k),
+            (true, k) => Self::HeldFrom(k),
+        }
+    }
+
+    /// Whether the load is held in full from the start of its stage.
+    pub fn is_held(self) -> bool {
+        matches!(self, Self::Held | Self::HeldFrom(_))
     }
 }
 

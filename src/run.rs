@@ -38,7 +38,7 @@ use crate::plugin::{Module, ModuleSet, Plugin, build_plugin};
 use crate::records::{MeasuredValues, StepMeasures, StepRecord, Summary, step_from_json};
 use crate::resources::*;
 use crate::restart::{Checkpoint, RunIdentity};
-use crate::scene::SceneSpec;
+use crate::scene::{SceneSpec, Stages};
 use crate::stages::arc_length::{ArcLength, ArcLengthControl, ArcLengthSpec};
 use crate::stages::line_search::LineSearch;
 use crate::stages::output::{OutputPlan, PointFields};
@@ -178,8 +178,12 @@ impl<const D: usize> Simulation<D> {
         }
     }
 
-    /// Writes the checkpoint of the steps done so far, if the run keeps checkpoints.
-    fn write_checkpoint(&mut self) -> Result<(), SolverError> {
+    /// Writes the checkpoint of the steps done so far, if the run keeps checkpoints ([`run`]
+    /// does after the steps its plan says; a program that drives the steps itself with
+    /// [`Simulation::step`] may call it after any step).
+    ///
+    /// [`run`]: Simulation::run
+    pub fn write_checkpoint(&mut self) -> Result<(), SolverError> {
         // an arc-length run cannot be resumed (`resume_from`): a checkpoint would be written
         // for nothing, and a failed run would point to it
         let Some(plan) = self.restart.as_ref().filter(|_| self.arc.is_none()) else {
@@ -264,13 +268,29 @@ impl<const D: usize> Simulation<D> {
         }
         let number = self.steps_done + 1;
         let target = self.spec.load_factors[number - 1];
+        // a stage's schedule starts from λ = 0 (`scene::stages`)
+        let (stage, starts_stage) = self.stage_of(number);
         let start = match number {
             1 => 0.0,
+            _ if starts_stage => 0.0,
             n => self.spec.load_factors[n - 2],
         };
+        self.world.resource_mut::<CurrentStage>().0 = stage;
+        if starts_stage
+            && self
+                .spec
+                .part::<Stages>()
+                .is_some_and(|stages| stages.zeroes_displacements(stage))
+        {
+            effects::stages::zero_displacements::<D>(&mut self.world);
+        }
         *self.world.resource_mut::<StageClock>() = StageClock::default();
         let clock = Instant::now();
         let mut record = StepRecord::new(number, target);
+        record.stage = self
+            .spec
+            .part::<Stages>()
+            .map(|stages| (stage, stages.name(stage).to_string()));
         let mut attempt = self.control.begin(start, target);
         loop {
             match self.attempt(number, attempt, &mut record) {
@@ -292,6 +312,14 @@ impl<const D: usize> Simulation<D> {
         }
         record.cuts = self.control.cuts();
         self.complete_step(record, clock)
+    }
+
+    /// The stage of load step `number` and whether the step starts it (stage 0 and whether it
+    /// is step 1 in a scene without stages).
+    fn stage_of(&self, number: usize) -> (usize, bool) {
+        self.spec
+            .part::<Stages>()
+            .map_or((0, number == 1), |stages| stages.of_step(number))
     }
 
     /// Records a converged step (at the load factor of its record) and writes the records.
@@ -600,6 +628,7 @@ fn core_world<const D: usize>(spec: &SceneSpec, out_dir: &Path) -> Result<World,
     world.insert_resource(GridFields::<D>::new(basis.num_nodes()));
     world.insert_resource(Grid(basis));
     world.insert_resource(LoadStep::default());
+    world.insert_resource(CurrentStage::default());
     world.insert_resource(NewtonSettings {
         tolerance: spec.solver.tolerance,
         max_iterations: spec.solver.max_iterations,

@@ -20,7 +20,7 @@ use super::declarations::{LoadSummary, held_option};
 use crate::components::{Mass, Support};
 use crate::mechanics::spread_force;
 use crate::plugin::{Extension, Hook, Plugin};
-use crate::resources::{GridFields, LoadStep, Ramp, Stage, StageClock};
+use crate::resources::{CurrentStage, GridFields, LoadStep, Ramp, Stage, StageClock};
 use crate::scene::{
     CallSpec, Located, Options, Resolver, SceneApi, SceneSpec, ScriptError, numbers,
 };
@@ -57,7 +57,10 @@ impl Plugin for BodyForceModule {
             "body_force([b0, ..])",
             "body force per unit mass at load factor 1, one entry per axis (call once)",
             1,
-            |builder, args, at| declare_body_force(builder, &args[0], Ramp::Schedule, at),
+            |builder, args, at| {
+                let ramp = Ramp::staged(false, builder.stage());
+                declare_body_force(builder, &args[0], ramp, at)
+            },
         ));
         api.call(CallSpec::args(
             "body_force",
@@ -66,7 +69,7 @@ impl Plugin for BodyForceModule {
             2,
             |builder, args, at| {
                 let options = Options::read("body_force", &args[1], &[held_option()], None)?;
-                let ramp = Ramp::held_if(options.flag("held").unwrap_or(false));
+                let ramp = Ramp::staged(options.flag("held").unwrap_or(false), builder.stage());
                 declare_body_force(builder, &args[0], ramp, at)
             },
         ));
@@ -116,7 +119,7 @@ impl Plugin for BodyForceModule {
                 .map(|p| &p.position[..]),
             b.0.iter().map(|c| c * mass).collect(),
         );
-        let held = spec.part::<BodyForceRamp>().map(|r| r.0) == Some(Ramp::Held);
+        let held = spec.part::<BodyForceRamp>().is_some_and(|r| r.0.is_held());
         Some(format!(
             "{:?} per unit mass {}\n    {}",
             b.0,
@@ -150,18 +153,20 @@ impl Plugin for BodyForceModule {
     }
 }
 
-/// f_ext,i += λ m_p b N_i(x_p) (λ = 1 for a held body force) over every material point.
+/// f_ext,i += λ m_p b N_i(x_p) (λ = 1 for a held body force; in a scene with stages the
+/// factor of its stage, `LoadStep::factor_in`) over every material point.
 pub fn apply_body_force<const D: usize>(
     body_force: Res<BodyForce<D>>,
     ramp: Option<Res<BodyForceRamp>>,
     step: Res<LoadStep>,
+    stage: Option<Res<CurrentStage>>,
     mut fields: ResMut<GridFields<D>>,
     mut clock: ResMut<StageClock>,
     points: Query<(&Mass, &Support<D>)>,
 ) {
     let _timer = clock.time(Stage::Loads);
     let ramp = ramp.map_or(Ramp::Schedule, |r| r.0);
-    let acceleration = body_force.0 * step.factor_of(ramp);
+    let acceleration = body_force.0 * step.factor_in(ramp, stage.map_or(0, |s| s.0));
     for (mass, support) in points.iter() {
         spread_force(
             &(acceleration * mass.0),
@@ -189,7 +194,7 @@ fn declare_body_force(
         return Err("body_force(...) needs one component per axis, got []".to_string());
     }
     builder.declare(Located::new(BodyForceSpec(force), at));
-    if ramp == Ramp::Held {
+    if ramp != Ramp::Schedule {
         builder.declare(Located::new(BodyForceRamp(ramp), at));
     }
     Ok(Dynamic::UNIT)

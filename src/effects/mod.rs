@@ -17,6 +17,7 @@
 //! | `fbar.rs` | F-bar: the volume change averaged over the points of a cell (`body(#{ fbar: true })`) or of the cells around it (`"patch"`) |
 //! | `stress_recovery.rs` | moving-least-squares stress recovery |
 //! | `probes.rs` | displacement, stress and F at material reference positions (`probe`) |
+//! | `stages.rs` | displacements measured from a stage's start (`stage(#{ zero_displacements: true })`) |
 //! | `history.rs` | named columns of history.csv from the measured quantities (`record`) |
 //! | `initial_stress.rs` | geostatic `K0` initial stresses (`initial_stress`), applied by the materials' modules |
 //! | `line_search.rs` | the Newton line search (`solver(#{ line_search: true })`; the method in `stages::line_search`) |
@@ -40,6 +41,7 @@ pub mod point_domains;
 pub mod point_loads;
 pub mod pressure;
 pub mod probes;
+pub mod stages;
 pub mod stress_recovery;
 pub mod surface_conditions;
 pub mod tractions;
@@ -68,6 +70,7 @@ pub fn built_in() -> ModuleSet {
         .with(fbar::FbarModule)
         .with(stress_recovery::StressRecoveryModule)
         .with(probes::ProbesModule)
+        .with(stages::StagesModule)
         .with(history::HistoryModule)
         .with(initial_stress::InitialStressModule)
         .with(line_search::LineSearchModule)

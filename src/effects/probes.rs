@@ -12,7 +12,8 @@
 //!   f(X₀) ≈ Σ_k w_k f_k,     w_k = e₁ᵀ M⁻¹ p_k,   M = Σ_k p_k p_kᵀ,   p_k = [1, X_k − X₀],
 //! ```
 //!
-//! with f_k = u_p = x_p − X_p, the point's Cauchy stress σ_p or its F_p. The neighbours and
+//! with f_k = u_p = x_p − X_p (− u_0,p after a stage that zeroes the displacements,
+//! `effects::stages`), the point's Cauchy stress σ_p or its F_p. The neighbours and
 //! their weights are fixed at the start (reference positions do not change), so a probe costs a
 //! few products per step. The fit is exact for linear fields (a homogeneous deformation is read
 //! exactly, inside or outside the points' hull); otherwise its error is of the order of the
@@ -189,7 +190,8 @@ impl Plugin for ProbesModule {
                     for &(entity, w) in weights.iter() {
                         let x = world.get::<Position<D>>(entity)?.0;
                         let reference = world.get::<ReferencePosition<D>>(entity)?.0;
-                        value += w * (x - reference)[axis];
+                        let origin = super::stages::origin_of::<D>(world, entity);
+                        value += w * (x - reference - origin)[axis];
                     }
                     Some(value)
                 });

@@ -149,6 +149,23 @@
 //! uGIMP (−2.3 % at 40 steps). Silent: cpGIMP, CPDI, `integration: "domain"` (exact),
 //! quadratic B-splines with 2, 4, 5 or 6 points per cell (within 0.05 % at 5 steps).
 //!
+//! # Stages
+//!
+//! A condition declared in stage k of a staged scene (`scene::stages`) does nothing before
+//! stage k (no force, no stiffness, no reaction): its boundary points move with the grid and
+//! keep their displacement `s_s = x_s − X_s` and the fitted material one `ũ_s`, so that from
+//! stage k's start on the gap is measured from there,
+//!
+//! ```text
+//!   g_s = P (x_s + Δu_h(x_s) − X_s − s_s − λ_k ū),
+//! ```
+//!
+//! with λ_k stage k's own load factor (1 in the stages after it: the settlement held). Its
+//! measures (`NAME_displacement_*`, `NAME_material_displacement_*`, ...) are from the stage's
+//! start too: the footing pushed after a gravity stage settles from zero. A condition of the
+//! first stage has `s_s = ũ_s,0 = 0`: the formulas above. The starts are a checkpoint part
+//! ("surface condition starts") in a scene with a condition of a later stage.
+//!
 //! Systems: [`find_boundary_supports`] (`Hook::Connectivity`), [`assemble_surface_conditions`]
 //! (`Hook::AfterAssembly`), [`update_boundary_points`] (`Hook::PointUpdate`),
 //! [`measure_material_at_conditions`] and [`check_surface_conditions`] (`Hook::AfterStep`).
@@ -171,7 +188,8 @@ use super::declarations::{coordinate_range, round};
 use super::probes::{default_neighbours, fit_weights};
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{
-    Grid, GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock,
+    CurrentStage, Grid, GridFields, LoadStep, Newton, Ramp, RunStatus, SolverError, Stage,
+    StageClock,
 };
 use crate::scene::{
     CallSpec, Choice, Kind, Located, ModuleNotes, ModuleWarnings, OptionSpec, Options, Range,
@@ -249,6 +267,10 @@ pub struct SurfaceConditionSpec {
     pub components: String,
     /// h: the smallest cell size of the grid (the floor of the separation check).
     pub cell: f64,
+    /// The stage the condition belongs to (`scene::stages`; 0 without stages): it acts from
+    /// that stage's start on and prescribes the displacement from there (module docs,
+    /// "Stages").
+    pub stage: usize,
 }
 
 impl SurfaceConditionSpec {
@@ -300,6 +322,10 @@ pub struct BoundaryPoint<const D: usize> {
     /// Symmetric Nitsche: the host's trial state at the step's first iterate, whose tangent
     /// builds the adjoint term for the whole step (module docs, "Symmetric Nitsche").
     pub adjoint_state: Option<crate::mechanics::TrialState<D>>,
+    /// The point's displacement `x_s − X_s` and the fitted material displacement ũ_s when its
+    /// condition's stage started (zero for a condition of the first stage; module docs,
+    /// "Stages").
+    pub start: [SVector<f64, D>; 2],
 }
 
 /// One condition in the world: what the systems need, and its last reaction.
@@ -339,6 +365,26 @@ pub struct SurfaceCondition<const D: usize> {
     /// The force the material's stress carries across the surface, Σ_s P̃_s N A_s with P̃_s the
     /// fitted first Piola stress at X_s (the reaction's counterpart read from the material).
     pub material_force: SVector<f64, D>,
+    /// The stage the condition belongs to: it acts from that stage's start on.
+    pub stage: usize,
+}
+
+impl<const D: usize> SurfaceCondition<D> {
+    /// Whether the condition acts in stage `stage`.
+    pub fn acts_in(&self, stage: usize) -> bool {
+        stage >= self.stage
+    }
+
+    /// The factor of its prescribed displacement in `step` of stage `stage`: the load factor
+    /// in its own stage, 1 after it (`LoadStep::factor_in`).
+    pub fn factor(&self, step: &LoadStep, stage: usize) -> f64 {
+        step.factor_in(Ramp::staged(false, self.stage), stage)
+    }
+}
+
+/// The stage of the step (0 without a `CurrentStage`).
+fn stage_of(stage: &Option<Res<CurrentStage>>) -> usize {
+    stage.as_ref().map_or(0, |s| s.0)
 }
 
 /// The conditions of the run, in declaration order.
@@ -524,6 +570,13 @@ impl Plugin for SurfaceConditionsModule {
         for (index, condition) in specs.iter().enumerate() {
             add_condition_measures::<D>(simulation, index, &condition.name, condition.imposition);
         }
+        if specs.iter().any(|c| c.stage > 0) {
+            simulation.checkpoint(CheckpointPart {
+                name: "surface condition starts",
+                save: save_starts::<D>,
+                restore: restore_starts::<D>,
+            });
+        }
         simulation
             .checkpoint(CheckpointPart {
                 name: "boundary points",
@@ -627,6 +680,7 @@ fn world_conditions<const D: usize>(
             material_offset: 0.0,
             largest_material_offset: 0.0,
             material_force: SVector::zeros(),
+            stage: spec.stage,
         });
     }
     Ok(SurfaceConditionSet(set))
@@ -668,6 +722,7 @@ fn spawn_boundary_points<const D: usize>(
                 host,
                 weights: Vec::new(),
                 adjoint_state: None,
+                start: [SVector::zeros(); 2],
             });
         }
     }
@@ -768,7 +823,7 @@ fn gap<const D: usize>(
     increment: &[SVector<f64, D>],
     factor: f64,
 ) -> SVector<f64, D> {
-    let mut u = point.position - point.reference_position;
+    let mut u = point.position - point.reference_position - point.start[0];
     for &(node, n) in &point.weights {
         u += increment[node] * n;
     }
@@ -804,8 +859,10 @@ fn nitsche_traction<const D: usize>(
 
 /// Newton: every condition's contribution to f_int and K (module docs).
 #[allow(clippy::type_complexity)]
+#[allow(clippy::too_many_arguments)] // a system: its parameters are what it reads and writes
 pub fn assemble_surface_conditions<const D: usize>(
     step: Res<LoadStep>,
+    stage: Option<Res<CurrentStage>>,
     set: Res<SurfaceConditionSet<D>>,
     mut fields: ResMut<GridFields<D>>,
     mut newton: ResMut<Newton>,
@@ -817,11 +874,20 @@ pub fn assemble_surface_conditions<const D: usize>(
     let fields = &mut *fields;
     let first_iterate = newton.iterations == 0;
     let matrix = &mut newton.matrix;
+    let stage = stage_of(&stage);
     for mut point in points.iter_mut() {
         let condition = &set.0[point.condition];
+        if !condition.acts_in(stage) {
+            continue;
+        }
         let p = &condition.projection;
         let alpha_a = condition.penalty * point.area;
-        let g = gap(&point, condition, &fields.increment, step.factor);
+        let g = gap(
+            &point,
+            condition,
+            &fields.increment,
+            condition.factor(&step, stage),
+        );
         let force = g * alpha_a;
         let penalty_block = p * alpha_a;
         for &(i, n_i) in &point.weights {
@@ -882,6 +948,7 @@ pub fn assemble_surface_conditions<const D: usize>(
 /// surface is from them ([`SurfaceCondition::separation`]).
 pub fn update_boundary_points<const D: usize>(
     step: Res<LoadStep>,
+    stage: Option<Res<CurrentStage>>,
     fields: Res<GridFields<D>>,
     mut set: ResMut<SurfaceConditionSet<D>>,
     hosts: Query<(
@@ -898,12 +965,21 @@ pub fn update_boundary_points<const D: usize>(
         condition.largest_gap = 0.0;
         condition.separation = 0.0;
     }
+    let stage = stage_of(&stage);
     for mut point in points.iter_mut() {
         let condition = &set.0[point.condition];
-        let g = gap(&point, condition, &fields.increment, step.factor);
+        let acts = condition.acts_in(stage);
+        let g = gap(
+            &point,
+            condition,
+            &fields.increment,
+            condition.factor(&step, stage),
+        );
         let mut reaction = -g * (condition.penalty * point.area);
         let host = hosts.get(point.host).ok();
-        if condition.imposition.is_nitsche() {
+        if !acts {
+            reaction = SVector::zeros();
+        } else if condition.imposition.is_nitsche() {
             // the host's F was just committed: T_s from the trial state and Fⁿ⁺¹ Δf⁻¹ = Fⁿ
             if let Some((trial, ..)) = host {
                 let previous =
@@ -917,6 +993,11 @@ pub fn update_boundary_points<const D: usize>(
             du += fields.increment[node] * n;
         }
         point.position += du;
+        if !acts {
+            // its stage has not started: it will prescribe the displacement from here
+            point.start[0] = point.position - point.reference_position;
+            continue;
+        }
         let mut separation = 0.0;
         if let Some((_, f, x, reference)) = host {
             let surface = x.0 + f.0 * (point.reference_position - reference.0);
@@ -924,7 +1005,8 @@ pub fn update_boundary_points<const D: usize>(
         }
         let condition = &mut set.0[point.condition];
         condition.reaction += reaction;
-        condition.mean_displacement += (point.position - point.reference_position) * point.area;
+        condition.mean_displacement +=
+            (point.position - point.reference_position - point.start[0]) * point.area;
         condition.largest_gap = condition.largest_gap.max(g.norm());
         condition.separation = condition.separation.max(separation);
     }
@@ -969,6 +1051,33 @@ fn restore_condition_state<const D: usize>(
     Ok(())
 }
 
+/// Every boundary point's starts `s_s`, `ũ_s` (module docs, "Stages"), in `id` order.
+fn save_starts<const D: usize>(world: &mut World) -> Vec<f64> {
+    let mut query = world.query::<&BoundaryPoint<D>>();
+    let mut rows: Vec<&BoundaryPoint<D>> = query.iter(world).collect();
+    rows.sort_by_key(|point| point.id);
+    rows.iter()
+        .flat_map(|point| point.start.iter().flat_map(|v| v.iter().copied()))
+        .collect()
+}
+
+/// Restores what [`save_starts`] saved.
+fn restore_starts<const D: usize>(world: &mut World, values: &[f64]) -> Result<(), String> {
+    let mut query = world.query::<&mut BoundaryPoint<D>>();
+    let count = query.iter(world).len();
+    let records: Vec<&[f64]> = crate::checkpoint::records(values, 2 * D, count)?.collect();
+    for mut point in query.iter_mut(world) {
+        let record = records
+            .get(point.id as usize)
+            .ok_or_else(|| format!("no start saved for boundary point {}", point.id))?;
+        point.start = [
+            SVector::from_column_slice(&record[..D]),
+            SVector::from_column_slice(&record[D..]),
+        ];
+    }
+    Ok(())
+}
+
 /// Threshold of [`check_surface_conditions`]: the fraction of the largest prescribed
 /// displacement so far, max |P λ ū| (docs/boundaries.md).
 pub const SEPARATION_TOLERANCE: f64 = 0.15;
@@ -990,17 +1099,19 @@ pub fn separation_threshold(largest_prescribed: f64, cell: f64) -> f64 {
 /// and the force the material's stress carries across the surface, Σ_s P̃_s N A_s.
 pub fn measure_material_at_conditions<const D: usize>(
     step: Res<LoadStep>,
+    stage: Option<Res<CurrentStage>>,
     mut set: ResMut<SurfaceConditionSet<D>>,
     material: Query<(&Position<D>, &ReferencePosition<D>, &Trial<D>)>,
-    points: Query<&BoundaryPoint<D>>,
+    mut points: Query<&mut BoundaryPoint<D>>,
 ) {
+    let stage = stage_of(&stage);
     for condition in set.0.iter_mut() {
         condition.material_displacement = SVector::zeros();
         condition.material_offset = 0.0;
         condition.largest_material_offset = 0.0;
         condition.material_force = SVector::zeros();
     }
-    for point in points.iter() {
+    for mut point in points.iter_mut() {
         let mut u = SVector::<f64, D>::zeros();
         let mut piola = SMatrix::<f64, D, D>::zeros();
         for &(entity, w) in &point.fit {
@@ -1016,7 +1127,13 @@ pub fn measure_material_at_conditions<const D: usize>(
             piola += crate::mechanics::block::<D>(&trial.0.kirchhoff) * inverse.transpose() * w;
         }
         let condition = &mut set.0[point.condition];
-        let offset = (condition.projection * (u - condition.displacement * step.factor)).norm();
+        if !condition.acts_in(stage) {
+            point.start[1] = u;
+            continue;
+        }
+        let u = u - point.start[1];
+        let factor = condition.factor(&step, stage);
+        let offset = (condition.projection * (u - condition.displacement * factor)).norm();
         condition.material_displacement += u * point.area;
         condition.material_offset += offset * point.area;
         condition.largest_material_offset = condition.largest_material_offset.max(offset);
@@ -1045,12 +1162,18 @@ pub fn measure_material_at_conditions<const D: usize>(
 /// material offset to the threshold is recorded every step (`NAME_material_ratio`).
 pub fn check_surface_conditions<const D: usize>(
     step: Res<LoadStep>,
+    stage: Option<Res<CurrentStage>>,
     names: Res<SurfaceConditionNames>,
     mut set: ResMut<SurfaceConditionSet<D>>,
     mut warnings: ResMut<crate::resources::Warnings>,
 ) {
+    let stage = stage_of(&stage);
     for (index, condition) in set.0.iter_mut().enumerate() {
-        let prescribed = (condition.projection * condition.displacement * step.factor).amax();
+        if !condition.acts_in(stage) {
+            continue;
+        }
+        let prescribed =
+            (condition.projection * condition.displacement * condition.factor(&step, stage)).amax();
         condition.largest_prescribed = condition.largest_prescribed.max(prescribed);
         let threshold = separation_threshold(condition.largest_prescribed, condition.cell);
         let ratio = condition.material_offset / threshold;
@@ -1319,6 +1442,7 @@ fn resolve_conditions(scene: &Resolver) -> Result<Vec<SurfaceConditionSpec>, Scr
             penalty: gamma * stiffness / cell,
             components,
             cell,
+            stage: declaration.stage,
         });
     }
     Ok(resolved)

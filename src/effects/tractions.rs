@@ -61,7 +61,7 @@ use crate::mechanics::spread_over_active;
 use crate::output::{Field, PvdSeries, vertex_cells, write_vtu};
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{
-    Grid, GridFields, LoadStep, Ramp, RunStatus, SolverError, Stage, StageClock,
+    CurrentStage, Grid, GridFields, LoadStep, Ramp, RunStatus, SolverError, Stage, StageClock,
 };
 use crate::scene::{
     CallSpec, Kind, Located, OptionSpec, Options, Resolver, SceneApi, SceneSpec, ScriptError,
@@ -189,7 +189,7 @@ impl Plugin for TractionsModule {
                         corners: options.points("on").unwrap_or_default().to_vec(),
                         traction: options.numbers("traction").unwrap_or_default().to_vec(),
                         per_cell: options.whole("per_cell").unwrap_or(2),
-                        ramp: Ramp::held_if(options.flag("held").unwrap_or(false)),
+                        ramp: Ramp::staged(options.flag("held").unwrap_or(false), builder.stage()),
                     },
                     at,
                 ));
@@ -213,7 +213,7 @@ impl Plugin for TractionsModule {
                     PointLoadAtDeclaration {
                         at: options.numbers("at").unwrap_or_default().to_vec(),
                         force: options.numbers("force").unwrap_or_default().to_vec(),
-                        ramp: Ramp::held_if(options.flag("held").unwrap_or(false)),
+                        ramp: Ramp::staged(options.flag("held").unwrap_or(false), builder.stage()),
                     },
                     at,
                 ));
@@ -380,6 +380,7 @@ pub fn host_weights<const D: usize>(
 pub fn apply_tractions<const D: usize>(
     grid: Res<Grid<D>>,
     step: Res<LoadStep>,
+    stage: Option<Res<CurrentStage>>,
     weights: Res<LoadPointWeights>,
     mut fields: ResMut<GridFields<D>>,
     mut status: ResMut<RunStatus>,
@@ -390,6 +391,7 @@ pub fn apply_tractions<const D: usize>(
 ) {
     let _timer = clock.time(Stage::Loads);
     let fields = &mut *fields;
+    let stage = stage.map_or(0, |s| s.0);
     for mut point in points.iter_mut() {
         let point = &mut *point;
         if *weights == LoadPointWeights::Host {
@@ -402,7 +404,7 @@ pub fn apply_tractions<const D: usize>(
                 return;
             };
             point.support = host_weights(&host.0, &(point.position - x.0));
-            let force = point.traction * (point.area * step.factor_of(point.ramp));
+            let force = point.traction * (point.area * step.factor_in(point.ramp, stage));
             spread_over_active(
                 &force,
                 &point.support,
@@ -428,7 +430,7 @@ pub fn apply_tractions<const D: usize>(
             status.fail(fail("left the background grid"));
             return;
         }
-        let force = point.traction * (point.area * step.factor_of(point.ramp));
+        let force = point.traction * (point.area * step.factor_in(point.ramp, stage));
         if !spread_over_active(
             &force,
             &point.support,
@@ -458,6 +460,7 @@ pub fn update_traction_points<const D: usize>(
 /// `tractions_NNNN.vtu` and its series.
 pub fn write_tractions<const D: usize>(
     step: Res<LoadStep>,
+    stage: Option<Res<CurrentStage>>,
     plan: Res<OutputPlan>,
     mut series: ResMut<TractionSeries>,
     mut status: ResMut<RunStatus>,
@@ -479,7 +482,7 @@ pub fn write_tractions<const D: usize>(
     for point in &rows {
         reference.extend(pad(&point.reference_position));
         area.push(point.area);
-        let factor = step.factor_of(point.ramp);
+        let factor = step.factor_in(point.ramp, stage.as_ref().map_or(0, |s| s.0));
         traction.extend(pad(&(point.traction * factor)));
         force.extend(pad(&(point.traction * (point.area * factor))));
     }

@@ -32,11 +32,18 @@ pub const MAX_SEED_CANDIDATES: usize = 100_000_000;
 pub struct Located<T> {
     pub value: T,
     pub at: Position,
+    /// The stage the declaration belongs to (`stage(...)`: 0 before the second stage call;
+    /// stamped by [`SceneBuilder::declare`] and for map calls' options).
+    pub stage: usize,
 }
 
 impl<T> Located<T> {
     pub fn new(value: T, at: Position) -> Self {
-        Self { value, at }
+        Self {
+            value,
+            at,
+            stage: 0,
+        }
     }
 
     /// "at line N" for messages (empty if unknown).
@@ -158,6 +165,11 @@ pub struct SceneBuilder {
     pub solver: Option<Located<SolverSpec>>,
     pub output: Option<Located<OutputSpec>>,
     pub analytic: Option<Located<ColumnDeclaration>>,
+    /// The `stage(...)` calls, in order (`scene::stages`).
+    pub stages: Vec<Located<super::stages::StageDeclaration>>,
+    /// Every call the script made, with the stage it belongs to (checked against the calls
+    /// a staged scene can take, `scene::stages`).
+    pub calls: Vec<(&'static str, Located<()>)>,
     /// The options of every map call, in call order (modules read the options they added).
     pub call_options: Vec<(&'static str, Located<Options>)>,
     /// Limits on the basis order, points and memory (checked as the scene is declared and
@@ -178,6 +190,8 @@ impl SceneBuilder {
             solver: None,
             output: None,
             analytic: None,
+            stages: Vec::new(),
+            calls: Vec::new(),
             call_options: Vec::new(),
             limits: SceneLimits::default(),
             store: BTreeMap::new(),
@@ -189,13 +203,20 @@ impl SceneBuilder {
         clippy::expect_used,
         reason = "the entry of TypeId::of::<T>() holds a Vec<Located<T>>"
     )]
-    pub fn declare<T: Send + Sync + 'static>(&mut self, declaration: Located<T>) {
+    pub fn declare<T: Send + Sync + 'static>(&mut self, mut declaration: Located<T>) {
+        declaration.stage = self.stage();
         self.store
             .entry(TypeId::of::<T>())
             .or_insert_with(|| Box::new(Vec::<Located<T>>::new()))
             .downcast_mut::<Vec<Located<T>>>()
             .expect("the store is keyed by type")
             .push(declaration);
+    }
+
+    /// The stage declarations belong to now: the index of the last `stage(...)` call (0 before
+    /// any).
+    pub fn stage(&self) -> usize {
+        self.stages.len().saturating_sub(1)
     }
 
     /// The declarations of type `T` so far.
@@ -339,12 +360,21 @@ impl SceneBuilder {
         self.limits
             .check_memory(dim, spec_grid.basis.order(), points, nodes)
             .map_err(|why| ScriptError::at(grid.at, why))?;
-        let load_schedule = self.load_schedule.as_ref().ok_or_else(|| {
-            ScriptError::unlocated(
-                "the scene has no load steps: call load_steps(n), load_factors([..]), load_factors(n, |k| ..) or load_phases([..])",
-            )
-        })?;
-        let load_factors = resolve_load_schedule(load_schedule, engine, ast)?;
+        let stages = super::stages::resolve_stages(&self)?;
+        let (load_factors, schedule_note) = match &stages {
+            Some((stages, factors)) => (factors.clone(), format!(" of {} stages", stages.0.len())),
+            None => {
+                let load_schedule = self.load_schedule.as_ref().ok_or_else(|| {
+                    ScriptError::unlocated(
+                        "the scene has no load steps: call load_steps(n), load_factors([..]), load_factors(n, |k| ..), load_phases([..]) or stage(#{ name: .., steps: n })",
+                    )
+                })?;
+                (
+                    resolve_load_schedule(load_schedule, engine, ast)?,
+                    load_schedule.line_note(),
+                )
+            }
+        };
         if let Some(output) = &self.output
             && let Some(beyond) = output
                 .value
@@ -358,7 +388,7 @@ impl SceneBuilder {
                 format!(
                     "output(...): step {beyond} is beyond the last load step {} (the schedule{} has {} steps); steps are 1..={}, and the last step is always written",
                     load_factors.len(),
-                    load_schedule.line_note(),
+                    schedule_note,
                     load_factors.len(),
                     load_factors.len()
                 ),
@@ -387,6 +417,9 @@ impl SceneBuilder {
             analytic,
             parts: Default::default(),
         };
+        if let Some((stages, _)) = stages {
+            spec.set_part(stages);
+        }
         let mut resolver = Resolver {
             spec: &mut spec,
             builder: &self,

@@ -69,6 +69,7 @@ pub fn register(api: &mut SceneApi) {
             1,
             declare_load_phases,
         ))
+        .call(super::stages::stage_call())
         .call(solver_call())
         .call(output_call())
         .call(analytic_column_call());

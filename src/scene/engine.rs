@@ -174,16 +174,21 @@ fn register_call(engine: &mut Engine, state: &SharedBuilder, api: &Arc<SceneApi>
     let call = call.clone();
     let name = call.name;
     let run = move |context: NativeCallContext, args: &[Dynamic]| {
-        with_builder(&state, &api, &context, |builder, at| match &call.declare {
-            Declare::Options(declare) => {
-                let options = Options::read(call.name, &args[0], &call.options, call.name_key)?;
-                let result = declare(builder, &options, at)?;
-                builder
-                    .call_options
-                    .push((call.name, super::builder::Located::new(options, at)));
-                Ok(result)
+        with_builder(&state, &api, &context, |builder, at| {
+            let mut located = super::builder::Located::new((), at);
+            located.stage = builder.stage();
+            builder.calls.push((call.name, located));
+            match &call.declare {
+                Declare::Options(declare) => {
+                    let options = Options::read(call.name, &args[0], &call.options, call.name_key)?;
+                    let result = declare(builder, &options, at)?;
+                    let mut located = super::builder::Located::new(options, at);
+                    located.stage = builder.stage();
+                    builder.call_options.push((call.name, located));
+                    Ok(result)
+                }
+                Declare::Args(declare) => declare(builder, args, at),
             }
-            Declare::Args(declare) => declare(builder, args, at),
         })
     };
     match call.arity {

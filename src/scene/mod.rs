@@ -43,6 +43,7 @@ mod rank;
 mod registry;
 mod schedule;
 mod seeding;
+mod stages;
 mod words;
 
 use std::any::Any;
@@ -75,6 +76,7 @@ pub use seeding::{
     Placement, SurfacePointSeed, first_point_outside_grid, nearest_points, seed_boundary, seed_box,
     seed_points, seed_points_placed, seed_surface,
 };
+pub use stages::{StageDeclaration, StageSpec, Stages};
 pub use words::{BasisRefinement, BasisWord, FieldSpec, ModelSpec, Seeder, Word, Words};
 
 use crate::analytic::SelfWeightColumn;

@@ -1,0 +1,523 @@
+//! Staged analysis (`stage(#{ name, steps | load_factors, zero_displacements })`,
+//! `src/scene/stages.rs`, `src/effects/stages.rs`): a gravity stage then a footing pushed in a
+//! second stage, against the uniaxial-strain solution and from zero settlement; the loads of a
+//! stage held in the stages after it; a scene of one stage is the scene without it, bit for
+//! bit; the stage in `history.csv` and `summary.json`; a run resumed within a stage gives the
+//! files of the run that was not stopped; bad input refused with the scene line.
+
+use std::path::Path;
+
+use impm::components::{Displacement, Position, ReferencePosition, Trial};
+use impm::effects::stages::DisplacementOrigin;
+use impm::run::{RestartPlan, Simulation, run_scene_restartable};
+
+mod common;
+
+fn scene(tag: &str, text: &str) -> Result<impm::scene::SceneSpec, String> {
+    common::scene_from_text("stages-scene", tag, text)
+}
+
+fn build(tag: &str, text: &str) -> (Simulation<2>, std::path::PathBuf) {
+    let spec = scene(tag, text).unwrap_or_else(|e| panic!("{e}"));
+    let dir = common::temp_dir("stages-run", tag);
+    (Simulation::<2>::new(&spec, &dir).unwrap(), dir)
+}
+
+const E: f64 = 1.0e5;
+const NU: f64 = 0.3;
+const GAMMA: f64 = 20.0;
+const DEPTH: f64 = 2.0;
+
+/// Half of a strip footing of width B = 1 on soil 3 wide and 2 deep (Hencky, E = 1e5,
+/// ν = 0.3, density 2, g = 10: γ = 20), quadratic B-splines, 6 × 4 cells under the surface
+/// and one above, 2 × 2 Gauss points per cell; rollers on the sides, base fixed. Stage
+/// "gravity" brings the weight on in 2 steps (line 8), stage "footing" pushes the footing with
+/// a traction q = 200 on 0 ≤ x ≤ B/2 in 3 steps (line 10); a probe under the footing's centre.
+fn footing(zero: bool) -> String {
+    format!(
+        "grid(#{{ lower: [0.0, 0.0], upper: [3.0, 2.5], cells: [6, 5], basis: \"bspline\", order: 2 }});\n\
+         const soil = material(#{{ name: \"soil\", E: {E}, nu: {NU}, density: 2.0 }});\n\
+         body(#{{ name: \"soil\", material: soil, region: box([0.0, 0.0], [3.0, {DEPTH}]), ppc: 2, placement: \"gauss\" }});\n\
+         fix(|x| x[1] == 0.0);\n\
+         fix(|x| x[0] == 0.0 || x[0] == 3.0, [0]);\n\
+         probe(#{{ name: \"centre\", at: [0.0, {DEPTH}] }});\n\
+         stage(#{{ name: \"gravity\", steps: 2 }});\n\
+         body_force([0.0, -10.0]);\n\
+         stage(#{{ name: \"footing\", steps: 3, zero_displacements: {zero} }});\n\
+         traction(#{{ on: [[0.0, {DEPTH}], [0.5, {DEPTH}]], traction: [0.0, -200.0] }});\n"
+    )
+}
+
+/// The largest departure of the points' Cauchy stresses from the uniaxial-strain state under
+/// the weight, σ_yy = −γ (H − Y) at the reference height Y (the weight above a point per unit
+/// width, which lateral confinement keeps), σ_xx = σ_zz = ν/(1 − ν) σ_yy (exact for Hencky
+/// at any strain: τ = λ tr(ln V) I + 2μ ln V), no shear; points with `x < skip` are left out.
+fn uniaxial_strain_departure(sim: &mut Simulation<2>, skip: f64) -> (f64, usize) {
+    let k0 = NU / (1.0 - NU);
+    let mut worst = 0.0f64;
+    let mut count = 0;
+    let mut query = sim.world.query::<(&ReferencePosition<2>, &Trial<2>)>();
+    for (x, trial) in query.iter(&sim.world) {
+        if x.0[0] < skip {
+            continue;
+        }
+        let sigma = trial.0.cauchy();
+        let vertical = -GAMMA * (DEPTH - x.0[1]);
+        let mut expected = nalgebra::Matrix3::identity() * (k0 * vertical);
+        expected[(1, 1)] = vertical;
+        worst = worst.max((sigma - expected).amax());
+        count += 1;
+    }
+    (worst, count)
+}
+
+fn probe(sim: &Simulation<2>) -> f64 {
+    sim.summary.final_measure("centre_displacement_y").unwrap()
+}
+
+/// Stage 1 brings the weight on; its stresses are the uniaxial-strain solution, to 1e-6 of
+/// γH = 40 at every point (the block is laterally confined: no footing yet; measured 1.0e-6
+/// absolute, 2.6e-8 of γH), its displacements the small-strain u_y = −(γ/M)(HY − Y²/2) to
+/// 2e-3 of γH²/2M (measured 3e-4: the strains are 3e-4). Stage 2 starts
+/// with every point's `displacement` zero (its origin the settlement under the weight) and
+/// the footing's settlement curve (the probe) from zero: after each step of stage 2 the probe
+/// differs from the same run without `zero_displacements` by exactly the settlement under the
+/// weight (to 1e-12 of it), and `u + u_0 = x − X` at every point. The weight stays on in
+/// stage 2 (held at its final value): the elastic end state is the one of weight and footing
+/// load applied together in 3 steps, every point's position to 1e-3 of the settlement. `history.csv` has a `stage` column and the load factor
+/// restarts from zero in stage 2; `summary.json` names the stage of every step.
+#[test]
+fn a_gravity_stage_then_a_footing_pushed_from_zero_settlement() {
+    let (mut sim, dir) = build("footing", &footing(true));
+    let (mut plain, plain_dir) = build("footing-plain", &footing(false));
+    for _ in 0..2 {
+        sim.step().unwrap();
+        plain.step().unwrap();
+    }
+    let (worst, count) = uniaxial_strain_departure(&mut sim, 0.0);
+    let weight_settlement = probe(&sim);
+    let elastic = -GAMMA * DEPTH * DEPTH / (2.0 * E * (1.0 - NU) / ((1.0 + NU) * (1.0 - 2.0 * NU)));
+    eprintln!(
+        "end of stage 1: {count} points, max |σ − σ_uniaxial| {worst:.2e} (γH = {}); probe {weight_settlement:.6e} (γH²/2M = {elastic:.6e})",
+        GAMMA * DEPTH
+    );
+    assert_eq!(count, 6 * 4 * 4);
+    assert!(worst < 1e-6 * GAMMA * DEPTH, "{worst:e}");
+    // the points' settlement: u_y = −(γ/M)(H Y − Y²/2) at small strain (strains ~3e-4 here)
+    let modulus = E * (1.0 - NU) / ((1.0 + NU) * (1.0 - 2.0 * NU));
+    let mut worst_u = 0.0f64;
+    let mut query = sim
+        .world
+        .query::<(&ReferencePosition<2>, &Displacement<2>)>();
+    for (x, u) in query.iter(&sim.world) {
+        let y = x.0[1];
+        let exact = -GAMMA / modulus * (DEPTH * y - 0.5 * y * y);
+        worst_u = worst_u.max((u.0[1] - exact).abs().max(u.0[0].abs()));
+    }
+    eprintln!(
+        "end of stage 1: max |u − u_uniaxial| {worst_u:.2e} of γH²/2M = {:.4e}",
+        -elastic
+    );
+    assert!(worst_u < 2e-3 * elastic.abs(), "{worst_u:e}");
+    let mut curve = Vec::new();
+    for step in 3..=5 {
+        let record = sim.step().unwrap();
+        assert_eq!(record.stage, Some((1, "footing".to_string())));
+        plain.step().unwrap();
+        let (zeroed, total) = (probe(&sim), probe(&plain));
+        let difference = (total - zeroed - weight_settlement).abs();
+        let mut worst_origin = 0.0f64;
+        let mut query = sim.world.query::<(
+            &Position<2>,
+            &ReferencePosition<2>,
+            &Displacement<2>,
+            &DisplacementOrigin<2>,
+        )>();
+        for (x, reference, u, origin) in query.iter(&sim.world) {
+            worst_origin = worst_origin.max((u.0 + origin.0 - (x.0 - reference.0)).amax());
+        }
+        eprintln!(
+            "step {step}: settlement from the stage's start {zeroed:.6e}, total {total:.6e}, |total − zeroed − weight's| {difference:.1e}, max |u + u0 − (x − X)| {worst_origin:.1e}"
+        );
+        assert!(
+            difference <= 1e-12 * weight_settlement.abs(),
+            "{difference:e}"
+        );
+        assert!(worst_origin <= 1e-15, "{worst_origin:e}");
+        curve.push(-zeroed);
+    }
+    // the curve starts from zero and grows with the load: about a third of the stage's
+    // settlement after its first step (elastic)
+    assert!(
+        curve[0] > 0.0 && curve.windows(2).all(|w| w[1] > w[0]),
+        "{curve:?}"
+    );
+    assert!((curve[0] / curve[2] - 1.0 / 3.0).abs() < 0.01, "{curve:?}");
+    // the weight held through stage 2: the elastic end state is the one of weight and footing
+    // load applied together (up to the points' quadrature moving with a different path)
+    let together = footing(false)
+        .replace("stage(#{ name: \"gravity\", steps: 2 });", "")
+        .replace(
+            "stage(#{ name: \"footing\", steps: 3, zero_displacements: false });",
+            "",
+        )
+        + "load_steps(3);\n";
+    let (mut both, both_dir) = build("footing-together", &together);
+    both.run(|_| {}).unwrap();
+    let (x_staged, x_both) = (state(&mut sim), state(&mut both));
+    let moved = x_both
+        .iter()
+        .zip(&x_staged)
+        .map(|(a, b)| (a.0[1] - b.0[1]).abs().max((a.0[0] - b.0[0]).abs()))
+        .fold(0.0f64, f64::max);
+    let total = -probe(&plain);
+    eprintln!(
+        "end of stage 2 against weight and footing together: max |Δx| {moved:.2e} (settlement {total:.4e})"
+    );
+    assert!(moved < 1e-3 * total, "{moved:e}");
+    let _ = std::fs::remove_dir_all(both_dir);
+
+    sim.run(|_| {}).unwrap();
+    let history = std::fs::read_to_string(dir.join("history.csv")).unwrap();
+    eprintln!("{history}");
+    let rows: Vec<Vec<&str>> = history
+        .lines()
+        .map(|line| line.split(',').collect())
+        .collect();
+    assert_eq!(&rows[0][..3], ["step", "stage", "load_factor"]);
+    let stages: Vec<&str> = rows[1..].iter().map(|row| row[1]).collect();
+    assert_eq!(stages, ["0", "0", "1", "1", "1"]);
+    let factors: Vec<f64> = rows[1..]
+        .iter()
+        .map(|row| row[2].parse().unwrap())
+        .collect();
+    assert_eq!(factors, [0.5, 1.0, 1.0 / 3.0, 2.0 / 3.0, 1.0]);
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let names: Vec<&str> = summary["steps"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|step| step["stage_name"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        names,
+        ["gravity", "gravity", "footing", "footing", "footing"]
+    );
+    for dir in [dir, plain_dir] {
+        let _ = std::fs::remove_dir_all(dir);
+    }
+}
+
+/// [`footing`] with the footing pushed down by 0.01 B through a rough `surface_displace`.
+fn surface_footing(zero: bool) -> String {
+    let text = footing(zero).replace(
+        "traction(#{ on: [[0.0, 2], [0.5, 2]], traction: [0.0, -200.0] });",
+        "surface_displace(#{ on: [[0.0, 2], [0.5, 2]], displacement: [0.0, -0.01], name: \"footing\" });",
+    );
+    assert!(text.contains("surface_displace"), "{text}");
+    text
+}
+
+/// The footing of [`footing`] pushed down by 0.01 B through a rough `surface_displace` of
+/// stage "footing" (line 10) instead of the traction. In stage "gravity" the condition does
+/// nothing: the stresses are the uniaxial-strain ones to 1e-6 of γH as without it (a
+/// condition acting then would hold the footing's surface up against the weight) and its
+/// displacement and reaction measures are zero. In stage 2 it prescribes the settlement from
+/// the stage's start: the footing's mean displacement is λ × 0.01 B after each step (to 1e-3
+/// of the step's settlement: the penalty's gap, measured 6e-5), from zero, while the weight's settlement before
+/// it (3.0e-4 at the surface) is not counted; the footing carries a growing pressure.
+#[test]
+fn a_footing_pushed_by_a_surface_displace_of_the_second_stage_settles_from_zero() {
+    let (mut sim, dir) = build("surface-footing", &surface_footing(false));
+    let measure = |sim: &Simulation<2>, name: &str| sim.summary.final_measure(name).unwrap();
+    for _ in 0..2 {
+        sim.step().unwrap();
+        let (u, reaction) = (
+            measure(&sim, "footing_displacement_y"),
+            measure(&sim, "footing_reaction_y"),
+        );
+        assert_eq!((u, reaction), (0.0, 0.0));
+    }
+    let (worst, count) = uniaxial_strain_departure(&mut sim, 0.0);
+    eprintln!(
+        "end of stage 1 with the footing's condition waiting: {count} points, max |σ − σ_uniaxial| {worst:.2e}"
+    );
+    assert!(worst < 1e-6 * GAMMA * DEPTH, "{worst:e}");
+    let mut pressures = Vec::new();
+    for (k, step) in (3..=5).enumerate() {
+        sim.step().unwrap();
+        let expected = -0.01 * (k + 1) as f64 / 3.0;
+        let settlement = measure(&sim, "footing_displacement_y");
+        let pressure = -measure(&sim, "footing_traction_y");
+        eprintln!(
+            "step {step}: footing settlement {settlement:.6e} (prescribed {expected:.6e}), pressure {pressure:.4e}"
+        );
+        assert!(
+            (settlement - expected).abs() < 1e-3 * expected.abs(),
+            "{settlement} {expected}"
+        );
+        pressures.push(pressure);
+    }
+    assert!(
+        pressures[0] > 0.0 && pressures.windows(2).all(|w| w[1] > w[0]),
+        "{pressures:?}"
+    );
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// A column 1 wide and 10 high under its weight and a traction on its top (`extra`).
+fn column(loads: &str, schedule: &str) -> String {
+    format!(
+        "grid(#{{ lower: [0.0, 0.0], upper: [1.0, 10.0], cells: [1, 10], basis: \"bspline\", order: 2 }});\n\
+         const soil = material(#{{ name: \"soil\", E: 1.0e4, nu: 0.3, density: 2.0 }});\n\
+         body(#{{ name: \"column\", material: soil, region: box([0.0, 0.0], [1.0, 10.0]), ppc: 3, placement: \"gauss\" }});\n\
+         fix(|x| x[1] == 0.0, [1]);\n\
+         fix(|x| x[0] == 0.0 || x[0] == 1.0, [0]);\n\
+         {loads}\n\
+         {schedule}\n"
+    )
+}
+
+const LOADS: &str = "body_force([0.0, -10.0]);\n\
+                     traction(#{ on: [[0.0, 10.0], [1.0, 10.0]], traction: [0.0, -50.0] });";
+
+/// Every point's position and Cauchy stress, in point order.
+fn state(sim: &mut Simulation<2>) -> Vec<(Vec<f64>, Vec<f64>)> {
+    let mut query = sim
+        .world
+        .query::<(&impm::components::PointId, &Position<2>, &Trial<2>)>();
+    let mut rows: Vec<_> = query
+        .iter(&sim.world)
+        .map(|(id, x, trial)| {
+            (
+                id.0,
+                x.0.iter().copied().collect::<Vec<_>>(),
+                trial.0.cauchy().iter().copied().collect::<Vec<_>>(),
+            )
+        })
+        .collect();
+    rows.sort_by_key(|row| row.0);
+    rows.into_iter().map(|(_, x, s)| (x, s)).collect()
+}
+
+/// A scene of one stage runs as the scene without it, bit for bit (positions and stresses
+/// after every step, weight and traction ramped over `steps: 3` as by `load_steps(3)`), and
+/// writes the same history but for the `stage` column. A stage's loads are held at their final
+/// value in the stages after it: the weight and traction ramped over stage "load"
+/// (`load_factors: [0.5, 1.0]`) then a stage "rest" of 2 steps with no load of its own give,
+/// bit for bit, the stageless `load_factors([0.5, 1.0, 1.0, 1.0])`.
+#[test]
+fn one_stage_is_the_scene_without_stages_and_later_stages_hold_the_earlier_loads() {
+    for (tag, staged, plain, steps) in [
+        (
+            "one",
+            column(
+                &format!("stage(#{{ name: \"only\", steps: 3 }});\n{LOADS}"),
+                "",
+            ),
+            column(LOADS, "load_steps(3);"),
+            3,
+        ),
+        (
+            "held",
+            column(
+                &format!(
+                    "stage(#{{ name: \"load\", load_factors: [0.5, 1.0] }});\n{LOADS}\nstage(#{{ name: \"rest\", steps: 2 }});"
+                ),
+                "",
+            ),
+            column(LOADS, "load_factors([0.5, 1.0, 1.0, 1.0]);"),
+            4,
+        ),
+    ] {
+        let (mut a, a_dir) = build(&format!("{tag}-staged"), &staged);
+        let (mut b, b_dir) = build(&format!("{tag}-plain"), &plain);
+        for step in 1..=steps {
+            a.step().unwrap();
+            b.step().unwrap();
+            let (sa, sb) = (state(&mut a), state(&mut b));
+            assert!(sa == sb, "{tag}: step {step} differs");
+        }
+        let top = b.summary.steps.last().map(|s| s.load_factor);
+        eprintln!("{tag}: {steps} steps bit-identical (last load factor {top:?})");
+        let history = |dir: &Path| std::fs::read_to_string(dir.join("history.csv")).unwrap();
+        let without_stage: String = history(&a_dir)
+            .lines()
+            .map(|line| {
+                let cells: Vec<&str> = line.split(',').collect();
+                let mut kept = vec![cells[0]];
+                kept.extend(&cells[2..]);
+                kept.join(",") + "\n"
+            })
+            .collect();
+        if tag == "one" {
+            assert_eq!(without_stage, history(&b_dir));
+        }
+        for dir in [a_dir, b_dir] {
+            let _ = std::fs::remove_dir_all(dir);
+        }
+    }
+}
+
+/// A run stopped in the middle of stage 2 (its checkpoint after step 4 of 5) and resumed
+/// writes the files of the run that was never stopped: `history.csv` and the last
+/// `particles_0005.vtu` byte for byte (the displacement field and probe measured from stage
+/// 2's start, its origins restored from the checkpoint; the footing's surface_displace of
+/// stage 2 measured from its start, restored too).
+#[test]
+fn a_run_resumed_within_a_stage_gives_the_results_of_the_run_not_stopped() {
+    let spec = scene("resume", &surface_footing(true)).unwrap();
+    let plan = RestartPlan {
+        identity: impm::restart::RunIdentity {
+            scene: "footing.rhai".into(),
+            scene_hash: "0".into(),
+            overrides: Vec::new(),
+        },
+        every: Some(1),
+        command: "resume".into(),
+    };
+    let modules = impm::effects::built_in();
+    let whole = common::temp_dir("stages-run", "whole");
+    run_scene_restartable(&spec, &whole, &modules, &plan, None, |_| {}).unwrap();
+
+    let stopped = common::temp_dir("stages-run", "stopped");
+    {
+        let mut sim = Simulation::<2>::with_modules(&spec, &stopped, &modules).unwrap();
+        sim.keep_checkpoints(plan.clone());
+        sim.write_initial_state().unwrap();
+        for _ in 0..4 {
+            sim.step().unwrap();
+            sim.write_checkpoint().unwrap();
+        }
+    }
+    let checkpoint = impm::restart::Checkpoint::read(&stopped, &plan.identity).unwrap();
+    assert_eq!(checkpoint.steps_done, 4);
+    run_scene_restartable(&spec, &stopped, &modules, &plan, Some(checkpoint), |_| {}).unwrap();
+    for file in ["history.csv", "particles_0005.vtu", "particles_0004.vtu"] {
+        let read = |dir: &Path| std::fs::read(dir.join(file)).unwrap();
+        assert!(read(&whole) == read(&stopped), "{file} differs");
+    }
+    eprintln!(
+        "resumed after step 4 (stage 'footing', step 2 of 3): history.csv and particles_0004/5.vtu identical"
+    );
+    for dir in [whole, stopped] {
+        let _ = std::fs::remove_dir_all(dir);
+    }
+}
+
+/// Bad stages are refused with the line of the call at fault.
+#[test]
+fn bad_stages_are_refused_with_the_scene_line() {
+    let base = "grid(#{ lower: [0.0, 0.0], upper: [1.0, 2.0], cells: [1, 2], basis: \"linear\" });\n\
+                const soil = material(#{ name: \"soil\", E: 1.0e4, nu: 0.3, density: 2.0 });\n\
+                body(#{ name: \"b\", material: soil, region: box([0.0, 0.0], [1.0, 1.0]), ppc: 2 });\n\
+                fix(|x| x[1] == 0.0);\n";
+    for (case, text, line, words) in [
+        (
+            "no steps",
+            "stage(#{ name: \"a\" });",
+            5,
+            vec!["no load steps"],
+        ),
+        (
+            "empty factors",
+            "stage(#{ name: \"a\", load_factors: [] });",
+            5,
+            vec!["load_factors is empty"],
+        ),
+        (
+            "zero steps",
+            "stage(#{ name: \"a\", steps: 0 });",
+            5,
+            vec!["steps"],
+        ),
+        (
+            "duplicate name",
+            "stage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"a\", steps: 2 });",
+            6,
+            vec!["already declared at line 5"],
+        ),
+        (
+            "schedule before",
+            "load_steps(2);\nstage(#{ name: \"a\", steps: 1 });",
+            6,
+            vec!["already has a load schedule"],
+        ),
+        (
+            "schedule after",
+            "stage(#{ name: \"a\", steps: 1 });\nload_steps(2);",
+            6,
+            vec!["given by the stages"],
+        ),
+        (
+            "unstaged load",
+            "point_load(|x| x[1] > 0.9, [0.0, -1.0]);\nstage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"b\", steps: 1 });",
+            5,
+            vec!["point_load", "does not follow stages"],
+        ),
+        (
+            "unstaged column solution",
+            "stage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"b\", steps: 1 });\nanalytic_column(#{ axis: 1, height: 1.0, material: soil, body_force: -10.0 });",
+            7,
+            vec!["analytic_column", "does not follow stages"],
+        ),
+        (
+            "condition in a later stage",
+            "stage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"b\", steps: 1 });\nfix(|x| x[0] == 0.0, [0]);",
+            7,
+            vec!["fix", "after stage 'b' at line 6"],
+        ),
+        (
+            "arc length",
+            "solver(#{ control: \"arc_length\" });\nstage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"b\", steps: 1 });",
+            5,
+            vec!["arc_length", "several stages"],
+        ),
+    ] {
+        let error = scene("bad", &format!("{base}{text}\n")).unwrap_err();
+        eprintln!("{case}: {error}");
+        assert!(
+            error.contains(&format!(":{line}")) || error.contains(&format!("line {line}")),
+            "{case}: {error}"
+        );
+        for word in words {
+            assert!(error.contains(word), "{case}: {error}");
+        }
+    }
+}
+
+/// The shipped staged footing (`scripts/strip_footing.rhai --set staged=true`, elastic, its
+/// default resolution): `impm check` lists the stages; the run's settlement is 0 in stage
+/// "gravity" (the footing waits for its stage) and the prescribed 0.01 B at the end of stage
+/// "footing" (to 1e-3 of it), its pressure positive.
+#[test]
+fn the_shipped_staged_footing_runs_in_its_two_stages() {
+    let scene = common::shipped_scene("strip_footing.rhai");
+    let out = common::impm(&["check", scene.to_str().unwrap(), "--set", "staged=true"]);
+    let text = String::from_utf8_lossy(&out.stdout).into_owned()
+        + String::from_utf8_lossy(&out.stderr).as_ref();
+    eprintln!("{text}");
+    assert!(out.status.success(), "{text}");
+    assert!(
+        text.contains("stages (each from load factor 0")
+            && text.contains("'gravity' 2 steps")
+            && text.contains("'footing' 5 steps")
+            && text.contains("displacements from its start"),
+        "{text}"
+    );
+    let sim = common::run_shipped::<2>("strip_footing.rhai", &[("staged", "true")]);
+    let steps = &sim.summary.steps;
+    assert_eq!(steps.len(), 7);
+    for step in &steps[..2] {
+        assert_eq!(step.stage, Some((0, "gravity".to_string())));
+        assert_eq!(step.measure("settlement"), Some(0.0));
+    }
+    let last = steps.last().unwrap();
+    assert_eq!(last.stage, Some((1, "footing".to_string())));
+    let settlement = last.measure("settlement").unwrap();
+    let pressure = last.measure("footing_pressure").unwrap();
+    eprintln!("end: settlement / B {settlement:.6e}, pressure {pressure:.4e}");
+    assert!((settlement - 0.01).abs() < 1e-5, "{settlement}");
+    assert!(pressure > 0.0, "{pressure}");
+}
