@@ -355,12 +355,17 @@ impl<const D: usize> Simulation<D> {
                 }
             }
         }
-        let (factor, radius, linearised) = {
+        let (factor, radius, linearised, rebalancing) = {
             let mut arc = self.world.resource_mut::<ArcLength<D>>();
             arc.accept();
-            (arc.factor, arc.radius, arc.linearised)
+            let rebalancing = arc.rebalanced.map_or(0, |r| r.iterations);
+            (arc.factor, arc.radius, arc.linearised, rebalancing)
         };
-        let iterations = record.substeps.last().map_or(0, |s| s.iterations);
+        // the arc is sized by its own iterations, not those of the rebalancing before it
+        let iterations = record
+            .substeps
+            .last()
+            .map_or(0, |s| s.iterations.saturating_sub(rebalancing));
         let control = self.arc_control();
         control.succeeded(number, factor, iterations, radius, linearised);
         record.cuts = control.cuts();
@@ -935,6 +940,7 @@ mod tests {
         let spec = ArcLengthSpec {
             target_iterations: 5,
             max_load_factor: f64::INFINITY,
+            ..ArcLengthSpec::default()
         };
         let failure = SolverError::BadPointState {
             point: 7,
