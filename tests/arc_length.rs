@@ -651,3 +651,62 @@ fn rebalance_off_is_bit_identical_to_no_option() {
     assert_ne!(off, BAR);
     assert_eq!(run("bar_plain", BAR), run("bar_off", &off));
 }
+
+/// The records that must not change when a run is stopped and resumed: each step's load
+/// factor, residuals and measures, bit for bit.
+type StepBits = Vec<(u64, Vec<u64>, Vec<(String, u64)>)>;
+
+fn step_bits(steps: &[impm::records::StepRecord]) -> StepBits {
+    steps
+        .iter()
+        .map(|s| {
+            (
+                s.load_factor.to_bits(),
+                s.residuals.iter().map(|r| r.to_bits()).collect(),
+                s.measures
+                    .iter()
+                    .map(|(name, value)| (name.clone(), value.to_bits()))
+                    .collect(),
+            )
+        })
+        .collect()
+}
+
+/// An arc-length run stopped after step k and continued from its saved state (what the
+/// checkpoint of `impm run --resume` keeps: the arc's state and its step policy's) gives the
+/// steps and the arc's summary of the run never stopped, bit for bit: on the bar, stopped
+/// before its limit load (the next predictor's direction, the arc, the peak so far), and on
+/// the rebalanced layer.
+#[test]
+fn a_resumed_arc_length_run_continues_bit_identically() {
+    fn check<const D: usize>(tag: &str, text: &str, stop: usize) {
+        let spec = scene(tag, text).unwrap();
+        let dir = common::temp_dir("arc-length", tag);
+        let mut whole = Simulation::<D>::new(&spec, &dir).unwrap();
+        whole.run(|_| {}).unwrap();
+        let mut first = Simulation::<D>::new(&spec, &dir).unwrap();
+        while first.steps_done() < stop {
+            first.step().unwrap();
+        }
+        let saved = first.save_state();
+        let mut resumed = Simulation::<D>::new(&spec, &dir).unwrap();
+        resumed.restore_state(&saved).unwrap();
+        resumed.run(|_| {}).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        let (all, rest) = (&whole.summary.steps, &resumed.summary.steps);
+        println!(
+            "{tag}: {} steps, stopped after {stop}, {} resumed; arc: {}",
+            all.len(),
+            rest.len(),
+            resumed.summary.arc_length.as_ref().unwrap()["report"]
+        );
+        assert_eq!(rest.len() + stop, all.len(), "{tag}");
+        assert_eq!(step_bits(&all[stop..]), step_bits(rest), "{tag}");
+        assert_eq!(
+            whole.summary.arc_length, resumed.summary.arc_length,
+            "{tag}: the arc's summary (peak, its step, the end)"
+        );
+    }
+    check::<1>("bar_resumed", BAR, 20);
+    check::<2>("layer_resumed", &layer(", rebalance: \"fixed\""), 2);
+}

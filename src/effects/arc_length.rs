@@ -26,13 +26,14 @@
 
 use super::body_force::BodyForceRamp;
 use super::grid_constraints::ConstraintDeclarations;
+use crate::checkpoint::CheckpointPart;
 use crate::method::Hook;
 use crate::plugin::{Extension, Plugin};
 use crate::resources::Ramp;
 use crate::scene::{Choice, Kind, OptionSpec, Range, Resolver, SceneApi, SceneSpec, ScriptError};
 use crate::stages::arc_length::{
     ArcLength, ArcLengthSpec, Rebalance, correct_load_factor, finish_rebalance, keep_going_forward,
-    record_start_imbalance, take_reference_load, unit_load,
+    record_start_imbalance, restore_arc_state, save_arc_state, take_reference_load, unit_load,
 };
 use bevy_ecs::prelude::World;
 
@@ -272,6 +273,11 @@ impl Plugin for ArcLengthModule {
             .add_systems(Hook::AfterLinearSolve, correct_load_factor::<D>)
             .add_measure("initial_imbalance", |world, _| {
                 world.resource::<ArcLength<D>>().start_imbalance
+            })
+            .checkpoint(CheckpointPart {
+                name: "arc-length control",
+                save: save_arc_state::<D>,
+                restore: restore_arc_state::<D>,
             });
         if rebalance != Rebalance::Off {
             let rebalanced = |world: &World| world.resource::<ArcLength<D>>().rebalanced;

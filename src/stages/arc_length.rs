@@ -793,6 +793,78 @@ fn free_part<const D: usize>(fields: &GridFields<D>) -> Vec<SVector<f64, D>> {
     free
 }
 
+/// The arc-length step policy's state between steps ([`ArcLengthControl::state`]), put into
+/// the world by the run driver, which keeps the policy, so that the arc module's checkpoint
+/// part ([`save_arc_state`]) saves it with the arc's own.
+#[derive(Resource, Clone, Debug, Default, PartialEq)]
+pub struct ArcControlState(pub Vec<f64>);
+
+/// `checkpoint::CheckpointPart::save` of the arc (`effects::arc_length`): the policy's state
+/// ([`ArcControlState`], length first), then the first load increment, the two warned flags
+/// and Δu_{n−1} by node (count first).
+pub fn save_arc_state<const D: usize>(world: &mut World) -> Vec<f64> {
+    let control = world
+        .get_resource::<ArcControlState>()
+        .map_or_else(Vec::new, |s| s.0.clone());
+    let arc = world.resource::<ArcLength<D>>();
+    let flag = |b: bool| if b { 1.0 } else { 0.0 };
+    let mut values = vec![control.len() as f64];
+    values.extend(control);
+    values.extend([
+        arc.first_increment,
+        flag(arc.warned_imbalance),
+        flag(arc.warned_unbalanced),
+        arc.previous.len() as f64,
+    ]);
+    for u in &arc.previous {
+        values.extend(u.iter());
+    }
+    values
+}
+
+/// `checkpoint::CheckpointPart::restore` of [`save_arc_state`]: the arc's state back, and the
+/// policy's as an [`ArcControlState`] for the driver.
+pub fn restore_arc_state<const D: usize>(world: &mut World, values: &[f64]) -> Result<(), String> {
+    let count = |x: f64| {
+        (x.is_finite() && x >= 0.0 && x.fract() == 0.0)
+            .then_some(x as usize)
+            .ok_or_else(|| format!("{x} is not a count"))
+    };
+    let (&length, rest) = values.split_first().ok_or("no numbers saved")?;
+    let length = count(length)?;
+    if length > rest.len() {
+        return Err(format!(
+            "{length} numbers of the step policy, {} saved",
+            rest.len()
+        ));
+    }
+    let (control, rest) = rest.split_at(length);
+    let &[
+        first,
+        warned_imbalance,
+        warned_unbalanced,
+        nodes,
+        ref previous @ ..,
+    ] = rest
+    else {
+        return Err(format!(
+            "{} numbers after the step policy's, 4 or more expected",
+            rest.len()
+        ));
+    };
+    let previous: Vec<SVector<f64, D>> = crate::checkpoint::records(previous, D, count(nodes)?)?
+        .map(SVector::from_column_slice)
+        .collect();
+    world.insert_resource(ArcControlState(control.to_vec()));
+    let mut arc = world.resource_mut::<ArcLength<D>>();
+    arc.first_increment = first;
+    arc.warned_imbalance = warned_imbalance != 0.0;
+    arc.warned_unbalanced = warned_unbalanced != 0.0;
+    arc.previous = previous;
+    arc.rebalancing_step = None;
+    Ok(())
+}
+
 /// Why an arc-length run ended.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ArcEnd {
@@ -896,6 +968,65 @@ impl ArcLengthControl {
             self.first_increment *= 0.5;
         }
         true
+    }
+
+    /// Its state between steps as numbers (a checkpoint's part, [`ArcControlState`]): the
+    /// next arc, the first increment, the peak and its step (NaN, −1: none), the last λ, the
+    /// end (0 none, 1 max_load_factor, 2 unloaded), the linearised iterations, the largest and
+    /// the last arc.
+    pub fn state(&self) -> Vec<f64> {
+        let (peak, at) = self.peak.map_or((f64::NAN, -1.0), |(p, s)| (p, s as f64));
+        let end = match self.end {
+            None => 0.0,
+            Some(ArcEnd::MaxLoadFactor) => 1.0,
+            Some(ArcEnd::Unloaded) => 2.0,
+        };
+        vec![
+            self.radius,
+            self.first_increment,
+            peak,
+            at,
+            self.last,
+            end,
+            self.linearised as f64,
+            self.largest_arc,
+            self.last_arc,
+        ]
+    }
+
+    /// Restores [`ArcLengthControl::state`] (the scene's options stay this policy's).
+    pub fn restore(&mut self, state: &[f64]) -> Result<(), String> {
+        let &[
+            radius,
+            first,
+            peak,
+            at,
+            last,
+            end,
+            linearised,
+            largest,
+            last_arc,
+        ] = state
+        else {
+            return Err(format!(
+                "the arc-length step policy: {} numbers saved, 9 expected",
+                state.len()
+            ));
+        };
+        self.radius = radius;
+        self.first_increment = first;
+        self.peak = (at >= 0.0).then_some((peak, at as usize));
+        self.last = last;
+        self.end = match end as u8 {
+            1 => Some(ArcEnd::MaxLoadFactor),
+            2 => Some(ArcEnd::Unloaded),
+            _ => None,
+        };
+        self.linearised = linearised as usize;
+        self.largest_arc = largest;
+        self.last_arc = last_arc;
+        self.cuts = 0;
+        Ok(())
     }
 
     /// The current step's cuts.
@@ -1009,6 +1140,22 @@ mod tests {
         let ratio = control.stalled().expect("stalled");
         assert!((ratio - STALLED_ARC / 2.0).abs() < 1e-15, "{ratio}");
         assert!(control.stalled_warning().unwrap().contains("not traced"));
+    }
+
+    #[test]
+    fn the_policy_state_round_trips() {
+        let mut control = ArcLengthControl::new(ArcLengthSpec::default(), 8, 0.1);
+        let mut fresh = control.clone();
+        fresh.restore(&control.state()).unwrap();
+        assert_eq!(fresh, control, "before any step");
+        control.succeeded(1, 1.0, 5, 0.2, 1);
+        control.succeeded(2, 0.5, 3, 0.1, 0);
+        control.succeeded(3, -0.1, 3, 0.1, 0);
+        let mut restored = ArcLengthControl::new(ArcLengthSpec::default(), 8, 0.1);
+        restored.restore(&control.state()).unwrap();
+        assert_eq!(restored, control);
+        assert_eq!(restored.end(), Some(ArcEnd::Unloaded));
+        assert!(restored.restore(&[1.0, 2.0]).is_err());
     }
 
     #[test]
