@@ -39,7 +39,7 @@ use crate::records::{MeasuredValues, StepMeasures, StepRecord, Summary, step_fro
 use crate::resources::*;
 use crate::restart::{Checkpoint, RunIdentity};
 use crate::scene::{SceneSpec, Stages};
-use crate::stages::arc_length::{ArcLength, ArcLengthControl, ArcLengthSpec};
+use crate::stages::arc_length::{ArcControlState, ArcLength, ArcLengthControl, ArcLengthSpec};
 use crate::stages::line_search::LineSearch;
 use crate::stages::output::{OutputPlan, PointFields};
 
@@ -132,6 +132,7 @@ impl<const D: usize> Simulation<D> {
     /// The state after the last completed step: enough to continue the run exactly in a new
     /// simulation of the same scene ([`Simulation::restore_state`]).
     pub fn save_state(&mut self) -> SavedState {
+        self.share_arc_control();
         SavedState {
             steps_done: self.steps_done,
             parts: checkpoint::save_parts(&mut self.world),
@@ -149,8 +150,23 @@ impl<const D: usize> Simulation<D> {
             ));
         }
         checkpoint::restore_parts(&mut self.world, &saved.parts)?;
+        if let Some(arc) = &mut self.arc {
+            let state = self
+                .world
+                .remove_resource::<ArcControlState>()
+                .ok_or("the saved state has no arc-length step policy")?;
+            arc.restore(&state.0)?;
+        }
         self.steps_done = saved.steps_done;
         Ok(())
+    }
+
+    /// Puts the arc-length step policy's state (kept here, not in the world) where the arc
+    /// module's checkpoint part saves it.
+    fn share_arc_control(&mut self) {
+        if let Some(arc) = &self.arc {
+            self.world.insert_resource(ArcControlState(arc.state()));
+        }
     }
 
     /// Keeps checkpoints as `plan` says (after the initial state and then after every output
@@ -184,16 +200,14 @@ impl<const D: usize> Simulation<D> {
     ///
     /// [`run`]: Simulation::run
     pub fn write_checkpoint(&mut self) -> Result<(), SolverError> {
-        // an arc-length run cannot be resumed (`resume_from`): a checkpoint would be written
-        // for nothing, and a failed run would point to it
-        let Some(plan) = self.restart.as_ref().filter(|_| self.arc.is_none()) else {
+        let Some(plan) = self.restart.as_ref() else {
             return Ok(());
         };
         let identity = plan.identity.clone();
         let checkpoint = Checkpoint {
             identity,
             steps_done: self.steps_done,
-            parts: checkpoint::save_parts(&mut self.world),
+            parts: self.save_state().parts,
             series: checkpoint::save_series(&mut self.world),
             steps: self.summary.steps_json(),
             warnings: self.summary.warnings.clone(),
@@ -209,13 +223,6 @@ impl<const D: usize> Simulation<D> {
     /// points and every module's state, the records (`summary.json`, `history.csv`) and the
     /// `.pvd` series, and removes the files of the steps after the checkpoint.
     pub fn resume_from(&mut self, checkpoint: Checkpoint) -> Result<(), String> {
-        if self.arc.is_some() {
-            return Err(
-                "a run under arc-length control cannot be resumed yet (its checkpoint does not \
-                 keep the arc); run it again from the start"
-                    .to_string(),
-            );
-        }
         self.restore_state(&SavedState {
             steps_done: checkpoint.steps_done,
             parts: checkpoint.parts,
@@ -383,12 +390,17 @@ impl<const D: usize> Simulation<D> {
                 }
             }
         }
-        let (factor, radius, linearised) = {
+        let (factor, radius, linearised, rebalancing) = {
             let mut arc = self.world.resource_mut::<ArcLength<D>>();
             arc.accept();
-            (arc.factor, arc.radius, arc.linearised)
+            let rebalancing = arc.rebalanced.map_or(0, |r| r.iterations);
+            (arc.factor, arc.radius, arc.linearised, rebalancing)
         };
-        let iterations = record.substeps.last().map_or(0, |s| s.iterations);
+        // the arc is sized by its own iterations, not those of the rebalancing before it
+        let iterations = record
+            .substeps
+            .last()
+            .map_or(0, |s| s.iterations.saturating_sub(rebalancing));
         let control = self.arc_control();
         control.succeeded(number, factor, iterations, radius, linearised);
         record.cuts = control.cuts();
@@ -964,6 +976,7 @@ mod tests {
         let spec = ArcLengthSpec {
             target_iterations: 5,
             max_load_factor: f64::INFINITY,
+            ..ArcLengthSpec::default()
         };
         let failure = SolverError::BadPointState {
             point: 7,

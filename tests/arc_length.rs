@@ -290,7 +290,7 @@ fn block(extra: &str, solver: &str) -> String {
 #[test]
 fn what_the_arc_cannot_control_is_refused_with_the_scene_line() {
     let arc = "control: \"arc_length\"";
-    let cases: [(&str, &str, &str, &[&str]); 8] = [
+    let cases: [(&str, &str, &str, &[&str]); 11] = [
         (
             "displace",
             "displace(|x| x[0] == 2.0 && x[1] > 0.0, [0], [0.01]);",
@@ -344,6 +344,33 @@ fn what_the_arc_cannot_control_is_refused_with_the_scene_line() {
             "",
             "control: \"riks\"",
             &[":7:1:", "arc_length"],
+        ),
+        (
+            "rebalance_word",
+            "",
+            "control: \"arc_length\", rebalance: \"always\"",
+            &[
+                ":7:1:",
+                "'rebalance'",
+                "\"fixed\"",
+                "\"free\"",
+                "got \"always\"",
+            ],
+        ),
+        (
+            "rebalance_flag",
+            "",
+            "control: \"arc_length\", rebalance: true",
+            &[":7:1:", "'rebalance'", "must be a string"],
+        ),
+        (
+            "rebalance_alone",
+            "",
+            "rebalance: \"fixed\"",
+            &[
+                ":7:1:",
+                "'rebalance' applies to control: \"arc_length\" only",
+            ],
         ),
     ];
     for (tag, extra, solver, expected) in cases {
@@ -448,4 +475,238 @@ fn the_arc_is_scheduled_only_when_asked() {
         );
     }
     assert_eq!(scheduled.len(), expected.len(), "{scheduled:?}");
+    // the rebalancing adds its one system, between the two others at Hook::Convergence
+    let rebalanced = arc_systems(
+        "rebalanced",
+        "control: \"arc_length\", rebalance: \"fixed\"",
+    );
+    let convergence: Vec<_> = rebalanced
+        .iter()
+        .filter(|(stage, _)| stage == "Hook::Convergence")
+        .map(|(_, name)| name.split('<').next().unwrap().to_string())
+        .collect();
+    assert_eq!(rebalanced.len(), expected.len() + 1, "{rebalanced:?}");
+    assert!(
+        convergence
+            .iter()
+            .any(|n| n.ends_with("arc_length::finish_rebalance")),
+        "{convergence:?}"
+    );
+}
+
+/// The elastic layer of `newton_stays_quadratic_inside_an_arc_step` with `rebalance`; its
+/// steps start 7e-3 to 2e-2 out of balance (the grid is reset).
+fn layer(rebalance: &str) -> String {
+    format!(
+        "\
+const soil = material(#{{ name: \"soil\", E: 1.0e4, nu: 0.3, density: 1.0 }});
+grid(#{{ lower: [0.0, 0.0], upper: [10.0, 7.0], cells: [10, 7], basis: \"bspline\", order: 2 }});
+body(#{{ name: \"layer\", material: soil, region: box([0.0, 0.0], [10.0, 5.5]), ppc: 2 }});
+fix(|x| x[1] == 0.0);
+fix(|x| x[0] == 0.0 || x[0] == 10.0, [0]);
+traction(#{{ on: [[0.0, 5.5], [2.0, 5.5]], traction: [0.0, -200.0], per_cell: 3 }});
+solver(#{{ control: \"arc_length\", tolerance: 1e-10, linear: \"direct\"{rebalance} }});
+load_factors(3, |k| 1.0 * k);
+"
+    )
+}
+
+/// Runs `text` step by step: the records and, per step, |‖Δu − Δu_c‖ − Δl| / Δl.
+fn run_layer(tag: &str, text: &str) -> (Vec<impm::records::StepRecord>, Vec<f64>) {
+    let spec = scene(tag, text).unwrap();
+    let dir = common::temp_dir("arc-length", tag);
+    let mut sim = Simulation::<2>::new(&spec, &dir).unwrap();
+    sim.write_initial_state().unwrap();
+    let mut off_arc = Vec::new();
+    while sim.steps_done() < spec.load_factors.len() {
+        sim.step().unwrap();
+        let arc = sim.world.resource::<ArcLength<2>>();
+        off_arc.push((arc.increment_norm() - arc.radius).abs() / arc.radius);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(
+        sim.summary.warnings.is_empty(),
+        "{:?}",
+        sim.summary.warnings
+    );
+    (sim.summary.steps.clone(), off_arc)
+}
+
+#[test]
+fn rebalancing_at_a_fixed_load_factor_removes_the_start_residual() {
+    let tolerance = 1e-10;
+    let (steps, off_arc) = run_layer("fixed", &layer(", rebalance: \"fixed\""));
+    for (k, step) in steps.iter().enumerate() {
+        let iterations = step.measure("rebalance_iterations").unwrap() as usize;
+        let start = step.residuals[0];
+        let rebalanced = step.residuals[iterations];
+        let previous = if k == 0 {
+            0.0
+        } else {
+            steps[k - 1].load_factor
+        };
+        let factor = step.measure("rebalanced_load_factor").unwrap();
+        println!(
+            "step {}: start residual {start:.1e} (initial_imbalance {:?}), after {iterations} \
+             rebalancing iterations {rebalanced:.1e} (rebalanced_imbalance {:?}); λ_c = {factor} \
+             against λ_n = {previous}; then λ = {:.6}, |‖Δu − Δu_c‖ − Δl| / Δl = {:.1e}",
+            step.step,
+            step.measure("initial_imbalance"),
+            step.measure("rebalanced_imbalance"),
+            step.load_factor,
+            off_arc[k]
+        );
+        // the load factor is the committed one, exactly
+        assert_eq!(factor.to_bits(), previous.to_bits(), "step {}", step.step);
+        // the residual it leaves is below Newton's tolerance (the normalised one)
+        assert!(
+            rebalanced <= tolerance,
+            "step {}: {rebalanced:e}",
+            step.step
+        );
+        if k > 0 {
+            // the steps after the first start well out of balance, and need iterations
+            assert!(
+                start > 1e3 * tolerance && iterations >= 2,
+                "step {}",
+                step.step
+            );
+            let (before, after) = (
+                step.measure("initial_imbalance").unwrap(),
+                step.measure("rebalanced_imbalance").unwrap(),
+            );
+            assert!(
+                after < 1e-6 * before,
+                "step {}: {before:e} → {after:e}",
+                step.step
+            );
+        }
+        // the converged point lies on the arc about the rebalanced state
+        assert!(off_arc[k] < 1e-12, "step {}: {:e}", step.step, off_arc[k]);
+    }
+    // the option changes the path's points (the steps start from another state)
+    let (plain, _) = run_layer("plain", &layer(""));
+    assert_eq!(plain.len(), steps.len());
+    assert_ne!(plain[2].load_factor, steps[2].load_factor);
+}
+
+#[test]
+fn rebalancing_with_a_free_load_factor_moves_it_to_the_nearest_equilibrium() {
+    let tolerance = 1e-10;
+    let (steps, off_arc) = run_layer("free", &layer(", rebalance: \"free\""));
+    for (k, step) in steps.iter().enumerate().skip(1) {
+        let iterations = step.measure("rebalance_iterations").unwrap() as usize;
+        let (previous, factor) = (
+            steps[k - 1].load_factor,
+            step.measure("rebalanced_load_factor").unwrap(),
+        );
+        println!(
+            "step {}: {iterations} iterations, residual {:.1e} → {:.1e}, λ_n = {previous:.6} → \
+             λ_c = {factor:.6} ({:+.1e})",
+            step.step,
+            step.residuals[0],
+            step.residuals[iterations],
+            factor / previous - 1.0
+        );
+        assert!(step.residuals[iterations] <= tolerance);
+        // λ moved, by about the imbalance it removed (a few per cent at most here)
+        assert_ne!(factor, previous);
+        assert!((factor / previous - 1.0).abs() < 0.1);
+        assert!(off_arc[k] < 1e-12);
+    }
+}
+
+/// `rebalance: "off"` is the arc without the option: bit-identical steps on the bar.
+#[test]
+fn rebalance_off_is_bit_identical_to_no_option() {
+    let run = |tag: &str, text: &str| {
+        let spec = scene(tag, text).unwrap();
+        let dir = common::temp_dir("arc-length", tag);
+        let mut sim = Simulation::<1>::new(&spec, &dir).unwrap();
+        sim.run(|_| {}).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        assert!(
+            sim.summary
+                .steps
+                .iter()
+                .all(|s| s.measure("rebalance_iterations").is_none()),
+            "{tag}: no rebalancing measures"
+        );
+        sim.summary
+            .steps
+            .iter()
+            .map(|s| {
+                (
+                    s.load_factor.to_bits(),
+                    s.residuals.clone(),
+                    s.measures.clone(),
+                )
+            })
+            .collect::<Vec<_>>()
+    };
+    let off = BAR.replace(
+        "target_iterations: 2 }",
+        "target_iterations: 2, rebalance: \"off\" }",
+    );
+    assert_ne!(off, BAR);
+    assert_eq!(run("bar_plain", BAR), run("bar_off", &off));
+}
+
+/// The records that must not change when a run is stopped and resumed: each step's load
+/// factor, residuals and measures, bit for bit.
+type StepBits = Vec<(u64, Vec<u64>, Vec<(String, u64)>)>;
+
+fn step_bits(steps: &[impm::records::StepRecord]) -> StepBits {
+    steps
+        .iter()
+        .map(|s| {
+            (
+                s.load_factor.to_bits(),
+                s.residuals.iter().map(|r| r.to_bits()).collect(),
+                s.measures
+                    .iter()
+                    .map(|(name, value)| (name.clone(), value.to_bits()))
+                    .collect(),
+            )
+        })
+        .collect()
+}
+
+/// An arc-length run stopped after step k and continued from its saved state (what the
+/// checkpoint of `impm run --resume` keeps: the arc's state and its step policy's) gives the
+/// steps and the arc's summary of the run never stopped, bit for bit: on the bar, stopped
+/// before its limit load (the next predictor's direction, the arc, the peak so far), and on
+/// the rebalanced layer.
+#[test]
+fn a_resumed_arc_length_run_continues_bit_identically() {
+    fn check<const D: usize>(tag: &str, text: &str, stop: usize) {
+        let spec = scene(tag, text).unwrap();
+        let dir = common::temp_dir("arc-length", tag);
+        let mut whole = Simulation::<D>::new(&spec, &dir).unwrap();
+        whole.run(|_| {}).unwrap();
+        let mut first = Simulation::<D>::new(&spec, &dir).unwrap();
+        while first.steps_done() < stop {
+            first.step().unwrap();
+        }
+        let saved = first.save_state();
+        let mut resumed = Simulation::<D>::new(&spec, &dir).unwrap();
+        resumed.restore_state(&saved).unwrap();
+        resumed.run(|_| {}).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        let (all, rest) = (&whole.summary.steps, &resumed.summary.steps);
+        println!(
+            "{tag}: {} steps, stopped after {stop}, {} resumed; arc: {}",
+            all.len(),
+            rest.len(),
+            resumed.summary.arc_length.as_ref().unwrap()["report"]
+        );
+        assert_eq!(rest.len() + stop, all.len(), "{tag}");
+        assert_eq!(step_bits(&all[stop..]), step_bits(rest), "{tag}");
+        assert_eq!(
+            whole.summary.arc_length, resumed.summary.arc_length,
+            "{tag}: the arc's summary (peak, its step, the end)"
+        );
+    }
+    check::<1>("bar_resumed", BAR, 20);
+    check::<2>("layer_resumed", &layer(", rebalance: \"fixed\""), 2);
 }

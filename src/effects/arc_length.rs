@@ -1,13 +1,14 @@
 //! Arc-length load control as a scene option: `solver(#{ control: "arc_length",
 //! target_iterations: 5, max_load_factor: 2.0 })`. The method is in `stages::arc_length`; this
 //! module reads the options, refuses what the arc cannot control, adds the arc's five systems
-//! at their hooks (scenes without the option schedule none of them) and the measure
+//! (six with `rebalance`) at their hooks (scenes without the option schedule none of them) and the measure
 //! `initial_imbalance` (each step's out-of-balance force at its start, relative to λ_n f̂):
 //!
 //! ```text
 //!   Hook::AfterDofs         unit_load              the loads are evaluated at λ = 1 ...
 //!   Hook::BeforeSolve       take_reference_load    ... and kept as f̂; f_ext = λ_n f̂
 //!   Hook::Convergence       record_start_imbalance the step's start residual, warned when large
+//!   Hook::Convergence       finish_rebalance       (rebalance only) the start residual removed: the arc begins
 //!   Hook::Convergence       keep_going_forward     a converged iterate that went back is refused
 //!   Hook::AfterLinearSolve  correct_load_factor    K δu_f = f̂, δλ from the arc, Δu += δu_r + δλ δu_f
 //! ```
@@ -25,14 +26,16 @@
 
 use super::body_force::BodyForceRamp;
 use super::grid_constraints::ConstraintDeclarations;
+use crate::checkpoint::CheckpointPart;
 use crate::method::Hook;
 use crate::plugin::{Extension, Plugin};
 use crate::resources::Ramp;
 use crate::scene::{Choice, Kind, OptionSpec, Range, Resolver, SceneApi, SceneSpec, ScriptError};
 use crate::stages::arc_length::{
-    ArcLength, ArcLengthSpec, correct_load_factor, keep_going_forward, record_start_imbalance,
-    take_reference_load, unit_load,
+    ArcLength, ArcLengthSpec, Rebalance, correct_load_factor, finish_rebalance, keep_going_forward,
+    record_start_imbalance, restore_arc_state, save_arc_state, take_reference_load, unit_load,
 };
+use bevy_ecs::prelude::World;
 
 /// The module: built when the scene asks for arc-length control.
 #[derive(Clone, Copy, Debug, Default)]
@@ -90,6 +93,36 @@ impl Plugin for ArcLengthModule {
                  back to zero after its peak, or after the schedule's steps)",
             ),
         );
+        api.extend(
+            "solver",
+            OptionSpec::new(
+                "rebalance",
+                Kind::Choice(vec![
+                    Choice {
+                        word: "off",
+                        meaning: Some("the arc starts from the committed state (the default)"),
+                    },
+                    Choice {
+                        word: "fixed",
+                        meaning: Some(
+                            "each step first removes the out-of-balance force it starts with by \
+                             Newton at the last load factor, without the arc; the arc starts \
+                             from that equilibrium",
+                        ),
+                    },
+                    Choice {
+                        word: "free",
+                        meaning: Some(
+                            "the same with the load factor free: each correction the shortest \
+                             one (normal to δu_f), so the load factor moves as little as the \
+                             equilibrium needs",
+                        ),
+                    },
+                ]),
+                "control: \"arc_length\": remove the start residual of each step (points that \
+                 crossed cell faces leave one) before its arc (default \"off\")",
+            ),
+        );
     }
 
     fn resolve(&self, scene: &mut Resolver) -> Result<(), ScriptError> {
@@ -98,7 +131,7 @@ impl Plugin for ArcLengthModule {
         };
         let (options, at) = (&solver.value, solver.at);
         if options.text("control") != Some("arc_length") {
-            for key in ["target_iterations", "max_load_factor"] {
+            for key in ["target_iterations", "max_load_factor", "rebalance"] {
                 if options.has(key) {
                     return Err(ScriptError::at(
                         at,
@@ -185,6 +218,10 @@ impl Plugin for ArcLengthModule {
             max_load_factor: options
                 .number("max_load_factor")
                 .unwrap_or(default.max_load_factor),
+            rebalance: options
+                .text("rebalance")
+                .and_then(Rebalance::from_word)
+                .unwrap_or(default.rebalance),
         });
         Ok(())
     }
@@ -193,7 +230,7 @@ impl Plugin for ArcLengthModule {
         spec.part::<ArcLengthSpec>().map(|arc| {
             format!(
                 "target {} iterations per step, at most {} steps, first arc from the load \
-                 increment {}{}",
+                 increment {}{}{}",
                 arc.target_iterations,
                 spec.load_factors.len(),
                 spec.load_factors.first().copied().unwrap_or(0.0),
@@ -201,6 +238,11 @@ impl Plugin for ArcLengthModule {
                     format!(", ends at load factor {}", arc.max_load_factor)
                 } else {
                     String::new()
+                },
+                if arc.rebalance == Rebalance::Off {
+                    String::new()
+                } else {
+                    format!(", rebalance: {}", arc.rebalance.word())
                 }
             )
         })
@@ -211,23 +253,44 @@ impl Plugin for ArcLengthModule {
     }
 
     fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
-        let first = simulation
-            .spec()
-            .load_factors
-            .first()
-            .copied()
-            .unwrap_or(0.0);
-        simulation
-            .world()
-            .insert_resource(ArcLength::<D>::new(first));
+        let spec = simulation.spec();
+        let first = spec.load_factors.first().copied().unwrap_or(0.0);
+        let rebalance = spec
+            .part::<ArcLengthSpec>()
+            .map_or(Rebalance::Off, |a| a.rebalance);
+        let mut arc = ArcLength::<D>::new(first);
+        arc.rebalance = rebalance;
+        simulation.world().insert_resource(arc);
         simulation
             .add_systems(Hook::AfterDofs, unit_load)
             .add_systems(Hook::BeforeSolve, take_reference_load::<D>)
-            .add_systems(Hook::Convergence, record_start_imbalance::<D>)
+            .add_systems(Hook::Convergence, record_start_imbalance::<D>);
+        if rebalance != Rebalance::Off {
+            simulation.add_systems(Hook::Convergence, finish_rebalance::<D>);
+        }
+        simulation
             .add_systems(Hook::Convergence, keep_going_forward::<D>)
             .add_systems(Hook::AfterLinearSolve, correct_load_factor::<D>)
             .add_measure("initial_imbalance", |world, _| {
                 world.resource::<ArcLength<D>>().start_imbalance
+            })
+            .checkpoint(CheckpointPart {
+                name: "arc-length control",
+                save: save_arc_state::<D>,
+                restore: restore_arc_state::<D>,
             });
+        if rebalance != Rebalance::Off {
+            let rebalanced = |world: &World| world.resource::<ArcLength<D>>().rebalanced;
+            simulation
+                .add_measure("rebalance_iterations", move |world, _| {
+                    rebalanced(world).map(|r| r.iterations as f64)
+                })
+                .add_measure("rebalanced_imbalance", move |world, _| {
+                    rebalanced(world).and_then(|r| r.imbalance)
+                })
+                .add_measure("rebalanced_load_factor", move |world, _| {
+                    rebalanced(world).map(|r| r.factor)
+                });
+        }
     }
 }

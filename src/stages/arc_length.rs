@@ -78,6 +78,45 @@
 //! load control the first residual holds the step's load increment too, so this measure is
 //! the arc's only.)
 //!
+//! # Rebalancing before the arc
+//!
+//! With `solver(#{ control: "arc_length", rebalance: "fixed" })` (or `"free"`) a step first
+//! removes the residual it starts with, then takes its arc from there. The rebalancing is
+//! Newton without the arc constraint, from the committed state on the step's grid (Δu = 0),
+//! inside the same Newton loop and with the same criterion and tolerance:
+//!
+//! ```text
+//!   fixed:  λ = λ_n,  K δu = r                                      (no load increment)
+//!   free:   δu = δu_r + δλ δu_f,  δλ = −(δu_f·δu_r)/(δu_f·δu_f)      (the shortest correction:
+//!                                                                    normal flow, λ moves as
+//!                                                                    little as the equilibrium needs)
+//! ```
+//!
+//! Its converged state (u_c = u_n + Δu_c, λ_c; λ_c = λ_n when fixed) is the step's start for
+//! the arc ([`finish_rebalance`]): the arc's increment is measured from it,
+//!
+//! ```text
+//!   r = (λ_c + Δλ) f̂ − f_int(u_n + Δu_c + Δu_a) = 0,     ‖Δu_a‖² = Δl²,
+//! ```
+//!
+//! the predictor is the one above at Δu_a = 0, and the step is accepted at
+//! Δu = Δu_c + Δu_a, λ_c + Δλ. The correction moves along no path (it only puts the committed
+//! state back into equilibrium on the new grid, a resolution effect), so the path direction
+//! that the next predictor's sign and the turn-back tests compare with is Δu_a, the arc's part:
+//! `accept` keeps Δu_a as Δu_{n−1}, the tests compare Δu_a with it, and the unloading test takes
+//! Δλ = λ − λ_c. Two refusals: a free rebalancing that unloads (λ_c < λ_n with f̂·Δu_c < 0) by more
+//! than the last step went (‖Δu_c‖ > ‖Δu_{n−1}‖: the nearest equilibrium is back on the path
+//! already traced), and one that does not converge (at λ_n
+//! there may be no equilibrium near the committed state past a limit, where the new grid
+//! carries less than λ_n). Either fails the attempt, recoverably: the arc is cut, and since the
+//! rebalancing would repeat exactly (it starts from the committed state and ignores the arc),
+//! the step's next attempts go without it, from the committed state as without the option,
+//! and the run warns once. A cut after a converged rebalancing restarts from the committed
+//! state too (the grid is reset) and rebalances again. The arc is sized by its own iterations
+//! (the step's minus the rebalancing's), each step records `rebalance_iterations`,
+//! `rebalanced_imbalance` (as `initial_imbalance`, at u_c) and `rebalanced_load_factor` (λ_c),
+//! and `initial_imbalance` stays the residual the step inherited.
+//!
 //! # Step control
 //!
 //! [`ArcLengthControl`] is the policy (pure): the first arc is sized so that the first step's
@@ -91,7 +130,9 @@
 use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 
-use crate::resources::{GridFields, LoadStep, Newton, RunStatus, SolverError, Warnings};
+use crate::resources::{
+    GridFields, LoadStep, Newton, NewtonSettings, RunStatus, SolverError, Warnings,
+};
 use crate::solver::NO_DOF;
 
 /// The scene's arc-length options (a part of the scene: `solver(#{ control: "arc_length" })`).
@@ -101,6 +142,9 @@ pub struct ArcLengthSpec {
     pub target_iterations: usize,
     /// The run ends when λ reaches this (infinite: no such end).
     pub max_load_factor: f64,
+    /// Whether (and how) a step first removes the out-of-balance force it starts with
+    /// (module docs, "Rebalancing before the arc").
+    pub rebalance: Rebalance,
 }
 
 impl Default for ArcLengthSpec {
@@ -108,8 +152,55 @@ impl Default for ArcLengthSpec {
         Self {
             target_iterations: 5,
             max_load_factor: f64::INFINITY,
+            rebalance: Rebalance::Off,
         }
     }
+}
+
+/// The equilibrium correction before a step's arc (module docs, "Rebalancing before the arc";
+/// `solver(#{ rebalance: "fixed" })`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Rebalance {
+    /// None: the arc starts from the committed state as the new grid sees it.
+    #[default]
+    Off,
+    /// Newton at λ = λ_n, no arc constraint: `K δu = r`.
+    Fixed,
+    /// Newton with λ free and no arc constraint, each correction the shortest (normal flow):
+    /// `δu = δu_r + δλ δu_f`, `δλ = −(δu_f·δu_r)/(δu_f·δu_f)`.
+    Free,
+}
+
+impl Rebalance {
+    /// The scene's words, in the order of the variants.
+    pub const WORDS: [&'static str; 3] = ["off", "fixed", "free"];
+
+    /// The variant of a scene word.
+    pub fn from_word(word: &str) -> Option<Self> {
+        match word {
+            "off" => Some(Self::Off),
+            "fixed" => Some(Self::Fixed),
+            "free" => Some(Self::Free),
+            _ => None,
+        }
+    }
+
+    /// The scene word.
+    pub fn word(self) -> &'static str {
+        Self::WORDS[self as usize]
+    }
+}
+
+/// What a step's rebalancing did ([`finish_rebalance`]; the step's measures
+/// `rebalance_iterations`, `rebalanced_imbalance`, `rebalanced_load_factor`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Rebalanced {
+    /// Newton iterations (linear solves) it took.
+    pub iterations: usize,
+    /// ‖λ_c f̂ − f_int(u_c)‖_free / ‖λ_c f̂‖ at its converged state (as `initial_imbalance`).
+    pub imbalance: Option<f64>,
+    /// λ_c: the load factor it converged at (λ_n when fixed).
+    pub factor: f64,
 }
 
 /// How δλ of an iteration was found.
@@ -210,6 +301,20 @@ pub struct ArcLength<const D: usize> {
     pub start_imbalance: Option<f64>,
     /// Whether a step's start imbalance was warned about (once per run).
     warned_imbalance: bool,
+    /// The scene's rebalancing.
+    pub rebalance: Rebalance,
+    /// Whether the current attempt is still removing its start residual (before the arc).
+    rebalancing: bool,
+    /// Δu_c, by node: the increment at which the rebalancing converged, the arc's origin
+    /// (empty: none, the arc starts at Δu = 0).
+    origin: Vec<SVector<f64, D>>,
+    /// The current attempt's rebalancing, once converged.
+    pub rebalanced: Option<Rebalanced>,
+    /// The step whose attempt began a rebalancing that has not converged: while it is the
+    /// current step, that attempt failed during it, and the step's next attempts go without.
+    rebalancing_step: Option<usize>,
+    /// Whether a step that went without its rebalancing was warned about (once per run).
+    warned_unbalanced: bool,
 }
 
 impl<const D: usize> ArcLength<D> {
@@ -227,6 +332,12 @@ impl<const D: usize> ArcLength<D> {
             linearised: 0,
             start_imbalance: None,
             warned_imbalance: false,
+            rebalance: Rebalance::Off,
+            rebalancing: false,
+            origin: Vec::new(),
+            rebalanced: None,
+            rebalancing_step: None,
+            warned_unbalanced: false,
         }
     }
 
@@ -238,6 +349,14 @@ impl<const D: usize> ArcLength<D> {
         self.corrected = 0;
         self.linearised = 0;
         self.current.clear();
+        self.rebalancing = self.rebalance != Rebalance::Off;
+        self.origin.clear();
+        self.rebalanced = None;
+    }
+
+    /// Whether the current attempt is still removing its start residual.
+    pub fn rebalancing(&self) -> bool {
+        self.rebalancing
     }
 
     /// A follower load's force at λ = 1 changed by `change` (by node) with the iterate: f̂ is
@@ -254,13 +373,15 @@ impl<const D: usize> ArcLength<D> {
         }
     }
 
-    /// The attempt converged: its increment gives the next predictor its direction.
+    /// The attempt converged: its increment gives the next predictor its direction (the arc's
+    /// part Δu − Δu_c after a rebalancing).
     pub fn accept(&mut self) {
         self.previous.clone_from(&self.current);
     }
 
-    /// ‖Δu‖ of the last iterate (over the free DOFs it was taken on): Δl on a converged step
-    /// whose iterations all stayed on the arc (`linearised` = 0).
+    /// ‖Δu − Δu_c‖ of the last iterate (over the free DOFs it was taken on; Δu_c = 0 without
+    /// rebalancing): Δl on a converged step whose iterations all stayed on the arc
+    /// (`linearised` = 0).
     pub fn increment_norm(&self) -> f64 {
         self.current
             .iter()
@@ -283,6 +404,7 @@ pub fn take_reference_load<const D: usize>(
     mut fields: ResMut<GridFields<D>>,
     mut step: ResMut<LoadStep>,
     mut status: ResMut<RunStatus>,
+    mut warnings: ResMut<Warnings>,
 ) {
     let (arc, fields) = (&mut *arc, &mut *fields);
     arc.reference.clone_from(&fields.external_force);
@@ -310,6 +432,26 @@ pub fn take_reference_load<const D: usize>(
         *f = reference * arc.start;
     }
     step.factor = arc.start;
+    if arc.rebalancing {
+        if arc.rebalancing_step == Some(step.number) {
+            // an earlier attempt of this step failed while rebalancing, and this one would
+            // repeat it exactly (it starts from the committed state and ignores the arc)
+            arc.rebalancing = false;
+            if !arc.warned_unbalanced {
+                arc.warned_unbalanced = true;
+                warnings.0.push(format!(
+                    "step {}: the rebalancing before the arc (rebalance: \"{}\") failed (the \
+                     step's failed attempts in summary.json say why); the step's next attempts \
+                     start from the committed state, out of balance, as without rebalancing \
+                     (warned once per run; summary.json steps without rebalance_iterations)",
+                    step.number,
+                    arc.rebalance.word()
+                ));
+            }
+        } else {
+            arc.rebalancing_step = Some(step.number);
+        }
+    }
 }
 
 /// `Hook::Convergence`, after the check: the predictor is always taken (at Δu = 0 the residual
@@ -388,6 +530,18 @@ pub fn record_start_imbalance<const D: usize>(
     if newton.iterations != 0 || newton.residuals.len() != 1 {
         return;
     }
+    arc.start_imbalance = imbalance(&fields, &newton);
+    if let Some(imbalance) = arc.start_imbalance
+        && imbalance > START_IMBALANCE
+        && !arc.warned_imbalance
+    {
+        arc.warned_imbalance = true;
+        warnings.0.push(imbalance_warning(step.number, imbalance));
+    }
+}
+
+/// ‖f_ext − f_int‖_free / ‖f_ext‖ of the iterate just checked ([`start_imbalance`]).
+fn imbalance<const D: usize>(fields: &GridFields<D>, newton: &Newton) -> Option<f64> {
     let free = newton.residual.iter().map(|r| r * r).sum::<f64>().sqrt();
     let external = fields
         .external_force
@@ -397,13 +551,81 @@ pub fn record_start_imbalance<const D: usize>(
         .map(|(f, _)| f.norm_squared())
         .sum::<f64>()
         .sqrt();
-    arc.start_imbalance = start_imbalance(free, external);
-    if let Some(imbalance) = arc.start_imbalance
-        && imbalance > START_IMBALANCE
-        && !arc.warned_imbalance
-    {
-        arc.warned_imbalance = true;
-        warnings.0.push(imbalance_warning(step.number, imbalance));
+    start_imbalance(free, external)
+}
+
+/// `Hook::Convergence`, after [`record_start_imbalance`] and before [`keep_going_forward`]
+/// (scheduled only with `rebalance`): while the attempt removes its start residual, a
+/// converged iterate ends the rebalancing instead of the step: its state (Δu_c, λ_c) becomes
+/// the arc's origin and the iterations go on with the arc's predictor. With λ free, a
+/// converged rebalancing that unloads (λ_c < λ_n with f̂·Δu_c < 0 beyond round-off,
+/// [`turns_back`]) further than the last step went, ‖Δu_c‖ > ‖Δu_{n−1}‖, is refused: it went
+/// back down the path already traced (a small unloading is the equilibrium of the new grid). A rebalancing that is
+/// refused, runs out of iterations or fails otherwise fails the attempt (recoverable), and
+/// the step's next attempts go without it ([`take_reference_load`]): cutting the arc would
+/// repeat it exactly, since it starts from the committed state and does not depend on the arc.
+pub fn finish_rebalance<const D: usize>(
+    mut arc: ResMut<ArcLength<D>>,
+    fields: Res<GridFields<D>>,
+    mut newton: ResMut<Newton>,
+    settings: Res<NewtonSettings>,
+    step: Res<LoadStep>,
+    mut status: ResMut<RunStatus>,
+) {
+    if !arc.rebalancing {
+        return;
+    }
+    if newton.converged {
+        newton.converged = false;
+        let origin = free_part(&fields);
+        let length = |u: &[SVector<f64, D>]| u.iter().map(|v| v.norm_squared()).sum::<f64>().sqrt();
+        let work = node_dot(&origin, &arc.reference);
+        let (moved, last) = (length(&origin), length(&arc.previous));
+        if arc.factor < arc.start && turns_back(work, moved, length(&arc.reference)) && moved > last
+        {
+            // λ free: the nearest equilibrium is on the unloading branch, the path traced
+            status.fail(SolverError::Module {
+                step: step.number,
+                what: format!(
+                    "arc-length control: the rebalancing before the arc unloads (the load \
+                     factor falls from {:.6e} to {:.6e} with f̂·Δu = {work:.3e}, and ‖Δu‖ = \
+                     {moved:.3e} exceeds the last step's {last:.3e}): the nearest equilibrium \
+                     is back on the path already traced",
+                    arc.start, arc.factor
+                ),
+                recoverable: true,
+            });
+            return;
+        }
+        arc.rebalancing = false;
+        arc.rebalancing_step = None;
+        arc.origin = origin;
+        arc.start = arc.factor;
+        arc.rebalanced = Some(Rebalanced {
+            iterations: newton.iterations,
+            imbalance: imbalance(&fields, &newton),
+            factor: arc.factor,
+        });
+    } else if newton.iterations >= settings.max_iterations {
+        status.fail(SolverError::Module {
+            step: step.number,
+            what: format!(
+                "arc-length control: the rebalancing before the arc (rebalance: \"{}\") did \
+                 not converge in {} iterations (residuals {:.1e} to {:.1e}): the committed \
+                 state has no equilibrium near it on this step's grid{}; the step's next \
+                 attempts go without",
+                arc.rebalance.word(),
+                newton.iterations,
+                newton.residuals.first().copied().unwrap_or(f64::NAN),
+                newton.residuals.last().copied().unwrap_or(f64::NAN),
+                if arc.rebalance == Rebalance::Fixed {
+                    " at the same load factor (rebalance: \"free\" lets it move)"
+                } else {
+                    ""
+                }
+            ),
+            recoverable: true,
+        });
     }
 }
 
@@ -440,14 +662,22 @@ pub fn correct_load_factor<const D: usize>(
         return; // no solve in this iteration
     }
     arc.corrected = newton.iterations;
+    if arc.rebalancing && arc.rebalance == Rebalance::Fixed {
+        return; // Δu += δu_r at λ = λ_n
+    }
     let residual_part = newton.residual.clone();
     let mut increment = vec![0.0; residual_part.len()];
     let mut previous = vec![0.0; residual_part.len()];
+    // the arc's predictor has Δu − Δu_c = 0 exactly (a difference of the sums would not be)
+    let predictor = arc.current.is_empty();
     for (node, dofs) in fields.dofs.iter().enumerate() {
         for (c, &dof) in dofs.iter().enumerate() {
             if dof != NO_DOF {
                 let dof = dof as usize;
-                increment[dof] = fields.increment[node][c] - residual_part[dof];
+                if !predictor || arc.origin.is_empty() {
+                    let origin = arc.origin.get(node).map_or(0.0, |u| u[c]);
+                    increment[dof] = fields.increment[node][c] - residual_part[dof] - origin;
+                }
                 previous[dof] = arc.previous.get(node).map_or(0.0, |u| u[c]);
             }
         }
@@ -462,6 +692,24 @@ pub fn correct_load_factor<const D: usize>(
             iteration: newton.iterations,
             why: format!("arc-length, K δu_f = f̂: {why}"),
         });
+        return;
+    }
+    if arc.rebalancing {
+        // λ free, no arc: the shortest correction δu_r + δλ δu_f
+        let Some(delta) = shortest_correction(&residual_part, &load_part) else {
+            status.fail(SolverError::Module {
+                step: step.number,
+                what: format!(
+                    "arc-length control, rebalancing: no load-factor correction at iteration {} \
+                     (δu_f = 0, or a value is not finite)",
+                    newton.iterations
+                ),
+                recoverable: false,
+            });
+            return;
+        };
+        add_load_part(fields, &load_part, delta);
+        set_factor(arc, fields, &mut step, arc.factor + delta);
         return;
     }
     if arc.radius <= 0.0 {
@@ -491,6 +739,24 @@ pub fn correct_load_factor<const D: usize>(
     if root == Root::Linearised && newton.iterations > 1 {
         arc.linearised += 1;
     }
+    add_load_part(fields, &load_part, delta);
+    set_factor(arc, fields, &mut step, arc.factor + delta);
+    // the arc's Δu by node, from its origin
+    arc.current = free_part(fields);
+    for (current, origin) in arc.current.iter_mut().zip(&arc.origin) {
+        *current -= origin;
+    }
+}
+
+/// δλ of the shortest correction δu_r + δλ δu_f (normal flow: orthogonal to δu_f),
+/// −(δu_f·δu_r)/(δu_f·δu_f); `None` when δu_f = 0 or a value is not finite.
+pub fn shortest_correction(residual_part: &[f64], load_part: &[f64]) -> Option<f64> {
+    let delta = -dot(load_part, residual_part) / dot(load_part, load_part);
+    delta.is_finite().then_some(delta)
+}
+
+/// Δu += δλ δu_f at the free DOFs.
+fn add_load_part<const D: usize>(fields: &mut GridFields<D>, load_part: &[f64], delta: f64) {
     for (node, dofs) in fields.dofs.iter().enumerate() {
         for (c, &dof) in dofs.iter().enumerate() {
             if dof != NO_DOF {
@@ -498,30 +764,105 @@ pub fn correct_load_factor<const D: usize>(
             }
         }
     }
-    move_to(arc, fields, &mut step, delta);
 }
 
-/// The iterate's load factor λ + δλ (Δu already moved): f_ext = λ f̂, and Δu kept by node.
-fn move_to<const D: usize>(
+/// The iterate's load factor λ: f_ext = λ f̂.
+fn set_factor<const D: usize>(
     arc: &mut ArcLength<D>,
     fields: &mut GridFields<D>,
     step: &mut LoadStep,
-    delta: f64,
+    factor: f64,
 ) {
-    arc.factor += delta;
+    arc.factor = factor;
     step.factor = arc.factor;
     for (f, reference) in fields.external_force.iter_mut().zip(&arc.reference) {
         *f = reference * arc.factor;
     }
-    arc.current.clone_from(&fields.increment);
-    // inactive and constrained components carry no Δu
+}
+
+/// Δu by node, with the inactive and constrained components (which carry none) zero.
+fn free_part<const D: usize>(fields: &GridFields<D>) -> Vec<SVector<f64, D>> {
+    let mut free = fields.increment.clone();
     for (node, dofs) in fields.dofs.iter().enumerate() {
         for (c, &dof) in dofs.iter().enumerate() {
             if dof == NO_DOF {
-                arc.current[node][c] = 0.0;
+                free[node][c] = 0.0;
             }
         }
     }
+    free
+}
+
+/// The arc-length step policy's state between steps ([`ArcLengthControl::state`]), put into
+/// the world by the run driver, which keeps the policy, so that the arc module's checkpoint
+/// part ([`save_arc_state`]) saves it with the arc's own.
+#[derive(Resource, Clone, Debug, Default, PartialEq)]
+pub struct ArcControlState(pub Vec<f64>);
+
+/// `checkpoint::CheckpointPart::save` of the arc (`effects::arc_length`): the policy's state
+/// ([`ArcControlState`], length first), then the first load increment, the two warned flags
+/// and Δu_{n−1} by node (count first).
+pub fn save_arc_state<const D: usize>(world: &mut World) -> Vec<f64> {
+    let control = world
+        .get_resource::<ArcControlState>()
+        .map_or_else(Vec::new, |s| s.0.clone());
+    let arc = world.resource::<ArcLength<D>>();
+    let flag = |b: bool| if b { 1.0 } else { 0.0 };
+    let mut values = vec![control.len() as f64];
+    values.extend(control);
+    values.extend([
+        arc.first_increment,
+        flag(arc.warned_imbalance),
+        flag(arc.warned_unbalanced),
+        arc.previous.len() as f64,
+    ]);
+    for u in &arc.previous {
+        values.extend(u.iter());
+    }
+    values
+}
+
+/// `checkpoint::CheckpointPart::restore` of [`save_arc_state`]: the arc's state back, and the
+/// policy's as an [`ArcControlState`] for the driver.
+pub fn restore_arc_state<const D: usize>(world: &mut World, values: &[f64]) -> Result<(), String> {
+    let count = |x: f64| {
+        (x.is_finite() && x >= 0.0 && x.fract() == 0.0)
+            .then_some(x as usize)
+            .ok_or_else(|| format!("{x} is not a count"))
+    };
+    let (&length, rest) = values.split_first().ok_or("no numbers saved")?;
+    let length = count(length)?;
+    if length > rest.len() {
+        return Err(format!(
+            "{length} numbers of the step policy, {} saved",
+            rest.len()
+        ));
+    }
+    let (control, rest) = rest.split_at(length);
+    let &[
+        first,
+        warned_imbalance,
+        warned_unbalanced,
+        nodes,
+        ref previous @ ..,
+    ] = rest
+    else {
+        return Err(format!(
+            "{} numbers after the step policy's, 4 or more expected",
+            rest.len()
+        ));
+    };
+    let previous: Vec<SVector<f64, D>> = crate::checkpoint::records(previous, D, count(nodes)?)?
+        .map(SVector::from_column_slice)
+        .collect();
+    world.insert_resource(ArcControlState(control.to_vec()));
+    let mut arc = world.resource_mut::<ArcLength<D>>();
+    arc.first_increment = first;
+    arc.warned_imbalance = warned_imbalance != 0.0;
+    arc.warned_unbalanced = warned_unbalanced != 0.0;
+    arc.previous = previous;
+    arc.rebalancing_step = None;
+    Ok(())
 }
 
 /// Why an arc-length run ended.
@@ -629,6 +970,65 @@ impl ArcLengthControl {
         true
     }
 
+    /// Its state between steps as numbers (a checkpoint's part, [`ArcControlState`]): the
+    /// next arc, the first increment, the peak and its step (NaN, −1: none), the last λ, the
+    /// end (0 none, 1 max_load_factor, 2 unloaded), the linearised iterations, the largest and
+    /// the last arc.
+    pub fn state(&self) -> Vec<f64> {
+        let (peak, at) = self.peak.map_or((f64::NAN, -1.0), |(p, s)| (p, s as f64));
+        let end = match self.end {
+            None => 0.0,
+            Some(ArcEnd::MaxLoadFactor) => 1.0,
+            Some(ArcEnd::Unloaded) => 2.0,
+        };
+        vec![
+            self.radius,
+            self.first_increment,
+            peak,
+            at,
+            self.last,
+            end,
+            self.linearised as f64,
+            self.largest_arc,
+            self.last_arc,
+        ]
+    }
+
+    /// Restores [`ArcLengthControl::state`] (the scene's options stay this policy's).
+    pub fn restore(&mut self, state: &[f64]) -> Result<(), String> {
+        let &[
+            radius,
+            first,
+            peak,
+            at,
+            last,
+            end,
+            linearised,
+            largest,
+            last_arc,
+        ] = state
+        else {
+            return Err(format!(
+                "the arc-length step policy: {} numbers saved, 9 expected",
+                state.len()
+            ));
+        };
+        self.radius = radius;
+        self.first_increment = first;
+        self.peak = (at >= 0.0).then_some((peak, at as usize));
+        self.last = last;
+        self.end = match end as u8 {
+            1 => Some(ArcEnd::MaxLoadFactor),
+            2 => Some(ArcEnd::Unloaded),
+            _ => None,
+        };
+        self.linearised = linearised as usize;
+        self.largest_arc = largest;
+        self.last_arc = last_arc;
+        self.cuts = 0;
+        Ok(())
+    }
+
     /// The current step's cuts.
     pub fn cuts(&self) -> usize {
         self.cuts
@@ -728,6 +1128,7 @@ mod tests {
         let spec = ArcLengthSpec {
             target_iterations: 5,
             max_load_factor: 10.0,
+            ..ArcLengthSpec::default()
         };
         let mut control = ArcLengthControl::new(spec, 8, 0.1);
         control.succeeded(1, 1.0, 5, 0.2, 0);
@@ -739,6 +1140,22 @@ mod tests {
         let ratio = control.stalled().expect("stalled");
         assert!((ratio - STALLED_ARC / 2.0).abs() < 1e-15, "{ratio}");
         assert!(control.stalled_warning().unwrap().contains("not traced"));
+    }
+
+    #[test]
+    fn the_policy_state_round_trips() {
+        let mut control = ArcLengthControl::new(ArcLengthSpec::default(), 8, 0.1);
+        let mut fresh = control.clone();
+        fresh.restore(&control.state()).unwrap();
+        assert_eq!(fresh, control, "before any step");
+        control.succeeded(1, 1.0, 5, 0.2, 1);
+        control.succeeded(2, 0.5, 3, 0.1, 0);
+        control.succeeded(3, -0.1, 3, 0.1, 0);
+        let mut restored = ArcLengthControl::new(ArcLengthSpec::default(), 8, 0.1);
+        restored.restore(&control.state()).unwrap();
+        assert_eq!(restored, control);
+        assert_eq!(restored.end(), Some(ArcEnd::Unloaded));
+        assert!(restored.restore(&[1.0, 2.0]).is_err());
     }
 
     #[test]
@@ -764,6 +1181,20 @@ mod tests {
             "{warning}"
         );
         assert!(warning.contains("crossed cell faces"));
+    }
+
+    #[test]
+    fn the_free_rebalancing_takes_the_shortest_correction() {
+        let (residual, load) = ([1.0, 2.0], [3.0, -1.0]);
+        let delta = shortest_correction(&residual, &load).unwrap();
+        let change: Vec<f64> = (0..2).map(|i| residual[i] + delta * load[i]).collect();
+        // orthogonal to δu_f: no other δλ gives a shorter change
+        assert!(dot(&change, &load).abs() < 1e-15, "{change:?}");
+        assert_eq!(shortest_correction(&residual, &[0.0, 0.0]), None);
+        for word in Rebalance::WORDS {
+            assert_eq!(Rebalance::from_word(word).map(Rebalance::word), Some(word));
+        }
+        assert_eq!(Rebalance::from_word("on"), None);
     }
 
     #[test]
@@ -810,6 +1241,7 @@ mod tests {
         let spec = ArcLengthSpec {
             target_iterations: 4,
             max_load_factor: 2.0,
+            ..ArcLengthSpec::default()
         };
         let mut control = ArcLengthControl::new(spec, 2, 0.1);
         assert_eq!(control.begin(), 0.0);
