@@ -156,6 +156,9 @@ impl<const D: usize> Simulation<D> {
     /// Keeps checkpoints as `plan` says (after the initial state and then after every output
     /// step or every N steps); `summary.json` says how to resume.
     pub fn keep_checkpoints(&mut self, plan: RestartPlan) {
+        if crate::distributed::decomposed() {
+            return; // each process holds its own points (effects::distributed says so)
+        }
         self.summary.resume = Some(plan.command.clone());
         self.restart = Some(plan);
     }
@@ -510,7 +513,10 @@ impl<const D: usize> Simulation<D> {
             .iter(&self.world)
             .map(|(x, v, t)| (x.0[axis], v.0, t.0.cauchy()[(axis, axis)]))
             .collect();
-        Some(column.error(points))
+        // with decomposed points, the other processes' points too
+        let mut sums = column.error_sums(points);
+        crate::distributed::sum_over_points(&mut sums);
+        Some(column.error_of_sums(sums))
     }
 
     /// The modules' measures at load factor `factor`.

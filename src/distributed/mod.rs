@@ -25,7 +25,10 @@ pub mod respawn;
 #[cfg(feature = "mpi")]
 mod world;
 #[cfg(feature = "mpi")]
-pub use world::{Ending, Started, abort, any, largest, path_of_process_0, processes, start, sum};
+pub use world::{
+    Ending, Started, abort, any, exchange, gather_all, largest, path_of_process_0, processes,
+    start, sum, sum_all, sum_counts,
+};
 
 /// This process's place in a distributed run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -46,4 +49,36 @@ pub fn launched_by_mpirun() -> Option<Processes> {
         rank: read("OMPI_COMM_WORLD_RANK").unwrap_or(0),
         size: size.max(1),
     })
+}
+
+static DECOMPOSITION: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Asks for decomposed points (`impm run --decompose` under `mpirun`): every process then holds
+/// only the points of its slab, and they move between the processes as the slabs change
+/// (`effects::distributed`, `docs/distributed.md`). Call it before the simulation is built.
+pub fn request_decomposition() {
+    DECOMPOSITION.store(true, std::sync::atomic::Ordering::Relaxed);
+}
+
+/// Whether this process is one of a distributed run whose points are decomposed: every
+/// process holds its own points only, so a sum over points is a sum over the processes of
+/// their partial sums ([`sum_over_points`]).
+pub fn decomposed() -> bool {
+    #[cfg(feature = "mpi")]
+    let distributed = processes().is_some();
+    #[cfg(not(feature = "mpi"))]
+    let distributed = false;
+    distributed && DECOMPOSITION.load(std::sync::atomic::Ordering::Relaxed)
+}
+
+/// Turns this process's sums over its points into sums over all points, in place, when the
+/// points are decomposed (collective then: every process must call it with as many values);
+/// otherwise (a serial run, or every process holding every point) leaves them as they are.
+pub fn sum_over_points(values: &mut [f64]) {
+    #[cfg(feature = "mpi")]
+    if decomposed() {
+        sum_all(values);
+    }
+    #[cfg(not(feature = "mpi"))]
+    let _ = values;
 }
