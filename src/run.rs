@@ -94,6 +94,11 @@ impl<const D: usize> Simulation<D> {
         modules: &ModuleSet,
         include: &dyn Fn(&dyn Module) -> bool,
     ) -> Result<Self, BuildError> {
+        // before any point is spawned: a decomposed run spawns only its own
+        #[cfg(feature = "mpi")]
+        if let Some(why) = effects::distributed::decomposition::refusal(spec) {
+            return Err(BuildError(why));
+        }
         let mut world = core_world::<D>(spec, out_dir)?;
         modules.check_materials(spec)?;
         std::fs::create_dir_all(out_dir).map_err(|e| {
@@ -602,7 +607,7 @@ fn core_world<const D: usize>(spec: &SceneSpec, out_dir: &Path) -> Result<World,
             })
             .collect::<Vec<_>>(),
     );
-    spawn_points::<D>(&mut world, spec)?;
+    spawn_points::<D>(&mut world, spec, &basis)?;
     world.insert_resource(GridFields::<D>::new(basis.num_nodes()));
     world.insert_resource(Grid(basis));
     world.insert_resource(LoadStep::default());
@@ -696,7 +701,13 @@ fn restore_points<const D: usize>(world: &mut World, values: &[f64]) -> Result<(
 }
 
 /// Every body's points with the core's components, numbered body after body (`PointId`).
-fn spawn_points<const D: usize>(world: &mut World, spec: &SceneSpec) -> Result<(), BuildError> {
+/// A process of a decomposed run spawns its slab's points only (`distributed::initial_points`).
+fn spawn_points<const D: usize>(
+    world: &mut World,
+    spec: &SceneSpec,
+    grid: &GridBasis<D>,
+) -> Result<(), BuildError> {
+    let kept = crate::distributed::initial_points(grid, spec);
     let mut id = 0u32;
     for (body_index, body) in spec.bodies.iter().enumerate() {
         let density = spec
@@ -712,6 +723,10 @@ fn spawn_points<const D: usize>(world: &mut World, spec: &SceneSpec) -> Result<(
                     body.name,
                     seed.position.len()
                 )));
+            }
+            if kept.as_ref().is_some_and(|kept| !kept[id as usize]) {
+                id += 1;
+                continue;
             }
             let x = SVector::<f64, D>::from_fn(|a, _| seed.position[a]);
             batch.push(core_point(&PointRecord {

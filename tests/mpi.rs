@@ -26,7 +26,13 @@
 //! * arc-length control is refused over more than one process (not distributed yet);
 //! * a signal to one process only stops every process after the same load step (the stop is
 //!   agreed between steps), with the status "interrupted" and no abort;
-//! * `impm study` under `mpirun -n 2` is refused, said once, before anything is written.
+//! * `impm study` under `mpirun -n 2` is refused, said once, before anything is written;
+//! * with decomposed points (`--decompose`: each process holds its slab's points only, and
+//!   they move between the processes), the heavy column, the 2D column and a von Mises column
+//!   under `mpirun -n 2` and `-n 3` equal their serial runs as above (the plastic strain too:
+//!   the history travels with its points), points change process in the heavy and the plastic
+//!   column, and the log says the points are decomposed; a scene with point loads is refused
+//!   naming them, and `--decompose` without mpirun is refused.
 //!
 //! Skipped, with a message, where `mpirun` is missing (`.ci/run` installs OpenMPI as root).
 

@@ -20,7 +20,8 @@
 //!    left or arrived, every point the process holds is spawned anew in `PointId` order, so
 //!    that its stages visit its points in the serial order (the world's order is the order
 //!    the sums over points are taken in; `tests/migration.rs`). At the start of a run every
-//!    process holds every point and keeps its slab's ([`keep_own_points`], no message).
+//!    process spawns its slab's points only (`distributed::initial_points`, from the seeds'
+//!    positions; no message).
 //! 2. [`agree_on_grid`] (after the basis, before DOF numbering): a node is active when a
 //!    point of *any* process supports it, and two nodes couple in `K` when a point of any
 //!    process has both in its support. Each process sends the distinct supports of its points
@@ -54,6 +55,10 @@ use crate::scene::SceneSpec;
 /// The modules a decomposed run refuses, and why.
 const REFUSED: &[(&str, &str)] = &[
     ("point loads", "keeps the entities of its points"),
+    (
+        "prescribed displacements",
+        "watches the points nearest its nodes by their entities",
+    ),
     ("tractions", "keeps its points' host points"),
     ("pressure", "keeps its points' host points"),
     (
@@ -76,9 +81,13 @@ const REFUSED: &[(&str, &str)] = &[
     ("initial stress", "is not checked with decomposed points"),
 ];
 
-/// Why the scene cannot run with decomposed points, if it cannot: the modules it uses that
-/// the decomposition refuses.
+/// Why the scene cannot run with decomposed points, if the points are decomposed and it
+/// cannot: the modules it uses that the decomposition refuses (checked by the simulation
+/// before any point is spawned).
 pub fn refusal(spec: &SceneSpec) -> Option<String> {
+    if !crate::distributed::decomposed() {
+        return None;
+    }
     let modules = crate::effects::built_in();
     let refused: Vec<String> = modules
         .iter()
@@ -99,17 +108,20 @@ pub fn refusal(spec: &SceneSpec) -> Option<String> {
     })
 }
 
-/// At the start of a run every process holds every point: it keeps its slab's (no message;
-/// the layers' counts are already the totals).
-pub fn keep_own_points<const D: usize>(world: &mut World) -> Result<(), String> {
-    settle::<D>(world, false).map(|_| ())
+/// At the start of a run every process has spawned its slab's points only
+/// (`distributed::initial_points`, no message): the share counts them.
+pub fn count_own_points<const D: usize>(world: &mut World) {
+    let held = world.query::<&PointId>().iter(world).len();
+    let mut share = world.resource_mut::<AssemblyShare>();
+    share.points = held;
+    share.moved = 0;
 }
 
 /// Step 1 of the module docs: the points go to the processes of their slabs.
 pub fn exchange_points<const D: usize>(world: &mut World) {
     let settled = world.resource_scope(|world, mut clock: Mut<StageClock>| {
         let _timer = clock.time(Stage::Connectivity);
-        settle::<D>(world, true)
+        settle::<D>(world)
     });
     if let Err(why) = settled {
         let step = world.resource::<LoadStep>().number;
@@ -121,20 +133,18 @@ pub fn exchange_points<const D: usize>(world: &mut World) {
     }
 }
 
-/// Owners from the layers' counts (summed over the processes when `exchange`), then the
-/// departures: sent to their owners when `exchange`, dropped otherwise; the points kept and
-/// arrived spawned anew in `PointId` order when anything changed. Sets the share's counts.
-fn settle<const D: usize>(world: &mut World, exchange_points: bool) -> Result<(), String> {
+/// Owners from the layers' counts summed over the processes, then the departures sent to
+/// their owners; the points kept and arrived spawned anew in `PointId` order when anything
+/// changed. Sets the share's counts.
+fn settle<const D: usize>(world: &mut World) -> Result<(), String> {
     let (rank, size) = {
         let share = world.resource::<AssemblyShare>();
         (share.processes.rank, share.processes.size)
     };
-    let (mut points, mut per_slice) = point_slices::<D>(world);
-    if exchange_points {
-        let mut counts: Vec<u64> = per_slice.iter().map(|&n| n as u64).collect();
-        sum_counts(&mut counts);
-        per_slice = counts.iter().map(|&n| n as usize).collect();
-    }
+    let (mut points, per_slice) = point_slices::<D>(world);
+    let mut counts: Vec<u64> = per_slice.iter().map(|&n| n as u64).collect();
+    sum_counts(&mut counts);
+    let per_slice: Vec<usize> = counts.iter().map(|&n| n as usize).collect();
     let layer_owners = slab_owners(&per_slice, size);
     points.sort_by_key(|&(entity, _)| world.get::<PointId>(entity).map_or(u32::MAX, |id| id.0));
     let owners: Vec<usize> = points
@@ -157,22 +167,15 @@ fn settle<const D: usize>(world: &mut World, exchange_points: bool) -> Result<()
         }
     }
     let departed: usize = plan.sent.iter().map(|(_, list)| list.len()).sum();
-    let mut arrived = Vec::new();
-    let mut moved = departed as u64;
-    if exchange_points {
-        if crate::distributed::any(packed.is_err()) {
-            return packed.and(Err("a point could not be packed on another process".into()));
-        }
-        for message in exchange(&outgoing)? {
-            arrived.extend(unpack_points::<D>(&message)?);
-        }
-        let mut total = [moved];
-        sum_counts(&mut total);
-        moved = total[0];
-    } else {
-        packed?;
-        moved = 0;
+    if crate::distributed::any(packed.is_err()) {
+        return packed.and(Err("a point could not be packed on another process".into()));
     }
+    let mut arrived = Vec::new();
+    for message in exchange(&outgoing)? {
+        arrived.extend(unpack_points::<D>(&message)?);
+    }
+    let mut moved = [departed as u64];
+    sum_counts(&mut moved);
     let points_held = plan.kept.len() + arrived.len();
     if departed > 0 || !arrived.is_empty() {
         let mut records: Vec<PointRecord<D>> = plan
@@ -191,7 +194,7 @@ fn settle<const D: usize>(world: &mut World, exchange_points: bool) -> Result<()
     }
     let mut share = world.resource_mut::<AssemblyShare>();
     share.points = points_held;
-    share.moved = moved as usize;
+    share.moved = moved[0] as usize;
     Ok(())
 }
 

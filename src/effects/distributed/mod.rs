@@ -26,7 +26,12 @@
 //!   pieces (in `point_id` order, the serial file) for tools that do not read `.pvtu`. The grid
 //!   and node files are process 0's (the grid is replicated).
 //! * **Failures are collective.** `Hook::Combine` runs after a failed stage too: if a stage
-//!   failed on any process, every process fails the iteration (then cuts the step alike).
+//!   failed on any process, every process fails the iteration (then cuts the step alike, or
+//!   stops alike: a failure step cutting cannot recover on one process is one everywhere).
+//! * **Decomposed points** (`impm run --decompose`, [`decomposition`]): each process holds only
+//!   its slab's points instead of every point; the exchange moves them at each step start,
+//!   the processes agree on the active nodes and the pattern, and `f_ext` is summed like
+//!   `f_int`. Scenes with modules that cannot follow their points are refused.
 //!
 //! Not supported with more than one process (refused when the simulation is built): modules
 //! that add to `f_int` and `K` after the assembly (`Hook::AfterAssembly`: ghost penalty,
@@ -41,7 +46,9 @@ use nalgebra::SVector;
 
 use crate::components::{AssembledElsewhere, Position};
 use crate::distributed::partition::{slab_axis, slab_owners};
-use crate::distributed::{Processes, any, decomposed, largest, path_of_process_0, processes};
+use crate::distributed::{
+    Processes, any, decomposed, largest, layer_of, path_of_process_0, processes,
+};
 use crate::method::StepSystems;
 use crate::output::write_pvtu;
 use crate::plugin::{Extension, Hook, Plugin};
@@ -105,10 +112,6 @@ impl Plugin for DistributedModule {
             return;
         }
         let decompose = decomposed();
-        if decompose && let Some(why) = decomposition::refusal(simulation.spec()) {
-            simulation.fail(why);
-            return;
-        }
         let spec = simulation.spec();
         let options = match spec.solver.linear {
             LinearBackend::Petsc => spec.solver.petsc_options.clone(),
@@ -168,10 +171,7 @@ impl Plugin for DistributedModule {
         });
         // the shares of the initial state, for its output (step 0 runs no connectivity)
         if decompose {
-            if let Err(why) = decomposition::keep_own_points::<D>(world) {
-                simulation.fail(format!("--decompose: {why}"));
-                return;
-            }
+            decomposition::count_own_points::<D>(world);
             let mut schedules = world.resource_mut::<Schedules>();
             let step = schedules.entry(Hook::Basis.schedule());
             step.add_systems((
@@ -253,10 +253,7 @@ fn point_slices<const D: usize>(world: &mut World) -> (Vec<(Entity, usize)>, Vec
     let grid = &world.resource::<Grid<D>>().0;
     let points: Vec<(Entity, usize)> = query
         .iter(world)
-        .map(|(entity, x)| {
-            let slice = grid.cell_of(&x.0).map_or(0, |cell| cell[axis]);
-            (entity, slice.min(slices.saturating_sub(1)))
-        })
+        .map(|(entity, x)| (entity, layer_of(grid, axis, &x.0)))
         .collect();
     let mut per_slice = vec![0usize; slices];
     for &(_, slice) in &points {
