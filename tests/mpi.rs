@@ -29,7 +29,8 @@
 //! * `impm study` under `mpirun -n 2` is refused, said once, before anything is written;
 //! * with decomposed points (`--decompose`: each process holds its slab's points only, and
 //!   they move between the processes), the heavy column, the 2D column and a von Mises column
-//!   under `mpirun -n 2` and `-n 3` equal their serial runs as above (the plastic strain too:
+//!   under `mpirun -n 2` and `-n 3` (and the heavy column with GIMP under `-n 2`) equal their
+//!   serial runs as above (the plastic strain too:
 //!   the history travels with its points), points change process in the heavy and the plastic
 //!   column, and the log says the points are decomposed; a scene with point loads is refused
 //!   naming them, and `--decompose` without mpirun is refused.
@@ -401,6 +402,12 @@ fn decomposed_points_crossing_slabs_equal_the_serial_run() {
     let changes = compare_decomposed(&scene, &["cells=8", "steps=4"], "heavy-dec", &[2, 3]);
     if let [two, three] = changes[..] {
         assert!(two > 0.0 && three > 0.0, "{changes:?}");
+    }
+    // GIMP: the points' domains travel too
+    let set = ["cells=8", "steps=4", "basis=gimp"];
+    let changes = compare_decomposed(&scene, &set, "heavy-gimp-dec", &[2]);
+    if let [two] = changes[..] {
+        assert!(two > 0.0, "{changes:?}");
     }
 }
 
