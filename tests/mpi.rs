@@ -2,7 +2,7 @@
 //!
 //! The state is replicated on every process; each process assembles the points of its slab of
 //! cells, the shares are summed by PETSc (`MPIAIJ` matrix, `MPI` vector) and KSP solves the
-//! distributed system (`src/effects/distributed.rs`). Checked against the serial run of the
+//! distributed system (`src/effects/distributed/`). Checked against the serial run of the
 //! same scene with the direct solver, for 1, 2 and 3 processes (oversubscribed on a 2-core
 //! machine: `--oversubscribe`, and MPI's yield-when-idle so waiting processes give way), with
 //! a tight linear tolerance (`-ksp_rtol 1e-12`):
