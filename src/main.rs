@@ -66,6 +66,12 @@ enum Command {
         /// --petsc-options "-ksp_monitor -pc_type hypre". Builds with the feature `petsc` only.
         #[arg(long, value_name = "OPTIONS", allow_hyphen_values = true)]
         petsc_options: Option<String>,
+        /// Under mpirun: each process holds only the points of its slab of cells (decomposed
+        /// points, moved between processes as they cross slabs) instead of every point; scenes
+        /// with modules that cannot follow their points across processes are refused.
+        /// Builds with the feature `mpi` only.
+        #[arg(long)]
+        decompose: bool,
     },
     /// Run a scene over the cross product of parameter values; write study.csv, study.md and
     /// charts of error against cells and against wall time.
@@ -190,9 +196,11 @@ fn run(cli: Cli) -> Result<(), Failure> {
             checkpoint_every,
             threads,
             petsc_options,
+            decompose,
         } => {
             use_threads(threads)?;
             use_petsc_options(petsc_options.as_deref())?;
+            use_decomposition(decompose)?;
             // under mpirun: MPI until the end of the run; processes other than 0 silent
             #[cfg(feature = "mpi")]
             let distributed =
@@ -304,6 +312,30 @@ fn use_threads(threads: Option<u64>) -> Result<(), Failure> {
         Some(n) => Ok(impm::parallel::use_threads(n as usize)?),
         None => Ok(()),
     }
+}
+
+/// `--decompose`: decomposed points, for a run under `mpirun` of a build with the feature
+/// `mpi`; refused otherwise (a serial run has nothing to decompose).
+fn use_decomposition(decompose: bool) -> Result<(), Failure> {
+    if !decompose {
+        return Ok(());
+    }
+    if !cfg!(feature = "mpi") {
+        return Err(Failure::Message(
+            "--decompose needs a build with the feature mpi (cargo build --release --features \
+             mpi) and mpirun"
+                .to_string(),
+        ));
+    }
+    if impm::distributed::launched_by_mpirun().is_none() {
+        return Err(Failure::Message(
+            "--decompose spreads the points over the processes of mpirun: run it as mpirun -n \
+             N impm run SCENE --decompose"
+                .to_string(),
+        ));
+    }
+    impm::distributed::request_decomposition();
+    Ok(())
 }
 
 /// `--petsc-options`: PETSc's options for every PETSc solver of the run; refused by a build

@@ -339,10 +339,15 @@ impl<'w, const D: usize> Extension<'w, D> {
     }
 
     /// The entity of every material point, indexed by `PointId` (points are numbered body
-    /// after body in seeding order).
+    /// after body in seeding order); `Entity::PLACEHOLDER` for the points another process
+    /// holds (a decomposed distributed run).
     pub fn point_entities(&mut self) -> Vec<Entity> {
         let mut query = self.world.query::<(Entity, &PointId)>();
-        let mut entities = vec![Entity::PLACEHOLDER; query.iter(self.world).len()];
+        let count = query
+            .iter(self.world)
+            .map(|(_, id)| id.0 as usize + 1)
+            .max();
+        let mut entities = vec![Entity::PLACEHOLDER; count.unwrap_or(0)];
         for (entity, id) in query.iter(self.world) {
             entities[id.0 as usize] = entity;
         }

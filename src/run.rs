@@ -94,6 +94,11 @@ impl<const D: usize> Simulation<D> {
         modules: &ModuleSet,
         include: &dyn Fn(&dyn Module) -> bool,
     ) -> Result<Self, BuildError> {
+        // before any point is spawned: a decomposed run spawns only its own
+        #[cfg(feature = "mpi")]
+        if let Some(why) = effects::distributed::decomposition::refusal(spec) {
+            return Err(BuildError(why));
+        }
         let mut world = core_world::<D>(spec, out_dir)?;
         modules.check_materials(spec)?;
         std::fs::create_dir_all(out_dir).map_err(|e| {
@@ -172,6 +177,9 @@ impl<const D: usize> Simulation<D> {
     /// Keeps checkpoints as `plan` says (after the initial state and then after every output
     /// step or every N steps); `summary.json` says how to resume.
     pub fn keep_checkpoints(&mut self, plan: RestartPlan) {
+        if crate::distributed::decomposed() {
+            return; // each process holds its own points (effects::distributed says so)
+        }
         self.summary.resume = Some(plan.command.clone());
         self.restart = Some(plan);
     }
@@ -550,7 +558,10 @@ impl<const D: usize> Simulation<D> {
             .iter(&self.world)
             .map(|(x, v, t)| (x.0[axis], v.0, t.0.cauchy()[(axis, axis)]))
             .collect();
-        Some(column.error(points))
+        // with decomposed points, the other processes' points too
+        let mut sums = column.error_sums(points);
+        crate::distributed::sum_over_points(&mut sums);
+        Some(column.error_of_sums(sums))
     }
 
     /// The modules' measures at load factor `factor`.
@@ -636,7 +647,7 @@ fn core_world<const D: usize>(spec: &SceneSpec, out_dir: &Path) -> Result<World,
             })
             .collect::<Vec<_>>(),
     );
-    spawn_points::<D>(&mut world, spec)?;
+    spawn_points::<D>(&mut world, spec, &basis)?;
     world.insert_resource(GridFields::<D>::new(basis.num_nodes()));
     world.insert_resource(Grid(basis));
     world.insert_resource(LoadStep::default());
@@ -731,7 +742,13 @@ fn restore_points<const D: usize>(world: &mut World, values: &[f64]) -> Result<(
 }
 
 /// Every body's points with the core's components, numbered body after body (`PointId`).
-fn spawn_points<const D: usize>(world: &mut World, spec: &SceneSpec) -> Result<(), BuildError> {
+/// A process of a decomposed run spawns its slab's points only (`distributed::initial_points`).
+fn spawn_points<const D: usize>(
+    world: &mut World,
+    spec: &SceneSpec,
+    grid: &GridBasis<D>,
+) -> Result<(), BuildError> {
+    let kept = crate::distributed::initial_points(grid, spec);
     let mut id = 0u32;
     for (body_index, body) in spec.bodies.iter().enumerate() {
         let density = spec
@@ -747,6 +764,10 @@ fn spawn_points<const D: usize>(world: &mut World, spec: &SceneSpec) -> Result<(
                     body.name,
                     seed.position.len()
                 )));
+            }
+            if kept.as_ref().is_some_and(|kept| !kept[id as usize]) {
+                id += 1;
+                continue;
             }
             let x = SVector::<f64, D>::from_fn(|a, _| seed.position[a]);
             batch.push(core_point(&PointRecord {

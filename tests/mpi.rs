@@ -2,7 +2,7 @@
 //!
 //! The state is replicated on every process; each process assembles the points of its slab of
 //! cells, the shares are summed by PETSc (`MPIAIJ` matrix, `MPI` vector) and KSP solves the
-//! distributed system (`src/effects/distributed.rs`). Checked against the serial run of the
+//! distributed system (`src/effects/distributed/`). Checked against the serial run of the
 //! same scene with the direct solver, for 1, 2 and 3 processes (oversubscribed on a 2-core
 //! machine: `--oversubscribe`, and MPI's yield-when-idle so waiting processes give way), with
 //! a tight linear tolerance (`-ksp_rtol 1e-12`):
@@ -26,7 +26,14 @@
 //! * arc-length control is refused over more than one process (not distributed yet);
 //! * a signal to one process only stops every process after the same load step (the stop is
 //!   agreed between steps), with the status "interrupted" and no abort;
-//! * `impm study` under `mpirun -n 2` is refused, said once, before anything is written.
+//! * `impm study` under `mpirun -n 2` is refused, said once, before anything is written;
+//! * with decomposed points (`--decompose`: each process holds its slab's points only, and
+//!   they move between the processes), the heavy column, the 2D column and a von Mises column
+//!   under `mpirun -n 2` and `-n 3` (and the heavy column with GIMP under `-n 2`) equal their
+//!   serial runs as above (the plastic strain too:
+//!   the history travels with its points), points change process in the heavy and the plastic
+//!   column, and the log says the points are decomposed; a scene with point loads is refused
+//!   naming them, and `--decompose` without mpirun is refused.
 //!
 //! Skipped, with a message, where `mpirun` is missing (`.ci/run` installs OpenMPI as root).
 
@@ -138,6 +145,8 @@ struct Outcome {
     error: Option<f64>,
     positions: Vec<f64>,
     stress: Vec<f64>,
+    /// The points' plastic strain, for scenes of plastic materials.
+    plastic: Option<Vec<f64>>,
     warnings: Vec<String>,
     /// Per step: the points process 0 assembled, the points that changed process at its start.
     assembled: Vec<Option<f64>>,
@@ -174,6 +183,9 @@ fn outcome(out: &Path) -> Outcome {
         error: summary["error"].as_f64(),
         positions: points.points.iter().flatten().copied().collect(),
         stress: points.point_field("cauchy_stress").unwrap().1.to_vec(),
+        plastic: points
+            .point_field("plastic_strain")
+            .map(|(_, values)| values.to_vec()),
         assembled: steps
             .iter()
             .map(|s| s["assembled_points"].as_f64())
@@ -202,30 +214,46 @@ fn relative_difference(a: &[f64], b: &[f64]) -> f64 {
 /// The scene's runs under `mpirun -n 1, 2, 3` against its serial run (direct solver); the
 /// number of points that changed process at a step start, summed over the steps, for each `n`.
 fn compare(script: &str, set: &[&str], tag: &str, paraview: bool) -> Vec<f64> {
+    compare_runs(&shipped_scene(script), set, tag, paraview, None)
+}
+
+/// As [`compare`] with decomposed points (`--decompose`), over each of `processes`.
+fn compare_decomposed(scene: &Path, set: &[&str], tag: &str, processes: &[usize]) -> Vec<f64> {
+    compare_runs(scene, set, tag, false, Some(processes))
+}
+
+/// [`compare`] (replicated, `decomposed` `None`: over 1, 2 and 3 processes) or
+/// [`compare_decomposed`].
+fn compare_runs(
+    scene: &Path,
+    set: &[&str],
+    tag: &str,
+    paraview: bool,
+    decomposed: Option<&[usize]>,
+) -> Vec<f64> {
     let mut changes = Vec::new();
     if !mpirun_available() {
         return changes;
     }
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    let scene = shipped_scene(script);
+    let script = scene.file_name().unwrap().to_string_lossy().to_string();
+    let counts = decomposed.unwrap_or(&[1, 2, 3]);
+    let mut extra = vec!["--petsc-options", "-ksp_rtol 1e-12"];
+    if decomposed.is_some() {
+        extra.push("--decompose");
+    }
     let serial_dir = temp_dir("mpi", &format!("{tag}-serial"));
-    let serial = run(None, &scene, set, &serial_dir, &[]);
+    let serial = run(None, scene, set, &serial_dir, &[]);
     assert!(
         serial.status.success(),
         "{}",
         String::from_utf8_lossy(&serial.stderr)
     );
     let reference = outcome(&serial_dir);
-    for n in 1..=3 {
+    for &n in counts {
         let dir = temp_dir("mpi", &format!("{tag}-{n}"));
         let started = std::time::Instant::now();
-        let output = run(
-            Some(n),
-            &scene,
-            set,
-            &dir,
-            &["--petsc-options", "-ksp_rtol 1e-12"],
-        );
+        let output = run(Some(n), scene, set, &dir, &extra);
         let stderr = String::from_utf8_lossy(&output.stderr);
         assert!(output.status.success(), "{script} -n {n}: {stderr}");
         let points = reference.positions.len() / 3;
@@ -250,16 +278,27 @@ fn compare(script: &str, set: &[&str], tag: &str, paraview: bool) -> Vec<f64> {
             (a, b) => assert_eq!(a.is_some(), b.is_some()),
         }
         assert!(stress <= 1e-8, "{script} -n {n}: stress {stress:e}");
+        if let (Some(got), Some(serial)) = (&got.plastic, &reference.plastic) {
+            // the history travelled with its points
+            assert!(serial.iter().any(|&e| e > 0.0), "the serial run yields");
+            let plastic = relative_difference(got, serial);
+            eprintln!("{script} -n {n}: plastic strain difference {plastic:.1e}");
+            assert!(
+                plastic <= 1e-8,
+                "{script} -n {n}: plastic strain {plastic:e}"
+            );
+        }
+        assert_eq!(got.plastic.is_some(), reference.plastic.is_some());
         assert!(
             positions <= 1e-8,
             "{script} -n {n}: positions {positions:e}"
         );
         // said in the log (process 0's stderr, once) and in summary.json
-        assert_eq!(
-            stderr.matches("replicated, not decomposed").count(),
-            1,
-            "{stderr}"
-        );
+        let state = match decomposed {
+            None => "replicated, not decomposed",
+            Some(_) => "the points are decomposed",
+        };
+        assert_eq!(stderr.matches(state).count(), 1, "{stderr}");
         assert!(
             got.warnings
                 .iter()
@@ -353,6 +392,87 @@ fn points_crossing_slab_boundaries_stay_equal_to_the_serial_run() {
         assert_eq!(one, 0.0);
         assert!(two > 0.0 && three > 0.0, "{changes:?}");
     }
+}
+
+/// Decomposed points (`--decompose`): each process holds its slab's points only; the heavy
+/// column's points cross the slabs between steps, so they move between the processes.
+#[test]
+fn decomposed_points_crossing_slabs_equal_the_serial_run() {
+    let scene = shipped_scene("heavy_column.rhai");
+    let changes = compare_decomposed(&scene, &["cells=8", "steps=4"], "heavy-dec", &[2, 3]);
+    if let [two, three] = changes[..] {
+        assert!(two > 0.0 && three > 0.0, "{changes:?}");
+    }
+    // GIMP: the points' domains travel too
+    let set = ["cells=8", "steps=4", "basis=gimp"];
+    let changes = compare_decomposed(&scene, &set, "heavy-gimp-dec", &[2]);
+    if let [two] = changes[..] {
+        assert!(two > 0.0, "{changes:?}");
+    }
+}
+
+#[test]
+fn the_2d_column_with_decomposed_points_equals_the_serial_run() {
+    let scene = shipped_scene("column_2d.rhai");
+    compare_decomposed(&scene, &["cells=16", "steps=3"], "column2d-dec", &[2, 3]);
+}
+
+/// A von Mises column under a heavy self-weight (1D): it yields from the base up, and its
+/// points cross cells, and so slabs, between steps, taking their plastic history along.
+const PLASTIC_COLUMN: &str = r#"
+let cells = 8;
+let steps = 4;
+const height = 50.0;
+const soil = material(#{ name: "column", model: "von_mises", E: 1.0e6, nu: 0.0,
+                         sigma_y: 1.0e5, H: 2.0e5, density: 1.0 });
+grid(#{ lower: [0.0], upper: [height], cells: [cells], basis: "bspline", order: 3 });
+body(#{ name: "column", material: soil, region: box([0.0], [height]), ppc: 4 });
+body_force([-16000.0]);
+fix(|x| x[0] == 0.0, [0]);
+load_steps(steps);
+"#;
+
+#[test]
+fn a_plastic_column_with_decomposed_points_equals_the_serial_run() {
+    let dir = temp_dir("mpi", "plastic-scene");
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = dir.join("plastic_column.rhai");
+    std::fs::write(&scene, PLASTIC_COLUMN).unwrap();
+    let changes = compare_decomposed(&scene, &[], "plastic-dec", &[2, 3]);
+    if let [two, three] = changes[..] {
+        assert!(two > 0.0 && three > 0.0, "{changes:?}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Modules that keep their points' entities (point loads) are refused with decomposed points,
+/// naming them, once, without an abort; `--decompose` outside mpirun is refused.
+#[test]
+fn decomposition_refuses_what_cannot_follow_its_points() {
+    if !mpirun_available() {
+        return;
+    }
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let scene = shipped_scene("beam_point_load.rhai");
+    let dir: PathBuf = temp_dir("mpi", "decompose-refused");
+    let output = run(Some(2), &scene, &[], &dir, &["--decompose"]);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert_eq!(
+        stderr.matches("point loads (keeps the entities").count(),
+        1,
+        "{stderr}"
+    );
+    assert!(stderr.contains("without --decompose"), "{stderr}");
+    assert!(!stderr.contains("MPI_Abort"), "{stderr}");
+    let output = run(None, &scene, &[], &dir, &["--decompose"]);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert!(
+        stderr.contains("mpirun -n N impm run SCENE --decompose"),
+        "{stderr}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]

@@ -153,15 +153,25 @@ impl SelfWeightColumn {
     /// `(reference coordinate along the column X_p, reference volume V0_p, stress along the
     /// column sigma_p)`. NaN when `W sum V0_p` is not positive (no load, or no points).
     pub fn error(&self, points: impl IntoIterator<Item = (f64, f64, f64)>) -> f64 {
-        let (weighted_error, volume) = points.into_iter().fold(
-            (0.0, 0.0),
-            |(weighted_error, volume), (reference_x, reference_volume, stress)| {
-                (
+        self.error_of_sums(self.error_sums(points))
+    }
+
+    /// The two sums of [`Self::error`], `[sum V0_p |sigma_p - sigma_A(X_p)|, sum V0_p]`: a run
+    /// whose points are spread over processes adds them over the processes first.
+    pub fn error_sums(&self, points: impl IntoIterator<Item = (f64, f64, f64)>) -> [f64; 2] {
+        points.into_iter().fold(
+            [0.0, 0.0],
+            |[weighted_error, volume], (reference_x, reference_volume, stress)| {
+                [
                     weighted_error + reference_volume * (stress - self.stress(reference_x)).abs(),
                     volume + reference_volume,
-                )
+                ]
             },
-        );
+        )
+    }
+
+    /// [`Self::error`] from its two sums ([`Self::error_sums`]).
+    pub fn error_of_sums(&self, [weighted_error, volume]: [f64; 2]) -> f64 {
         let normalisation = self.weight() * volume;
         if normalisation > 0.0 {
             weighted_error / normalisation

@@ -11,12 +11,18 @@
 //! end, with their output silenced. The module that does this is `effects::distributed`; the
 //! PETSc side is `solver::PetscSolver::distributed` and `solver::ProcessSum`.
 //!
+//! With `impm run --decompose` the **points are decomposed** instead: every process holds only
+//! the points of its slab, and points move to the process of their slab at each step start
+//! (`effects::distributed::decomposition`; the grid stays replicated).
+//!
 //! Built in every configuration: the pure kernels [`partition`] (the slabs) and [`migration`]
-//! (a point's whole state as numbers, who sends which points where: the first pieces of the
-//! decomposition, not used by runs yet), [`respawn`] (a point taken out of a world as a record
-//! and spawned back from it, with every module's part), and [`launched_by_mpirun`], which reads the
-//! environment so that any build can refuse what it cannot run under `mpirun`. The process
-//! bookkeeping (`start`, `processes`, `any`, `abort`) exists with the feature `mpi` only.
+//! (a point's whole state as numbers, who sends which points where), [`respawn`] (a point
+//! taken out of a world as a record and spawned back from it, with every module's part),
+//! [`launched_by_mpirun`], which reads the environment so that any build can refuse what it
+//! cannot run under `mpirun`, and [`decomposed`] / [`sum_over_points`] for the sums over
+//! points outside the module (the eq. 15 error). The process bookkeeping (`start`,
+//! `processes`, `any`, `abort`) and the messages (`exchange`, `gather_all`, `sum_all`) exist
+//! with the feature `mpi` only.
 
 pub mod migration;
 pub mod partition;
@@ -25,7 +31,10 @@ pub mod respawn;
 #[cfg(feature = "mpi")]
 mod world;
 #[cfg(feature = "mpi")]
-pub use world::{Ending, Started, abort, any, largest, path_of_process_0, processes, start, sum};
+pub use world::{
+    Ending, Started, abort, any, exchange, gather_all, largest, path_of_process_0, processes,
+    start, sum, sum_all, sum_counts,
+};
 
 /// This process's place in a distributed run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -46,4 +55,83 @@ pub fn launched_by_mpirun() -> Option<Processes> {
         rank: read("OMPI_COMM_WORLD_RANK").unwrap_or(0),
         size: size.max(1),
     })
+}
+
+/// The cell layer along `axis` that `x` lies in (a point outside the grid counts in layer 0:
+/// the basis stage fails it): what decides a point's process (`partition`).
+pub fn layer_of<const D: usize>(
+    grid: &crate::basis::GridBasis<D>,
+    axis: usize,
+    x: &nalgebra::SVector<f64, D>,
+) -> usize {
+    let layers = grid.cells_per_axis()[axis];
+    let layer = grid.cell_of(x).map_or(0, |cell| cell[axis]);
+    layer.min(layers.saturating_sub(1))
+}
+
+/// In a decomposed run, whether this process spawns each point of the scene at the start
+/// (indexed by `PointId`: the points of its slab, from the seeds' positions); `None`
+/// otherwise (every point is spawned).
+pub fn initial_points<const D: usize>(
+    grid: &crate::basis::GridBasis<D>,
+    spec: &crate::scene::SceneSpec,
+) -> Option<Vec<bool>> {
+    if !decomposed() {
+        return None;
+    }
+    #[cfg(feature = "mpi")]
+    let processes = processes()?;
+    #[cfg(not(feature = "mpi"))]
+    let processes = Processes { rank: 0, size: 1 };
+    let axis = partition::slab_axis(&grid.cells_per_axis());
+    let layers: Vec<usize> = spec
+        .bodies
+        .iter()
+        .flat_map(|body| &body.points)
+        .map(|seed| {
+            let x = nalgebra::SVector::<f64, D>::from_fn(|a, _| {
+                seed.position.get(a).copied().unwrap_or(f64::NAN)
+            });
+            layer_of(grid, axis, &x)
+        })
+        .collect();
+    let owners = partition::owners_of_layers(&layers, grid.cells_per_axis()[axis], processes.size);
+    Some(
+        owners
+            .iter()
+            .map(|&owner| owner == processes.rank)
+            .collect(),
+    )
+}
+
+static DECOMPOSITION: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Asks for decomposed points (`impm run --decompose` under `mpirun`): every process then holds
+/// only the points of its slab, and they move between the processes as the slabs change
+/// (`effects::distributed`, `docs/distributed.md`). Call it before the simulation is built.
+pub fn request_decomposition() {
+    DECOMPOSITION.store(true, std::sync::atomic::Ordering::Relaxed);
+}
+
+/// Whether this process is one of a distributed run whose points are decomposed: every
+/// process holds its own points only, so a sum over points is a sum over the processes of
+/// their partial sums ([`sum_over_points`]).
+pub fn decomposed() -> bool {
+    #[cfg(feature = "mpi")]
+    let distributed = processes().is_some();
+    #[cfg(not(feature = "mpi"))]
+    let distributed = false;
+    distributed && DECOMPOSITION.load(std::sync::atomic::Ordering::Relaxed)
+}
+
+/// Turns this process's sums over its points into sums over all points, in place, when the
+/// points are decomposed (collective then: every process must call it with as many values);
+/// otherwise (a serial run, or every process holding every point) leaves them as they are.
+pub fn sum_over_points(values: &mut [f64]) {
+    #[cfg(feature = "mpi")]
+    if decomposed() {
+        sum_all(values);
+    }
+    #[cfg(not(feature = "mpi"))]
+    let _ = values;
 }

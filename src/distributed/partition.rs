@@ -48,6 +48,17 @@ pub fn slab_owners(points_per_slice: &[usize], processes: usize) -> Vec<usize> {
         .collect()
 }
 
+/// The process of each point given the cell layer it lies in (`layers[p] < slices`), for
+/// `processes` processes: [`slab_owners`] of the layers' point counts.
+pub fn owners_of_layers(layers: &[usize], slices: usize, processes: usize) -> Vec<usize> {
+    let mut per_slice = vec![0usize; slices];
+    for &layer in layers {
+        per_slice[layer] += 1;
+    }
+    let owners = slab_owners(&per_slice, processes);
+    layers.iter().map(|&layer| owners[layer]).collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -86,6 +97,22 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// Each point gets the owner of its layer, and the counts per process are those of
+    /// `slab_owners` over the layers' counts.
+    #[test]
+    fn points_get_the_owners_of_their_layers() {
+        // 12 points: 4 in layer 0, 2 in layer 1, none in 2, 6 in layer 3 (out of order)
+        let layers = [3, 0, 1, 3, 0, 3, 0, 1, 3, 3, 0, 3];
+        let owners = owners_of_layers(&layers, 4, 2);
+        let by_layer = slab_owners(&[4, 2, 0, 6], 2);
+        assert_eq!(by_layer, vec![0, 0, 1, 1]);
+        for (&layer, &owner) in layers.iter().zip(&owners) {
+            assert_eq!(owner, by_layer[layer]);
+        }
+        assert_eq!(owners.iter().filter(|&&r| r == 0).count(), 6);
+        assert_eq!(owners_of_layers(&[], 3, 2), Vec::<usize>::new());
     }
 
     #[test]

@@ -1,6 +1,6 @@
 //! A material point taken out of a world as a [`PointRecord`] and spawned back from it: the ECS
 //! side of moving points between processes (`migration` is the pure side; the exchange over MPI
-//! is not written yet, `docs/distributed.md`).
+//! that uses both is `effects::distributed::decomposition`).
 //!
 //! [`take_record`] reads the core's components and every module's part
 //! (`checkpoint::pack_point_state`); [`spawn_record`] spawns the core's components
@@ -9,7 +9,7 @@
 //! every point is taken out and spawned back gives the same results, bit for bit, as one left
 //! alone (`tests/migration.rs`). Modules that keep a point's `Entity` elsewhere (the host
 //! points of traction and boundary points, point loads on a point number) do not follow it;
-//! a distributed run must refuse them until they do.
+//! a decomposed run refuses them until they do (`decomposition::refusal`).
 
 use bevy_ecs::prelude::*;
 

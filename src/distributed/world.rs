@@ -148,3 +148,117 @@ pub fn path_of_process_0(path: &std::path::Path) -> std::path::PathBuf {
     root.broadcast_into(&mut bytes[..]);
     std::ffi::OsString::from_vec(bytes).into()
 }
+
+/// Adds `values` over the processes, entry by entry, in place (collective; every process
+/// passes as many). As [`sum`]: not bit-identical to a serial sum.
+pub fn sum_all(values: &mut [f64]) {
+    if processes().is_none() || values.is_empty() {
+        return;
+    }
+    let local = values.to_vec();
+    SimpleCommunicator::world().all_reduce_into(&local[..], values, SystemOperation::sum());
+}
+
+/// Adds the counts `values` over the processes, entry by entry, in place (collective).
+pub fn sum_counts(values: &mut [u64]) {
+    if processes().is_none() || values.is_empty() {
+        return;
+    }
+    let local = values.to_vec();
+    SimpleCommunicator::world().all_reduce_into(&local[..], values, SystemOperation::sum());
+}
+
+/// The offsets of messages of `counts` numbers one after another, if they all fit MPI's
+/// `int` counts.
+fn offsets(counts: &[i64]) -> Option<(Vec<i32>, Vec<i32>)> {
+    let mut at = 0i64;
+    let mut offsets = Vec::with_capacity(counts.len());
+    for &count in counts {
+        offsets.push(i32::try_from(at).ok()?);
+        at += count;
+    }
+    i32::try_from(at).ok()?;
+    let counts = counts
+        .iter()
+        .map(|&c| i32::try_from(c).ok())
+        .collect::<Option<_>>()?;
+    Some((counts, offsets))
+}
+
+/// Sends `outgoing[r]` to process `r` (empty for none, also for this process) and returns what
+/// every process sent to this one, by source rank (collective: an all-to-all of the counts,
+/// then `MPI_Alltoallv` of the numbers). Messages too long for MPI's counts (2^31 numbers in
+/// all, sent or received by a process) are an error on every process, before anything is
+/// sent.
+pub fn exchange(outgoing: &[Vec<f64>]) -> Result<Vec<Vec<f64>>, String> {
+    let Some(processes) = processes() else {
+        return Ok(outgoing.to_vec());
+    };
+    let world = SimpleCommunicator::world();
+    let mut lengths: Vec<i64> = outgoing.iter().map(|m| m.len() as i64).collect();
+    lengths.resize(processes.size, 0);
+    let mut received_lengths = vec![0i64; processes.size];
+    world.all_to_all_into(&lengths[..], &mut received_lengths[..]);
+    let send = offsets(&lengths).filter(|_| outgoing.len() == processes.size);
+    let receive = offsets(&received_lengths);
+    let (Some((send_counts, send_offsets)), Some((receive_counts, receive_offsets))) =
+        (send, receive)
+    else {
+        any(true);
+        return Err(format!(
+            "the points one process sends or receives in one exchange exceed MPI's 2^31 - 1 \
+             numbers (this process: {} sent, {} received)",
+            lengths.iter().sum::<i64>(),
+            received_lengths.iter().sum::<i64>()
+        ));
+    };
+    if any(false) {
+        return Err("another process's messages exceed MPI's 2^31 - 1 numbers".to_string());
+    }
+    let sent: Vec<f64> = outgoing.concat();
+    let total = receive_counts.iter().map(|&c| c as usize).sum();
+    let mut received = vec![0.0f64; total];
+    {
+        let send = mpi::datatype::Partition::new(&sent[..], &send_counts[..], &send_offsets[..]);
+        let mut receive = mpi::datatype::PartitionMut::new(
+            &mut received[..],
+            &receive_counts[..],
+            &receive_offsets[..],
+        );
+        world.all_to_all_varcount_into(&send, &mut receive);
+    }
+    Ok(receive_offsets
+        .iter()
+        .zip(&receive_counts)
+        .map(|(&at, &count)| received[at as usize..(at + count) as usize].to_vec())
+        .collect())
+}
+
+/// Every process's `local`, by rank (collective: `MPI_Allgather` of the lengths, then
+/// `MPI_Allgatherv`).
+pub fn gather_all(local: &[u64]) -> Result<Vec<Vec<u64>>, String> {
+    let Some(processes) = processes() else {
+        return Ok(vec![local.to_vec()]);
+    };
+    let world = SimpleCommunicator::world();
+    let mut lengths = vec![0i64; processes.size];
+    world.all_gather_into(&(local.len() as i64), &mut lengths[..]);
+    // the same lengths on every process: the same decision
+    let (counts, offsets) = offsets(&lengths).ok_or_else(|| {
+        format!(
+            "the processes' messages ({} numbers) exceed MPI's 2^31 - 1",
+            lengths.iter().sum::<i64>()
+        )
+    })?;
+    let total = counts.iter().map(|&c| c as usize).sum();
+    let mut all = vec![0u64; total];
+    {
+        let mut receive = mpi::datatype::PartitionMut::new(&mut all[..], &counts[..], &offsets[..]);
+        world.all_gather_varcount_into(local, &mut receive);
+    }
+    Ok(offsets
+        .iter()
+        .zip(&counts)
+        .map(|(&at, &count)| all[at as usize..(at + count) as usize].to_vec())
+        .collect())
+}

@@ -260,7 +260,8 @@ fn history_fields<M: Material>(
     all: Query<&PointId>,
     points: Query<(&PointId, &PointHistory<M>)>,
 ) {
-    let count = all.iter().count();
+    // indexed by PointId: a process of a decomposed run holds some of the ids only
+    let count = all.iter().map(|id| id.0 as usize + 1).max().unwrap_or(0);
     let mut values = Vec::new();
     let mut offset = 0;
     for &(name, components) in M::output_fields() {

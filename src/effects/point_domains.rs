@@ -110,6 +110,9 @@ impl Plugin for PointDomainsModule {
                 ));
                 return;
             }
+            if entity == Entity::PLACEHOLDER {
+                continue; // another process's point (decomposed points)
+            }
             let initial_half_lengths = SVector::<f64, D>::from_fn(|k, _| lengths[k]);
             batch.push((
                 entity,

@@ -269,10 +269,12 @@ pub fn write_particles<const D: usize>(
     ];
     let columns = columns.map(|(components, values)| (components, stream(values)));
     let mut extra = std::mem::take(&mut extra.0);
-    let all_points = points.iter().len();
-    if n < all_points {
-        for field in &mut extra {
-            let c = field.components;
+    // the fields are indexed by PointId: keep the written points' values (a piece of a
+    // distributed run, or the points of a decomposed run, whose ids need not be 0..n)
+    let contiguous = keyed.last().is_none_or(|&(id, _)| id as usize + 1 == n);
+    for field in &mut extra {
+        let c = field.components;
+        if !contiguous || field.values.len() != c * n {
             let mut kept = Vec::with_capacity(c * n);
             for &(id, _) in keyed {
                 let id = id as usize;

@@ -26,7 +26,12 @@
 //!   pieces (in `point_id` order, the serial file) for tools that do not read `.pvtu`. The grid
 //!   and node files are process 0's (the grid is replicated).
 //! * **Failures are collective.** `Hook::Combine` runs after a failed stage too: if a stage
-//!   failed on any process, every process fails the iteration (then cuts the step alike).
+//!   failed on any process, every process fails the iteration (then cuts the step alike, or
+//!   stops alike: a failure step cutting cannot recover on one process is one everywhere).
+//! * **Decomposed points** (`impm run --decompose`, [`decomposition`]): each process holds only
+//!   its slab's points instead of every point; the exchange moves them at each step start,
+//!   the processes agree on the active nodes and the pattern, and `f_ext` is summed like
+//!   `f_int`. Scenes with modules that cannot follow their points are refused.
 //!
 //! Not supported with more than one process (refused when the simulation is built): modules
 //! that add to `f_int` and `K` after the assembly (`Hook::AfterAssembly`: ghost penalty,
@@ -41,7 +46,10 @@ use nalgebra::SVector;
 
 use crate::components::{AssembledElsewhere, Position};
 use crate::distributed::partition::{slab_axis, slab_owners};
-use crate::distributed::{Processes, any, path_of_process_0, processes};
+use crate::distributed::{
+    Processes, any, decomposed, largest, layer_of, path_of_process_0, processes,
+};
+use crate::method::StepSystems;
 use crate::output::write_pvtu;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{
@@ -50,6 +58,8 @@ use crate::resources::{
 use crate::scene::{LinearBackend, SceneSpec};
 use crate::solver::{PetscSolver, ProcessSum};
 use crate::stages::output::{OutputPlan, ParticlePieces, WrittenPiece};
+
+pub mod decomposition;
 
 /// The module: built when the process is one of a distributed run (`mpirun`).
 #[derive(Clone, Copy, Debug, Default)]
@@ -101,6 +111,7 @@ impl Plugin for DistributedModule {
             ));
             return;
         }
+        let decompose = decomposed();
         let spec = simulation.spec();
         let options = match spec.solver.linear {
             LinearBackend::Petsc => spec.solver.petsc_options.clone(),
@@ -122,12 +133,22 @@ impl Plugin for DistributedModule {
         } else {
             "process 0 writes the files"
         };
+        let state = if decompose {
+            "the points are decomposed (each process holds the points of its slab of cells \
+             along axis {axis}, balanced by points, and they move between the processes as \
+             they cross slabs; the grid is replicated; no checkpoints are written): the \
+             stages on points, the assembly and the linear solve (PETSc MPIAIJ, CG or GMRES \
+             with GAMG unless petsc_options say otherwise) are split"
+        } else {
+            "every process holds the whole state (all points and the grid: replicated, not \
+             decomposed); only the assembly (slabs of cells along axis {axis}, balanced by \
+             points) and the linear solve (PETSc MPIAIJ, CG or GMRES with GAMG unless \
+             petsc_options say otherwise) are split"
+        };
         world.resource_mut::<Warnings>().0.push(format!(
-            "distributed run over {} MPI processes: every process holds the whole state (all \
-             points and the grid: replicated, not decomposed); only the assembly (slabs of \
-             cells along axis {axis}, balanced by points) and the linear solve (PETSc MPIAIJ, \
-             CG or GMRES with GAMG unless petsc_options say otherwise) are split; {files}",
-            processes.size
+            "distributed run over {} MPI processes: {}; {files}",
+            processes.size,
+            state.replace("{axis}", &axis.to_string())
         ));
         if processes.size > 1 {
             // the pieces go into process 0's folder (the others run in scratch folders)
@@ -149,7 +170,22 @@ impl Plugin for DistributedModule {
             buffer: Vec::new(),
         });
         // the shares of the initial state, for its output (step 0 runs no connectivity)
-        mark_assembly_share::<D>(world);
+        if decompose {
+            decomposition::count_own_points::<D>(world);
+            let mut schedules = world.resource_mut::<Schedules>();
+            let step = schedules.entry(Hook::Basis.schedule());
+            step.add_systems((
+                decomposition::exchange_points::<D>
+                    .in_set(StepSystems::Connectivity)
+                    .before(Hook::Basis),
+                // not in a stage's set: it runs after a failure too, and shares it
+                decomposition::agree_on_grid::<D>
+                    .after(StepSystems::Connectivity)
+                    .before(StepSystems::Dofs),
+            ));
+        } else {
+            mark_assembly_share::<D>(world);
+        }
         let share = |world: &mut World| {
             world
                 .get_resource::<AssemblyShare>()
@@ -158,8 +194,12 @@ impl Plugin for DistributedModule {
         if processes.size > 1 {
             simulation.add_systems(Hook::Output, list_particle_pieces);
         }
+        if decompose {
+            simulation.add_systems(Hook::Loads, decomposition::sum_external_force::<D>);
+        } else {
+            simulation.add_systems(Hook::Connectivity, mark_assembly_share::<D>);
+        }
         simulation
-            .add_systems(Hook::Connectivity, mark_assembly_share::<D>)
             .add_systems(Hook::Combine, combine_assembly::<D>)
             .add_measure("assembled_points", move |world, _| {
                 share(world).map(|(points, _)| points as f64)
@@ -175,25 +215,11 @@ impl Plugin for DistributedModule {
 /// whose process changed since the last step (the measure `points_changing_process` of
 /// summary.json; `assembled_points` is process 0's count).
 pub fn mark_assembly_share<const D: usize>(world: &mut World) {
-    let (rank, size, axis) = {
+    let (rank, size) = {
         let share = world.resource::<AssemblyShare>();
-        (share.processes.rank, share.processes.size, share.axis)
+        (share.processes.rank, share.processes.size)
     };
-    let slices = world.resource::<Grid<D>>().0.cells_per_axis()[axis];
-    let mut query = world.query::<(Entity, &Position<D>)>();
-    let grid = &world.resource::<Grid<D>>().0;
-    // a point outside the grid failed the basis stage already (this hook does not run then)
-    let points: Vec<(Entity, usize)> = query
-        .iter(world)
-        .map(|(entity, x)| {
-            let slice = grid.cell_of(&x.0).map_or(0, |cell| cell[axis]);
-            (entity, slice.min(slices.saturating_sub(1)))
-        })
-        .collect();
-    let mut per_slice = vec![0usize; slices];
-    for &(_, slice) in &points {
-        per_slice[slice] += 1;
-    }
+    let (points, per_slice) = point_slices::<D>(world);
     let owners = slab_owners(&per_slice, size);
     let mut mine = 0;
     let mut moved = 0;
@@ -218,6 +244,77 @@ pub fn mark_assembly_share<const D: usize>(world: &mut World) {
     world.resource_mut::<AssemblyShare>().points = mine;
 }
 
+/// The cell layer along the slab axis of every point this process holds (a point outside the
+/// grid counts in layer 0: the basis stage fails it), and the points in each layer.
+fn point_slices<const D: usize>(world: &mut World) -> (Vec<(Entity, usize)>, Vec<usize>) {
+    let axis = world.resource::<AssemblyShare>().axis;
+    let slices = world.resource::<Grid<D>>().0.cells_per_axis()[axis];
+    let mut query = world.query::<(Entity, &Position<D>)>();
+    let grid = &world.resource::<Grid<D>>().0;
+    let points: Vec<(Entity, usize)> = query
+        .iter(world)
+        .map(|(entity, x)| (entity, layer_of(grid, axis, &x.0)))
+        .collect();
+    let mut per_slice = vec![0usize; slices];
+    for &(_, slice) in &points {
+        per_slice[slice] += 1;
+    }
+    (points, per_slice)
+}
+
+/// Whether a stage failed on any process (collective); if so every process fails, and alike:
+/// a failure step cutting cannot recover on one process is one on every process (otherwise
+/// some would cut the step and wait for the others, which stop).
+fn share_failure(status: &mut RunStatus, step: usize) -> bool {
+    let here = match &status.0 {
+        None => 0,
+        Some(error) if error.is_recoverable_by_cutting() => 1,
+        Some(_) => 2,
+    };
+    let all = largest(here);
+    if all == 0 {
+        return false;
+    }
+    let elsewhere = "a stage failed on another process of the distributed run (process 0 \
+                     reports its own failures)";
+    match (&status.0, all) {
+        (None, _) => status.fail(SolverError::Module {
+            step,
+            what: elsewhere.to_string(),
+            recoverable: all == 1,
+        }),
+        (Some(error), 2) if here == 1 => {
+            status.0 = Some(SolverError::Module {
+                step,
+                what: format!("{error}; and {elsewhere}, one that cutting the step cannot recover"),
+                recoverable: false,
+            });
+        }
+        _ => {}
+    }
+    true
+}
+
+/// Adds `vectors` (one per node) over the processes through the share's PETSc sum: every
+/// process gets the same bits.
+fn sum_grid_vectors<const D: usize>(
+    share: &mut AssemblyShare,
+    vectors: &mut [SVector<f64, D>],
+) -> Result<(), String> {
+    share.buffer.clear();
+    share
+        .buffer
+        .extend(vectors.iter().flat_map(|f| f.iter().copied()));
+    share
+        .sum
+        .sum(&mut share.buffer)
+        .map_err(|e| e.to_string())?;
+    for (vector, values) in vectors.iter_mut().zip(share.buffer.chunks_exact(D)) {
+        *vector = SVector::<f64, D>::from_column_slice(values);
+    }
+    Ok(())
+}
+
 /// Adds the processes' internal forces (each summed over its own points), so that every
 /// process holds the global `f_int`; first, whether a stage failed on any process (then every
 /// process fails the iteration). Runs after a failure too (`Hook::Combine`).
@@ -229,38 +326,15 @@ pub fn combine_assembly<const D: usize>(
     step: Res<LoadStep>,
 ) {
     let _timer = clock.time(Stage::Assembly);
-    let failed_here = status.0.is_some();
-    if any(failed_here) {
-        if !failed_here {
-            status.fail(SolverError::Module {
-                step: step.number,
-                what: "a stage failed on another process of the distributed run (process 0 \
-                       reports its own failures)"
-                    .to_string(),
-                recoverable: true,
-            });
-        }
+    if share_failure(&mut status, step.number) {
         return;
     }
-    let share = &mut *share;
-    share.buffer.clear();
-    share
-        .buffer
-        .extend(fields.internal_force.iter().flat_map(|f| f.iter().copied()));
-    if let Err(why) = share.sum.sum(&mut share.buffer) {
+    if let Err(why) = sum_grid_vectors(&mut share, &mut fields.internal_force) {
         status.fail(SolverError::Module {
             step: step.number,
             what: format!("summing the internal force over the processes: {why}"),
             recoverable: false,
         });
-        return;
-    }
-    for (force, values) in fields
-        .internal_force
-        .iter_mut()
-        .zip(share.buffer.chunks_exact(D))
-    {
-        *force = SVector::<f64, D>::from_column_slice(values);
     }
 }
 

@@ -1,0 +1,276 @@
+//! Decomposed points (`mpirun -n N impm run SCENE --decompose`): every process holds only the
+//! points of its slab of cells, and points move to the process of the slab they are in at the
+//! start of each load step. The grid stays replicated (every process numbers the same DOFs
+//! and builds the same sparsity pattern, and gets the whole correction), so the solver is
+//! that of the replicated runs (`docs/distributed.md`).
+//!
+//! **Ownership** (as the replicated runs' assembly share, `distributed::partition`): with
+//! `n_i` the points in cell layer `i` along the slab axis, summed over the processes, layer `i`
+//! goes to process `r_i = min(P − 1, ⌊P (c_i + n_i / 2) / T⌋)`, and a point to the process of
+//! its layer at the start of the step.
+//!
+//! **A load step, decomposed** (the systems of this file; the others are the core's, each
+//! on the points a process holds):
+//!
+//! 1. [`exchange_points`] (before the basis): owners from the layers' counts over all
+//!    processes; `migration::plan_departures`; each departing point is taken out as a
+//!    `PointRecord` (`respawn::take_record`, every module's part), packed per destination,
+//!    and sent (`distributed::exchange`: an all-to-all of the counts, then of the numbers);
+//!    the arrivals are spawned from their records (`respawn::spawn_record`). When anything
+//!    left or arrived, every point the process holds is spawned anew in `PointId` order, so
+//!    that its stages visit its points in the serial order (the world's order is the order
+//!    the sums over points are taken in; `tests/migration.rs`). At the start of a run every
+//!    process spawns its slab's points only (`distributed::initial_points`, from the seeds'
+//!    positions; no message).
+//! 2. [`agree_on_grid`] (after the basis, before DOF numbering): a node is active when a
+//!    point of *any* process supports it, and two nodes couple in `K` when a point of any
+//!    process has both in its support. Each process sends the distinct supports of its points
+//!    to all (`distributed::gather_all`) and marks the others' nodes active and their supports
+//!    as coupling groups (`GridFields::couplings`): every process then numbers the same DOFs
+//!    and builds the serial run's pattern. It first shares failures (a point outside the grid
+//!    fails the basis on its own process only), as `Hook::Combine` does.
+//! 3. [`sum_external_force`] (`Hook::Loads`, after the modules' loads): the body force is
+//!    spread from the points a process holds, so `f_ext` is a sum over the processes, as
+//!    `f_int` is at `Hook::Combine`.
+//!
+//! What sums over points elsewhere is summed over the processes too: the eq. 15 error
+//! (`Simulation::analytic_error`, `distributed::sum_over_points`). Each process writes its
+//! own points (`particles_NNNN_pK.vtu`). No checkpoint is written (each process holds its
+//! own points). Modules that keep points' entities or read other points are refused
+//! ([`refusal`]).
+
+use std::collections::BTreeSet;
+
+use bevy_ecs::prelude::*;
+
+use super::{AssemblyShare, point_slices, share_failure, sum_grid_vectors};
+use crate::components::{PointId, Support};
+use crate::distributed::migration::{PointRecord, pack_points, plan_departures, unpack_points};
+use crate::distributed::partition::slab_owners;
+use crate::distributed::respawn::{spawn_record, take_record};
+use crate::distributed::{exchange, gather_all, sum_counts};
+use crate::resources::{GridFields, LoadStep, RunStatus, SolverError, Stage, StageClock};
+use crate::scene::SceneSpec;
+
+/// The modules a decomposed run refuses, and why.
+const REFUSED: &[(&str, &str)] = &[
+    ("point loads", "keeps the entities of its points"),
+    (
+        "prescribed displacements",
+        "watches the points nearest its nodes by their entities",
+    ),
+    ("tractions", "keeps its points' host points"),
+    ("pressure", "keeps its points' host points"),
+    (
+        "surface conditions",
+        "keeps its boundary points' host points",
+    ),
+    ("finite-element mesh", "its elements refer to their points"),
+    (
+        "stress recovery",
+        "fits over neighbouring points, which may be on another process",
+    ),
+    (
+        "probes",
+        "interpolates from the nearest points, which may be on another process",
+    ),
+    (
+        "arc-length control",
+        "is not checked with decomposed points",
+    ),
+    ("initial stress", "is not checked with decomposed points"),
+];
+
+/// Why the scene cannot run with decomposed points, if the points are decomposed and it
+/// cannot: the modules it uses that the decomposition refuses (checked by the simulation
+/// before any point is spawned).
+pub fn refusal(spec: &SceneSpec) -> Option<String> {
+    if !crate::distributed::decomposed() {
+        return None;
+    }
+    let modules = crate::effects::built_in();
+    let refused: Vec<String> = modules
+        .iter()
+        .filter(|module| module.used_by(spec))
+        .filter_map(|module| {
+            REFUSED
+                .iter()
+                .find(|(name, _)| *name == module.name())
+                .map(|(name, why)| format!("{name} ({why})"))
+        })
+        .collect();
+    (!refused.is_empty()).then(|| {
+        format!(
+            "--decompose: the scene uses {} — not supported with decomposed points yet; run \
+             it without --decompose (every process then holds every point)",
+            refused.join(", ")
+        )
+    })
+}
+
+/// At the start of a run every process has spawned its slab's points only
+/// (`distributed::initial_points`, no message): the share counts them.
+pub fn count_own_points<const D: usize>(world: &mut World) {
+    let held = world.query::<&PointId>().iter(world).len();
+    let mut share = world.resource_mut::<AssemblyShare>();
+    share.points = held;
+    share.moved = 0;
+}
+
+/// Step 1 of the module docs: the points go to the processes of their slabs.
+pub fn exchange_points<const D: usize>(world: &mut World) {
+    let settled = world.resource_scope(|world, mut clock: Mut<StageClock>| {
+        let _timer = clock.time(Stage::Connectivity);
+        settle::<D>(world)
+    });
+    if let Err(why) = settled {
+        let step = world.resource::<LoadStep>().number;
+        world.resource_mut::<RunStatus>().fail(SolverError::Module {
+            step,
+            what: format!("moving points between the processes: {why}"),
+            recoverable: false,
+        });
+    }
+}
+
+/// Owners from the layers' counts summed over the processes, then the departures sent to
+/// their owners; the points kept and arrived spawned anew in `PointId` order when anything
+/// changed. Sets the share's counts.
+fn settle<const D: usize>(world: &mut World) -> Result<(), String> {
+    let (rank, size) = {
+        let share = world.resource::<AssemblyShare>();
+        (share.processes.rank, share.processes.size)
+    };
+    let (mut points, per_slice) = point_slices::<D>(world);
+    let mut counts: Vec<u64> = per_slice.iter().map(|&n| n as u64).collect();
+    sum_counts(&mut counts);
+    let per_slice: Vec<usize> = counts.iter().map(|&n| n as usize).collect();
+    let layer_owners = slab_owners(&per_slice, size);
+    points.sort_by_key(|&(entity, _)| world.get::<PointId>(entity).map_or(u32::MAX, |id| id.0));
+    let owners: Vec<usize> = points
+        .iter()
+        .map(|&(_, slice)| layer_owners[slice])
+        .collect();
+    let plan = plan_departures(&owners, rank);
+    // take every departing point out (packing can fail only on a broken world; the decision
+    // to go on is shared before any point moves)
+    let mut outgoing = vec![Vec::new(); size];
+    let mut packed: Result<(), String> = Ok(());
+    for (to, list) in &plan.sent {
+        let records: Result<Vec<PointRecord<D>>, String> = list
+            .iter()
+            .map(|&i| take_record::<D>(world, points[i].0))
+            .collect();
+        match records {
+            Ok(records) => outgoing[*to] = pack_points(&records),
+            Err(why) => packed = Err(why),
+        }
+    }
+    let departed: usize = plan.sent.iter().map(|(_, list)| list.len()).sum();
+    if crate::distributed::any(packed.is_err()) {
+        return packed.and(Err("a point could not be packed on another process".into()));
+    }
+    let mut arrived = Vec::new();
+    for message in exchange(&outgoing)? {
+        arrived.extend(unpack_points::<D>(&message)?);
+    }
+    let mut moved = [departed as u64];
+    sum_counts(&mut moved);
+    let points_held = plan.kept.len() + arrived.len();
+    if departed > 0 || !arrived.is_empty() {
+        let mut records: Vec<PointRecord<D>> = plan
+            .kept
+            .iter()
+            .map(|&i| take_record::<D>(world, points[i].0))
+            .collect::<Result<_, _>>()?;
+        for (entity, _) in points {
+            world.despawn(entity);
+        }
+        records.extend(arrived);
+        records.sort_by_key(|record| record.id);
+        for record in &records {
+            spawn_record::<D>(world, record)?;
+        }
+    }
+    let mut share = world.resource_mut::<AssemblyShare>();
+    share.points = points_held;
+    share.moved = moved[0] as usize;
+    Ok(())
+}
+
+/// Step 2 of the module docs: the processes agree on the active nodes and the pattern
+/// (collective; runs after a failure too, and shares it).
+pub fn agree_on_grid<const D: usize>(world: &mut World) {
+    let step = world.resource::<LoadStep>().number;
+    if share_failure(&mut world.resource_mut::<RunStatus>(), step) {
+        return;
+    }
+    world.resource_scope(|world, mut clock: Mut<StageClock>| {
+        let _timer = clock.time(Stage::Connectivity);
+        share_supports::<D>(world, step);
+    });
+}
+
+/// The supports of the other processes' points: their nodes active, each a coupling group.
+fn share_supports<const D: usize>(world: &mut World, step: usize) {
+    let mut query = world.query::<&Support<D>>();
+    let distinct: BTreeSet<Vec<u64>> = query
+        .iter(world)
+        .map(|support| support.0.iter().map(|w| w.node as u64).collect())
+        .collect();
+    let mut message = Vec::new();
+    for nodes in &distinct {
+        message.push(nodes.len() as u64);
+        message.extend(nodes);
+    }
+    let rank = world.resource::<AssemblyShare>().processes.rank;
+    let all = match gather_all(&message) {
+        Ok(all) => all,
+        Err(why) => {
+            // the lengths were gathered: every process sees the same too-long message
+            world.resource_mut::<RunStatus>().fail(SolverError::Module {
+                step,
+                what: format!("sharing the points' supports: {why}"),
+                recoverable: false,
+            });
+            return;
+        }
+    };
+    let mut fields = world.resource_mut::<GridFields<D>>();
+    let nodes = fields.active.len();
+    for (from, message) in all.iter().enumerate().filter(|(from, _)| *from != rank) {
+        let mut rest = &message[..];
+        while let Some((&length, tail)) = rest.split_first() {
+            let length = (length as usize).min(tail.len());
+            let group: Vec<usize> = tail[..length]
+                .iter()
+                .map(|&node| node as usize)
+                .filter(|&node| node < nodes)
+                .collect();
+            for &node in &group {
+                fields.active[node] = true;
+            }
+            fields.couplings.push(group);
+            rest = &tail[length..];
+        }
+        debug_assert!(rest.is_empty(), "process {from}'s supports");
+    }
+}
+
+/// Step 3 of the module docs: `f_ext` summed over the processes (`Hook::Loads`).
+pub fn sum_external_force<const D: usize>(
+    mut fields: ResMut<GridFields<D>>,
+    mut share: ResMut<AssemblyShare>,
+    mut status: ResMut<RunStatus>,
+    mut clock: ResMut<StageClock>,
+    step: Res<LoadStep>,
+) {
+    let _timer = clock.time(Stage::Loads);
+    if let Err(why) = sum_grid_vectors(&mut share, &mut fields.external_force) {
+        status.fail(SolverError::Module {
+            step: step.number,
+            what: format!("summing the external force over the processes: {why}"),
+            recoverable: false,
+        });
+    }
+}
