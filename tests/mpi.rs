@@ -465,6 +465,33 @@ fn decomposition_refuses_what_cannot_follow_its_points() {
     );
     assert!(stderr.contains("without --decompose"), "{stderr}");
     assert!(!stderr.contains("MPI_Abort"), "{stderr}");
+    // A stage measuring displacements from its start keeps every point's origin, which the
+    // exchange does not carry: refused too.
+    let staged = dir.join("staged.rhai");
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(
+        &staged,
+        "grid(#{ lower: [0.0, 0.0], upper: [1.0, 2.0], cells: [2, 4], basis: \"bspline\", order: 2 });\n\
+         const soil = material(#{ name: \"soil\", E: 1000.0, nu: 0.3, density: 1.0 });\n\
+         body(#{ name: \"soil\", material: soil, region: box([0.0, 0.0], [1.0, 1.5]), ppc: 2 });\n\
+         fix(|x| x[1] == 0.0);\n\
+         fix(|x| x[0] == 0.0 || x[0] == 1.0, [0]);\n\
+         stage(#{ name: \"gravity\", steps: 2 });\n\
+         body_force([0.0, -10.0]);\n\
+         stage(#{ name: \"more\", steps: 1, zero_displacements: true });\n",
+    )
+    .unwrap();
+    let output = run(Some(2), &staged, &[], &dir, &["--decompose"]);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert_eq!(
+        stderr
+            .matches("displacements from a stage's start (keeps each point's origin")
+            .count(),
+        1,
+        "{stderr}"
+    );
+    assert!(!stderr.contains("MPI_Abort"), "{stderr}");
     let output = run(None, &scene, &[], &dir, &["--decompose"]);
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(!output.status.success());

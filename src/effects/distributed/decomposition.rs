@@ -79,6 +79,10 @@ const REFUSED: &[(&str, &str)] = &[
         "is not checked with decomposed points",
     ),
     ("initial stress", "is not checked with decomposed points"),
+    (
+        "displacements from a stage's start",
+        "keeps each point's origin in a component the exchange does not carry",
+    ),
 ];
 
 /// Why the scene cannot run with decomposed points, if the points are decomposed and it
