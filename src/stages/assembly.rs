@@ -246,10 +246,10 @@ pub fn assemble<const D: usize>(
     } = &mut *fields;
     let symmetric = newton.symmetric;
     let mut points: Vec<_> = points.iter().collect();
-    let key = (newton.matrix.generation(), points.len());
-    let changed = supports.iter().any(|support| support.is_changed());
     // Too few points for two parts on any thread count: the plain loop, as on one thread.
     let colouring = if parallel::can_split(points.len()) {
+        let key = (newton.matrix.generation(), points.len());
+        let changed = supports.iter().any(|support| support.is_changed());
         cache.get(key, changed, || colour(&grid, &points))
     } else {
         None
