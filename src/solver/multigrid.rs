@@ -42,8 +42,9 @@
 //!    aggregate dropped (a node with one free component cannot rotate); `T = diag(Q_g)`, and the
 //!    coarse near-null space is `B_{l+1} = R`, so `T B_{l+1} = B_l` exactly.
 //! 3. *Smoothed prolongator* `P = (I − ω D⁻¹ A) T`, `ω = 4 / (3 ρ(D⁻¹A))` with `ρ` from
-//!    power iterations; coarse operator `A_{l+1} = Pᵀ A P` (Galerkin: symmetric and positive
-//!    definite when `A` is), formed a block `J` of `P`'s columns at a time as
+//!    Lanczos steps (power iterations for a non-symmetric tangent; [`spectral_radius`]);
+//!    coarse operator `A_{l+1} = Pᵀ A P` (Galerkin: symmetric and positive definite when `A`
+//!    is), formed a block `J` of `P`'s columns at a time as
 //!    `(Pᵀ A P)_{:,J} = ((A P_J)ᵀ P)ᵀ`, so `Pᵀ` is never formed ([`galerkin_product`]).
 //! 4. Until the coarsest level has at most [`Multigrid::coarsest_size`] DOFs, which is
 //!    factorised (faer's sparse Cholesky, LU if the tangent is not symmetric or Cholesky fails).
@@ -84,7 +85,7 @@
 //! default.
 //!
 //! **Threads.** The residuals, restrictions (`Pᵀ r`, a gather along `P`'s columns), the
-//! Chebyshev smoother, the scaling and the power iterations run on rayon's threads
+//! Chebyshev smoother, the scaling and the spectral-radius estimates run on rayon's threads
 //! (`super::vectors`), the same for any thread count; the prolongation (`x += P e`) scatters
 //! along `P`'s columns into one buffer per thread, added in order (bit-identical for a thread
 //! count, round-off across counts). Gauss–Seidel sweeps and the coarsest solve are sequential.
@@ -270,7 +271,7 @@ struct Level {
     inverse_diagonal: Vec<f64>,
     /// Where each row's diagonal entry is in `rows` (its columns are sorted).
     diagonal: Vec<usize>,
-    /// The estimate of the spectral radius of `D⁻¹A` (power iterations).
+    /// The estimate of the spectral radius of `D⁻¹A` ([`spectral_radius`]).
     radius: f64,
     /// From the next coarser level to this one.
     prolongation: SparseColMat<usize, f64>,
@@ -771,9 +772,125 @@ fn by_rows(
     Ok((Rows::from_faer(rows), positions))
 }
 
-/// An estimate of the spectral radius of `D⁻¹A` by power iterations (with `Aᵀ` for a
-/// symmetric `A`: its columns, a gather).
+/// An estimate of the spectral radius `ρ` of `D⁻¹A`, from below: the smoothed prolongator's
+/// weight `ω = 4 / (3ρ)` and the Chebyshev smoother's interval `[λ/30, λ]`, `λ = 1.1 ρ`, rest
+/// on it, and an estimate much below `ρ` ruins both (Chebyshev's polynomial grows outside its
+/// interval, and `I − ω D⁻¹A` amplifies the modes above `4/(3ω)`).
+///
+/// For a symmetric `A` with a positive diagonal (every level of an elastic tangent), `D⁻¹A`
+/// is similar to the symmetric `C = D^{-1/2} A D^{-1/2}`, and [`LANCZOS_STEPS`] steps of
+/// Lanczos on `C` give the tridiagonal `T_k` whose largest eigenvalue (a Ritz value) converges
+/// to `ρ` far faster than power iterations do: measured on the 2D self-weight block at 200
+/// cells (81 002 DOFs), 15 power iterations left the estimate low enough that CG needed
+/// 108, 105, 102 iterations per Newton iteration against 19 at 100 and 400 cells; 60 power
+/// iterations, or Lanczos, give 19. Otherwise power iterations (with `Aᵀ` for a symmetric `A`:
+/// its columns, a gather).
 fn spectral_radius(
+    a: SparseColMatRef<'_, usize, f64>,
+    inverse_diagonal: &[f64],
+    symmetric: bool,
+) -> f64 {
+    if symmetric && inverse_diagonal.iter().all(|&d| d > 0.0 && d.is_finite()) {
+        lanczos_radius(a, inverse_diagonal)
+    } else {
+        power_radius(a, inverse_diagonal, symmetric)
+    }
+}
+
+/// Lanczos steps of [`lanczos_radius`].
+const LANCZOS_STEPS: usize = 20;
+
+/// A fixed, non-smooth start vector, so that runs repeat exactly.
+fn start_vector(n: usize) -> Vec<f64> {
+    (0..n)
+        .map(|i| 1.0 + ((i * 7919) % 101) as f64 / 101.0)
+        .collect()
+}
+
+/// The largest Ritz value of [`LANCZOS_STEPS`] Lanczos steps on `D^{-1/2} A D^{-1/2}` for a
+/// symmetric `A` (see [`spectral_radius`]): with `q_0` the normalised start, `w = C q_j −
+/// β_j q_{j−1}`, `α_j = q_j · w`, `w −= α_j q_j`, `β_{j+1} = ‖w‖`, `q_{j+1} = w / β_{j+1}`;
+/// the eigenvalues of the tridiagonal matrix of the `α` and `β` lie inside `C`'s spectrum
+/// and the largest approaches `ρ` from below. No reorthogonalisation: its loss only repeats
+/// converged Ritz values. Every reduction is [`vectors::dot`]'s, so the estimate is the same
+/// for any thread count.
+fn lanczos_radius(a: SparseColMatRef<'_, usize, f64>, inverse_diagonal: &[f64]) -> f64 {
+    let n = inverse_diagonal.len();
+    let (col_ptr, row_idx, values) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
+    let scale: Vec<f64> = inverse_diagonal.iter().map(|d| d.sqrt()).collect();
+    let mut q = start_vector(n);
+    let size = vectors::norm(&q);
+    if n == 0 || size == 0.0 {
+        return 1.0;
+    }
+    vectors::update(&mut q, |_, q| q.iter_mut().for_each(|v| *v /= size));
+    let mut previous = vec![0.0; n];
+    let mut scaled = vec![0.0; n];
+    let mut w = vec![0.0; n];
+    let (mut alpha, mut beta) = (Vec::new(), Vec::new());
+    for _ in 0..LANCZOS_STEPS.min(n) {
+        // w = S A S q − β q_prev, S = D^{-1/2}
+        vectors::update(&mut scaled, |range, x| {
+            for ((x, q), s) in x.iter_mut().zip(&q[range.clone()]).zip(&scale[range]) {
+                *x = q * s;
+            }
+        });
+        vectors::gather(col_ptr, row_idx, values, &scaled, &mut w);
+        let last_beta = beta.last().copied().unwrap_or(0.0);
+        vectors::update(&mut w, |range, w| {
+            for ((w, s), p) in w
+                .iter_mut()
+                .zip(&scale[range.clone()])
+                .zip(&previous[range])
+            {
+                *w = *w * s - last_beta * p;
+            }
+        });
+        let a_j = vectors::dot(&q, &w);
+        if !a_j.is_finite() {
+            break;
+        }
+        alpha.push(a_j);
+        vectors::update(&mut w, |range, w| {
+            for (w, q) in w.iter_mut().zip(&q[range]) {
+                *w -= a_j * q;
+            }
+        });
+        let b = vectors::norm(&w);
+        if b.is_nan() || b <= 1e-14 * a_j.abs() {
+            break;
+        }
+        beta.push(b);
+        std::mem::swap(&mut previous, &mut q);
+        vectors::update(&mut q, |range, q| {
+            for (q, w) in q.iter_mut().zip(&w[range]) {
+                *q = w / b;
+            }
+        });
+    }
+    let k = alpha.len();
+    if k == 0 {
+        return power_radius(a, inverse_diagonal, true);
+    }
+    let tridiagonal = nalgebra::DMatrix::from_fn(k, k, |i, j| match i.abs_diff(j) {
+        0 => alpha[i],
+        1 => beta[i.min(j)],
+        _ => 0.0,
+    });
+    let largest = tridiagonal
+        .symmetric_eigenvalues()
+        .iter()
+        .fold(f64::NEG_INFINITY, |m, &l| m.max(l));
+    if largest > 0.0 && largest.is_finite() {
+        largest
+    } else {
+        power_radius(a, inverse_diagonal, true)
+    }
+}
+
+/// An estimate of the spectral radius of `D⁻¹A` by power iterations (with `Aᵀ` for a
+/// symmetric `A`: its columns, a gather): for non-symmetric tangents.
+fn power_radius(
     a: SparseColMatRef<'_, usize, f64>,
     inverse_diagonal: &[f64],
     symmetric: bool,
@@ -781,10 +898,7 @@ fn spectral_radius(
     let n = inverse_diagonal.len();
     let (col_ptr, row_idx, values) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
     let mut parts = ScatterParts::default();
-    // a fixed, non-smooth start so that runs repeat exactly
-    let mut v: Vec<f64> = (0..n)
-        .map(|i| 1.0 + ((i * 7919) % 101) as f64 / 101.0)
-        .collect();
+    let mut v = start_vector(n);
     let mut w = vec![0.0; n];
     let mut radius = 1.0;
     for _ in 0..POWER_ITERATIONS {
@@ -1387,6 +1501,48 @@ mod tests {
             }
         }
         matrix
+    }
+
+    /// The spectral radius of `D⁻¹A` for the 5-point Laplacian on an `m × m` interior grid
+    /// (Dirichlet), `1 + cos(π / (m + 1))`, whose top eigenvalues cluster (the case that left
+    /// 15 power iterations well below `ρ` on a 2D block): the Lanczos estimate within 2 %
+    /// below it, and never above it (a Ritz value); the power estimate printed beside it.
+    #[test]
+    fn lanczos_estimates_the_spectral_radius_of_a_clustered_spectrum() {
+        for m in [30usize, 60, 120] {
+            let index = |i: usize, j: usize| i * m + j;
+            let mut entries = Vec::new();
+            for i in 0..m {
+                for j in 0..m {
+                    entries.push(Triplet::new(index(i, j), index(i, j), 4.0));
+                    let neighbours = [
+                        (i + 1, j),
+                        (i, j + 1),
+                        (i.wrapping_sub(1), j),
+                        (i, j.wrapping_sub(1)),
+                    ];
+                    for (k, l) in neighbours {
+                        if k < m && l < m {
+                            entries.push(Triplet::new(index(i, j), index(k, l), -1.0));
+                        }
+                    }
+                }
+            }
+            let a =
+                SparseColMat::<usize, f64>::try_new_from_triplets(m * m, m * m, &entries).unwrap();
+            let inverse_diagonal = vec![0.25; m * m];
+            let exact = 1.0 + (std::f64::consts::PI / (m + 1) as f64).cos();
+            let lanczos = spectral_radius(a.as_ref(), &inverse_diagonal, true);
+            let power = power_radius(a.as_ref(), &inverse_diagonal, true);
+            println!(
+                "m = {m}: exact {exact:.6}, Lanczos {lanczos:.6}, {POWER_ITERATIONS} power iterations {power:.6}"
+            );
+            assert!(lanczos <= exact * (1.0 + 1e-12), "{lanczos} above {exact}");
+            assert!(
+                lanczos >= 0.98 * exact,
+                "{lanczos} more than 2 % below {exact}"
+            );
+        }
     }
 
     /// The in-place smoothed prolongator and the blocked Galerkin product give, bit for bit,
