@@ -449,7 +449,7 @@ fn run_command(
     for warning in scene_warnings(&spec) {
         note(&format!("warning: {warning}"));
     }
-    let result = run_scene_restartable(&spec, &out_dir, modules, &plan, checkpoint, |record| {
+    let result = run_scene_restartable(spec, &out_dir, modules, &plan, checkpoint, |record| {
         progress.step(record)
     });
     progress.finish();

@@ -17,6 +17,7 @@
 //! files of steps after it, and goes on from the step after the checkpoint
 //! ([`Simulation::resume_from`]).
 
+use std::borrow::Cow;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -850,7 +851,14 @@ pub fn run_scene_keeping_summary_with(
     plugin: &impl Plugin,
     on_step: impl FnMut(&StepRecord),
 ) -> (Option<Summary>, Result<(), RunError>) {
-    run_with(spec, out_dir, &effects::built_in(), plugin, None, on_step)
+    run_with(
+        Cow::Borrowed(spec),
+        out_dir,
+        &effects::built_in(),
+        plugin,
+        None,
+        on_step,
+    )
 }
 
 /// [`run_scene`] with the modules of `modules` (the built-in ones and your own, e.g. a
@@ -861,13 +869,23 @@ pub fn run_scene_with_modules(
     modules: &ModuleSet,
     on_step: impl FnMut(&StepRecord),
 ) -> Result<Summary, RunError> {
-    completed(run_with(spec, out_dir, modules, &(), None, on_step))
+    completed(run_with(
+        Cow::Borrowed(spec),
+        out_dir,
+        modules,
+        &(),
+        None,
+        on_step,
+    ))
 }
 
 /// [`run_scene_with_modules`] keeping checkpoints as `plan` says, and continuing from
-/// `resume` (a checkpoint of this run read with [`Checkpoint::read`]) if given.
-pub fn run_scene_restartable(
-    spec: &SceneSpec,
+/// `resume` (a checkpoint of this run read with [`Checkpoint::read`]) if given. The scene
+/// may be given by value (`impm run` does): its point seeds, the largest part of it (~125 B per
+/// point in 2D), are then freed as soon as the points are spawned, instead of living through
+/// the run beside the points they became.
+pub fn run_scene_restartable<'a>(
+    spec: impl Into<Cow<'a, SceneSpec>>,
     out_dir: &Path,
     modules: &ModuleSet,
     plan: &RestartPlan,
@@ -875,7 +893,7 @@ pub fn run_scene_restartable(
     on_step: impl FnMut(&StepRecord),
 ) -> Result<Summary, RunError> {
     completed(run_with(
-        spec,
+        spec.into(),
         out_dir,
         modules,
         &(),
@@ -888,7 +906,7 @@ pub fn run_scene_restartable(
 type Restart<'a> = Option<(&'a RestartPlan, Option<Checkpoint>)>;
 
 fn run_with(
-    spec: &SceneSpec,
+    spec: Cow<'_, SceneSpec>,
     out_dir: &Path,
     modules: &ModuleSet,
     plugin: &impl Plugin,
@@ -909,17 +927,19 @@ fn run_with(
 }
 
 fn run_in<const D: usize>(
-    spec: &SceneSpec,
+    spec: Cow<'_, SceneSpec>,
     out_dir: &Path,
     modules: &ModuleSet,
     plugin: &impl Plugin,
     restart: Restart<'_>,
     on_step: impl FnMut(&StepRecord),
 ) -> (Option<Summary>, Result<(), RunError>) {
-    let mut sim = match Simulation::<D>::with_modules(spec, out_dir, modules) {
+    let mut sim = match Simulation::<D>::with_modules(&spec, out_dir, modules) {
         Ok(sim) => sim,
         Err(e) => return (None, Err(RunError::Build(e))),
     };
+    // the points are spawned: an owned scene's seeds are no longer needed
+    drop(spec);
     if let Err(e) = sim.add_plugin(plugin) {
         return (None, Err(RunError::Build(e)));
     }

@@ -332,6 +332,21 @@ pub struct SceneSpec {
     pub parts: Parts,
 }
 
+/// A scene given by value to a run that can drop it once the points are spawned
+/// (`run::run_scene_restartable`).
+impl From<SceneSpec> for std::borrow::Cow<'_, SceneSpec> {
+    fn from(spec: SceneSpec) -> Self {
+        std::borrow::Cow::Owned(spec)
+    }
+}
+
+/// A scene lent to a run: the caller keeps it (and its seeds).
+impl<'a> From<&'a SceneSpec> for std::borrow::Cow<'a, SceneSpec> {
+    fn from(spec: &'a SceneSpec) -> Self {
+        std::borrow::Cow::Borrowed(spec)
+    }
+}
+
 impl SceneSpec {
     pub fn dim(&self) -> usize {
         self.grid.dim()
