@@ -64,9 +64,10 @@
 //! over one or two points, and the constraint it puts on them differs from the full cells'.
 //! On the Tresca strip footing (docs/plasticity.md, "F-bar") such groups appear under the
 //! footing once its settlement passes a quarter of a cell (the lower points of the top row
-//! under it cross into the next row) and the footing pressure jumps there by up to 6 %;
-//! merging each sparse group into its fullest face-neighbour's moved the end of the curve by
-//! −4 % to −20 %: what the curve does after that is the treatment's, not the soil's. The count
+//! under it cross into the next row); at 8 cells across B the pressure's rise in that step is
+//! 16 times the step before's, and merging each sparse group into its fullest
+//! face-neighbour's (tried, not kept) moved the end of the curve by −20 % to +1.4 % at 8 to 16
+//! cells: past that step the curve depends on this averaging, not only on the soil. The count
 //! is the measure `fbar_sparse_cells` (history.csv, summary.json) of every F-bar scene, and
 //! the first step in which it exceeds the first step's count gives the run a warning.
 //!
