@@ -450,6 +450,74 @@ fn fbar_unlocks_the_tresca_footing() {
     assert!(fine < coarse, "{fine} {coarse}");
 }
 
+/// The cells that become less than half full of points (`src/effects/fbar.rs`, "Sparse
+/// cells") are counted and warned about. The Tresca strip footing (linear MPM, F-bar, 10 steps
+/// to δ/B = 0.05): with 8 cells across B (h = B/8) the lower points of the top row under the
+/// footing (0.75 h below the surface) cross into the next row once the settlement passes h/4 =
+/// 0.03125 B, i.e. at the start of step 8 (δ/B = 0.035 after step 7): `fbar_sparse_cells` is 0
+/// in steps 1 to 7 and at least 1 from step 8 on (observed 0 × 7, then 3, 3, 4), and the run
+/// says so in one warning naming step 8; that is also where the footing pressure jumps (the
+/// step's rise 15 times the previous one: observed 0.013 then 0.207 s_u). With 4 cells
+/// (h/4 = 0.0625 B > 0.05 B) no cell becomes sparse and no such warning is given. 3 s.
+#[test]
+fn cells_emptied_under_the_footing_are_counted_and_warned() {
+    let run = |cells: &str| {
+        common::run_shipped::<2>(
+            "strip_footing.rhai",
+            &[
+                ("material", "tresca"),
+                ("basis", "linear"),
+                ("fbar", "true"),
+                ("cells", cells),
+                ("settlement", "0.05"),
+                ("steps", "10"),
+            ],
+        )
+        .summary
+    };
+    let fine = run("8");
+    assert_eq!(fine.steps.len(), 10);
+    let sparse: Vec<f64> = fine
+        .steps
+        .iter()
+        .map(|s| s.measure("fbar_sparse_cells").expect("the measure"))
+        .collect();
+    let pressure: Vec<f64> = fine
+        .steps
+        .iter()
+        .map(|s| s.measure("footing_pressure").unwrap() / 10.0)
+        .collect();
+    eprintln!("8 cells: sparse cells per step {sparse:?}, q/s_u {pressure:.3?}");
+    assert!(sparse[..7].iter().all(|&n| n == 0.0), "{sparse:?}");
+    assert!(sparse[7..].iter().all(|&n| n >= 1.0), "{sparse:?}");
+    let warned: Vec<&String> = fine
+        .warnings
+        .iter()
+        .filter(|w| w.starts_with("F-bar"))
+        .collect();
+    assert_eq!(warned.len(), 1, "{:?}", fine.warnings);
+    assert!(
+        warned[0].contains("load step 8") && warned[0].contains("fbar_sparse_cells"),
+        "{}",
+        warned[0]
+    );
+    let (before, at) = (pressure[6] - pressure[5], pressure[7] - pressure[6]);
+    assert!(at > 5.0 * before.abs(), "rise {before} then {at}");
+    let coarse = run("4");
+    assert!(
+        coarse
+            .steps
+            .iter()
+            .all(|s| s.measure("fbar_sparse_cells") == Some(0.0)),
+        "4 cells"
+    );
+    assert!(
+        coarse.warnings.iter().all(|w| !w.starts_with("F-bar")),
+        "{:?}",
+        coarse.warnings
+    );
+}
+
 /// A von Mises body with F-bar gets no locking warning; without F-bar the warning names the
 /// option, and neither with `fbar: "patch"`; with B-splines of order 2 an F-bar body is warned
 /// that F-bar is experimental there (docs/plasticity.md). F-bar on linear FEM and an unknown `fbar` value
