@@ -409,7 +409,7 @@ pub fn group_points_by_cell<const D: usize>(
 /// The run's warning when `appeared` more F-bar groups than at the first step are sparse.
 fn sparse_cells_warning(step: usize, appeared: usize) -> String {
     format!(
-        "F-bar: from load step {step} on, {appeared} more background cells than at the start are less than half full of F-bar points (points crossed cell faces, or the surface moved through them); their volume change is averaged over one or two points, and loads measured from here on depend on it by several per cent (the Tresca strip footing: the pressure jumps by up to 6 % where such cells appear under the footing; docs/plasticity.md, \"F-bar\"); the measure fbar_sparse_cells counts them per step"
+        "F-bar: from load step {step} on, {appeared} more background cells than at the start are less than half full of F-bar points (points crossed cell faces, or the surface moved through them); their volume change is averaged over one or two points, and loads measured from here on depend on it by several per cent (the Tresca strip footing: at 8 cells across B the pressure rises 16 times as much in the step where such cells appear under the footing as in the step before; docs/plasticity.md, \"F-bar\"); the measure fbar_sparse_cells counts them per step"
     )
 }
 
