@@ -232,9 +232,12 @@ fn return_to(
     for k in n..3 {
         m[(k, k)] = 1.0;
     }
+    // The padding's unit diagonal adds nothing to the determinant: the n planes are dependent
+    // when it is small against the n-th power of M's entries (not the cube, which rejected
+    // every single plane once E was about 1e5 and sent those trials to an edge or the apex).
     let size = m.abs().max();
     let determinant = m.determinant();
-    if determinant.abs() <= 1e-10 * size.powi(3) || !determinant.is_finite() {
+    if determinant.abs() <= 1e-10 * size.powi(n as i32) || !determinant.is_finite() {
         return None;
     }
     let inverse = m.try_inverse()?;
