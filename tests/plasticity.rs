@@ -275,11 +275,17 @@ fn the_mohr_coulomb_return_is_continuous_at_any_stiffness() {
             .wrapping_add(1442695040888963407);
         (seed >> 11) as f64 / (1u64 << 52) as f64 - 1.0
     };
-    for youngs in [1.0e3, 1.0e5, 1.0e7] {
+    // the last pair: the same E/c as the first in units 1e9 times larger (GPa as Pa)
+    for (youngs, cohesion) in [
+        (1.0e3, 10.0),
+        (1.0e5, 10.0),
+        (1.0e7, 10.0),
+        (1.0e-6, 1.0e-8),
+    ] {
         for dilation in [30.0, 0.0] {
             let model = MohrCoulomb::new(
                 Hencky::new(youngs, 0.3).unwrap(),
-                10.0,
+                cohesion,
                 30.0,
                 dilation,
                 None,
@@ -288,7 +294,7 @@ fn the_mohr_coulomb_return_is_continuous_at_any_stiffness() {
             let (lambda, shear) = model.elastic.lame();
             let de = Matrix3::from_element(lambda) + Matrix3::identity() * (2.0 * shear);
             // trial strains up to ten times the elastic range of the cohesion
-            let range = 100.0 * 10.0 / youngs;
+            let range = 100.0 * cohesion / youngs;
             let (mut worst, mut switches, steps) = (0.0f64, 0usize, 1000);
             for _ in 0..200 {
                 let a = Vector3::from_fn(|_, _| range * sample());
