@@ -229,12 +229,17 @@ fn return_to(
         residual[column] = plane.normal.dot(trial_stress) - plane.level;
     }
     let mut m = a.transpose() * de * b;
+    // The n planes are dependent when the determinant is small against the n-th power of the
+    // n x n block's entries (measured before the padding, whose unit diagonal adds nothing to
+    // the determinant and would make the test depend on the units of stress; the cube of every
+    // entry rejected every single plane once E was about 1e5 and sent those trials to an edge
+    // or the apex).
+    let size = m.abs().max();
     for k in n..3 {
         m[(k, k)] = 1.0;
     }
-    let size = m.abs().max();
     let determinant = m.determinant();
-    if determinant.abs() <= 1e-10 * size.powi(3) || !determinant.is_finite() {
+    if determinant.abs() <= 1e-10 * size.powi(n as i32) || !determinant.is_finite() {
         return None;
     }
     let inverse = m.try_inverse()?;
