@@ -463,10 +463,34 @@ fn bad_stages_are_refused_with_the_scene_line() {
             vec!["analytic_column", "does not follow stages"],
         ),
         (
-            "condition in a later stage",
-            "stage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"b\", steps: 1 });\nfix(|x| x[0] == 0.0, [0]);",
+            "material in a later stage",
+            "stage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"b\", steps: 1 });\nconst m2 = material(#{ name: \"m2\", E: 1.0e4, nu: 0.3, density: 2.0 });",
             7,
-            vec!["fix", "after stage 'b' at line 6"],
+            vec!["material", "after stage 'b' at line 6"],
+        ),
+        (
+            "until an unknown stage",
+            "fix(|x| x[0] == 0.0, [0], #{ until_stage: \"c\" });\nstage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"b\", steps: 1 });",
+            5,
+            vec!["no stage is named 'c'", "'a', 'b'"],
+        ),
+        (
+            "until its own stage",
+            "stage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"b\", steps: 1 });\ndisplace(|x| x[1] == 2.0, [1], [0.1], #{ until_stage: \"b\" });",
+            7,
+            vec!["'b' is not after the stage the constraint belongs to ('b')"],
+        ),
+        (
+            "until without stages",
+            "load_steps(1);\nfix(|x| x[0] == 0.0, [0], #{ until_stage: \"a\" });",
+            6,
+            vec!["no stage is named 'a'", "the scene has no stages"],
+        ),
+        (
+            "until_stage misspelt",
+            "stage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"b\", steps: 1 });\nfix(|x| x[0] == 0.0, [0], #{ until_stag: \"b\" });",
+            7,
+            vec!["unknown option 'until_stag'", "until_stage"],
         ),
         (
             "arc length",
@@ -520,4 +544,167 @@ fn the_shipped_staged_footing_runs_in_its_two_stages() {
     eprintln!("end: settlement / B {settlement:.6e}, pressure {pressure:.4e}");
     assert!((settlement - 0.01).abs() < 1e-5, "{settlement}");
     assert!(pressure > 0.0, "{pressure}");
+}
+
+/// A column 1 wide and H = 10 high (Hencky, E = 1e6, ν = 0.3, density 2, g = 10: γ = 20;
+/// strains ~1.5e-4, so that the small-strain solutions below hold to ~1e-4), quadratic
+/// B-splines, 1 × 10 cells, 3 × 3 Gauss points per cell, base fixed vertically, sides on
+/// rollers (uniaxial strain); `extra` adds the staged supports and loads.
+fn staged_column(extra: &str) -> String {
+    format!(
+        "grid(#{{ lower: [0.0, 0.0], upper: [1.0, 10.0], cells: [1, 10], basis: \"bspline\", order: 2 }});\n\
+         const soil = material(#{{ name: \"soil\", E: 1.0e6, nu: {NU}, density: 2.0 }});\n\
+         body(#{{ name: \"column\", material: soil, region: box([0.0, 0.0], [1.0, 10.0]), ppc: 3, placement: \"gauss\" }});\n\
+         fix(|x| x[1] == 0.0, [1]);\n\
+         fix(|x| x[0] == 0.0 || x[0] == 1.0, [0]);\n\
+         {extra}\n"
+    )
+}
+
+/// The column's constrained modulus M = E (1 − ν) / ((1 + ν)(1 − 2ν)) (E = 1e6).
+fn column_modulus() -> f64 {
+    1.0e6 * (1.0 - NU) / ((1.0 + NU) * (1.0 - 2.0 * NU))
+}
+
+/// The largest departure of the points' vertical displacement from `exact(Y)` (Y the
+/// reference height), and of their horizontal one from 0.
+fn column_departure(sim: &mut Simulation<2>, exact: impl Fn(f64) -> f64) -> f64 {
+    let mut worst = 0.0f64;
+    let mut query = sim
+        .world
+        .query::<(&ReferencePosition<2>, &Displacement<2>)>();
+    for (x, u) in query.iter(&sim.world) {
+        worst = worst.max((u.0[1] - exact(x.0[1])).abs().max(u.0[0].abs()));
+    }
+    worst
+}
+
+/// A support released in a later stage, by the excavation rule. Stage "gravity" (2 steps)
+/// brings the weight on a column held at its base and at its top (`fix(.., #{ until_stage:
+/// "release" })`): u_y = −λ (γ/2M) Y (H − Y), each support carrying half the weight,
+/// γH/2 = 100 per unit width. Stage "release" (4 steps) turns the top support's force into a
+/// load ramped down to zero: u_y = −(γ/2M) Y (H − Y) − λ γ H Y / (2M) (the released force
+/// γH/2 (1 − λ) on the top of the column hanging from its base; at λ = 1 the column under its
+/// weight, −(γ/M)(HY − Y²/2)). Every step: the displacements to 2e-3 of γH²/2M, the top
+/// support's reaction (measure `fix3_reaction_y`) the ramp 50, 100 | 75, 50, 25, 0 to 1e-3 of
+/// γH/2, the base's the rest of the weight (same tolerance), every step converged.
+#[test]
+fn a_support_released_in_a_later_stage_is_ramped_down_to_the_analytic_state() {
+    let text = staged_column(
+        "fix(|x| x[1] == 10.0, [1], #{ until_stage: \"release\" });\n\
+         stage(#{ name: \"gravity\", steps: 2 });\n\
+         body_force([0.0, -10.0]);\n\
+         stage(#{ name: \"release\", steps: 4 });",
+    );
+    let (mut sim, dir) = build("release", &text);
+    let (h, modulus) = (10.0, column_modulus());
+    let scale = GAMMA * h * h / (2.0 * modulus);
+    let half = GAMMA * h / 2.0;
+    let mut worst_u = 0.0f64;
+    let mut worst_r = 0.0f64;
+    let mut reactions = Vec::new();
+    for step in 1..=6 {
+        let record = sim.step().unwrap().clone();
+        let (stage, lambda) = match step {
+            1 | 2 => (0, step as f64 / 2.0),
+            _ => (1, (step - 2) as f64 / 4.0),
+        };
+        assert_eq!(record.stage.as_ref().map(|s| s.0), Some(stage));
+        let (top_exact, base_exact) = match stage {
+            0 => (lambda * half, lambda * half),
+            _ => ((1.0 - lambda) * half, (1.0 + lambda) * half),
+        };
+        let exact = move |y: f64| match stage {
+            0 => -lambda * GAMMA / (2.0 * modulus) * y * (h - y),
+            _ => -GAMMA / (2.0 * modulus) * y * (h - y) - lambda * GAMMA * h * y / (2.0 * modulus),
+        };
+        let departure = column_departure(&mut sim, exact);
+        let top = record.measure("fix3_reaction_y").unwrap();
+        let base = record.measure("fix1_reaction_y").unwrap();
+        eprintln!(
+            "step {step} (stage {stage}, λ {lambda}): max |u − u_exact| {departure:.2e} of {scale:.4e}; top support {top:.6} (exact {top_exact}), base {base:.6} (exact {base_exact})"
+        );
+        worst_u = worst_u.max(departure);
+        worst_r = worst_r
+            .max((top - top_exact).abs())
+            .max((base - base_exact).abs());
+        reactions.push(top);
+    }
+    eprintln!(
+        "worst: u {worst_u:.2e} ({:.2e} relative), reactions {worst_r:.2e}",
+        worst_u / scale
+    );
+    assert!(worst_u < 2e-3 * scale, "{worst_u:e}");
+    assert!(worst_r < 1e-3 * half, "{worst_r:e} {reactions:?}");
+    assert!(
+        sim.summary.warnings.is_empty(),
+        "{:?}",
+        sim.summary.warnings
+    );
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// A support added in a later stage moves its nodes from where that stage finds them. Stage
+/// "gravity" (2 steps) settles the column under its weight, the top free
+/// (u_y = −λ(γ/M)(HY − Y²/2)); stage "lift" (2 steps) declares `displace` of the top by
+/// d = 1e-3, which acts from the stage's start: u_y = −(γ/M)(HY − Y²/2) + λ d Y/H (a uniform
+/// stretch added), the top's reaction λ M d / H and the base's γH − λ M d / H. Before its
+/// stage the waiting support carries nothing (reaction exactly 0) and the top settles freely
+/// (γH²/2M). Displacements to 2e-3 of γH²/2M, reactions to 1e-3 of γH; no warning (the
+/// material follows the node from the stage's start: the prescribed-motion check measures
+/// from there).
+#[test]
+fn a_support_added_in_a_later_stage_acts_from_its_start() {
+    let text = staged_column(
+        "stage(#{ name: \"gravity\", steps: 2 });\n\
+         body_force([0.0, -10.0]);\n\
+         stage(#{ name: \"lift\", steps: 2 });\n\
+         displace(|x| x[1] == 10.0, [1], [1.0e-3]);",
+    );
+    let (mut sim, dir) = build("lift", &text);
+    let (h, modulus, d) = (10.0, column_modulus(), 1.0e-3);
+    let scale = GAMMA * h * h / (2.0 * modulus);
+    let weight = GAMMA * h;
+    let mut worst_u = 0.0f64;
+    let mut worst_r = 0.0f64;
+    for step in 1..=4 {
+        let record = sim.step().unwrap().clone();
+        let (stage, lambda) = match step {
+            1 | 2 => (0, step as f64 / 2.0),
+            _ => (1, (step - 2) as f64 / 2.0),
+        };
+        let top = record.measure("displace1_reaction_y").unwrap();
+        let base = record.measure("fix1_reaction_y").unwrap();
+        let (top_exact, base_exact) = match stage {
+            0 => (0.0, lambda * weight),
+            _ => (lambda * modulus * d / h, weight - lambda * modulus * d / h),
+        };
+        if stage == 0 {
+            assert_eq!(top, 0.0, "the waiting support carries nothing");
+        }
+        let exact = move |y: f64| match stage {
+            0 => -lambda * GAMMA / modulus * (h * y - 0.5 * y * y),
+            _ => -GAMMA / modulus * (h * y - 0.5 * y * y) + lambda * d * y / h,
+        };
+        let departure = column_departure(&mut sim, exact);
+        eprintln!(
+            "step {step} (stage {stage}, λ {lambda}): max |u − u_exact| {departure:.2e} of {scale:.4e}; top {top:.6} (exact {top_exact:.6}), base {base:.6} (exact {base_exact:.6})"
+        );
+        worst_u = worst_u.max(departure);
+        worst_r = worst_r
+            .max((top - top_exact).abs())
+            .max((base - base_exact).abs());
+    }
+    eprintln!(
+        "worst: u {worst_u:.2e} ({:.2e} relative), reactions {worst_r:.2e}",
+        worst_u / scale
+    );
+    assert!(worst_u < 2e-3 * scale, "{worst_u:e}");
+    assert!(worst_r < 1e-3 * weight, "{worst_r:e}");
+    assert!(
+        sim.summary.warnings.is_empty(),
+        "{:?}",
+        sim.summary.warnings
+    );
+    let _ = std::fs::remove_dir_all(dir);
 }
