@@ -351,13 +351,36 @@ fn one_stage_is_the_scene_without_stages_and_later_stages_hold_the_earlier_loads
                 kept.join(",") + "\n"
             })
             .collect();
+        let pvd = |dir: &Path| std::fs::read_to_string(dir.join("particles.pvd")).unwrap();
         if tag == "one" {
             assert_eq!(without_stage, history(&b_dir));
+            // a scene of one stage writes the series of the scene without it, byte for byte
+            assert_eq!(pvd(&a_dir), pvd(&b_dir));
+            let last = format!("particles_{steps:04}.vtu");
+            assert!(
+                std::fs::read(a_dir.join(&last)).unwrap()
+                    == std::fs::read(b_dir.join(&last)).unwrap(),
+                "{last} differs"
+            );
+        } else {
+            // the series' time is stage + λ: it increases through the stages (λ: 0.5, 1 | 0.5, 1)
+            let times = pvd_times(&pvd(&a_dir));
+            eprintln!("{tag}: particles.pvd times {times:?}");
+            assert!(times.ends_with(&[0.5, 1.0, 1.5, 2.0]), "{times:?}");
+            assert!(times.windows(2).all(|w| w[0] < w[1]), "{times:?}");
         }
         for dir in [a_dir, b_dir] {
             let _ = std::fs::remove_dir_all(dir);
         }
     }
+}
+
+/// The `timestep` attributes of a `.pvd` file, in order.
+fn pvd_times(text: &str) -> Vec<f64> {
+    text.split("timestep=\"")
+        .skip(1)
+        .map(|rest| rest.split('"').next().unwrap().parse().unwrap())
+        .collect()
 }
 
 /// A run stopped in the middle of stage 2 (its checkpoint after step 4 of 5) and resumed
@@ -452,9 +475,9 @@ fn bad_stages_are_refused_with_the_scene_line() {
         ),
         (
             "unstaged load",
-            "point_load(|x| x[1] > 0.9, [0.0, -1.0]);\nstage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"b\", steps: 1 });",
+            "pressure(#{ on: arc(#{ centre: [0.0, 0.0], radius: 1.0, from: 0.0, to: 90.0 }), pressure: 1.0 });\nstage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"b\", steps: 1 });",
             5,
-            vec!["point_load", "does not follow stages"],
+            vec!["pressure", "does not follow stages"],
         ),
         (
             "unstaged column solution",
@@ -707,4 +730,82 @@ fn a_support_added_in_a_later_stage_acts_from_its_start() {
         sim.summary.warnings
     );
     let _ = std::fs::remove_dir_all(dir);
+}
+
+/// `impm check` on a staged scene says which stage each load's and constraint's "load factor 1"
+/// is of (each stage has its own schedule), and when a support is released.
+#[test]
+fn check_names_the_stage_of_every_load() {
+    let dir = common::temp_dir("stages-check", "names");
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("staged.rhai");
+    let text = staged_column(
+        "fix(|x| x[1] == 10.0, [1], #{ until_stage: \"release\" });\n\
+         stage(#{ name: \"gravity\", steps: 2 });\n\
+         body_force([0.0, -10.0]);\n\
+         stage(#{ name: \"release\", steps: 2 });\n\
+         traction(#{ on: [[0.0, 10.0], [1.0, 10.0]], traction: [0.0, -50.0] });\n\
+         displace(|x| x[1] > 8.0 && x[1] < 9.9, [1], [1.0e-4]);",
+    );
+    std::fs::write(&path, text).unwrap();
+    let out = common::impm(&["check", path.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&out.stdout).into_owned()
+        + String::from_utf8_lossy(&out.stderr).as_ref();
+    eprintln!("{text}");
+    assert!(out.status.success(), "{text}");
+    for expected in [
+        "per unit mass at load factor 1 of stage 'gravity'",
+        "total force [0.0, -50.0] at load factor 1 of stage 'release'",
+        "values [0.0] at load factor 1 of stage 'gravity', released at the start of stage 'release'",
+        "values [0.0001] at load factor 1 of stage 'release'",
+    ] {
+        assert!(text.contains(expected), "missing {expected:?}");
+    }
+    assert!(!text.contains("at load factor 1 ("), "{text}");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// Point loads follow stages: `point_load_total` of 100 on the column's top points in stage
+/// "a" (2 steps), another of 50 in stage "b" (2 steps): the base's reaction (equilibrium:
+/// the loads on the body) is 50, 100 | 125, 150 (stage a's load held, stage b's following its
+/// own λ) to 1e-6 relative (measured 2.4e-12), and the end state is the one of the 150
+/// applied in 2 steps without stages: every position to 1e-5 of the top's settlement
+/// (measured 1.5e-6: a hyperelastic body, but the loads are spread through the basis at the
+/// points' current positions, which move along another path in 4 steps than in 2).
+#[test]
+fn point_loads_follow_their_stages() {
+    let staged = staged_column(
+        "stage(#{ name: \"a\", steps: 2 });\n\
+         point_load_total(|x| x[1] > 9.5, [0.0, -100.0]);\n\
+         stage(#{ name: \"b\", steps: 2 });\n\
+         point_load_total(|x| x[1] > 9.5, [0.0, -50.0]);",
+    );
+    let plain = staged_column("load_steps(2);\npoint_load_total(|x| x[1] > 9.5, [0.0, -150.0]);");
+    let (mut a, a_dir) = build("point-loads-staged", &staged);
+    let (mut b, b_dir) = build("point-loads-plain", &plain);
+    let mut worst = 0.0f64;
+    for (step, exact) in [50.0, 100.0, 125.0, 150.0].into_iter().enumerate() {
+        let record = a.step().unwrap().clone();
+        let base = record.measure("fix1_reaction_y").unwrap();
+        eprintln!("step {}: base reaction {base:.9} (exact {exact})", step + 1);
+        worst = worst.max((base - exact).abs() / exact);
+    }
+    for _ in 0..2 {
+        b.step().unwrap();
+    }
+    let (sa, sb) = (state(&mut a), state(&mut b));
+    let settlement = 150.0 * 10.0 / column_modulus();
+    let departure = sa
+        .iter()
+        .zip(&sb)
+        .flat_map(|(pa, pb)| pa.0.iter().zip(&pb.0).map(|(x, y)| (x - y).abs()))
+        .fold(0.0f64, f64::max);
+    eprintln!(
+        "reactions to {worst:.1e} relative; end positions vs the stageless run {departure:.2e} (settlement ~{settlement:.3e})"
+    );
+    assert!(worst < 1e-6, "{worst:e}");
+    assert!(departure < 1e-5 * settlement, "{departure:e}");
+    for dir in [a_dir, b_dir] {
+        let _ = std::fs::remove_dir_all(dir);
+    }
 }

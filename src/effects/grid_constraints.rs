@@ -46,7 +46,7 @@ use rhai::{Dynamic, FnPtr, Position};
 
 use crate::checkpoint::CheckpointPart;
 use crate::components::GridNode;
-use crate::effects::declarations::selection_ranges;
+use crate::effects::declarations::{factor_one, selection_ranges};
 use crate::effects::surface_conditions::AXES;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{CurrentStage, GridFields, LoadStep, Ramp, Stage, StageClock, Warnings};
@@ -247,14 +247,15 @@ impl Plugin for GridConstraintsModule {
         {
             let line = d.line.map(|l| format!("line {l}: ")).unwrap_or_default();
             text += &format!(
-                "\n    {line}{}: {} node components, nodes in {:?} .. {:?}, axes {:?}, values {:?} at load factor 1{} (reaction: {}_reaction_x, ...)",
+                "\n    {line}{}: {} node components, nodes in {:?} .. {:?}, axes {:?}, values {:?} {}{} (reaction: {}_reaction_x, ...)",
                 d.name,
                 d.components.len(),
                 d.lower,
                 d.upper,
                 d.axes,
                 d.values,
-                window_note(spec, d.window),
+                factor_one(spec, d.window.from),
+                release_note(spec, d.window),
                 d.name
             );
         }
@@ -374,22 +375,15 @@ impl Plugin for GridConstraintsModule {
     }
 }
 
-/// " from stage 'a' until stage 'b'" for `impm check` (empty for a constraint of every stage).
-fn window_note(spec: &SceneSpec, window: Window) -> String {
-    let Some(stages) = spec.part::<Stages>() else {
-        return String::new();
-    };
-    let mut note = String::new();
-    if stages.0.len() > 1 {
-        note += &format!(", from stage '{}'", stages.name(window.from));
-    }
-    if let Some(until) = window.until {
-        note += &format!(
-            " until stage '{}' (its force then ramped down over that stage)",
+/// ", released at stage 'b' ..." for `impm check` (empty for a constraint never released).
+fn release_note(spec: &SceneSpec, window: Window) -> String {
+    match (spec.part::<Stages>(), window.until) {
+        (Some(stages), Some(until)) => format!(
+            ", released at the start of stage '{}' (its force then ramped down over that stage)",
             stages.name(until)
-        );
+        ),
+        _ => String::new(),
     }
-    note
 }
 
 /// The stages each constrained component of a node acts in (only on the nodes of a scene

@@ -30,9 +30,9 @@
 //! `output`, `stress_recovery`, `initial_stress`) belong to every stage: a scene of two or
 //! more stages refuses them after its second `stage(...)` call (only the calls that follow
 //! stages, `body_force`, `traction`, `point_load_at`, `surface_displace`, `fix`, `displace`,
-//! and the observers, `record`, `probe`, `reference`, may come there), and refuses anywhere
-//! the calls that follow the one load factor without telling stages apart (`point_load`,
-//! `point_load_total`, `pressure`, `analytic_column`, and any call these lists do not know:
+//! `point_load`, `point_load_total`, and the observers, `record`, `probe`, `reference`, may
+//! come there), and refuses anywhere the calls that follow the one load factor without
+//! telling stages apart (`pressure`, `analytic_column`, and any call these lists do not know:
 //! a module's new load is refused until it follows stages), naming the line.
 //! A scene with one stage is the scene without it, with the stage's schedule.
 
@@ -102,6 +102,8 @@ const STAGED_CALLS: &[&str] = &[
     "surface_displace",
     "fix",
     "displace",
+    "point_load",
+    "point_load_total",
 ];
 
 /// The calls that may come after the second `stage(...)` call besides those: the stages
@@ -118,8 +120,8 @@ const ANYWHERE_CALLS: &[&str] = &[
 
 /// The calls a scene of two or more stages may make before its second `stage(...)` besides
 /// those: what does not follow the load factor (the grid, materials, bodies, supports, solver,
-/// output and recovery controls, initial stresses). Any other call (`point_load`,
-/// `point_load_total`, `pressure`, `analytic_column`, or a call of a
+/// output and recovery controls, initial stresses). Any other call (`pressure`,
+/// `analytic_column`, or a call of a
 /// module this list does not know) follows the one load factor λ, which restarts in every
 /// stage: refused.
 const STAGE_FREE_CALLS: &[&str] = &[
