@@ -104,8 +104,21 @@ impl LoadStep {
     }
 }
 
+impl LoadStep {
+    /// The time of the step's files in the `.pvd` series: `stage + λ` with λ the stage's own
+    /// load factor, so that the time increases over a staged run whose stages' factors stay
+    /// within [0, 1] (ParaView's time slider then runs through the stages in turn; λ itself
+    /// restarts in every stage). A scene without stages is stage 0: the time is λ, as ever.
+    pub fn series_time(&self, stage: Option<&CurrentStage>) -> f64 {
+        match stage {
+            Some(stage) if stage.0 > 0 => stage.0 as f64 + self.factor,
+            _ => self.factor,
+        }
+    }
+}
+
 /// The stage the load step belongs to (`scene::stages`; 0 in a scene without stages): set by
-/// the driver before each step.
+/// the driver before each step. The `.pvd` series' time is [`LoadStep::series_time`].
 #[derive(Resource, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct CurrentStage(pub usize);
 
@@ -137,6 +150,14 @@ impl Ramp {
             (true, 0) => Self::Held,
             (false, k) => Self::Stage(k),
             (true, k) => Self::HeldFrom(k),
+        }
+    }
+
+    /// The stage the load belongs to.
+    pub fn stage(self) -> usize {
+        match self {
+            Self::Schedule | Self::Held => 0,
+            Self::Stage(k) | Self::HeldFrom(k) => k,
         }
     }
 

@@ -43,6 +43,6 @@ fn every_call_is_documented_and_hinted_from_one_description() {
     let fix = api.expected("fix").unwrap();
     assert_eq!(
         fix,
-        "fix(|x| predicate, [components]) or fix(|x| predicate)"
+        "fix(|x| predicate, [components]) or fix(|x| predicate) or fix(|x| predicate, [components], #{ until_stage: \"stage\" })"
     );
 }

@@ -351,13 +351,36 @@ fn one_stage_is_the_scene_without_stages_and_later_stages_hold_the_earlier_loads
                 kept.join(",") + "\n"
             })
             .collect();
+        let pvd = |dir: &Path| std::fs::read_to_string(dir.join("particles.pvd")).unwrap();
         if tag == "one" {
             assert_eq!(without_stage, history(&b_dir));
+            // a scene of one stage writes the series of the scene without it, byte for byte
+            assert_eq!(pvd(&a_dir), pvd(&b_dir));
+            let last = format!("particles_{steps:04}.vtu");
+            assert!(
+                std::fs::read(a_dir.join(&last)).unwrap()
+                    == std::fs::read(b_dir.join(&last)).unwrap(),
+                "{last} differs"
+            );
+        } else {
+            // the series' time is stage + λ: it increases through the stages (λ: 0.5, 1 | 0.5, 1)
+            let times = pvd_times(&pvd(&a_dir));
+            eprintln!("{tag}: particles.pvd times {times:?}");
+            assert!(times.ends_with(&[0.5, 1.0, 1.5, 2.0]), "{times:?}");
+            assert!(times.windows(2).all(|w| w[0] < w[1]), "{times:?}");
         }
         for dir in [a_dir, b_dir] {
             let _ = std::fs::remove_dir_all(dir);
         }
     }
+}
+
+/// The `timestep` attributes of a `.pvd` file, in order.
+fn pvd_times(text: &str) -> Vec<f64> {
+    text.split("timestep=\"")
+        .skip(1)
+        .map(|rest| rest.split('"').next().unwrap().parse().unwrap())
+        .collect()
 }
 
 /// A run stopped in the middle of stage 2 (its checkpoint after step 4 of 5) and resumed
@@ -452,9 +475,9 @@ fn bad_stages_are_refused_with_the_scene_line() {
         ),
         (
             "unstaged load",
-            "point_load(|x| x[1] > 0.9, [0.0, -1.0]);\nstage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"b\", steps: 1 });",
+            "pressure(#{ on: arc(#{ centre: [0.0, 0.0], radius: 1.0, from: 0.0, to: 90.0 }), pressure: 1.0 });\nstage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"b\", steps: 1 });",
             5,
-            vec!["point_load", "does not follow stages"],
+            vec!["pressure", "does not follow stages"],
         ),
         (
             "unstaged column solution",
@@ -463,10 +486,34 @@ fn bad_stages_are_refused_with_the_scene_line() {
             vec!["analytic_column", "does not follow stages"],
         ),
         (
-            "condition in a later stage",
-            "stage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"b\", steps: 1 });\nfix(|x| x[0] == 0.0, [0]);",
+            "material in a later stage",
+            "stage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"b\", steps: 1 });\nconst m2 = material(#{ name: \"m2\", E: 1.0e4, nu: 0.3, density: 2.0 });",
             7,
-            vec!["fix", "after stage 'b' at line 6"],
+            vec!["material", "after stage 'b' at line 6"],
+        ),
+        (
+            "until an unknown stage",
+            "fix(|x| x[0] == 0.0, [0], #{ until_stage: \"c\" });\nstage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"b\", steps: 1 });",
+            5,
+            vec!["no stage is named 'c'", "'a', 'b'"],
+        ),
+        (
+            "until its own stage",
+            "stage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"b\", steps: 1 });\ndisplace(|x| x[1] == 2.0, [1], [0.1], #{ until_stage: \"b\" });",
+            7,
+            vec!["'b' is not after the stage the constraint belongs to ('b')"],
+        ),
+        (
+            "until without stages",
+            "load_steps(1);\nfix(|x| x[0] == 0.0, [0], #{ until_stage: \"a\" });",
+            6,
+            vec!["no stage is named 'a'", "the scene has no stages"],
+        ),
+        (
+            "until_stage misspelt",
+            "stage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"b\", steps: 1 });\nfix(|x| x[0] == 0.0, [0], #{ until_stag: \"b\" });",
+            7,
+            vec!["unknown option 'until_stag'", "until_stage"],
         ),
         (
             "arc length",
@@ -520,4 +567,245 @@ fn the_shipped_staged_footing_runs_in_its_two_stages() {
     eprintln!("end: settlement / B {settlement:.6e}, pressure {pressure:.4e}");
     assert!((settlement - 0.01).abs() < 1e-5, "{settlement}");
     assert!(pressure > 0.0, "{pressure}");
+}
+
+/// A column 1 wide and H = 10 high (Hencky, E = 1e6, ν = 0.3, density 2, g = 10: γ = 20;
+/// strains ~1.5e-4, so that the small-strain solutions below hold to ~1e-4), quadratic
+/// B-splines, 1 × 10 cells, 3 × 3 Gauss points per cell, base fixed vertically, sides on
+/// rollers (uniaxial strain); `extra` adds the staged supports and loads.
+fn staged_column(extra: &str) -> String {
+    format!(
+        "grid(#{{ lower: [0.0, 0.0], upper: [1.0, 10.0], cells: [1, 10], basis: \"bspline\", order: 2 }});\n\
+         const soil = material(#{{ name: \"soil\", E: 1.0e6, nu: {NU}, density: 2.0 }});\n\
+         body(#{{ name: \"column\", material: soil, region: box([0.0, 0.0], [1.0, 10.0]), ppc: 3, placement: \"gauss\" }});\n\
+         fix(|x| x[1] == 0.0, [1]);\n\
+         fix(|x| x[0] == 0.0 || x[0] == 1.0, [0]);\n\
+         {extra}\n"
+    )
+}
+
+/// The column's constrained modulus M = E (1 − ν) / ((1 + ν)(1 − 2ν)) (E = 1e6).
+fn column_modulus() -> f64 {
+    1.0e6 * (1.0 - NU) / ((1.0 + NU) * (1.0 - 2.0 * NU))
+}
+
+/// The largest departure of the points' vertical displacement from `exact(Y)` (Y the
+/// reference height), and of their horizontal one from 0.
+fn column_departure(sim: &mut Simulation<2>, exact: impl Fn(f64) -> f64) -> f64 {
+    let mut worst = 0.0f64;
+    let mut query = sim
+        .world
+        .query::<(&ReferencePosition<2>, &Displacement<2>)>();
+    for (x, u) in query.iter(&sim.world) {
+        worst = worst.max((u.0[1] - exact(x.0[1])).abs().max(u.0[0].abs()));
+    }
+    worst
+}
+
+/// A support released in a later stage, by the excavation rule. Stage "gravity" (2 steps)
+/// brings the weight on a column held at its base and at its top (`fix(.., #{ until_stage:
+/// "release" })`): u_y = −λ (γ/2M) Y (H − Y), each support carrying half the weight,
+/// γH/2 = 100 per unit width. Stage "release" (4 steps) turns the top support's force into a
+/// load ramped down to zero: u_y = −(γ/2M) Y (H − Y) − λ γ H Y / (2M) (the released force
+/// γH/2 (1 − λ) on the top of the column hanging from its base; at λ = 1 the column under its
+/// weight, −(γ/M)(HY − Y²/2)). Every step: the displacements to 2e-3 of γH²/2M, the top
+/// support's reaction (measure `fix3_reaction_y`) the ramp 50, 100 | 75, 50, 25, 0 to 1e-3 of
+/// γH/2, the base's the rest of the weight (same tolerance), every step converged.
+#[test]
+fn a_support_released_in_a_later_stage_is_ramped_down_to_the_analytic_state() {
+    let text = staged_column(
+        "fix(|x| x[1] == 10.0, [1], #{ until_stage: \"release\" });\n\
+         stage(#{ name: \"gravity\", steps: 2 });\n\
+         body_force([0.0, -10.0]);\n\
+         stage(#{ name: \"release\", steps: 4 });",
+    );
+    let (mut sim, dir) = build("release", &text);
+    let (h, modulus) = (10.0, column_modulus());
+    let scale = GAMMA * h * h / (2.0 * modulus);
+    let half = GAMMA * h / 2.0;
+    let mut worst_u = 0.0f64;
+    let mut worst_r = 0.0f64;
+    let mut reactions = Vec::new();
+    for step in 1..=6 {
+        let record = sim.step().unwrap().clone();
+        let (stage, lambda) = match step {
+            1 | 2 => (0, step as f64 / 2.0),
+            _ => (1, (step - 2) as f64 / 4.0),
+        };
+        assert_eq!(record.stage.as_ref().map(|s| s.0), Some(stage));
+        let (top_exact, base_exact) = match stage {
+            0 => (lambda * half, lambda * half),
+            _ => ((1.0 - lambda) * half, (1.0 + lambda) * half),
+        };
+        let exact = move |y: f64| match stage {
+            0 => -lambda * GAMMA / (2.0 * modulus) * y * (h - y),
+            _ => -GAMMA / (2.0 * modulus) * y * (h - y) - lambda * GAMMA * h * y / (2.0 * modulus),
+        };
+        let departure = column_departure(&mut sim, exact);
+        let top = record.measure("fix3_reaction_y").unwrap();
+        let base = record.measure("fix1_reaction_y").unwrap();
+        eprintln!(
+            "step {step} (stage {stage}, λ {lambda}): max |u − u_exact| {departure:.2e} of {scale:.4e}; top support {top:.6} (exact {top_exact}), base {base:.6} (exact {base_exact})"
+        );
+        worst_u = worst_u.max(departure);
+        worst_r = worst_r
+            .max((top - top_exact).abs())
+            .max((base - base_exact).abs());
+        reactions.push(top);
+    }
+    eprintln!(
+        "worst: u {worst_u:.2e} ({:.2e} relative), reactions {worst_r:.2e}",
+        worst_u / scale
+    );
+    assert!(worst_u < 2e-3 * scale, "{worst_u:e}");
+    assert!(worst_r < 1e-3 * half, "{worst_r:e} {reactions:?}");
+    assert!(
+        sim.summary.warnings.is_empty(),
+        "{:?}",
+        sim.summary.warnings
+    );
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// A support added in a later stage moves its nodes from where that stage finds them. Stage
+/// "gravity" (2 steps) settles the column under its weight, the top free
+/// (u_y = −λ(γ/M)(HY − Y²/2)); stage "lift" (2 steps) declares `displace` of the top by
+/// d = 1e-3, which acts from the stage's start: u_y = −(γ/M)(HY − Y²/2) + λ d Y/H (a uniform
+/// stretch added), the top's reaction λ M d / H and the base's γH − λ M d / H. Before its
+/// stage the waiting support carries nothing (reaction exactly 0) and the top settles freely
+/// (γH²/2M). Displacements to 2e-3 of γH²/2M, reactions to 1e-3 of γH; no warning (the
+/// material follows the node from the stage's start: the prescribed-motion check measures
+/// from there).
+#[test]
+fn a_support_added_in_a_later_stage_acts_from_its_start() {
+    let text = staged_column(
+        "stage(#{ name: \"gravity\", steps: 2 });\n\
+         body_force([0.0, -10.0]);\n\
+         stage(#{ name: \"lift\", steps: 2 });\n\
+         displace(|x| x[1] == 10.0, [1], [1.0e-3]);",
+    );
+    let (mut sim, dir) = build("lift", &text);
+    let (h, modulus, d) = (10.0, column_modulus(), 1.0e-3);
+    let scale = GAMMA * h * h / (2.0 * modulus);
+    let weight = GAMMA * h;
+    let mut worst_u = 0.0f64;
+    let mut worst_r = 0.0f64;
+    for step in 1..=4 {
+        let record = sim.step().unwrap().clone();
+        let (stage, lambda) = match step {
+            1 | 2 => (0, step as f64 / 2.0),
+            _ => (1, (step - 2) as f64 / 2.0),
+        };
+        let top = record.measure("displace1_reaction_y").unwrap();
+        let base = record.measure("fix1_reaction_y").unwrap();
+        let (top_exact, base_exact) = match stage {
+            0 => (0.0, lambda * weight),
+            _ => (lambda * modulus * d / h, weight - lambda * modulus * d / h),
+        };
+        if stage == 0 {
+            assert_eq!(top, 0.0, "the waiting support carries nothing");
+        }
+        let exact = move |y: f64| match stage {
+            0 => -lambda * GAMMA / modulus * (h * y - 0.5 * y * y),
+            _ => -GAMMA / modulus * (h * y - 0.5 * y * y) + lambda * d * y / h,
+        };
+        let departure = column_departure(&mut sim, exact);
+        eprintln!(
+            "step {step} (stage {stage}, λ {lambda}): max |u − u_exact| {departure:.2e} of {scale:.4e}; top {top:.6} (exact {top_exact:.6}), base {base:.6} (exact {base_exact:.6})"
+        );
+        worst_u = worst_u.max(departure);
+        worst_r = worst_r
+            .max((top - top_exact).abs())
+            .max((base - base_exact).abs());
+    }
+    eprintln!(
+        "worst: u {worst_u:.2e} ({:.2e} relative), reactions {worst_r:.2e}",
+        worst_u / scale
+    );
+    assert!(worst_u < 2e-3 * scale, "{worst_u:e}");
+    assert!(worst_r < 1e-3 * weight, "{worst_r:e}");
+    assert!(
+        sim.summary.warnings.is_empty(),
+        "{:?}",
+        sim.summary.warnings
+    );
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// `impm check` on a staged scene says which stage each load's and constraint's "load factor 1"
+/// is of (each stage has its own schedule), and when a support is released.
+#[test]
+fn check_names_the_stage_of_every_load() {
+    let dir = common::temp_dir("stages-check", "names");
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("staged.rhai");
+    let text = staged_column(
+        "fix(|x| x[1] == 10.0, [1], #{ until_stage: \"release\" });\n\
+         stage(#{ name: \"gravity\", steps: 2 });\n\
+         body_force([0.0, -10.0]);\n\
+         stage(#{ name: \"release\", steps: 2 });\n\
+         traction(#{ on: [[0.0, 10.0], [1.0, 10.0]], traction: [0.0, -50.0] });\n\
+         displace(|x| x[1] > 8.0 && x[1] < 9.9, [1], [1.0e-4]);",
+    );
+    std::fs::write(&path, text).unwrap();
+    let out = common::impm(&["check", path.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&out.stdout).into_owned()
+        + String::from_utf8_lossy(&out.stderr).as_ref();
+    eprintln!("{text}");
+    assert!(out.status.success(), "{text}");
+    for expected in [
+        "per unit mass at load factor 1 of stage 'gravity'",
+        "total force [0.0, -50.0] at load factor 1 of stage 'release'",
+        "values [0.0] at load factor 1 of stage 'gravity', released at the start of stage 'release'",
+        "values [0.0001] at load factor 1 of stage 'release'",
+    ] {
+        assert!(text.contains(expected), "missing {expected:?}");
+    }
+    assert!(!text.contains("at load factor 1 ("), "{text}");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// Point loads follow stages: `point_load_total` of 100 on the column's top points in stage
+/// "a" (2 steps), another of 50 in stage "b" (2 steps): the base's reaction (equilibrium:
+/// the loads on the body) is 50, 100 | 125, 150 (stage a's load held, stage b's following its
+/// own λ) to 1e-6 relative (measured 2.4e-12), and the end state is the one of the 150
+/// applied in 2 steps without stages: every position to 1e-5 of the top's settlement
+/// (measured 1.5e-6: a hyperelastic body, but the loads are spread through the basis at the
+/// points' current positions, which move along another path in 4 steps than in 2).
+#[test]
+fn point_loads_follow_their_stages() {
+    let staged = staged_column(
+        "stage(#{ name: \"a\", steps: 2 });\n\
+         point_load_total(|x| x[1] > 9.5, [0.0, -100.0]);\n\
+         stage(#{ name: \"b\", steps: 2 });\n\
+         point_load_total(|x| x[1] > 9.5, [0.0, -50.0]);",
+    );
+    let plain = staged_column("load_steps(2);\npoint_load_total(|x| x[1] > 9.5, [0.0, -150.0]);");
+    let (mut a, a_dir) = build("point-loads-staged", &staged);
+    let (mut b, b_dir) = build("point-loads-plain", &plain);
+    let mut worst = 0.0f64;
+    for (step, exact) in [50.0, 100.0, 125.0, 150.0].into_iter().enumerate() {
+        let record = a.step().unwrap().clone();
+        let base = record.measure("fix1_reaction_y").unwrap();
+        eprintln!("step {}: base reaction {base:.9} (exact {exact})", step + 1);
+        worst = worst.max((base - exact).abs() / exact);
+    }
+    for _ in 0..2 {
+        b.step().unwrap();
+    }
+    let (sa, sb) = (state(&mut a), state(&mut b));
+    let settlement = 150.0 * 10.0 / column_modulus();
+    let departure = sa
+        .iter()
+        .zip(&sb)
+        .flat_map(|(pa, pb)| pa.0.iter().zip(&pb.0).map(|(x, y)| (x - y).abs()))
+        .fold(0.0f64, f64::max);
+    eprintln!(
+        "reactions to {worst:.1e} relative; end positions vs the stageless run {departure:.2e} (settlement ~{settlement:.3e})"
+    );
+    assert!(worst < 1e-6, "{worst:e}");
+    assert!(departure < 1e-5 * settlement, "{departure:e}");
+    for dir in [a_dir, b_dir] {
+        let _ = std::fs::remove_dir_all(dir);
+    }
 }

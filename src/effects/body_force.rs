@@ -119,14 +119,15 @@ impl Plugin for BodyForceModule {
                 .map(|p| &p.position[..]),
             b.0.iter().map(|c| c * mass).collect(),
         );
-        let held = spec.part::<BodyForceRamp>().is_some_and(|r| r.0.is_held());
+        let ramp = spec.part::<BodyForceRamp>().map_or(Ramp::Schedule, |r| r.0);
+        let summary = summary.in_stage(spec, ramp.stage());
         Some(format!(
             "{:?} per unit mass {}\n    {}",
             b.0,
-            if held {
-                "held in full from the first step"
+            if ramp.is_held() {
+                "held in full from the first step".to_string()
             } else {
-                "at load factor 1"
+                summary.factor.clone()
             },
             summary.describe()
         ))

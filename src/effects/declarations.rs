@@ -3,7 +3,7 @@
 //! loads before solving. Each load module keeps a [`LoadSummary`] per declaration in its part
 //! of the scene and prints them in its `describe`. Also the `held` option the loads share.
 
-use crate::scene::{Kind, OptionSpec};
+use crate::scene::{Kind, OptionSpec, SceneSpec, Stages};
 
 /// The option of a load that can be held (`traction`, `point_load_at`, `body_force`): `held`
 /// (`resources::Ramp`).
@@ -29,6 +29,19 @@ pub struct LoadSummary {
     pub upper: Vec<f64>,
     /// The total force at load factor 1.
     pub total_force: Vec<f64>,
+    /// "at load factor 1", with the stage in a scene of several stages ([`factor_one`]).
+    pub factor: String,
+}
+
+/// "at load factor 1" for `impm check`, naming the stage in a scene of several stages, where a
+/// load of a later stage is at load factor 1 of that stage's own schedule (`scene::stages`).
+pub fn factor_one(spec: &SceneSpec, stage: usize) -> String {
+    match spec.part::<Stages>() {
+        Some(stages) if stages.0.len() > 1 => {
+            format!("at load factor 1 of stage '{}'", stages.name(stage))
+        }
+        _ => "at load factor 1".to_string(),
+    }
 }
 
 impl LoadSummary {
@@ -49,7 +62,14 @@ impl LoadSummary {
             lower,
             upper,
             total_force: total_force.into_iter().map(round).collect(),
+            factor: "at load factor 1".to_string(),
         }
+    }
+
+    /// The summary of a load of stage `stage` (its factor named by [`factor_one`]).
+    pub fn in_stage(mut self, spec: &SceneSpec, stage: usize) -> Self {
+        self.factor = factor_one(spec, stage);
+        self
     }
 
     /// `line 12: point_load_total: 4 material points, x in [..] .. [..], total force [..] at
@@ -57,8 +77,8 @@ impl LoadSummary {
     pub fn describe(&self) -> String {
         let line = self.line.map(|l| format!("line {l}: ")).unwrap_or_default();
         format!(
-            "{line}{}: {}, x in {:?} .. {:?}, total force {:?} at load factor 1",
-            self.call, self.selects, self.lower, self.upper, self.total_force
+            "{line}{}: {}, x in {:?} .. {:?}, total force {:?} {}",
+            self.call, self.selects, self.lower, self.upper, self.total_force, self.factor
         )
     }
 }

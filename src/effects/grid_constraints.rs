@@ -15,6 +15,28 @@
 //! A prescribed displacement moves the grid node, and so the material that is at the node at
 //! the start of each step (the grid is reset every step): exact where the material stays at
 //! the constrained nodes (tension, or linear FEM whose nodes move with the body).
+//!
+//! # Stages
+//!
+//! In a staged scene (`scene::stages`) a `fix` / `displace` declared in stage k constrains its
+//! components from stage k's start on; a `displace` of stage k moves its nodes by λ_k times
+//! its value over stage k (its increment `(λ_k,n+1 − λ_k,n) ū`, from where stage k found them)
+//! and holds them in the stages after it. `#{ until_stage: "s" }` releases (`until` is a keyword of the scene language) the constraint at the
+//! start of stage s, with the excavation rule: the support's force on the body at the end of
+//! the stage before, `R_i = f_int,i − f_ext,i` at each of its node components i, becomes a
+//! load ramped down over stage s,
+//!
+//! ```text
+//!   f_ext,i += (1 − λ_s) R_i   in stage s,    nothing after it,
+//! ```
+//!
+//! so that the body starts stage s in equilibrium and is unloaded gradually (Newton converges
+//! as in any load step). A component another declaration still constrains in stage s gets no
+//! such load. The reaction measures (`fix1_reaction_y`, ...) are the support's force while it
+//! acts, the ramped load `(1 − λ_s) Σ R_i` in stage s and 0 before its stage and after s. The
+//! released forces are a checkpoint part ("released supports"). [`ConstraintWindows`] holds
+//! the stages each constrained component acts in; a scene without stages has none and runs
+//! as before.
 
 use std::collections::BTreeMap;
 
@@ -22,14 +44,15 @@ use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 use rhai::{Dynamic, FnPtr, Position};
 
+use crate::checkpoint::CheckpointPart;
 use crate::components::GridNode;
-use crate::effects::declarations::selection_ranges;
+use crate::effects::declarations::{factor_one, selection_ranges};
 use crate::effects::surface_conditions::AXES;
 use crate::plugin::{Extension, Hook, Plugin};
-use crate::resources::{GridFields, LoadStep, Stage, StageClock, Warnings};
+use crate::resources::{CurrentStage, GridFields, LoadStep, Ramp, Stage, StageClock, Warnings};
 use crate::scene::{
-    CallSpec, Located, Resolver, SceneApi, SceneBuilder, SceneSpec, ScriptError, function, numbers,
-    whole_numbers,
+    CallSpec, Kind, Located, OptionSpec, Options, Resolver, SceneApi, SceneBuilder, SceneSpec,
+    ScriptError, Stages, function, numbers, whole_numbers,
 };
 
 /// One constrained component of one grid node (control point). The prescribed displacement
@@ -46,6 +69,32 @@ pub struct NodeConstraint {
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct NodeConstraints(pub Vec<NodeConstraint>);
 
+/// The stages a constraint acts in: from stage `from` on, up to (not including) stage
+/// `until` (module docs, "Stages").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Window {
+    pub from: usize,
+    pub until: Option<usize>,
+}
+
+impl Window {
+    /// Every stage (a scene without stages).
+    pub const ALWAYS: Self = Self {
+        from: 0,
+        until: None,
+    };
+
+    /// Whether the constraint acts in stage `stage`.
+    pub fn covers(self, stage: usize) -> bool {
+        stage >= self.from && self.until.is_none_or(|until| stage < until)
+    }
+}
+
+/// The windows of every entry of [`NodeConstraints`] (same order): a part of the scene only
+/// when some constraint does not act in every stage.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ConstraintWindows(pub Vec<Vec<Window>>);
+
 /// What one `fix`/`displace` call selected: for `impm check` and its reaction.
 #[derive(Clone, Debug, PartialEq)]
 pub struct DeclaredConstraint {
@@ -61,6 +110,8 @@ pub struct DeclaredConstraint {
     /// The smallest and largest coordinate of the selected nodes, per axis.
     pub lower: Vec<f64>,
     pub upper: Vec<f64>,
+    /// The stages it acts in (module docs, "Stages").
+    pub window: Window,
 }
 
 /// Every `fix`/`displace` call of the scene, in order.
@@ -77,6 +128,8 @@ struct ConstraintDeclaration {
     components: Vec<usize>,
     /// One prescribed displacement (at load factor 1) per component.
     values: Vec<f64>,
+    /// `#{ until_stage: "stage" }`: the stage whose start releases it.
+    until: Option<String>,
 }
 
 /// The constraints of a scene (none if it declares none).
@@ -115,9 +168,11 @@ impl Plugin for GridConstraintsModule {
         api.call(CallSpec::args(
             "fix",
             "fix(|x| predicate, [components])",
-            "fixes the listed displacement components (0-based axes) of every grid node whose position satisfies the predicate (a roller: one component). Nodes are the control points (Greville abscissae; grid vertices for linear), with the first and last node of each axis exactly on the grid bounds",
+            "fixes the listed displacement components (0-based axes) of every grid node whose position satisfies the predicate (a roller: one component). Nodes are the control points (Greville abscissae; grid vertices for linear), with the first and last node of each axis exactly on the grid bounds. In a staged scene it acts from the start of the stage it is declared in",
             2,
-            |builder, args, at| declare_constraint(builder, "fix", &args[0], &args[1], None, at),
+            |builder, args, at| {
+                declare_constraint(builder, "fix", &args[0], &args[1], None, None, at)
+            },
         ))
         .call(CallSpec::args(
             "fix",
@@ -125,25 +180,56 @@ impl Plugin for GridConstraintsModule {
             "full fixity: every component of the selected nodes",
             1,
             |builder, args, at| {
-                declare_constraint(builder, "fix", &args[0], &Dynamic::UNIT, None, at)
+                declare_constraint(builder, "fix", &args[0], &Dynamic::UNIT, None, None, at)
+            },
+        ))
+        .call(CallSpec::args(
+            "fix",
+            "fix(|x| predicate, [components], #{ until_stage: \"stage\" })",
+            "a support released at the start of the named (later) stage of a staged scene: its force on the body at the end of the stage before becomes a load ramped down to zero over the named stage (the excavation rule; docs/plasticity.md, \"Staged analysis\")",
+            3,
+            |builder, args, at| {
+                declare_constraint(builder, "fix", &args[0], &args[1], None, Some(&args[2]), at)
             },
         ))
         .call(CallSpec::args(
             "displace",
             "displace(|x| predicate, [components], [values])",
-            "prescribes the displacement of the listed components of the selected grid nodes (values at load factor 1, ramped with the load factor); it moves the material at the node at the start of each step",
+            "prescribes the displacement of the listed components of the selected grid nodes (values at load factor 1, ramped with the load factor; in a staged scene from the start of its stage, over its stage's schedule, then held); it moves the material at the node at the start of each step",
             3,
             |builder, args, at| {
-                declare_constraint(builder, "displace", &args[0], &args[1], Some(&args[2]), at)
+                declare_constraint(
+                    builder, "displace", &args[0], &args[1], Some(&args[2]), None, at,
+                )
+            },
+        ))
+        .call(CallSpec::args(
+            "displace",
+            "displace(|x| predicate, [components], [values], #{ until_stage: \"stage\" })",
+            "a prescribed displacement released at the start of the named (later) stage, as fix(.., #{ until_stage })",
+            4,
+            |builder, args, at| {
+                declare_constraint(
+                    builder,
+                    "displace",
+                    &args[0],
+                    &args[1],
+                    Some(&args[2]),
+                    Some(&args[3]),
+                    at,
+                )
             },
         ));
     }
 
     fn resolve(&self, scene: &mut Resolver) -> Result<(), ScriptError> {
-        let (constraints, declared) = resolve_constraints(scene)?;
+        let (constraints, declared, windows) = resolve_constraints(scene)?;
         if !constraints.is_empty() {
             scene.spec.set_part(NodeConstraints(constraints));
             scene.spec.set_part(ConstraintDeclarations(declared));
+            if let Some(windows) = windows {
+                scene.spec.set_part(ConstraintWindows(windows));
+            }
         }
         Ok(())
     }
@@ -161,13 +247,15 @@ impl Plugin for GridConstraintsModule {
         {
             let line = d.line.map(|l| format!("line {l}: ")).unwrap_or_default();
             text += &format!(
-                "\n    {line}{}: {} node components, nodes in {:?} .. {:?}, axes {:?}, values {:?} at load factor 1 (reaction: {}_reaction_x, ...)",
+                "\n    {line}{}: {} node components, nodes in {:?} .. {:?}, axes {:?}, values {:?} {}{} (reaction: {}_reaction_x, ...)",
                 d.name,
                 d.components.len(),
                 d.lower,
                 d.upper,
                 d.axes,
                 d.values,
+                factor_one(spec, d.window.from),
+                release_note(spec, d.window),
                 d.name
             );
         }
@@ -191,7 +279,9 @@ impl Plugin for GridConstraintsModule {
             entities[index] = entity;
         }
         let mut fixities = vec![None::<Fixity<D>>; entities.len()];
-        for c in constraints(spec) {
+        let windows = spec.part::<ConstraintWindows>().map(|w| w.0.clone());
+        let mut staged = vec![None::<FixityWindows<D>>; entities.len()];
+        for (index, c) in constraints(spec).iter().enumerate() {
             let Some(fixity) = fixities.get_mut(c.node) else {
                 simulation.fail(format!("constraint on node {} outside the grid", c.node));
                 return;
@@ -201,8 +291,16 @@ impl Plugin for GridConstraintsModule {
                 return;
             }
             let fixity = fixity.get_or_insert_default();
-            fixity.fixed[c.component] = true;
             fixity.prescribed[c.component] = c.value;
+            match windows.as_ref().and_then(|w| w.get(index)) {
+                None => fixity.fixed[c.component] = true,
+                Some(windows) => {
+                    // stage 0's fixity; `stage_fixities` sets it at every step
+                    fixity.fixed[c.component] = windows.iter().any(|w| w.covers(0));
+                    staged[c.node].get_or_insert_with(FixityWindows::default).0[c.component] =
+                        windows.clone();
+                }
+            }
         }
         let world = simulation.world();
         let mut fields = world.resource_mut::<GridFields<D>>();
@@ -217,6 +315,13 @@ impl Plugin for GridConstraintsModule {
             .filter_map(|(node, fixity)| Some((entities[node], fixity?)))
             .collect();
         world.insert_batch(batch);
+        let staged: Vec<(Entity, FixityWindows<D>)> = staged
+            .into_iter()
+            .enumerate()
+            .filter_map(|(node, windows)| Some((entities[node], windows?)))
+            .collect();
+        let has_windows = !staged.is_empty();
+        world.insert_batch(staged);
         let declared = spec
             .part::<ConstraintDeclarations>()
             .map_or(Vec::new(), |d| d.0.clone());
@@ -239,14 +344,76 @@ impl Plugin for GridConstraintsModule {
                 Some(world.get_resource::<GridReactions<D>>()?.external[axis])
             });
         }
+        let releases = declared.iter().any(|d| d.window.until.is_some());
         simulation.world().insert_resource(GridReactions::<D> {
+            released: declared
+                .iter()
+                .map(|d| match d.window.until {
+                    Some(_) => vec![0.0; d.components.len()],
+                    None => Vec::new(),
+                })
+                .collect(),
             declarations: declared,
             reactions: Vec::new(),
             external: SVector::zeros(),
         });
+        if has_windows {
+            simulation.add_systems(Hook::Constraints, stage_fixities::<D>);
+        }
         simulation
             .add_systems(Hook::Constraints, constrain_nodes::<D>)
             .add_systems(Hook::AfterStep, grid_reactions::<D>);
+        if releases {
+            simulation
+                .add_systems(Hook::Loads, apply_released_supports::<D>)
+                .checkpoint(CheckpointPart {
+                    name: "released supports",
+                    save: save_released::<D>,
+                    restore: restore_released::<D>,
+                });
+        }
+    }
+}
+
+/// ", released at stage 'b' ..." for `impm check` (empty for a constraint never released).
+fn release_note(spec: &SceneSpec, window: Window) -> String {
+    match (spec.part::<Stages>(), window.until) {
+        (Some(stages), Some(until)) => format!(
+            ", released at the start of stage '{}' (its force then ramped down over that stage)",
+            stages.name(until)
+        ),
+        _ => String::new(),
+    }
+}
+
+/// The stages each constrained component of a node acts in (only on the nodes of a scene
+/// with [`ConstraintWindows`]; empty for a component that is not constrained).
+#[derive(Component, Clone, Debug)]
+pub struct FixityWindows<const D: usize>(pub [Vec<Window>; D]);
+
+impl<const D: usize> Default for FixityWindows<D> {
+    fn default() -> Self {
+        Self(std::array::from_fn(|_| Vec::new()))
+    }
+}
+
+/// The stage of the step (0 without a `CurrentStage`).
+fn stage_of(stage: &Option<Res<CurrentStage>>) -> usize {
+    stage.as_ref().map_or(0, |s| s.0)
+}
+
+/// In a staged scene, before [`constrain_nodes`]: the components that act in the step's stage
+/// are the fixed ones.
+pub fn stage_fixities<const D: usize>(
+    stage: Option<Res<CurrentStage>>,
+    mut nodes: Query<(&mut Fixity<D>, &FixityWindows<D>)>,
+) {
+    let stage = stage_of(&stage);
+    for (mut fixity, windows) in nodes.iter_mut() {
+        let fixed = std::array::from_fn(|c| windows.0[c].iter().any(|w| w.covers(stage)));
+        if fixity.fixed != fixed {
+            fixity.fixed = fixed;
+        }
     }
 }
 
@@ -254,8 +421,12 @@ impl Plugin for GridConstraintsModule {
 #[derive(Resource, Clone, Debug)]
 pub struct GridReactions<const D: usize> {
     pub declarations: Vec<DeclaredConstraint>,
-    /// The force the constrained components exert on the body, per declaration.
+    /// The force the constrained components exert on the body, per declaration: while it acts
+    /// the support's, in the stage that releases it the ramped load that replaces it, else 0.
     pub reactions: Vec<SVector<f64, D>>,
+    /// Per declaration with `until_stage`, the force on the body at each of its node components at
+    /// the last converged step it acted in (module docs, "Stages"; empty for the others).
+    pub released: Vec<Vec<f64>>,
     /// The resultant of the external forces (Σ_i f_ext,i) at the same step, recorded as
     /// `external_force_x`, ...: with every reaction it sums to zero at equilibrium.
     pub external: SVector<f64, D>,
@@ -266,19 +437,90 @@ pub struct GridReactions<const D: usize> {
 /// contribution, e.g. a surface condition's force on nodes that are also constrained). A
 /// component selected by two declarations counts in both.
 pub fn grid_reactions<const D: usize>(
+    step: Res<LoadStep>,
+    stage: Option<Res<CurrentStage>>,
     fields: Res<GridFields<D>>,
     mut reactions: ResMut<GridReactions<D>>,
 ) {
+    let stage = stage_of(&stage);
     let reactions = &mut *reactions;
     reactions.external = fields.external_force.iter().sum();
     reactions.reactions.clear();
-    for declaration in &reactions.declarations {
+    for (declaration, released) in reactions.declarations.iter().zip(&mut reactions.released) {
         let mut force = SVector::<f64, D>::zeros();
-        for &(node, c) in &declaration.components {
-            force[c] += fields.internal_force[node][c] - fields.external_force[node][c];
+        let window = declaration.window;
+        if window.covers(stage) {
+            for (k, &(node, c)) in declaration.components.iter().enumerate() {
+                let reaction = fields.internal_force[node][c] - fields.external_force[node][c];
+                force[c] += reaction;
+                if let Some(kept) = released.get_mut(k) {
+                    *kept = reaction;
+                }
+            }
+        } else if window.until == Some(stage) {
+            let ramp = 1.0 - step.factor;
+            for (&(node, c), &reaction) in declaration.components.iter().zip(released.iter()) {
+                if !fields.constrained[node][c] {
+                    force[c] += reaction * ramp;
+                }
+            }
         }
         reactions.reactions.push(force);
     }
+}
+
+/// In the stage that releases a support (`until_stage`): its force at the end of the stage before,
+/// ramped down, `f_ext,i += (1 − λ) R_i` at each of its components no other declaration
+/// still constrains (module docs, "Stages").
+pub fn apply_released_supports<const D: usize>(
+    step: Res<LoadStep>,
+    stage: Option<Res<CurrentStage>>,
+    reactions: Res<GridReactions<D>>,
+    mut fields: ResMut<GridFields<D>>,
+    mut clock: ResMut<StageClock>,
+) {
+    let _timer = clock.time(Stage::Loads);
+    let stage = stage_of(&stage);
+    let ramp = 1.0 - step.factor;
+    for (declaration, released) in reactions.declarations.iter().zip(&reactions.released) {
+        if declaration.window.until != Some(stage) {
+            continue;
+        }
+        for (&(node, c), &reaction) in declaration.components.iter().zip(released) {
+            if !fields.constrained[node][c] {
+                fields.external_force[node][c] += reaction * ramp;
+            }
+        }
+    }
+}
+
+/// The released supports' forces, declaration after declaration.
+fn save_released<const D: usize>(world: &mut World) -> Vec<f64> {
+    world
+        .resource::<GridReactions<D>>()
+        .released
+        .iter()
+        .flatten()
+        .copied()
+        .collect()
+}
+
+fn restore_released<const D: usize>(world: &mut World, values: &[f64]) -> Result<(), String> {
+    let mut reactions = world.resource_mut::<GridReactions<D>>();
+    let total: usize = reactions.released.iter().map(Vec::len).sum();
+    if values.len() != total {
+        return Err(format!(
+            "the checkpoint has {} released support forces, the scene {total}",
+            values.len()
+        ));
+    }
+    let mut rest = values;
+    for released in &mut reactions.released {
+        let (these, others) = rest.split_at(released.len());
+        released.copy_from_slice(these);
+        rest = others;
+    }
+    Ok(())
 }
 
 /// The fixed components of every constrained node get no DOF.
@@ -327,6 +569,12 @@ pub struct WatchedNode<const D: usize> {
     pub host: Entity,
     pub prescribed: SVector<f64, D>,
     pub fixed: [bool; D],
+    /// The stages the declaration acts in.
+    pub window: Window,
+    /// The material's displacement at the node when the declaration's stage started (zero
+    /// for a declaration of the first stage; `None` in a run resumed after that start: the
+    /// node is then not compared).
+    pub origin: Option<SVector<f64, D>>,
 }
 
 /// The watched nodes of every `displace`, and the declarations already warned about.
@@ -384,10 +632,15 @@ fn watched_nodes<const D: usize>(simulation: &mut Extension<'_, D>) -> Prescribe
                 host: entities[host],
                 prescribed: SVector::zeros(),
                 fixed: [false; D],
+                window: declaration.window,
+                origin: None,
             };
             for (&axis, &value) in declaration.axes.iter().zip(&declaration.values) {
                 watched.fixed[axis] = true;
                 watched.prescribed[axis] = value;
+            }
+            if declaration.window.from == 0 {
+                watched.origin = Some(SVector::zeros());
             }
             motion.nodes.push(watched);
         }
@@ -404,6 +657,7 @@ fn watched_nodes<const D: usize>(simulation: &mut Extension<'_, D>) -> Prescribe
 /// at it at the start of the step, and in compression the material leaves the node.
 pub fn check_prescribed_motion<const D: usize>(
     step: Res<LoadStep>,
+    stage: Option<Res<CurrentStage>>,
     fields: Res<GridFields<D>>,
     mut motion: ResMut<PrescribedMotion<D>>,
     mut warnings: ResMut<Warnings>,
@@ -413,21 +667,42 @@ pub fn check_prescribed_motion<const D: usize>(
         &crate::components::DeformationGradient<D>,
     )>,
 ) {
-    let motion = &mut *motion;
-    for watched in &motion.nodes {
-        if motion.warned[watched.declaration] {
+    let stage = stage_of(&stage);
+    let PrescribedMotion {
+        nodes,
+        names,
+        warned,
+    } = &mut *motion;
+    for watched in nodes.iter_mut() {
+        if warned[watched.declaration] {
             continue;
         }
-        let prescribed = watched.prescribed * step.factor;
+        let material_displacement = |watched: &WatchedNode<D>| {
+            points.get(watched.host).ok().map(|(x, reference, f)| {
+                x.0 + f.0 * (watched.position - reference.0) - watched.position
+            })
+        };
+        if !watched.window.covers(stage) {
+            // before its stage: where its stage will start it from
+            if stage < watched.window.from {
+                watched.origin = material_displacement(watched);
+            }
+            continue;
+        }
+        let Some(origin) = watched.origin else {
+            continue;
+        };
+        let prescribed =
+            watched.prescribed * step.factor_in(Ramp::staged(false, watched.window.from), stage);
         let scale = prescribed.amax();
         if scale == 0.0 {
             continue;
         }
-        let (name, line) = &motion.names[watched.declaration];
+        let (name, line) = &names[watched.declaration];
         let line = line.map(|l| format!("line {l}: ")).unwrap_or_default();
         let advice = "the grid is reset every step, so a grid-node displace moves the material that is at the node at the start of each step; use surface_displace(...) on the body's surface (docs/boundaries.md)";
         if !fields.active[watched.node] {
-            motion.warned[watched.declaration] = true;
+            warned[watched.declaration] = true;
             warnings.0.push(format!(
                 "{line}{name}: at step {} the prescribed node at {:?} has no material next to it any more: the material does not follow the prescribed displacement; {advice}",
                 step.number,
@@ -435,16 +710,16 @@ pub fn check_prescribed_motion<const D: usize>(
             ));
             continue;
         }
-        let Ok((x, reference, f)) = points.get(watched.host) else {
+        let Some(achieved) = material_displacement(watched) else {
             continue;
         };
-        let achieved = x.0 + f.0 * (watched.position - reference.0) - watched.position;
+        let achieved = achieved - origin;
         let worst = (0..D)
             .filter(|&a| watched.fixed[a])
             .map(|a| (achieved[a] - prescribed[a]).abs())
             .fold(0.0, f64::max);
         if worst > PRESCRIBED_MOTION_TOLERANCE * scale {
-            motion.warned[watched.declaration] = true;
+            warned[watched.declaration] = true;
             warnings.0.push(format!(
                 "{line}{name}: at step {} (load factor {}) the material at the prescribed node {:?} moved by {:?} instead of {:?} ({:.1} % off): {advice}",
                 step.number,
@@ -458,21 +733,39 @@ pub fn check_prescribed_motion<const D: usize>(
     }
 }
 
+/// `displace`: the step's increment of every prescribed component, `(λ_n+1 − λ_n) ū`; in a
+/// staged scene only in the stage the component starts acting in (held after it: module
+/// docs, "Stages").
 pub fn apply_prescribed_displacements<const D: usize>(
     step: Res<LoadStep>,
+    stage: Option<Res<CurrentStage>>,
     mut fields: ResMut<GridFields<D>>,
     mut clock: ResMut<StageClock>,
-    nodes: Query<(&GridNode<D>, &Fixity<D>)>,
+    nodes: Query<(&GridNode<D>, &Fixity<D>, Option<&FixityWindows<D>>)>,
 ) {
     let _timer = clock.time(Stage::Loads);
+    let stage = stage_of(&stage);
     let ramp = step.factor - step.previous_factor;
-    for (node, fixity) in nodes.iter() {
+    for (node, fixity, windows) in nodes.iter() {
         for c in 0..D {
             if fixity.fixed[c] {
+                let ramp = match windows {
+                    Some(windows) if !windows.0[c].iter().any(|w| w.from == stage) => 0.0,
+                    _ => ramp,
+                };
                 fields.increment[node.index][c] = fixity.prescribed[c] * ramp;
             }
         }
     }
+}
+
+/// The options map of `fix` / `displace`.
+fn constraint_options() -> Vec<OptionSpec> {
+    vec![OptionSpec::new(
+        "until_stage",
+        Kind::Text,
+        "the stage whose start releases the constraint (its force ramped down over that stage)",
+    )]
 }
 
 fn declare_constraint(
@@ -481,8 +774,15 @@ fn declare_constraint(
     selector: &Dynamic,
     components: &Dynamic,
     values: Option<&Dynamic>,
+    options: Option<&Dynamic>,
     at: Position,
 ) -> Result<Dynamic, String> {
+    let until = match options {
+        None => None,
+        Some(options) => Options::read(function_name, options, &constraint_options(), None)?
+            .text("until_stage")
+            .map(str::to_string),
+    };
     let selector = function(
         selector,
         &format!("{function_name}(...): the first argument"),
@@ -527,26 +827,78 @@ fn declare_constraint(
             selector,
             components,
             values,
+            until,
         },
         at,
     ));
     Ok(Dynamic::UNIT)
 }
 
-#[allow(clippy::type_complexity)]
-fn resolve_constraints(
+/// What [`resolve_constraints`] finds: the constrained components, the declarations, and the
+/// stage windows of the components (`None` when every component acts in every stage).
+type Resolved = (
+    Vec<NodeConstraint>,
+    Vec<DeclaredConstraint>,
+    Option<Vec<Vec<Window>>>,
+);
+
+/// The stages `#{ until_stage }` of a declaration of stage `from` leaves it acting in (refused with
+/// the line: no stages, an unknown stage, a stage not after its own).
+fn window_of(
     scene: &Resolver,
-) -> Result<(Vec<NodeConstraint>, Vec<DeclaredConstraint>), ScriptError> {
+    declaration: &Located<ConstraintDeclaration>,
+) -> Result<Window, ScriptError> {
+    let function = declaration.value.function;
+    let from = declaration.stage;
+    let Some(until) = &declaration.value.until else {
+        return Ok(Window { from, until: None });
+    };
+    let stages = scene.spec.part::<Stages>().map_or(&[][..], |s| &s.0);
+    let names = || {
+        stages
+            .iter()
+            .map(|stage| format!("'{}'", stage.name))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let Some(index) = stages.iter().position(|stage| &stage.name == until) else {
+        let why = if stages.is_empty() {
+            "the scene has no stages (until_stage releases a constraint at a stage's start: declare the stages with stage(...))".to_string()
+        } else {
+            format!("the stages are {}", names())
+        };
+        return Err(ScriptError::at(
+            declaration.at,
+            format!("{function}(...): until_stage: no stage is named '{until}': {why}"),
+        ));
+    };
+    if index <= from {
+        return Err(ScriptError::at(
+            declaration.at,
+            format!(
+                "{function}(...): until_stage: '{until}' is not after the stage the constraint belongs to ('{}'): it is released at the start of a later stage (the stages are {})",
+                stages[from].name,
+                names()
+            ),
+        ));
+    }
+    Ok(Window {
+        from,
+        until: Some(index),
+    })
+}
+
+fn resolve_constraints(scene: &Resolver) -> Result<Resolved, ScriptError> {
     let declarations = scene.declarations::<ConstraintDeclaration>();
     if declarations.is_empty() {
-        return Ok((Vec::new(), Vec::new()));
+        return Ok((Vec::new(), Vec::new(), None));
     }
     let mut declared: Vec<DeclaredConstraint> = Vec::new();
     let grid = &scene.spec.grid;
     let dim = grid.dim();
     let nodes = scene.node_positions()?;
-    // (node, component) -> (value, line of the declaring call)
-    let mut prescribed: BTreeMap<(usize, usize), (f64, Position)> = BTreeMap::new();
+    // (node, component) -> (value, line of the declaring call, the stages it acts in)
+    let mut prescribed: BTreeMap<(usize, usize), (f64, Position, Vec<Window>)> = BTreeMap::new();
     for declaration in declarations {
         let mut constraint = declaration.value.clone();
         if constraint.components.is_empty() {
@@ -563,6 +915,7 @@ fn resolve_constraints(
                 ),
             ));
         }
+        let window = window_of(scene, declaration)?;
         let context = format!(
             "node predicate of {function}(...){}",
             declaration.line_note()
@@ -580,6 +933,7 @@ fn resolve_constraints(
             values: constraint.values.clone(),
             lower: Vec::new(),
             upper: Vec::new(),
+            window,
         };
         for (node, position) in nodes.iter().enumerate() {
             if !scene.call_predicate(&constraint.selector, position, declaration.at, &context)? {
@@ -597,21 +951,38 @@ fn resolve_constraints(
             this.components
                 .extend(constraint.components.iter().map(|&c| (node, c)));
             for (&component, &value) in constraint.components.iter().zip(&constraint.values) {
-                if let Some(&(previous, previous_at)) = prescribed.get(&(node, component))
-                    && previous != value
+                let mut windows = vec![window];
+                if let Some((previous, previous_at, previous_windows)) =
+                    prescribed.get(&(node, component))
                 {
                     let previous_line = previous_at
                         .line()
                         .map(|line| format!(" at line {line}"))
                         .unwrap_or_default();
-                    return Err(ScriptError::at(
-                        declaration.at,
-                        format!(
-                            "{function}(...): component {component} of the node at {position:?} is already prescribed to {previous}{previous_line}, not {value}"
-                        ),
-                    ));
+                    if *previous != value {
+                        return Err(ScriptError::at(
+                            declaration.at,
+                            format!(
+                                "{function}(...): component {component} of the node at {position:?} is already prescribed to {previous}{previous_line}, not {value}"
+                            ),
+                        ));
+                    }
+                    // a prescribed displacement follows the schedule of the one stage it
+                    // starts in: two of them must act in the same stages
+                    if value != 0.0 && previous_windows[..] != [window] {
+                        return Err(ScriptError::at(
+                            declaration.at,
+                            format!(
+                                "{function}(...): component {component} of the node at {position:?} is already prescribed{previous_line} in other stages; a prescribed displacement can be declared once per component"
+                            ),
+                        ));
+                    }
+                    windows = previous_windows.clone();
+                    if !windows.contains(&window) {
+                        windows.push(window);
+                    }
                 }
-                prescribed.insert((node, component), (value, declaration.at));
+                prescribed.insert((node, component), (value, declaration.at, windows));
             }
         }
         if selected == 0 {
@@ -625,13 +996,18 @@ fn resolve_constraints(
         }
         declared.push(this);
     }
+    let staged = declared.iter().any(|d| d.window != Window::ALWAYS);
+    let mut windows = Vec::new();
     let constraints = prescribed
         .into_iter()
-        .map(|((node, component), (value, _))| NodeConstraint {
-            node,
-            component,
-            value,
+        .map(|((node, component), (value, _, window))| {
+            windows.push(window);
+            NodeConstraint {
+                node,
+                component,
+                value,
+            }
         })
         .collect();
-    Ok((constraints, declared))
+    Ok((constraints, declared, staged.then_some(windows)))
 }

@@ -7,6 +7,11 @@
 //! for every point p that carries a [`PointLoad`] (`point_load` / `point_load_total` in scenes).
 //! The load moves with its point. The output gains the point field `point_load` (λ P, zero on
 //! unloaded points).
+//!
+//! In a staged scene (`scene::stages`) a load declared in stage k is absent before stage k,
+//! follows stage k's own λ in it and is held in full after it (`LoadStep::factor_in`): the
+//! loads of the first stage are the [`PointLoad`]s, those of later stages the points'
+//! [`LaterPointLoads`] (a point state of their own, only in a scene that has them).
 
 use bevy_ecs::prelude::*;
 use nalgebra::SVector;
@@ -15,11 +20,11 @@ use std::collections::BTreeMap;
 
 use rhai::{Dynamic, FnPtr};
 
-use super::declarations::{LoadSummary, selection_ranges};
+use super::declarations::{LoadSummary, factor_one, selection_ranges};
 use crate::components::{PointId, Support};
 use crate::mechanics::spread_force;
 use crate::plugin::{Extension, Hook, Plugin};
-use crate::resources::{GridFields, LoadStep, Stage, StageClock};
+use crate::resources::{CurrentStage, GridFields, LoadStep, Ramp, Stage, StageClock};
 use crate::scene::{
     CallSpec, FieldSpec, Located, Resolver, SceneApi, SceneSpec, ScriptError, function, numbers,
 };
@@ -33,6 +38,8 @@ pub struct PointLoadSpec {
     pub point: usize,
     /// The force P (length = dimension).
     pub force: Vec<f64>,
+    /// The stage it belongs to (0 without stages).
+    pub stage: usize,
 }
 
 /// The scene's point loads (summed per point).
@@ -65,6 +72,21 @@ struct PointLoadDeclaration {
 /// A force on the material point at load factor 1; only points that carry one have it.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct PointLoad<const D: usize>(pub SVector<f64, D>);
+
+/// The forces of later stages on the material point, `(stage, force at that stage's load
+/// factor 1)`; only points that carry one have it.
+#[derive(Component, Clone, Debug, PartialEq)]
+pub struct LaterPointLoads<const D: usize>(pub Vec<(usize, SVector<f64, D>)>);
+
+impl<const D: usize> LaterPointLoads<D> {
+    /// Σ_k λ_k P_k in `step` of stage `stage` (module docs).
+    fn force(&self, step: &LoadStep, stage: usize) -> SVector<f64, D> {
+        self.0
+            .iter()
+            .map(|(k, force)| force * step.factor_in(Ramp::staged(false, *k), stage))
+            .sum()
+    }
+}
 
 /// The module: scheduled when some point carries a non-zero load.
 #[derive(Clone, Copy, Debug, Default)]
@@ -128,15 +150,23 @@ impl Plugin for PointLoadsModule {
 
     fn describe(&self, spec: &SceneSpec) -> Option<String> {
         let loads = &spec.part::<PointLoads>()?.0;
-        let mut total = vec![0.0; spec.dim()];
+        let mut totals: BTreeMap<usize, Vec<f64>> = BTreeMap::new();
         for load in loads {
+            let total = totals
+                .entry(load.stage)
+                .or_insert_with(|| vec![0.0; spec.dim()]);
             for (sum, c) in total.iter_mut().zip(&load.force) {
                 *sum += c;
             }
         }
         let mut text = format!(
-            "{} loaded points, total force {total:?} at load factor 1",
-            loads.len()
+            "{} loaded points, total force {}",
+            loads.len(),
+            totals
+                .iter()
+                .map(|(&stage, total)| format!("{total:?} {}", factor_one(spec, stage)))
+                .collect::<Vec<_>>()
+                .join(", ")
         );
         for declaration in spec
             .part::<PointLoadDeclarations>()
@@ -176,10 +206,50 @@ impl Plugin for PointLoadsModule {
                 return;
             }
             let force = SVector::<f64, D>::from_fn(|a, _| load.force[a]);
-            simulation
-                .world()
-                .entity_mut(entity)
-                .insert(PointLoad(force));
+            let world = simulation.world();
+            let mut point = world.entity_mut(entity);
+            if load.stage == 0 {
+                point.insert(PointLoad(force));
+            } else if let Some(mut later) = point.get_mut::<LaterPointLoads<D>>() {
+                later.0.push((load.stage, force));
+            } else {
+                point.insert(LaterPointLoads(vec![(load.stage, force)]));
+            }
+        }
+        if loads.is_some_and(|loads| loads.0.iter().any(|load| load.stage > 0)) {
+            simulation.point_state(
+                "later point loads",
+                |point, values| {
+                    for (stage, force) in
+                        point.get::<LaterPointLoads<D>>().iter().flat_map(|l| &l.0)
+                    {
+                        values.push(*stage as f64);
+                        values.extend(force.iter());
+                    }
+                },
+                |point, _, values| {
+                    if values.is_empty() {
+                        return Ok(());
+                    }
+                    if values.len() % (D + 1) != 0 {
+                        return Err(format!(
+                            "later point loads of {} values in {D}D",
+                            values.len()
+                        ));
+                    }
+                    let loads = values
+                        .chunks(D + 1)
+                        .map(|record| {
+                            (
+                                record[0] as usize,
+                                SVector::<f64, D>::from_column_slice(&record[1..]),
+                            )
+                        })
+                        .collect();
+                    point.insert(LaterPointLoads(loads));
+                    Ok(())
+                },
+            );
         }
         simulation
             .point_state(
@@ -204,35 +274,53 @@ impl Plugin for PointLoadsModule {
 }
 
 /// f_ext,i += λ P_p N_i(x_p) for every point p that carries a [`PointLoad`].
+/// In a staged scene the first stage's loads are held after it and the later stages' follow
+/// their own (module docs).
 pub fn apply_point_loads<const D: usize>(
     step: Res<LoadStep>,
+    stage: Option<Res<CurrentStage>>,
     mut fields: ResMut<GridFields<D>>,
     mut clock: ResMut<StageClock>,
     points: Query<(&PointLoad<D>, &Support<D>)>,
+    later: Query<(&LaterPointLoads<D>, &Support<D>)>,
 ) {
     let _timer = clock.time(Stage::Loads);
+    let stage = stage.map_or(0, |s| s.0);
+    let factor = step.factor_in(Ramp::Schedule, stage);
     for (load, support) in points.iter() {
-        spread_force(
-            &(load.0 * step.factor),
-            &support.0,
-            &mut fields.external_force,
-        );
+        spread_force(&(load.0 * factor), &support.0, &mut fields.external_force);
+    }
+    for (loads, support) in later.iter() {
+        let force = loads.force(&step, stage);
+        if force != SVector::<f64, D>::zeros() {
+            spread_force(&force, &support.0, &mut fields.external_force);
+        }
     }
 }
 
 /// The output field `point_load`: λ P on loaded points, zero elsewhere.
 fn point_load_field<const D: usize>(
     step: Res<LoadStep>,
+    stage: Option<Res<CurrentStage>>,
     mut out: ResMut<PointFields>,
     all: Query<&PointId>,
-    loaded: Query<(&PointId, &PointLoad<D>)>,
+    loaded: Query<(&PointId, Option<&PointLoad<D>>, Option<&LaterPointLoads<D>>)>,
 ) {
+    let stage = stage.map_or(0, |s| s.0);
+    let factor = step.factor_in(Ramp::Schedule, stage);
     out.add(
         "point_load",
         all.iter().count(),
-        loaded
-            .iter()
-            .map(|(id, load)| (id.0, pad(&(load.0 * step.factor)))),
+        loaded.iter().filter_map(|(id, load, later)| {
+            let force = match (load, later) {
+                (None, None) => return None,
+                (Some(load), None) => load.0 * factor,
+                (load, Some(later)) => {
+                    load.map_or_else(SVector::zeros, |l| l.0 * factor) + later.force(&step, stage)
+                }
+            };
+            Some((id.0, pad(&force)))
+        }),
     );
 }
 
@@ -245,7 +333,8 @@ fn resolve_point_loads(
     let dim = scene.spec.dim();
     let positions = scene.spec.material_point_positions();
     let mut summaries = Vec::new();
-    let mut forces: BTreeMap<usize, Vec<f64>> = BTreeMap::new();
+    // (stage, point) -> force: stage 0 first, in point order
+    let mut forces: BTreeMap<(usize, usize), Vec<f64>> = BTreeMap::new();
     for declaration in scene.declarations::<PointLoadDeclaration>() {
         let load = &declaration.value;
         let function = load.function;
@@ -283,19 +372,24 @@ fn resolve_point_loads(
             Share::Each => selected.len() as f64,
             Share::Total => 1.0,
         };
-        summaries.push(LoadSummary::new(
-            declaration.at.line(),
-            function,
-            "material points",
-            selected.iter().map(|(index, _)| positions[*index]),
-            load.force.iter().map(|c| c * count).collect(),
-        ));
+        summaries.push(
+            LoadSummary::new(
+                declaration.at.line(),
+                function,
+                "material points",
+                selected.iter().map(|(index, _)| positions[*index]),
+                load.force.iter().map(|c| c * count).collect(),
+            )
+            .in_stage(scene.spec, declaration.stage),
+        );
         for (index, volume) in selected {
             let scale = match load.share {
                 Share::Each => 1.0,
                 Share::Total => volume / total_volume,
             };
-            let force = forces.entry(index).or_insert_with(|| vec![0.0; dim]);
+            let force = forces
+                .entry((declaration.stage, index))
+                .or_insert_with(|| vec![0.0; dim]);
             for (sum, component) in force.iter_mut().zip(&load.force) {
                 *sum += scale * component;
             }
@@ -303,7 +397,11 @@ fn resolve_point_loads(
     }
     let loads = forces
         .into_iter()
-        .map(|(point, force)| PointLoadSpec { point, force })
+        .map(|((stage, point), force)| PointLoadSpec {
+            point,
+            force,
+            stage,
+        })
         .collect();
     Ok((loads, summaries))
 }

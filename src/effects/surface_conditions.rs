@@ -184,7 +184,7 @@ use crate::checkpoint::CheckpointPart;
 use crate::components::{DeformationGradient, Position, ReferencePosition, Support, Trial};
 use crate::mechanics::embed;
 
-use super::declarations::{coordinate_range, round};
+use super::declarations::{coordinate_range, factor_one, round};
 use super::probes::{default_neighbours, fit_weights};
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{
@@ -521,11 +521,12 @@ impl Plugin for SurfaceConditionsModule {
                 let line = c.line.map(|l| format!("line {l}: ")).unwrap_or_default();
                 let (lower, upper) = coordinate_range(c.points.iter().map(|p| &p.position[..]));
                 format!(
-                    "{line}'{}': {} boundary points, x in {lower:?} .. {upper:?}, area {}, displacement {:?} at load factor 1, components {}, {} (α = {:.4e})",
+                    "{line}'{}': {} boundary points, x in {lower:?} .. {upper:?}, area {}, displacement {:?} {}, components {}, {} (α = {:.4e})",
                     c.name,
                     c.points.len(),
                     round(c.area()),
                     c.displacement,
+                    factor_one(spec, c.stage),
                     c.components,
                     c.imposition.word(),
                     c.penalty

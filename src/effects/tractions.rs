@@ -499,7 +499,7 @@ pub fn write_tractions<const D: usize>(
         ],
         &[],
     )
-    .and_then(|()| series.0.push(step.factor, &name));
+    .and_then(|()| series.0.push(step.series_time(stage.as_deref()), &name));
     if let Err(e) = result {
         status.fail(SolverError::Output {
             step: step.number,
@@ -538,13 +538,16 @@ fn resolve_tractions(
         )
         .map_err(fail)?;
         let area: f64 = seeded.iter().map(|seed| seed.area).sum();
-        summaries.push(LoadSummary::new(
-            declaration.at.line(),
-            "traction",
-            "traction points",
-            seeded.iter().map(|seed| &seed.position[..]),
-            traction.traction.iter().map(|c| c * area).collect(),
-        ));
+        summaries.push(
+            LoadSummary::new(
+                declaration.at.line(),
+                "traction",
+                "traction points",
+                seeded.iter().map(|seed| &seed.position[..]),
+                traction.traction.iter().map(|c| c * area).collect(),
+            )
+            .in_stage(scene.spec, traction.ramp.stage()),
+        );
         points.extend(seeded.into_iter().map(|seed| TractionPointSpec {
             position: seed.position,
             area: seed.area,
@@ -579,13 +582,16 @@ fn resolve_point_loads_at(
             }
         }
         let host = material_point_near(scene.spec, &load.at).map_err(fail)?;
-        summaries.push(LoadSummary::new(
-            declaration.at.line(),
-            "point_load_at",
-            "load point",
-            std::iter::once(&load.at[..]),
-            load.force.clone(),
-        ));
+        summaries.push(
+            LoadSummary::new(
+                declaration.at.line(),
+                "point_load_at",
+                "load point",
+                std::iter::once(&load.at[..]),
+                load.force.clone(),
+            )
+            .in_stage(scene.spec, load.ramp.stage()),
+        );
         loads.push(TractionPointSpec {
             position: load.at.clone(),
             area: 1.0,

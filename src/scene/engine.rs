@@ -203,12 +203,22 @@ fn register_call(engine: &mut Engine, state: &SharedBuilder, api: &Arc<SceneApi>
                 move |context: NativeCallContext, a: Dynamic, b: Dynamic| run(context, &[a, b]),
             );
         }
-        _ => {
+        3 => {
             engine.register_fn(
                 name,
                 move |context: NativeCallContext, a: Dynamic, b: Dynamic, c: Dynamic| {
                     run(context, &[a, b, c])
                 },
+            );
+        }
+        _ => {
+            engine.register_fn(
+                name,
+                move |context: NativeCallContext,
+                      a: Dynamic,
+                      b: Dynamic,
+                      c: Dynamic,
+                      d: Dynamic| { run(context, &[a, b, c, d]) },
             );
         }
     }

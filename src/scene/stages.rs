@@ -22,14 +22,17 @@
 //! stage's own factors; [`Stages::of_step`] says which stage a step is in and whether it
 //! starts it, so that the driver steps from λ = 0 there). A `surface_displace` of stage k acts
 //! from stage k's start on and prescribes the displacement from there
-//! (`effects::surface_conditions`, "Stages"): the footing pushed after a gravity stage. The
-//! calls that do not follow the load factor (`grid`, `material`, `body`, `fix`, `solver`,
+//! (`effects::surface_conditions`, "Stages"): the footing pushed after a gravity stage. A
+//! `fix` / `displace` of stage k constrains its nodes from stage k's start on, and
+//! `#{ until_stage: "s" }` releases it at stage s's start, its force ramped down over stage s
+//! (`effects::grid_constraints`, "Stages"). The
+//! calls that do not follow the load factor (`grid`, `material`, `body`, `solver`,
 //! `output`, `stress_recovery`, `initial_stress`) belong to every stage: a scene of two or
 //! more stages refuses them after its second `stage(...)` call (only the calls that follow
-//! stages, `body_force`, `traction`, `point_load_at`, `surface_displace`, and the observers,
-//! `record`, `probe`, `reference`, may come there), and refuses anywhere the calls that
-//! follow the one load factor without telling stages apart (`displace`, `point_load`,
-//! `point_load_total`, `pressure`, `analytic_column`, and any call these lists do not know:
+//! stages, `body_force`, `traction`, `point_load_at`, `surface_displace`, `fix`, `displace`,
+//! `point_load`, `point_load_total`, and the observers, `record`, `probe`, `reference`, may
+//! come there), and refuses anywhere the calls that follow the one load factor without
+//! telling stages apart (`pressure`, `analytic_column`, and any call these lists do not know:
 //! a module's new load is refused until it follows stages), naming the line.
 //! A scene with one stage is the scene without it, with the stage's schedule.
 
@@ -97,6 +100,10 @@ const STAGED_CALLS: &[&str] = &[
     "traction",
     "point_load_at",
     "surface_displace",
+    "fix",
+    "displace",
+    "point_load",
+    "point_load_total",
 ];
 
 /// The calls that may come after the second `stage(...)` call besides those: the stages
@@ -113,15 +120,14 @@ const ANYWHERE_CALLS: &[&str] = &[
 
 /// The calls a scene of two or more stages may make before its second `stage(...)` besides
 /// those: what does not follow the load factor (the grid, materials, bodies, supports, solver,
-/// output and recovery controls, initial stresses). Any other call (`point_load`,
-/// `point_load_total`, `pressure`, grid-node `displace`, `analytic_column`, or a call of a
+/// output and recovery controls, initial stresses). Any other call (`pressure`,
+/// `analytic_column`, or a call of a
 /// module this list does not know) follows the one load factor λ, which restarts in every
 /// stage: refused.
 const STAGE_FREE_CALLS: &[&str] = &[
     "grid",
     "material",
     "body",
-    "fix",
     "solver",
     "output",
     "stress_recovery",
@@ -232,7 +238,8 @@ pub fn resolve_stages(builder: &SceneBuilder) -> Result<Option<(Stages, Vec<f64>
                 return Err(ScriptError::at(
                     call.at,
                     format!(
-                        "{name}(...) does not follow stages yet (what follows the load factor would restart from zero in every stage); in a scene of several stages use body_force, traction, point_load_at or surface_displace, or run it without stage(...)"
+                        "{name}(...) does not follow stages yet (what follows the load factor would restart from zero in every stage); in a scene of several stages use {}, or run it without stage(...)",
+                        STAGED_CALLS.join(", ")
                     ),
                 ));
             }

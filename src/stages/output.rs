@@ -31,7 +31,9 @@ use crate::output::{
     Field, POINT_ID, PvdSeries, Sink, StreamedField, lattice_cells, vertex_cells, write_vtu,
     write_vtu_streamed,
 };
-use crate::resources::{Grid, GridFields, LoadStep, RunStatus, SolverError, Stage, StageClock};
+use crate::resources::{
+    CurrentStage, Grid, GridFields, LoadStep, RunStatus, SolverError, Stage, StageClock,
+};
 
 /// The core's particle fields, in file order, with their meaning (`output(#{ fields: [..] })`
 /// picks some; the scene language learns them through the module machinery).
@@ -209,8 +211,10 @@ const RUN: usize = 4096;
 /// order (16 B per point), no array is held whole in memory (the file is the one the same
 /// arrays written whole would give, byte for byte).
 #[allow(clippy::type_complexity)]
+#[allow(clippy::too_many_arguments)] // a system: its parameters are what it reads and writes
 pub fn write_particles<const D: usize>(
     step: Res<LoadStep>,
+    stage: Option<Res<CurrentStage>>,
     mut plan: ResMut<OutputPlan>,
     mut extra: ResMut<PointFields>,
     mut status: ResMut<RunStatus>,
@@ -346,7 +350,10 @@ pub fn write_particles<const D: usize>(
         &vertex_cells(n),
         &fields,
     )
-    .and_then(|()| plan.particles.push(step.factor, &name));
+    .and_then(|()| {
+        plan.particles
+            .push(step.series_time(stage.as_deref()), &name)
+    });
     if let Err(e) = result {
         status.fail(SolverError::Output {
             step: step.number,
@@ -364,6 +371,7 @@ fn whole(values: &[f64]) -> impl Fn(&mut Sink) -> std::io::Result<()> + '_ {
 #[allow(clippy::too_many_arguments)]
 pub fn write_grid<const D: usize>(
     step: Res<LoadStep>,
+    stage: Option<Res<CurrentStage>>,
     grid: Res<Grid<D>>,
     fields: Res<GridFields<D>>,
     mut plan: ResMut<OutputPlan>,
@@ -418,7 +426,10 @@ pub fn write_grid<const D: usize>(
             values: &points_per_cell,
         }],
     );
-    let result = grid_result.and_then(|()| plan.grid.push(step.factor, &grid_name));
+    let result = grid_result.and_then(|()| {
+        plan.grid
+            .push(step.series_time(stage.as_deref()), &grid_name)
+    });
     if let Err(e) = result {
         status.fail(SolverError::Output {
             step: step.number,
@@ -430,6 +441,7 @@ pub fn write_grid<const D: usize>(
 /// The control points (grid nodes) with their constraints and forces: `nodes_NNNN.vtu`.
 pub fn write_nodes<const D: usize>(
     step: Res<LoadStep>,
+    stage: Option<Res<CurrentStage>>,
     fields: Res<GridFields<D>>,
     mut plan: ResMut<OutputPlan>,
     mut status: ResMut<RunStatus>,
@@ -496,7 +508,10 @@ pub fn write_nodes<const D: usize>(
         ],
         &[],
     );
-    let result = nodes_result.and_then(|()| plan.nodes.push(step.factor, &nodes_name));
+    let result = nodes_result.and_then(|()| {
+        plan.nodes
+            .push(step.series_time(stage.as_deref()), &nodes_name)
+    });
     if let Err(e) = result {
         status.fail(SolverError::Output {
             step: step.number,

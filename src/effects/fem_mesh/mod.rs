@@ -35,7 +35,9 @@ use crate::components::{GridNode, PointId, Support};
 use crate::fem::{Mesh, element_weights};
 use crate::output::{Cells, Field, write_vtu};
 use crate::plugin::{Extension, Hook, Plugin};
-use crate::resources::{GridFields, LoadStep, RunStatus, SolverError, Stage, StageClock};
+use crate::resources::{
+    CurrentStage, GridFields, LoadStep, RunStatus, SolverError, Stage, StageClock,
+};
 use crate::scene::{BasisWord, SceneApi, SceneSpec, seed_element_points};
 use crate::stages::output::{OutputPlan, pad};
 
@@ -202,6 +204,7 @@ pub fn advance_mesh<const D: usize>(
 #[allow(clippy::too_many_arguments)]
 pub fn write_mesh<const D: usize>(
     step: Res<LoadStep>,
+    stage: Option<Res<CurrentStage>>,
     mesh: Res<FemMesh<D>>,
     fields: Res<GridFields<D>>,
     mut plan: ResMut<OutputPlan>,
@@ -248,7 +251,7 @@ pub fn write_mesh<const D: usize>(
         ],
         &[Field::scalar("integration_points", &per_element)],
     )
-    .and_then(|()| plan.grid.push(step.factor, &name));
+    .and_then(|()| plan.grid.push(step.series_time(stage.as_deref()), &name));
     if let Err(e) = result {
         status.fail(SolverError::Output {
             step: step.number,
