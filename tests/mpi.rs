@@ -17,9 +17,13 @@
 //! * over 2 and 3 processes the particle files are pieces listed by `.pvtu` files, which
 //!   ParaView reads with every field and point (pvpython, where installed) and `impm merge`
 //!   turns into the serial file (the comparisons above are made on the merged file);
-//! * a scene whose modules add to the tangent after the assembly (ghost penalty) is refused
-//!   with more than one process, naming what and why (once, without an abort: the processes
-//!   fail together);
+//! * the modules that add to `f_int` and `K` after the assembly add each term once over the
+//!   processes: the elastic strip footing (surface condition), a Tresca footing with F-bar and
+//!   the sliver column (ghost penalty) under `mpirun -n 2` and `-n 3` equal their serial runs
+//!   as above, and so do the footing pressure and reaction in every step; F-bar with
+//!   decomposed points too (a nearly incompressible 2D column);
+//! * the ghost penalty is refused with decomposed points, naming it and why (once, without an
+//!   abort: the processes fail together);
 //! * a process that fails alone outside the Newton iteration ends the whole job (`MPI_Abort`)
 //!   within a bounded time, naming the process and the cause, instead of leaving the others
 //!   waiting; what was written before stays readable;
@@ -32,8 +36,10 @@
 //!   under `mpirun -n 2` and `-n 3` (and the heavy column with GIMP under `-n 2`) equal their
 //!   serial runs as above (the plastic strain too:
 //!   the history travels with its points), points change process in the heavy and the plastic
-//!   column, and the log says the points are decomposed; a scene with point loads is refused
-//!   naming them, and `--decompose` without mpirun is refused.
+//!   column, and the log says the points are decomposed; so does a staged scene with
+//!   `zero_displacements` (its `displacement` field too: each point's origin travels with it);
+//!   a scene with point loads is refused naming them, and `--decompose` without mpirun is
+//!   refused.
 //!
 //! Skipped, with a message, where `mpirun` is missing (`.ci/run` installs OpenMPI as root).
 
@@ -151,6 +157,10 @@ struct Outcome {
     /// Per step: the points process 0 assembled, the points that changed process at its start.
     assembled: Vec<Option<f64>>,
     changed: Vec<Option<f64>>,
+    /// summary.json's steps (the modules' measures by name).
+    steps: Vec<serde_json::Value>,
+    /// The last point file, for other fields.
+    points: impm::output::VtuContents,
 }
 
 fn outcome(out: &Path) -> Outcome {
@@ -198,6 +208,8 @@ fn outcome(out: &Path) -> Outcome {
             .as_array()
             .map(|w| w.iter().map(|s| s.as_str().unwrap().to_string()).collect())
             .unwrap_or_default(),
+        steps: steps.clone(),
+        points,
     }
 }
 
@@ -231,15 +243,46 @@ fn compare_runs(
     paraview: bool,
     decomposed: Option<&[usize]>,
 ) -> Vec<f64> {
+    let runs = Runs {
+        paraview,
+        decompose: decomposed.is_some(),
+        counts: decomposed.unwrap_or(&[1, 2, 3]),
+        measures: &[],
+        fields: &[],
+    };
+    compare_with(scene, set, tag, &runs)
+}
+
+/// Which distributed runs [`compare_with`] makes of a scene, and what it compares besides
+/// iterations, the eq. 15 error, stresses and positions.
+struct Runs<'a> {
+    /// ParaView reads the pieces (where pvpython is installed).
+    paraview: bool,
+    /// `--decompose`.
+    decompose: bool,
+    /// The numbers of processes.
+    counts: &'a [usize],
+    /// Measures of summary.json compared in every step to 1e-8 relative (e.g. a footing's
+    /// pressure, a reaction).
+    measures: &'a [&'a str],
+    /// Point fields compared in the last point file to 1e-8 of their largest value, or of the
+    /// body's extent where that is larger (a field zeroed by a stage).
+    fields: &'a [&'a str],
+}
+
+/// The scene's runs over each of `runs.counts` processes against its serial run (direct
+/// solver); the number of points that changed process at a step start, summed over the steps,
+/// for each.
+fn compare_with(scene: &Path, set: &[&str], tag: &str, runs: &Runs<'_>) -> Vec<f64> {
     let mut changes = Vec::new();
     if !mpirun_available() {
         return changes;
     }
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let script = scene.file_name().unwrap().to_string_lossy().to_string();
-    let counts = decomposed.unwrap_or(&[1, 2, 3]);
+    let (counts, paraview) = (runs.counts, runs.paraview);
     let mut extra = vec!["--petsc-options", "-ksp_rtol 1e-12"];
-    if decomposed.is_some() {
+    if runs.decompose {
         extra.push("--decompose");
     }
     let serial_dir = temp_dir("mpi", &format!("{tag}-serial"));
@@ -293,10 +336,39 @@ fn compare_runs(
             positions <= 1e-8,
             "{script} -n {n}: positions {positions:e}"
         );
+        for name in runs.fields {
+            let field = |o: &Outcome| o.points.point_field(name).unwrap().1.to_vec();
+            let (serial, distributed) = (field(&reference), field(&got));
+            let largest = |values: &[f64]| values.iter().map(|v| v.abs()).fold(0.0, f64::max);
+            let scale = largest(&serial).max(largest(&reference.positions));
+            assert_eq!(serial.len(), distributed.len());
+            let difference = (serial.iter().zip(&distributed))
+                .map(|(a, b)| (a - b).abs() / scale)
+                .fold(0.0, f64::max);
+            eprintln!("{script} -n {n}: {name} difference {difference:.1e}");
+            assert!(difference <= 1e-8, "{script} -n {n}: {name} {difference:e}");
+        }
+        for name in runs.measures {
+            let largest = reference
+                .steps
+                .iter()
+                .map(|s| s[name].as_f64().unwrap().abs())
+                .fold(0.0, f64::max);
+            assert!(largest > 0.0, "{script}: {name} is zero in every step");
+            let mut difference = 0.0f64;
+            for (got, serial) in got.steps.iter().zip(&reference.steps) {
+                let (a, b) = (got[name].as_f64().unwrap(), serial[name].as_f64().unwrap());
+                difference = difference.max((a - b).abs() / largest);
+            }
+            let last = reference.steps.last().unwrap()[name].as_f64().unwrap();
+            eprintln!("{script} -n {n}: {name} {last:e} (serial), difference {difference:.1e}");
+            assert!(difference <= 1e-8, "{script} -n {n}: {name} {difference:e}");
+        }
         // said in the log (process 0's stderr, once) and in summary.json
-        let state = match decomposed {
-            None => "replicated, not decomposed",
-            Some(_) => "the points are decomposed",
+        let state = if runs.decompose {
+            "the points are decomposed"
+        } else {
+            "replicated, not decomposed"
         };
         assert_eq!(stderr.matches(state).count(), 1, "{stderr}");
         assert!(
@@ -417,6 +489,130 @@ fn the_2d_column_with_decomposed_points_equals_the_serial_run() {
     compare_decomposed(&scene, &["cells=16", "steps=3"], "column2d-dec", &[2, 3]);
 }
 
+/// Modules that add to `f_int` and `K` after the assembly add each term once over the
+/// processes (`Hook::AfterAssembly`): a surface condition's boundary point by the process that
+/// assembles its host. The elastic strip footing (penalty, rough): the footing pressure (the
+/// condition's mean traction, a record) in every step too.
+#[test]
+fn the_strip_footing_over_2_and_3_processes_equals_the_serial_run() {
+    let runs = Runs {
+        paraview: false,
+        decompose: false,
+        counts: &[2, 3],
+        measures: &["footing_pressure", "footing_reaction_x"],
+        fields: &[],
+    };
+    let scene = shipped_scene("strip_footing.rhai");
+    compare_with(&scene, &["cells=4", "steps=2"], "footing", &runs);
+}
+
+/// F-bar's rank-one terms by the process that assembles the group's members, and the surface
+/// condition's: a Tresca footing (von Mises, linear basis, F-bar) yielding under the footing.
+#[test]
+fn a_tresca_footing_with_fbar_over_2_and_3_processes_equals_the_serial_run() {
+    let runs = Runs {
+        paraview: false,
+        decompose: false,
+        counts: &[2, 3],
+        measures: &["footing_pressure"],
+        fields: &[],
+    };
+    let scene = shipped_scene("strip_footing.rhai");
+    let set = [
+        "material=tresca",
+        "fbar=true",
+        "basis=linear",
+        "cells=4",
+        "steps=3",
+        "settlement=0.015",
+    ];
+    compare_with(&scene, &set, "tresca-fbar", &runs);
+}
+
+/// The ghost penalty's faces by process 0 (every process finds the same faces): the sliver
+/// column (1D, B-splines q = 3, a sliver of material in the top cell), replicated.
+#[test]
+fn the_ghost_penalty_over_2_and_3_processes_equals_the_serial_run() {
+    let runs = Runs {
+        paraview: false,
+        decompose: false,
+        counts: &[2, 3],
+        measures: &[],
+        fields: &[],
+    };
+    let scene = shipped_scene("sliver_column.rhai");
+    compare_with(&scene, &["steps=2"], "sliver", &runs);
+}
+
+/// F-bar with decomposed points: a group is the F-bar points of one cell, so one process holds
+/// it; its coupling group is shared with the others for the pattern
+/// (`decomposition::agree_on_grid`). A nearly incompressible 2D column.
+#[test]
+fn fbar_with_decomposed_points_equals_the_serial_run() {
+    let scene = shipped_scene("column_2d_nearly_incompressible.rhai");
+    let set = ["cells=8", "steps=2", "fbar=true"];
+    compare_decomposed(&scene, &set, "fbar-dec", &[2, 3]);
+}
+
+/// A staged scene with `zero_displacements` (a gravity stage, then a stage measuring
+/// displacements from its start, the weight held) with decomposed points: each point's origin
+/// travels with it (`decomposition::carry_displacement_origins`); the `displacement` field
+/// (zero from the second stage's start: every process zeroed its own points, which had
+/// settled by about 0.1 of the body's height) equals the serial run's to 1e-8 of the body's
+/// extent. (Under decomposition a scene can have one load only, the body force, called once.)
+const STAGED_BLOCK: &str =
+    "grid(#{ lower: [0.0, 0.0], upper: [1.0, 2.0], cells: [4, 8], basis: \"bspline\", order: 2 });
+const soil = material(#{ name: \"soil\", E: 1000.0, nu: 0.3, density: 1.0 });
+body(#{ name: \"soil\", material: soil, region: box([0.0, 0.0], [1.0, 1.5]), ppc: 2 });
+fix(|x| x[1] == 0.0);
+fix(|x| x[0] == 0.0 || x[0] == 1.0, [0]);
+stage(#{ name: \"gravity\", steps: 2 });
+body_force([0.0, -100.0]);
+stage(#{ name: \"more\", steps: 1, zero_displacements: true });
+";
+
+#[test]
+fn a_staged_scene_zeroing_displacements_with_decomposed_points_equals_the_serial_run() {
+    let dir = temp_dir("mpi", "staged-scene");
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = dir.join("staged_block.rhai");
+    std::fs::write(&scene, STAGED_BLOCK).unwrap();
+    let runs = Runs {
+        paraview: false,
+        decompose: true,
+        counts: &[2, 3],
+        measures: &[],
+        fields: &["displacement"],
+    };
+    compare_with(&scene, &[], "staged-dec", &runs);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A point's displacement origin, packed as its point-state part and given to a point spawned
+/// afresh, is the same; a point without one gets none; a short record is an error
+/// (`decomposition::pack_origin`, `unpack_origin`: the origin travels with its point).
+#[test]
+fn a_displacement_origin_travels_with_its_point() {
+    use bevy_ecs::world::World;
+    use impm::effects::distributed::decomposition::{pack_origin, unpack_origin};
+    use impm::effects::stages::DisplacementOrigin;
+    let mut world = World::new();
+    let origin = DisplacementOrigin(nalgebra::SVector::<f64, 2>::new(0.25, -1.5e-3));
+    let with = world.spawn(origin).id();
+    let without = world.spawn_empty().id();
+    for (from, expected) in [(with, Some(origin)), (without, None)] {
+        let mut values = Vec::new();
+        pack_origin::<2>(world.entity(from), &mut values);
+        assert_eq!(values.len(), 3);
+        let mut arrived = world.spawn_empty();
+        unpack_origin::<2>(&mut arrived, 0, &values).unwrap();
+        assert_eq!(arrived.get::<DisplacementOrigin<2>>().copied(), expected);
+    }
+    let mut arrived = world.spawn_empty();
+    assert!(unpack_origin::<2>(&mut arrived, 0, &[1.0, 0.5]).is_err());
+    assert!(unpack_origin::<2>(&mut arrived, 0, &[]).is_err());
+}
+
 /// A von Mises column under a heavy self-weight (1D): it yields from the base up, and its
 /// points cross cells, and so slabs, between steps, taking their plastic history along.
 const PLASTIC_COLUMN: &str = r#"
@@ -465,33 +661,6 @@ fn decomposition_refuses_what_cannot_follow_its_points() {
     );
     assert!(stderr.contains("without --decompose"), "{stderr}");
     assert!(!stderr.contains("MPI_Abort"), "{stderr}");
-    // A stage measuring displacements from its start keeps every point's origin, which the
-    // exchange does not carry: refused too.
-    let staged = dir.join("staged.rhai");
-    std::fs::create_dir_all(&dir).unwrap();
-    std::fs::write(
-        &staged,
-        "grid(#{ lower: [0.0, 0.0], upper: [1.0, 2.0], cells: [2, 4], basis: \"bspline\", order: 2 });\n\
-         const soil = material(#{ name: \"soil\", E: 1000.0, nu: 0.3, density: 1.0 });\n\
-         body(#{ name: \"soil\", material: soil, region: box([0.0, 0.0], [1.0, 1.5]), ppc: 2 });\n\
-         fix(|x| x[1] == 0.0);\n\
-         fix(|x| x[0] == 0.0 || x[0] == 1.0, [0]);\n\
-         stage(#{ name: \"gravity\", steps: 2 });\n\
-         body_force([0.0, -10.0]);\n\
-         stage(#{ name: \"more\", steps: 1, zero_displacements: true });\n",
-    )
-    .unwrap();
-    let output = run(Some(2), &staged, &[], &dir, &["--decompose"]);
-    let stderr = String::from_utf8_lossy(&output.stderr);
-    assert!(!output.status.success());
-    assert_eq!(
-        stderr
-            .matches("displacements from a stage's start (keeps each point's origin")
-            .count(),
-        1,
-        "{stderr}"
-    );
-    assert!(!stderr.contains("MPI_Abort"), "{stderr}");
     let output = run(None, &scene, &[], &dir, &["--decompose"]);
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(!output.status.success());
@@ -502,30 +671,28 @@ fn decomposition_refuses_what_cannot_follow_its_points() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// The ghost penalty is refused with decomposed points (the cells' fill fractions need every
+/// process's points), naming it, once, without an abort. (The follower pressure refuses more
+/// than one process itself, when the scene is read.)
 #[test]
-fn a_module_adding_to_the_tangent_after_assembly_is_refused_over_several_processes() {
+fn the_ghost_penalty_is_refused_with_decomposed_points() {
     if !mpirun_available() {
         return;
     }
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    let scene = shipped_scene("heavy_column.rhai");
-    let dir: PathBuf = temp_dir("mpi", "ghost");
-    let output = run(
-        Some(2),
-        &scene,
-        &["cells=4", "steps=1", "ghost_penalty=0.01"],
-        &dir,
-        &[],
-    );
+    let dir: PathBuf = temp_dir("mpi", "ghost-decomposed");
+    let sliver = shipped_scene("sliver_column.rhai");
+    let output = run(Some(2), &sliver, &["steps=1"], &dir, &["--decompose"]);
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(!output.status.success());
-    assert!(
-        stderr.contains("after the assembly") && stderr.contains("mpirun -n 1"),
+    assert_eq!(
+        stderr
+            .matches("ghost penalty (needs every cell's fill fraction")
+            .count(),
+        1,
         "{stderr}"
     );
-    // a failure every process shares ends the processes together: no abort, said once
     assert!(!stderr.contains("MPI_Abort"), "{stderr}");
-    assert_eq!(stderr.matches("after the assembly").count(), 1, "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

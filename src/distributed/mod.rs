@@ -27,6 +27,7 @@
 pub mod migration;
 pub mod partition;
 pub mod respawn;
+pub mod traffic;
 
 #[cfg(feature = "mpi")]
 mod world;
@@ -134,4 +135,19 @@ pub fn sum_over_points(values: &mut [f64]) {
     }
     #[cfg(not(feature = "mpi"))]
     let _ = values;
+}
+
+/// Whether this process adds the terms that belong to the grid rather than to a point it
+/// assembles (the ghost penalty's faces): every serial run, and process 0 alone in a
+/// distributed run. The processes' shares of `f_int` and `K` are summed (`Hook::Combine`,
+/// PETSc's matrix), so a term every process added would count once per process. Terms that
+/// belong to a point (F-bar's rank-one terms of a group's members, a surface condition's
+/// boundary point through its host) are added by the process that assembles that point
+/// instead: `components::AssembledElsewhere` leaves them out elsewhere.
+pub fn adds_grid_terms() -> bool {
+    #[cfg(feature = "mpi")]
+    if let Some(processes) = processes() {
+        return processes.rank == 0;
+    }
+    true
 }

@@ -15,11 +15,15 @@
 //! to within one slice's points on either side. A process may get no slice (more processes
 //! than populated slices): it then assembles nothing.
 
-/// The axis the slabs cut: the one with the most cells (the first of equal ones).
+/// The axis the slabs cut: the one with the most cells (the last of equal ones). The grid
+/// numbers its nodes with axis 0 fastest, so PETSc's rows, split among the processes in node
+/// order, are layers along the last axis: slabs along it put a process's assembled rows
+/// mostly in its own rows (with slabs along axis 0 of a square grid about half of every
+/// process's matrix entries went to another process: `docs/distributed.md`).
 pub fn slab_axis(cells_per_axis: &[usize]) -> usize {
     let mut axis = 0;
     for (a, &cells) in cells_per_axis.iter().enumerate() {
-        if cells > cells_per_axis[axis] {
+        if cells >= cells_per_axis[axis] {
             axis = a;
         }
     }
@@ -66,8 +70,8 @@ mod tests {
     #[test]
     fn the_axis_with_the_most_cells_is_cut() {
         assert_eq!(slab_axis(&[8, 32]), 1);
-        assert_eq!(slab_axis(&[8, 8, 4]), 0);
-        assert_eq!(slab_axis(&[4, 6, 6]), 1);
+        assert_eq!(slab_axis(&[8, 8, 4]), 1);
+        assert_eq!(slab_axis(&[4, 6, 6]), 2);
         assert_eq!(slab_axis(&[5]), 0);
     }
 

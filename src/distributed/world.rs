@@ -16,6 +16,7 @@ use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
 
 use super::Processes;
+use super::traffic::{Traffic, count};
 
 static PROCESSES: OnceLock<Processes> = OnceLock::new();
 
@@ -117,6 +118,7 @@ pub fn largest(value: i32) -> i32 {
         return value;
     }
     let mut all = 0i32;
+    count(Traffic::Reductions, 4);
     SimpleCommunicator::world().all_reduce_into(&value, &mut all, SystemOperation::max());
     all
 }
@@ -128,6 +130,7 @@ pub fn sum(value: f64) -> f64 {
         return value;
     }
     let mut all = 0.0f64;
+    count(Traffic::Reductions, 8);
     SimpleCommunicator::world().all_reduce_into(&value, &mut all, SystemOperation::sum());
     all
 }
@@ -156,6 +159,7 @@ pub fn sum_all(values: &mut [f64]) {
         return;
     }
     let local = values.to_vec();
+    count(Traffic::Reductions, 8 * values.len() as u64);
     SimpleCommunicator::world().all_reduce_into(&local[..], values, SystemOperation::sum());
 }
 
@@ -165,6 +169,7 @@ pub fn sum_counts(values: &mut [u64]) {
         return;
     }
     let local = values.to_vec();
+    count(Traffic::Reductions, 8 * values.len() as u64);
     SimpleCommunicator::world().all_reduce_into(&local[..], values, SystemOperation::sum());
 }
 
@@ -198,6 +203,7 @@ pub fn exchange(outgoing: &[Vec<f64>]) -> Result<Vec<Vec<f64>>, String> {
     let mut lengths: Vec<i64> = outgoing.iter().map(|m| m.len() as i64).collect();
     lengths.resize(processes.size, 0);
     let mut received_lengths = vec![0i64; processes.size];
+    count(Traffic::Points, 8 * processes.size as u64);
     world.all_to_all_into(&lengths[..], &mut received_lengths[..]);
     let send = offsets(&lengths).filter(|_| outgoing.len() == processes.size);
     let receive = offsets(&received_lengths);
@@ -216,6 +222,11 @@ pub fn exchange(outgoing: &[Vec<f64>]) -> Result<Vec<Vec<f64>>, String> {
         return Err("another process's messages exceed MPI's 2^31 - 1 numbers".to_string());
     }
     let sent: Vec<f64> = outgoing.concat();
+    let elsewhere: usize = (outgoing.iter().enumerate())
+        .filter(|&(to, _)| to != processes.rank)
+        .map(|(_, message)| message.len())
+        .sum();
+    count(Traffic::Points, 8 * elsewhere as u64);
     let total = receive_counts.iter().map(|&c| c as usize).sum();
     let mut received = vec![0.0f64; total];
     {
@@ -242,6 +253,8 @@ pub fn gather_all(local: &[u64]) -> Result<Vec<Vec<u64>>, String> {
     };
     let world = SimpleCommunicator::world();
     let mut lengths = vec![0i64; processes.size];
+    let others = processes.size as u64 - 1;
+    count(Traffic::Points, 8 * others * (1 + local.len() as u64));
     world.all_gather_into(&(local.len() as i64), &mut lengths[..]);
     // the same lengths on every process: the same decision
     let (counts, offsets) = offsets(&lengths).ok_or_else(|| {

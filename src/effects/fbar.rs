@@ -77,14 +77,17 @@
 //!   (`GridFields::couplings`: the sparsity pattern then holds every pair of its nodes);
 //! * [`average_volume_change`] (`Hook::Kinematics`): `Δj̄` and every point's `Δf̄`;
 //! * [`assemble_fbar_tangent`] (`Hook::AfterAssembly`): the rank-one terms above, summed per
-//!   group in a dense buffer and scattered once.
+//!   group in a dense buffer and scattered once. In a distributed run a process adds the terms
+//!   of the members it assembles only (not those marked `AssembledElsewhere`): the processes'
+//!   shares of `K` are summed.
 
 use bevy_ecs::prelude::*;
 use nalgebra::{SMatrix, SVector};
 
 use crate::basis::BasisKind;
 use crate::components::{
-    BodyIndex, ModifiedIncrement, PointId, Position, ReferenceVolume, Support, Trial, Volume,
+    AssembledElsewhere, BodyIndex, ModifiedIncrement, PointId, Position, ReferenceVolume, Support,
+    Trial, Volume,
 };
 use crate::mechanics::{embed, increment_gradient};
 use crate::plugin::{Extension, Hook, Plugin};
@@ -486,10 +489,17 @@ pub fn assemble_fbar_tangent<const D: usize>(
     mut clock: ResMut<StageClock>,
     mut scratch: Local<FbarScratch<D>>,
     points: Query<(&Support<D>, &Trial<D>, &ReferenceVolume)>,
+    elsewhere: Query<(), With<AssembledElsewhere>>,
 ) {
     let _timer = clock.time(Stage::Assembly);
     let scratch = &mut *scratch;
+    // distributed runs: the members another process assembles are its to add (a group's
+    // members share a cell, so one process adds the whole group)
+    let here = |q: &usize| !elsewhere.contains(cells.points[*q]);
     for group in cells.groups.iter().filter(|g| g.sources.len() > 1) {
+        if !group.sources[..group.members].iter().any(here) {
+            continue;
+        }
         let n = group.nodes.len();
         scratch.averaged.clear();
         scratch.averaged.resize(n, SVector::zeros());
@@ -504,7 +514,7 @@ pub fn assemble_fbar_tangent<const D: usize>(
         scratch.blocks.clear();
         scratch.blocks.resize(n * n, SMatrix::zeros());
         let members = group.sources[..group.members].iter().zip(&group.local);
-        for (&q, local) in members {
+        for (&q, local) in members.filter(|(q, _)| here(q)) {
             let Ok((support, trial, v0)) = points.get(cells.points[q]) else {
                 continue;
             };

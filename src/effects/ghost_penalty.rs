@@ -5,6 +5,8 @@
 //!   next to boundary cells, and their penalty matrices, constant through the load step; each
 //!   face couples the nodes of its two cells (`GridFields::couplings`).
 //! * [`assemble_ghost_penalty`] (`Hook::AfterAssembly`): f_int += G Δu, K += G (symmetric).
+//!   In a distributed run (every process finds the same faces) process 0 alone adds them
+//!   (`distributed::adds_grid_terms`): the processes' shares are summed.
 
 use bevy_ecs::prelude::*;
 
@@ -141,6 +143,9 @@ pub fn assemble_ghost_penalty<const D: usize>(
     mut clock: ResMut<StageClock>,
 ) {
     let _timer = clock.time(Stage::Assembly);
+    if !crate::distributed::adds_grid_terms() {
+        return; // process 0 adds them for all (the shares are summed)
+    }
     let fields = &mut *fields;
     for face in &ghost.faces {
         let n = face.nodes.len();

@@ -167,7 +167,8 @@
 //! ("surface condition starts") in a scene with a condition of a later stage.
 //!
 //! Systems: [`find_boundary_supports`] (`Hook::Connectivity`), [`assemble_surface_conditions`]
-//! (`Hook::AfterAssembly`), [`update_boundary_points`] (`Hook::PointUpdate`),
+//! (`Hook::AfterAssembly`; in a distributed run a boundary point's terms are added by the
+//! process that assembles its host, not marked `AssembledElsewhere`), [`update_boundary_points`] (`Hook::PointUpdate`),
 //! [`measure_material_at_conditions`] and [`check_surface_conditions`] (`Hook::AfterStep`).
 //! Checkpoint parts (a resumed run continues exactly and does not warn twice): "boundary
 //! points" (their positions) and "surface conditions" (per condition whether it has warned
@@ -181,7 +182,9 @@ use rhai::Dynamic;
 use super::carried_points::{carried_point, restore_positions, save_positions};
 use crate::basis::{BasisKind, BasisScratch, GimpDomain, NodeWeight};
 use crate::checkpoint::CheckpointPart;
-use crate::components::{DeformationGradient, Position, ReferencePosition, Support, Trial};
+use crate::components::{
+    AssembledElsewhere, DeformationGradient, Position, ReferencePosition, Support, Trial,
+};
 use crate::mechanics::embed;
 
 use super::declarations::{coordinate_range, factor_one, round};
@@ -869,6 +872,7 @@ pub fn assemble_surface_conditions<const D: usize>(
     mut newton: ResMut<Newton>,
     mut clock: ResMut<StageClock>,
     hosts: Query<(&Support<D>, &Trial<D>, &DeformationGradient<D>)>,
+    elsewhere: Query<(), With<AssembledElsewhere>>,
     mut points: Query<&mut BoundaryPoint<D>>,
 ) {
     let _timer = clock.time(Stage::Assembly);
@@ -878,7 +882,8 @@ pub fn assemble_surface_conditions<const D: usize>(
     let stage = stage_of(&stage);
     for mut point in points.iter_mut() {
         let condition = &set.0[point.condition];
-        if !condition.acts_in(stage) {
+        // distributed runs: added by the process that assembles the host (shares are summed)
+        if !condition.acts_in(stage) || elsewhere.contains(point.host) {
             continue;
         }
         let p = &condition.projection;

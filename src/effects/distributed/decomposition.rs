@@ -24,15 +24,17 @@
 //!    positions; no message).
 //! 2. [`agree_on_grid`] (after the basis, before DOF numbering): a node is active when a
 //!    point of *any* process supports it, and two nodes couple in `K` when a point of any
-//!    process has both in its support. Each process sends the distinct supports of its points
-//!    to all (`distributed::gather_all`) and marks the others' nodes active and their supports
-//!    as coupling groups (`GridFields::couplings`): every process then numbers the same DOFs
-//!    and builds the serial run's pattern. It first shares failures (a point outside the grid
+//!    process has both in its support (or in a coupling group a module added from its points:
+//!    F-bar's groups). Each process sends the distinct supports of its points and its coupling
+//!    groups to all (`distributed::gather_all`) and marks the others' nodes active and their
+//!    groups as coupling groups (`GridFields::couplings`): every process then numbers the same
+//!    DOFs and builds the serial run's pattern. It first shares failures (a point outside the grid
 //!    fails the basis on its own process only), as `Hook::Combine` does.
 //! 3. [`sum_external_force`] (`Hook::Loads`, after the modules' loads): the body force is
 //!    spread from the points a process holds, so `f_ext` is a sum over the processes, as
 //!    `f_int` is at `Hook::Combine`.
 //!
+//! A stage's displacement origins travel with their points ([`carry_displacement_origins`]).
 //! What sums over points elsewhere is summed over the processes too: the eq. 15 error
 //! (`Simulation::analytic_error`, `distributed::sum_over_points`). Each process writes its
 //! own points (`particles_NNNN_pK.vtu`). No checkpoint is written (each process holds its
@@ -42,6 +44,7 @@
 use std::collections::BTreeSet;
 
 use bevy_ecs::prelude::*;
+use nalgebra::SVector;
 
 use super::{AssemblyShare, point_slices, share_failure, sum_grid_vectors};
 use crate::components::{PointId, Support};
@@ -49,6 +52,9 @@ use crate::distributed::migration::{PointRecord, pack_points, plan_departures, u
 use crate::distributed::partition::slab_owners;
 use crate::distributed::respawn::{spawn_record, take_record};
 use crate::distributed::{exchange, gather_all, sum_counts};
+use crate::effects::fbar::{FbarAveraging, FbarSpec};
+use crate::effects::stages::DisplacementOrigin;
+use crate::plugin::Extension;
 use crate::resources::{GridFields, LoadStep, RunStatus, SolverError, Stage, StageClock};
 use crate::scene::SceneSpec;
 
@@ -80,8 +86,8 @@ const REFUSED: &[(&str, &str)] = &[
     ),
     ("initial stress", "is not checked with decomposed points"),
     (
-        "displacements from a stage's start",
-        "keeps each point's origin in a component the exchange does not carry",
+        "ghost penalty",
+        "needs every cell's fill fraction, from the points of every process",
     ),
 ];
 
@@ -93,7 +99,7 @@ pub fn refusal(spec: &SceneSpec) -> Option<String> {
         return None;
     }
     let modules = crate::effects::built_in();
-    let refused: Vec<String> = modules
+    let mut refused: Vec<String> = modules
         .iter()
         .filter(|module| module.used_by(spec))
         .filter_map(|module| {
@@ -103,6 +109,18 @@ pub fn refusal(spec: &SceneSpec) -> Option<String> {
                 .map(|(name, why)| format!("{name} ({why})"))
         })
         .collect();
+    let patch = spec.part::<FbarSpec>().is_some_and(|fbar| {
+        fbar.bodies
+            .iter()
+            .any(|&(_, averaging)| averaging == FbarAveraging::Patch)
+    });
+    if patch {
+        refused.push(
+            "F-bar with patch averaging (averages over the neighbouring cells' points, which \
+             may be on another process)"
+                .to_string(),
+        );
+    }
     (!refused.is_empty()).then(|| {
         format!(
             "--decompose: the scene uses {} — not supported with decomposed points yet; run \
@@ -110,6 +128,50 @@ pub fn refusal(spec: &SceneSpec) -> Option<String> {
             refused.join(", ")
         )
     })
+}
+
+/// A stage's displacement origins (`effects::stages::DisplacementOrigin`, set at the start of
+/// a stage with `zero_displacements`) travel with their points ([`pack_origin`],
+/// [`unpack_origin`]). The decomposed run's output does not read them (the `displacement`
+/// field is the `Displacement` component, zeroed at the stage's start on every process's own
+/// points); probes and checkpoints do, which decomposed runs do not have yet.
+pub fn carry_displacement_origins<const D: usize>(simulation: &mut Extension<'_, D>) {
+    simulation.point_state("displacement origins", pack_origin::<D>, unpack_origin::<D>);
+}
+
+/// `1 + D` numbers: whether the point has an origin (1 or 0), then the origin (zeros
+/// without one).
+pub fn pack_origin<const D: usize>(point: EntityRef<'_>, values: &mut Vec<f64>) {
+    match point.get::<DisplacementOrigin<D>>() {
+        Some(origin) => {
+            values.push(1.0);
+            values.extend(origin.0.iter());
+        }
+        None => values.extend(std::iter::repeat_n(0.0, D + 1)),
+    }
+}
+
+/// Gives the point the origin [`pack_origin`] wrote, if it had one.
+pub fn unpack_origin<const D: usize>(
+    point: &mut EntityWorldMut<'_>,
+    _body: u32,
+    values: &[f64],
+) -> Result<(), String> {
+    let [flag, origin @ ..] = values else {
+        return Err("no displacement origin in the record".to_string());
+    };
+    if origin.len() != D {
+        return Err(format!(
+            "a displacement origin of {} numbers, not {D}",
+            origin.len()
+        ));
+    }
+    if *flag != 0.0 {
+        point.insert(DisplacementOrigin(SVector::<f64, D>::from_column_slice(
+            origin,
+        )));
+    }
+    Ok(())
 }
 
 /// At the start of a run every process has spawned its slab's points only
@@ -215,13 +277,21 @@ pub fn agree_on_grid<const D: usize>(world: &mut World) {
     });
 }
 
-/// The supports of the other processes' points: their nodes active, each a coupling group.
+/// The supports of the other processes' points and the coupling groups their modules added
+/// from their points (F-bar's groups): their nodes active, each a coupling group.
 fn share_supports<const D: usize>(world: &mut World, step: usize) {
     let mut query = world.query::<&Support<D>>();
-    let distinct: BTreeSet<Vec<u64>> = query
+    let mut distinct: BTreeSet<Vec<u64>> = query
         .iter(world)
         .map(|support| support.0.iter().map(|w| w.node as u64).collect())
         .collect();
+    distinct.extend(
+        world
+            .resource::<GridFields<D>>()
+            .couplings
+            .iter()
+            .map(|group| group.iter().map(|&node| node as u64).collect::<Vec<u64>>()),
+    );
     let mut message = Vec::new();
     for nodes in &distinct {
         message.push(nodes.len() as u64);

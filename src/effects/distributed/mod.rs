@@ -33,9 +33,16 @@
 //!   the processes agree on the active nodes and the pattern, and `f_ext` is summed like
 //!   `f_int`. Scenes with modules that cannot follow their points are refused.
 //!
-//! Not supported with more than one process (refused when the simulation is built): modules
-//! that add to `f_int` and `K` after the assembly (`Hook::AfterAssembly`: ghost penalty,
-//! F-bar, material-surface conditions), which every process would add in full. The check for
+//! * **Terms added after the assembly** (`Hook::AfterAssembly`) are added once over the
+//!   processes: F-bar's rank-one terms by the process that assembles the group's members (a
+//!   group is the F-bar points of one cell, so one slab), a surface condition's boundary point
+//!   by the process that assembles its host, the ghost penalty's faces by process 0
+//!   (`distributed::adds_grid_terms`). Their records (reactions) are computed from the whole
+//!   state, which every process holds.
+//!
+//! Not supported with more than one process (refused when the simulation is built): other
+//! modules that add to the forces or `K` after the assembly (the follower pressure), which
+//! every process would add in full. The check for
 //! a body that nothing holds needs all of `K` and is skipped over several processes
 //! (`Newton::whole_tangent`): such a body shows as a failed linear solve.
 
@@ -46,6 +53,7 @@ use nalgebra::SVector;
 
 use crate::components::{AssembledElsewhere, Position};
 use crate::distributed::partition::{slab_axis, slab_owners};
+use crate::distributed::traffic::{Traffic, counted};
 use crate::distributed::{
     Processes, any, decomposed, largest, layer_of, path_of_process_0, processes,
 };
@@ -101,15 +109,17 @@ impl Plugin for DistributedModule {
         let Some(processes) = processes() else {
             return;
         };
-        if processes.size > 1 && simulation.systems_at(Hook::AfterAssembly) > 0 {
-            simulation.fail(format!(
-                "the scene uses a module that adds to the internal force and tangent after the \
-                 assembly (ghost penalty, F-bar or material-surface conditions): a distributed \
-                 run over {} processes would add it once per process, which is not supported \
-                 yet; run it with mpirun -n 1 or without mpirun",
-                processes.size
-            ));
-            return;
+        if processes.size > 1 {
+            let after_assembly = simulation.systems_at(Hook::AfterAssembly);
+            if let Some(why) = refused_after_assembly(simulation.spec(), after_assembly) {
+                simulation.fail(format!(
+                    "{why}: a distributed run over {} processes would add it once per \
+                     process, which is not supported yet; run it with mpirun -n 1 or without \
+                     mpirun",
+                    processes.size
+                ));
+                return;
+            }
         }
         let decompose = decomposed();
         let spec = simulation.spec();
@@ -169,6 +179,10 @@ impl Plugin for DistributedModule {
             sum: ProcessSum::default(),
             buffer: Vec::new(),
         });
+        if decompose && crate::effects::stages::StagesModule.used_by(simulation.spec()) {
+            decomposition::carry_displacement_origins(simulation);
+        }
+        let world = simulation.world();
         // the shares of the initial state, for its output (step 0 runs no connectivity)
         if decompose {
             decomposition::count_own_points::<D>(world);
@@ -199,6 +213,10 @@ impl Plugin for DistributedModule {
         } else {
             simulation.add_systems(Hook::Connectivity, mark_assembly_share::<D>);
         }
+        // what this process sent (process 0's in summary.json), cumulative: `traffic`
+        for kind in Traffic::ALL {
+            simulation.add_measure(kind.name(), move |_, _| Some(counted(kind) as f64));
+        }
         simulation
             .add_systems(Hook::Combine, combine_assembly::<D>)
             .add_measure("assembled_points", move |world, _| {
@@ -208,6 +226,33 @@ impl Plugin for DistributedModule {
                 share(world).map(|(_, moved)| moved as f64)
             });
     }
+}
+
+/// The modules of `Hook::AfterAssembly` that add each of their terms once over the processes,
+/// one system each: the ghost penalty (process 0 adds the faces: `distributed::adds_grid_terms`),
+/// F-bar (a group's rank-one terms by the process assembling its members) and
+/// material-surface conditions (a boundary point's terms by the process assembling its host).
+fn adds_once_after_assembly(spec: &SceneSpec) -> usize {
+    use crate::effects::{fbar, ghost_penalty, surface_conditions};
+    [
+        ghost_penalty::GhostPenaltyModule.used_by(spec),
+        fbar::FbarModule.used_by(spec),
+        surface_conditions::SurfaceConditionsModule.used_by(spec),
+    ]
+    .into_iter()
+    .filter(|&used| used)
+    .count()
+}
+
+/// Why a scene cannot run over several processes, if it adds after the assembly (`systems`
+/// at `Hook::AfterAssembly`) with a module that does not divide its terms among the processes
+/// (a module outside the crate; the follower pressure refuses more than one process itself).
+fn refused_after_assembly(spec: &SceneSpec, systems: usize) -> Option<String> {
+    (systems > adds_once_after_assembly(spec)).then(|| {
+        "the scene uses a module that adds to the forces or the tangent after the assembly \
+         without dividing its terms among the processes"
+            .to_string()
+    })
 }
 
 /// Marks the points of the other processes' slabs [`AssembledElsewhere`] (and unmarks this

@@ -27,6 +27,7 @@ use super::{
     SparseMatrix, check, configure_ksp, objects_for, refuse_unused_options, session,
     set_rigid_body_modes, solve_with_ksp,
 };
+use crate::distributed::traffic::{Traffic, count};
 
 impl PetscSolver {
     /// A solver whose objects live on every process of a distributed run (`MPI_COMM_WORLD`):
@@ -100,6 +101,10 @@ pub(super) struct DistributedObjects {
     /// Scratch: a padded vector, one row's values.
     padded: Vec<f64>,
     row: Vec<f64>,
+    /// The values of other processes one product with the matrix needs here (the columns of
+    /// the owned rows outside `first..end`: `MPIAIJ`'s off-diagonal block), and the processes.
+    ghosts: usize,
+    size: usize,
 }
 
 impl PatternObjects for DistributedObjects {
@@ -151,8 +156,21 @@ impl DistributedObjects {
             method: String::new(),
             padded: vec![0.0; padding.size],
             row: Vec::new(),
+            ghosts: 0,
+            size,
             padding,
         };
+        let owned = objects.first..objects.end;
+        let rows = &objects.padding.row_start;
+        let mut ghosts: Vec<PetscInt> = objects.padding.columns
+            [rows[objects.first] as usize..rows[objects.end] as usize]
+            .iter()
+            .copied()
+            .filter(|&c| !owned.contains(&(c as usize)))
+            .collect();
+        ghosts.sort_unstable();
+        ghosts.dedup();
+        objects.ghosts = ghosts.len();
         match objects.create(prefix) {
             Ok(tolerance) => Ok((objects, tolerance)),
             Err(e) => {
@@ -256,6 +274,9 @@ impl DistributedObjects {
                 if self.row.iter().all(|&v| v == 0.0) {
                     continue;
                 }
+                if !owned {
+                    count(Traffic::MatrixEntries, 16 * self.row.len() as u64);
+                }
                 let row = p as PetscInt;
                 check(
                     ffi::MatSetValues(
@@ -302,6 +323,16 @@ impl DistributedObjects {
             )?;
             let iterations =
                 solve_with_ksp(self.ksp, self.rhs, self.solution, tolerance, &self.method)?;
+            // one product per Krylov iteration, one for the true residual below
+            count(
+                Traffic::KrylovHalo,
+                8 * (self.ghosts * (iterations + 1)) as u64,
+            );
+            let others = self.size as u64 - 1;
+            count(
+                Traffic::Gathered,
+                8 * others * (self.end - self.first) as u64,
+            );
             gather_to_all(self.scatter, self.solution, self.gathered)?;
             check(ffi::VecGetArray(self.gathered, &mut array), "VecGetArray")?;
             let all = std::slice::from_raw_parts(array, padding.size);
@@ -427,6 +458,20 @@ impl ProcessSum {
                 self.values.push(v);
             }
         }
+        // PETSc's own split of the entries (PETSC_DECIDE: PetscSplitOwnership)
+        let processes = crate::distributed::processes()
+            .unwrap_or(crate::distributed::Processes { rank: 0, size: 1 });
+        let (n, size, rank) = (values.len(), processes.size.max(1), processes.rank);
+        let first = rank * (n / size) + rank.min(n % size);
+        let owned = first..first + n / size + usize::from(rank < n % size);
+        let elsewhere = (self.indices.iter())
+            .filter(|&&i| !owned.contains(&(i as usize)))
+            .count();
+        count(Traffic::VectorEntries, 12 * elsewhere as u64);
+        count(
+            Traffic::Gathered,
+            8 * (size as u64 - 1) * owned.len() as u64,
+        );
         // SAFETY: the session is held; the objects were created for this length.
         unsafe {
             check(ffi::VecSet(vector, 0.0), "VecSet")?;
