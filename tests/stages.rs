@@ -602,6 +602,68 @@ fn column_departure(sim: &mut Simulation<2>, exact: impl Fn(f64) -> f64) -> f64 
     worst
 }
 
+/// What [`follow_staged_column`] found over a run: the largest departure of the points'
+/// displacements and of the two reactions from the exact ones, and the top support's reaction
+/// at every step.
+struct ColumnRun {
+    worst_u: f64,
+    worst_r: f64,
+    tops: Vec<f64>,
+}
+
+/// Runs the staged column of [`staged_column`] through its two stages of `steps[0]` and
+/// `steps[1]` load steps, checking every step's stage and comparing the top support's reaction
+/// (measure `top`) and the base's (`fix1_reaction_y`) with `reactions(stage, λ)` and the
+/// displacements with `displacement(stage, λ, Y)` ([`column_departure`]); the run must give
+/// no warning. `scale` is the size of the displacements, for the printout.
+fn follow_staged_column(
+    sim: &mut Simulation<2>,
+    steps: [usize; 2],
+    top: &str,
+    reactions: impl Fn(usize, f64) -> (f64, f64),
+    displacement: impl Fn(usize, f64, f64) -> f64,
+    scale: f64,
+) -> ColumnRun {
+    let mut run = ColumnRun {
+        worst_u: 0.0,
+        worst_r: 0.0,
+        tops: Vec::new(),
+    };
+    for step in 1..=steps[0] + steps[1] {
+        let record = sim.step().unwrap().clone();
+        let (stage, lambda) = match step <= steps[0] {
+            true => (0, step as f64 / steps[0] as f64),
+            false => (1, (step - steps[0]) as f64 / steps[1] as f64),
+        };
+        assert_eq!(record.stage.as_ref().map(|s| s.0), Some(stage));
+        let (top_exact, base_exact) = reactions(stage, lambda);
+        let departure = column_departure(sim, |y| displacement(stage, lambda, y));
+        let top_force = record.measure(top).unwrap();
+        let base = record.measure("fix1_reaction_y").unwrap();
+        eprintln!(
+            "step {step} (stage {stage}, λ {lambda}): max |u − u_exact| {departure:.2e} of {scale:.4e}; top support {top_force:.6} (exact {top_exact:.6}), base {base:.6} (exact {base_exact:.6})"
+        );
+        run.worst_u = run.worst_u.max(departure);
+        run.worst_r = run
+            .worst_r
+            .max((top_force - top_exact).abs())
+            .max((base - base_exact).abs());
+        run.tops.push(top_force);
+    }
+    eprintln!(
+        "worst: u {:.2e} ({:.2e} relative), reactions {:.2e}",
+        run.worst_u,
+        run.worst_u / scale,
+        run.worst_r
+    );
+    assert!(
+        sim.summary.warnings.is_empty(),
+        "{:?}",
+        sim.summary.warnings
+    );
+    run
+}
+
 /// A support released in a later stage, by the excavation rule. Stage "gravity" (2 steps)
 /// brings the weight on a column held at its base and at its top (`fix(.., #{ until_stage:
 /// "release" })`): u_y = −λ (γ/2M) Y (H − Y), each support carrying half the weight,
@@ -623,46 +685,26 @@ fn a_support_released_in_a_later_stage_is_ramped_down_to_the_analytic_state() {
     let (h, modulus) = (10.0, column_modulus());
     let scale = GAMMA * h * h / (2.0 * modulus);
     let half = GAMMA * h / 2.0;
-    let mut worst_u = 0.0f64;
-    let mut worst_r = 0.0f64;
-    let mut reactions = Vec::new();
-    for step in 1..=6 {
-        let record = sim.step().unwrap().clone();
-        let (stage, lambda) = match step {
-            1 | 2 => (0, step as f64 / 2.0),
-            _ => (1, (step - 2) as f64 / 4.0),
-        };
-        assert_eq!(record.stage.as_ref().map(|s| s.0), Some(stage));
-        let (top_exact, base_exact) = match stage {
+    let run = follow_staged_column(
+        &mut sim,
+        [2, 4],
+        "fix3_reaction_y",
+        |stage, lambda| match stage {
             0 => (lambda * half, lambda * half),
             _ => ((1.0 - lambda) * half, (1.0 + lambda) * half),
-        };
-        let exact = move |y: f64| match stage {
+        },
+        |stage, lambda, y| match stage {
             0 => -lambda * GAMMA / (2.0 * modulus) * y * (h - y),
             _ => -GAMMA / (2.0 * modulus) * y * (h - y) - lambda * GAMMA * h * y / (2.0 * modulus),
-        };
-        let departure = column_departure(&mut sim, exact);
-        let top = record.measure("fix3_reaction_y").unwrap();
-        let base = record.measure("fix1_reaction_y").unwrap();
-        eprintln!(
-            "step {step} (stage {stage}, λ {lambda}): max |u − u_exact| {departure:.2e} of {scale:.4e}; top support {top:.6} (exact {top_exact}), base {base:.6} (exact {base_exact})"
-        );
-        worst_u = worst_u.max(departure);
-        worst_r = worst_r
-            .max((top - top_exact).abs())
-            .max((base - base_exact).abs());
-        reactions.push(top);
-    }
-    eprintln!(
-        "worst: u {worst_u:.2e} ({:.2e} relative), reactions {worst_r:.2e}",
-        worst_u / scale
+        },
+        scale,
     );
-    assert!(worst_u < 2e-3 * scale, "{worst_u:e}");
-    assert!(worst_r < 1e-3 * half, "{worst_r:e} {reactions:?}");
+    assert!(run.worst_u < 2e-3 * scale, "{:e}", run.worst_u);
     assert!(
-        sim.summary.warnings.is_empty(),
-        "{:?}",
-        sim.summary.warnings
+        run.worst_r < 1e-3 * half,
+        "{:e} {:?}",
+        run.worst_r,
+        run.tops
     );
     let _ = std::fs::remove_dir_all(dir);
 }
@@ -688,47 +730,27 @@ fn a_support_added_in_a_later_stage_acts_from_its_start() {
     let (h, modulus, d) = (10.0, column_modulus(), 1.0e-3);
     let scale = GAMMA * h * h / (2.0 * modulus);
     let weight = GAMMA * h;
-    let mut worst_u = 0.0f64;
-    let mut worst_r = 0.0f64;
-    for step in 1..=4 {
-        let record = sim.step().unwrap().clone();
-        let (stage, lambda) = match step {
-            1 | 2 => (0, step as f64 / 2.0),
-            _ => (1, (step - 2) as f64 / 2.0),
-        };
-        let top = record.measure("displace1_reaction_y").unwrap();
-        let base = record.measure("fix1_reaction_y").unwrap();
-        let (top_exact, base_exact) = match stage {
+    let run = follow_staged_column(
+        &mut sim,
+        [2, 2],
+        "displace1_reaction_y",
+        |stage, lambda| match stage {
             0 => (0.0, lambda * weight),
             _ => (lambda * modulus * d / h, weight - lambda * modulus * d / h),
-        };
-        if stage == 0 {
-            assert_eq!(top, 0.0, "the waiting support carries nothing");
-        }
-        let exact = move |y: f64| match stage {
+        },
+        |stage, lambda, y| match stage {
             0 => -lambda * GAMMA / modulus * (h * y - 0.5 * y * y),
             _ => -GAMMA / modulus * (h * y - 0.5 * y * y) + lambda * d * y / h,
-        };
-        let departure = column_departure(&mut sim, exact);
-        eprintln!(
-            "step {step} (stage {stage}, λ {lambda}): max |u − u_exact| {departure:.2e} of {scale:.4e}; top {top:.6} (exact {top_exact:.6}), base {base:.6} (exact {base_exact:.6})"
-        );
-        worst_u = worst_u.max(departure);
-        worst_r = worst_r
-            .max((top - top_exact).abs())
-            .max((base - base_exact).abs());
-    }
-    eprintln!(
-        "worst: u {worst_u:.2e} ({:.2e} relative), reactions {worst_r:.2e}",
-        worst_u / scale
+        },
+        scale,
     );
-    assert!(worst_u < 2e-3 * scale, "{worst_u:e}");
-    assert!(worst_r < 1e-3 * weight, "{worst_r:e}");
-    assert!(
-        sim.summary.warnings.is_empty(),
-        "{:?}",
-        sim.summary.warnings
+    assert_eq!(
+        run.tops[..2],
+        [0.0, 0.0],
+        "the waiting support carries nothing"
     );
+    assert!(run.worst_u < 2e-3 * scale, "{:e}", run.worst_u);
+    assert!(run.worst_r < 1e-3 * weight, "{:e}", run.worst_r);
     let _ = std::fs::remove_dir_all(dir);
 }
 
