@@ -93,6 +93,36 @@
 //! that is below 1e-4), and 100 for `nitsche` (it only has to dominate the consistency term
 //! for stability, ~E/h per unit area; the accuracy does not depend on it).
 //!
+//! # Round-off slivers
+//! When the material's surface lies on a grid line up to round-off (a homogeneous compression
+//! whose top reaches a grid line at the end of a step: 1 − 20 × 0.005 = 0.9 against the line
+//! 3 × 0.3 = 0.8999999999999999), the nodes beyond the line are active with a share of the
+//! material of the order of the round-off δ ~ 1e-16: weights N_k(x_p) ~ δ² and gradients ~ δ / h
+//! (GIMP; smaller for B-splines). Their rows of the system hold a body force ~ σ δ, a
+//! stiffness ~ E δ², and the condition's terms through the boundary point's weight N_k(x_s) ~ δ.
+//! The body's own term is ∫ σ ∇N_k dv = σ N_k(x_top) A, with x_top the material domain's
+//! edge; Nitsche's consistency term is N_k(x_s) σ A, with x_s the boundary point. Both are
+//! ~δ, but x_top and x_s agree only to round-off, so their difference, which is not zero at
+//! the exact state, is as large as each of them, and the node's increment, ~1 / δ, moves the
+//! boundary point (N_k(x_s) Δu_k = O(1)) by about σ / α · O(1): measured Δu_k ~ 1e12 .. 1e13
+//! and the boundary points 3.5e-3 off the material in the step where the top left the grid line
+//! 0.9 (GIMP, 4 × 4 cells, 40 steps of the docs/boundaries.md compression: step 21), after
+//! which the answer stays off (−1.7 % at the end). The exact state is a solution of the
+//! equations in exact arithmetic; the method is stable (the trace constant of a node's
+//! function over a small cut, ‖N_k‖²_Γ / ‖∇N_k‖²_Ω ~ δ, vanishes with the cut); it is this
+//! round-off inconsistency, amplified by the 1 / δ² of the node's rows, that drifts. The
+//! penalty has the same sensitivity but at its own gap's scale σ / α (100 times smaller for
+//! its default γ = 1e4 than Nitsche's γ = 100), below its 6.5e-5.
+//!
+//! With a Nitsche condition in the scene, therefore, an active node that every material point
+//! supports with a round-off share only, |N_k(x_p)| ≤ 1e-10 and h |∇N_k(x_p)|_∞ ≤ 1e-10 for
+//! every p ([`SLIVER`], [`sliver_nodes`]), is made inactive at the start of the step: it gets
+//! no DOF and no increment. What the material loses is its share, ≤ 1e-10 of a weight or of a
+//! strain; a genuinely small cut (say 1e-4 of a cell: GIMP shares ~1e-3, quadratic B-splines
+//! ~1e-8) keeps its node. A boundary point leaves out an inactive node whose weight at it is
+//! round-off (≤ 1e-10; [`boundary_weights`]). In a distributed run the processes' supports
+//! activate nodes after this (`Hook::Connectivity`), so there a round-off sliver can stay.
+//!
 //! # Reactions
 //! The force the condition exerts on the body, R = Σ_s (P T_s − α A_s g_s) (Nitsche) or
 //! −Σ_s α A_s g_s (penalty), at every converged step, with its mean traction R / Σ A_s and the
@@ -767,25 +797,55 @@ fn spawn_boundary_points<const D: usize>(
 
 carried_point!(BoundaryPoint);
 
+/// A node's share of the material below which it is a round-off sliver (module docs,
+/// "Round-off slivers"): relative to the largest weight 1 and to 1 / h for gradients.
+pub const SLIVER: f64 = 1e-10;
+
 /// The weights N̂_i of a boundary point (module docs): the basis at the point, `support`, when
-/// all its nodes with a non-zero value are active; else the host's first-order extrapolation
-/// to the point, N_i(x_p) + ∇N_i(x_p) · `offset` over the host's support (offset = x_s − x_p).
+/// all its nodes with a non-zero value are active (or carry a round-off weight, |N_i| ≤
+/// [`SLIVER`], which an inactive round-off sliver node may); else the host's first-order
+/// extrapolation to the point, N_i(x_p) + ∇N_i(x_p) · `offset` over the host's support (offset
+/// = x_s − x_p). Inactive nodes with a round-off weight are left out of either.
 pub fn boundary_weights<const D: usize>(
     support: &[NodeWeight<D>],
     host: &[NodeWeight<D>],
     offset: &SVector<f64, D>,
     active: &[bool],
 ) -> Vec<(usize, f64)> {
-    let supported = support.iter().all(|w| w.value == 0.0 || active[w.node]);
+    let kept = |node: usize, value: f64| value != 0.0 && (active[node] || value.abs() > SLIVER);
+    let supported = support
+        .iter()
+        .all(|w| w.value == 0.0 || active[w.node] || w.value.abs() <= SLIVER);
     if supported {
         return support
             .iter()
-            .filter(|w| w.value != 0.0)
+            .filter(|w| kept(w.node, w.value))
             .map(|w| (w.node, w.value))
             .collect();
     }
     host.iter()
         .map(|w| (w.node, w.value + w.gradient.dot(offset)))
+        .filter(|&(node, value)| active[node] || value.abs() > SLIVER)
+        .collect()
+}
+
+/// The active nodes that every material point supports with a round-off share only: for
+/// each point p and node i of its support |N_i(x_p)| ≤ [`SLIVER`] and h |∇N_i(x_p)|_∞ ≤
+/// [`SLIVER`] (h the smallest cell size). Module docs, "Round-off slivers".
+pub fn sliver_nodes<'a, const D: usize>(
+    supports: impl Iterator<Item = &'a [NodeWeight<D>]>,
+    cell: f64,
+    active: &[bool],
+) -> Vec<usize> {
+    let mut share = vec![0.0f64; active.len()];
+    for support in supports {
+        for w in support {
+            let s = w.value.abs().max(cell * w.gradient.amax());
+            share[w.node] = share[w.node].max(s);
+        }
+    }
+    (0..active.len())
+        .filter(|&i| active[i] && share[i] <= SLIVER)
         .collect()
 }
 
@@ -806,6 +866,17 @@ pub fn find_boundary_supports<const D: usize>(
     let _timer = clock.time(Stage::Connectivity);
     let (scratch, support, half_edges) = &mut *scratch;
     let fields = &mut *fields;
+    if let Some(nitsche) = set.0.iter().find(|c| c.imposition.is_nitsche()) {
+        // round-off slivers get no DOF (module docs, "Round-off slivers")
+        let slivers = sliver_nodes(
+            hosts.iter().map(|(s, _)| s.0.as_slice()),
+            nitsche.cell,
+            &fields.active,
+        );
+        for node in slivers {
+            fields.active[node] = false;
+        }
+    }
     for mut point in points.iter_mut() {
         let fail = |why: &str| SolverError::Module {
             step: step.number,
