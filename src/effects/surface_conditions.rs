@@ -869,7 +869,7 @@ pub fn find_boundary_supports<const D: usize>(
     if let Some(nitsche) = set.0.iter().find(|c| c.imposition.is_nitsche()) {
         // round-off slivers get no DOF (module docs, "Round-off slivers")
         let slivers = sliver_nodes(
-            hosts.iter().map(|(s, _)| s.0.as_slice()),
+            hosts.iter().map(|(s, _, _)| s.0.as_slice()),
             nitsche.cell,
             &fields.active,
         );
