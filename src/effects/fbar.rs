@@ -1,5 +1,6 @@
 //! F-bar for MPM: the volume change of every point replaced by the average over the points of
-//! its background cell (or its neighbourhood, or a projection onto the grid's tent functions), against volumetric locking (Coombs, Charlton, Cortis & Augarde 2018,
+//! its background cell (or of the cells around it, or its projection onto the grid's tent
+//! functions), against volumetric locking (Coombs, Charlton, Cortis & Augarde 2018,
 //! "Overcoming volumetric locking in material point methods", CMAME 333; after de Souza Neto,
 //! Perić, Dutko & Owen 1996). Used for the bodies whose `body(..)` call sets `fbar: true`.
 //!
@@ -206,7 +207,7 @@ impl Plugin for FbarModule {
                 Kind::Value {
                     what: "true | false | \"cell\" | \"patch\" | \"nodal\"",
                 },
-                "F-bar against volumetric locking (Coombs et al. 2018): each point's volume change is the volume-weighted average over the body's points in its background cell (`true` or \"cell\"), or in the 3^D cells around it (\"patch\", for B-splines of order 2; experimental: Newton does not converge on the plastic strip footing, docs/plasticity.md), or projected onto the grid's linear tent functions (\"nodal\": a lumped L2 projection over the 3^D cells around, for B-splines of order 2 the B-bar of the q − 1 space; docs/plasticity.md has its footing figures); default false; MPM bases only; makes the tangent non-symmetric",
+                "F-bar against volumetric locking (Coombs et al. 2018): each point's volume change is the volume-weighted average over the body's points in its background cell (`true` or \"cell\"), or in the 3^D cells around it (\"patch\", for B-splines of order 2; experimental: Newton does not converge on the plastic strip footing, docs/plasticity.md), or projected onto the grid's linear tent functions (\"nodal\": a lumped L2 projection from the points of the 3^D cells around, for B-splines of order 2 the B-bar of the q − 1 space; experimental: on the plastic strip footing no better than \"cell\", docs/plasticity.md); default false; MPM bases only; makes the tangent non-symmetric",
             ),
         );
     }
@@ -571,6 +572,15 @@ pub fn project_volume_change<const D: usize>(
             .map(|a| own[a] * changed[a] / mass[a])
             .sum();
         let row = &mut group.weights[member * sources..(member + 1) * sources];
+        let q = group.sources[member];
+        let (df, dj, _) = increments[q];
+        if !(averaged.is_finite() && averaged > 0.0) {
+            // no tent reaches the member (a point the step could not place): its own increment
+            row.fill(0.0);
+            row[member] = 1.0;
+            modified(q, df);
+            continue;
+        }
         for ((weight, &q), tents) in row
             .iter_mut()
             .zip(&group.sources)
@@ -585,8 +595,6 @@ pub fn project_volume_change<const D: usize>(
                 * dj
                 / averaged;
         }
-        let q = group.sources[member];
-        let (df, dj, _) = increments[q];
         modified(q, df * (averaged / dj).powf(1.0 / D as f64));
     }
 }
