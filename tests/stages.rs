@@ -516,6 +516,20 @@ fn bad_stages_are_refused_with_the_scene_line() {
             vec!["unknown option 'until_stag'", "until_stage"],
         ),
         (
+            "body_force until its own stage",
+            "stage(#{ name: \"a\", steps: 1 });\nbody_force([0.0, -1.0], #{ until_stage: \"a\" });\nstage(#{ name: \"b\", steps: 1 });",
+            6,
+            vec![
+                "body_force(...): until_stage: 'a' is not after the stage the load belongs to ('a')",
+            ],
+        ),
+        (
+            "body_force until an unknown stage",
+            "stage(#{ name: \"a\", steps: 1 });\nbody_force([0.0, -1.0], #{ until_stage: \"c\" });\nstage(#{ name: \"b\", steps: 1 });",
+            6,
+            vec!["no stage is named 'c'", "the stages are 'a', 'b'"],
+        ),
+        (
             "material_of to hencky",
             "stage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"b\", steps: 1 });\nmaterial_of(#{ body: \"b\", material: \"soil\" });",
             7,
@@ -1020,4 +1034,69 @@ fn check_lists_a_material_switch_with_its_stage() {
     let expected = "body 'block' takes material 'plastic' (von_mises) from the start of stage 'plastic' (line 10)";
     assert!(text.contains(expected), "missing {expected:?}");
     let _ = std::fs::remove_dir_all(dir);
+}
+
+/// `body_force([..], #{ until_stage })`: the column of [`staged_column`] (Hencky, γ = 20,
+/// H = 10) takes its weight and a traction q = 50 on its top over stage "gravity" (2 steps);
+/// the weight is released at the start of stage "unload" (2 steps), where it is ramped down,
+/// `(1 − λ) γ`, while the traction stays. The base's reaction is the loads on the body,
+/// 125, 250 | 150, 50 (to 1e-6 of 250; measured 1.6e-12), and at the end of "unload" the
+/// elastic column is where the traction alone puts it (a run of the traction without stages,
+/// 2 steps): every position to 1e-6 of the weight's settlement γH²/2M = 7.43e-4 (measured
+/// 1.9e-10, 2.5e-7 of it: Newton's tolerance and the load spread at the points' current
+/// positions, as for the point loads above). The departure of the displacements from the
+/// small-strain `u = −λ_g (γ/M)(HY − Y²/2) − λ_q (q/M) Y` is printed (1.9e-6), not checked. The traction stays so that the end state carries a load: released to no load
+/// at all, Newton's criterion has no force scale left (the residual is measured against the
+/// current forces, which vanish) and the last step does not converge (docs/plasticity.md).
+#[test]
+fn a_body_force_released_in_a_later_stage_unloads_the_column() {
+    let text = staged_column(
+        "stage(#{ name: \"gravity\", steps: 2 });\n\
+         body_force([0.0, -10.0], #{ until_stage: \"unload\" });\n\
+         traction(#{ on: [[0.0, 10.0], [1.0, 10.0]], traction: [0.0, -50.0] });\n\
+         stage(#{ name: \"unload\", steps: 2 });",
+    );
+    let plain = staged_column(
+        "load_steps(2);\n\
+         traction(#{ on: [[0.0, 10.0], [1.0, 10.0]], traction: [0.0, -50.0] });",
+    );
+    let (mut sim, dir) = build("body-force-released", &text);
+    let (mut alone, alone_dir) = build("body-force-released-plain", &plain);
+    let modulus = column_modulus();
+    let settlement = GAMMA * 100.0 / (2.0 * modulus);
+    let q = 50.0;
+    let mut worst_reaction = 0.0f64;
+    let mut worst_u = 0.0f64;
+    for (weight, traction, stage) in [(0.5, 0.5, 0), (1.0, 1.0, 0), (0.5, 1.0, 1), (0.0, 1.0, 1)] {
+        let record = sim.step().unwrap().clone();
+        assert_eq!(record.stage.as_ref().map(|s| s.0), Some(stage));
+        let base = record.measure("fix1_reaction_y").unwrap();
+        let exact = 200.0 * weight + q * traction;
+        let departure = column_departure(&mut sim, |y| {
+            -weight * GAMMA / modulus * (10.0 * y - 0.5 * y * y) - traction * q / modulus * y
+        });
+        eprintln!(
+            "step {}: stage {stage}, weight × {weight}, traction × {traction}: base reaction {base:.9} (exact {exact}), max |u − u_exact| {departure:.2e}",
+            record.step
+        );
+        worst_reaction = worst_reaction.max((base - exact).abs() / 250.0);
+        worst_u = worst_u.max(departure);
+    }
+    for _ in 0..2 {
+        alone.step().unwrap();
+    }
+    let (end, traction_only) = (state(&mut sim), state(&mut alone));
+    let departure = end
+        .iter()
+        .zip(&traction_only)
+        .flat_map(|(a, b)| a.0.iter().zip(&b.0).map(|(x, y)| (x - y).abs()))
+        .fold(0.0f64, f64::max);
+    eprintln!(
+        "reactions to {worst_reaction:.1e} of 250; u to {worst_u:.2e} (settlement {settlement:.4e}); end positions vs the traction alone {departure:.2e}"
+    );
+    assert!(worst_reaction < 1e-6, "{worst_reaction:e}");
+    assert!(departure < 1e-6 * settlement, "{departure:e}");
+    for dir in [dir, alone_dir] {
+        let _ = std::fs::remove_dir_all(dir);
+    }
 }
