@@ -25,6 +25,7 @@
 //! with the feature `mpi` only.
 
 pub mod migration;
+pub mod ownership;
 pub mod partition;
 pub mod respawn;
 pub mod traffic;
@@ -33,8 +34,8 @@ pub mod traffic;
 mod world;
 #[cfg(feature = "mpi")]
 pub use world::{
-    Ending, Started, abort, any, exchange, gather_all, largest, path_of_process_0, processes,
-    start, sum, sum_all, sum_counts,
+    Ending, Started, abort, any, exchange, exchange_counted, gather_all, gather_all_counted,
+    largest, path_of_process_0, processes, start, sum, sum_all, sum_counts,
 };
 
 /// This process's place in a distributed run.
