@@ -15,7 +15,9 @@
 //! the points of its slab, and points move to the process of their slab at each step start
 //! (`effects::distributed::decomposition`; the grid stays replicated).
 //!
-//! Built in every configuration: the pure kernels [`partition`] (the slabs) and [`migration`]
+//! Built in every configuration: the pure kernels [`partition`] (the slabs), [`ownership`]
+//! (the decomposed grid: each node's owner and the global DOF numbers, from messages to the
+//! neighbouring processes only) and [`migration`]
 //! (a point's whole state as numbers, who sends which points where), [`respawn`] (a point
 //! taken out of a world as a record and spawned back from it, with every module's part),
 //! [`launched_by_mpirun`], which reads the environment so that any build can refuse what it

@@ -11,7 +11,7 @@
 //! largest node layer; every process learns every other's pair, `2 P` numbers). A node of
 //! process `s` can be a node of `r` only if its layer is in `[a_r, b_r]`, so `s` sends `r` the
 //! nodes of its own in `[a_r, b_r]` ([`shared_messages`]): with slabs along one axis and
-//! supports `q + 1` nodes wide, that is the `q + 1` node layers at the boundary with each
+//! supports `q + 1` nodes wide, that is the `q` node layers at the boundary with each
 //! neighbour, and nothing to the processes further away (unless a slab is thinner than a
 //! support). Process `r` then knows, for each of its nodes, every process that touches it.
 //!

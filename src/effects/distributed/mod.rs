@@ -31,7 +31,9 @@
 //! * **Decomposed points** (`impm run --decompose`, [`decomposition`]): each process holds only
 //!   its slab's points instead of every point; the exchange moves them at each step start,
 //!   the processes agree on the active nodes and the pattern, and `f_ext` is summed like
-//!   `f_int`. Scenes with modules that cannot follow their points are refused.
+//!   `f_int`. Scenes with modules that cannot follow their points are refused. The decomposed
+//!   grid's owners and global numbering ([`grid`]) are computed every step and checked
+//!   against the replicated grid; the assembly and the solve do not use them yet.
 //!
 //! * **Terms added after the assembly** (`Hook::AfterAssembly`) are added once over the
 //!   processes: F-bar's rank-one terms by the process that assembles the group's members (a
