@@ -213,6 +213,42 @@ fn outcome(out: &Path) -> Outcome {
     }
 }
 
+/// The decomposed grid's numbering in every step of a run over `n` processes (the run itself
+/// checks that the processes' owned DOFs add up to the replicated grid's and that every ghost
+/// got its numbers from its owner, and fails otherwise): process 0 owns all DOFs alone and
+/// none are ghosts; with more processes it owns some but not all, there are ghosts, and
+/// numbers were sent.
+fn decomposed_grid_is_numbered(script: &str, n: usize, steps: &[serde_json::Value]) {
+    for (k, step) in steps.iter().enumerate() {
+        let value = |name: &str| {
+            step[name]
+                .as_f64()
+                .unwrap_or_else(|| panic!("{script} -n {n}: no {name} in step {}", k + 1))
+        };
+        let (dofs, owned, ghosts) = (value("dofs"), value("owned_dofs"), value("ghost_nodes"));
+        if n == 1 {
+            assert_eq!((owned, ghosts), (dofs, 0.0), "{script} step {}", k + 1);
+        } else {
+            assert!(
+                owned > 0.0 && owned < dofs,
+                "{script} -n {n}: {owned} of {dofs}"
+            );
+            assert!(ghosts > 0.0, "{script} -n {n}: no ghosts in step {}", k + 1);
+            assert!(value("bytes_grid_numbers") > 0.0);
+        }
+    }
+    let last = steps.last().unwrap();
+    eprintln!(
+        "{script} -n {n}: decomposed grid, last step: {} DOFs, process 0 owns {}, ghost nodes \
+         {}, bytes_grid_numbers {} (bytes_points {})",
+        last["dofs"],
+        last["owned_dofs"],
+        last["ghost_nodes"],
+        last["bytes_grid_numbers"],
+        last["bytes_points"]
+    );
+}
+
 /// Largest difference between `a` and `b` relative to the largest magnitude in `b`.
 fn relative_difference(a: &[f64], b: &[f64]) -> f64 {
     assert_eq!(a.len(), b.len());
@@ -390,6 +426,9 @@ fn compare_with(scene: &Path, set: &[&str], tag: &str, runs: &Runs<'_>) -> Vec<f
                     "{assembled} of {points}"
                 );
             }
+        }
+        if runs.decompose {
+            decomposed_grid_is_numbered(&script, n, &got.steps);
         }
         changes.push(got.changed.iter().map(|c| c.unwrap_or(0.0)).sum());
         let _ = std::fs::remove_dir_all(&dir);

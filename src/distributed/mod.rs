@@ -15,7 +15,9 @@
 //! the points of its slab, and points move to the process of their slab at each step start
 //! (`effects::distributed::decomposition`; the grid stays replicated).
 //!
-//! Built in every configuration: the pure kernels [`partition`] (the slabs) and [`migration`]
+//! Built in every configuration: the pure kernels [`partition`] (the slabs), [`ownership`]
+//! (the decomposed grid: each node's owner and the global DOF numbers, from messages to the
+//! neighbouring processes only) and [`migration`]
 //! (a point's whole state as numbers, who sends which points where), [`respawn`] (a point
 //! taken out of a world as a record and spawned back from it, with every module's part),
 //! [`launched_by_mpirun`], which reads the environment so that any build can refuse what it
@@ -25,6 +27,7 @@
 //! with the feature `mpi` only.
 
 pub mod migration;
+pub mod ownership;
 pub mod partition;
 pub mod respawn;
 pub mod traffic;
@@ -33,8 +36,8 @@ pub mod traffic;
 mod world;
 #[cfg(feature = "mpi")]
 pub use world::{
-    Ending, Started, abort, any, exchange, gather_all, largest, path_of_process_0, processes,
-    start, sum, sum_all, sum_counts,
+    Ending, Started, abort, any, exchange, exchange_counted, gather_all, gather_all_counted,
+    largest, path_of_process_0, processes, start, sum, sum_all, sum_counts,
 };
 
 /// This process's place in a distributed run.

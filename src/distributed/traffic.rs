@@ -10,6 +10,7 @@
 //! | [`Traffic::VectorEntries`] | `VecSetValues` entries (the sums of `f_int`, `f_ext`) another process owns | 12 per entry (index, value) |
 //! | [`Traffic::Gathered`] | `VecScatterCreateToAll` gathers (the correction, the sums back to all) | the owned part, 8 per value, once per other process |
 //! | [`Traffic::KrylovHalo`] | the ghost values of one `MatMult` (PETSc's `MPIAIJ` off-diagonal columns) per Krylov iteration | received, 8 per ghost value and iteration |
+//! | [`Traffic::GridNumbers`] | the decomposed grid's ownership and numbering (`ownership`): layer ranges and owned counts to all, shared nodes and their numbers to the neighbours | sent to other processes, 8 per number (a gathered message once per other process) |
 //!
 //! Not counted: PETSc's own reductions inside the Krylov method (a few 8-byte all-reduces per
 //! iteration) and the coarse levels of its multigrid (GAMG's setup and its coarse solves).
@@ -25,17 +26,19 @@ pub enum Traffic {
     VectorEntries,
     Gathered,
     KrylovHalo,
+    GridNumbers,
 }
 
 impl Traffic {
     /// Every kind, in the order of [`Traffic::name`]'s measures.
-    pub const ALL: [Traffic; 6] = [
+    pub const ALL: [Traffic; 7] = [
         Traffic::Reductions,
         Traffic::Points,
         Traffic::MatrixEntries,
         Traffic::VectorEntries,
         Traffic::Gathered,
         Traffic::KrylovHalo,
+        Traffic::GridNumbers,
     ];
 
     /// The measure's name in summary.json (`bytes_...`, cumulative since the run started).
@@ -47,11 +50,12 @@ impl Traffic {
             Traffic::VectorEntries => "bytes_vector_entries",
             Traffic::Gathered => "bytes_gathered",
             Traffic::KrylovHalo => "bytes_krylov_halo",
+            Traffic::GridNumbers => "bytes_grid_numbers",
         }
     }
 }
 
-static COUNTS: [AtomicU64; 6] = [const { AtomicU64::new(0) }; 6];
+static COUNTS: [AtomicU64; 7] = [const { AtomicU64::new(0) }; 7];
 
 /// Counts `bytes` of `kind`.
 pub fn count(kind: Traffic, bytes: u64) {

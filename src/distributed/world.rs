@@ -196,6 +196,15 @@ fn offsets(counts: &[i64]) -> Option<(Vec<i32>, Vec<i32>)> {
 /// all, sent or received by a process) are an error on every process, before anything is
 /// sent.
 pub fn exchange(outgoing: &[Vec<f64>]) -> Result<Vec<Vec<f64>>, String> {
+    exchange_counted(outgoing, Traffic::Points)
+}
+
+/// [`exchange`] of any MPI type, its bytes counted as `kind`.
+pub fn exchange_counted<T: Equivalence + Copy + Default>(
+    outgoing: &[Vec<T>],
+    kind: Traffic,
+) -> Result<Vec<Vec<T>>, String> {
+    let width = std::mem::size_of::<T>() as u64;
     let Some(processes) = processes() else {
         return Ok(outgoing.to_vec());
     };
@@ -203,7 +212,7 @@ pub fn exchange(outgoing: &[Vec<f64>]) -> Result<Vec<Vec<f64>>, String> {
     let mut lengths: Vec<i64> = outgoing.iter().map(|m| m.len() as i64).collect();
     lengths.resize(processes.size, 0);
     let mut received_lengths = vec![0i64; processes.size];
-    count(Traffic::Points, 8 * processes.size as u64);
+    count(kind, 8 * processes.size as u64);
     world.all_to_all_into(&lengths[..], &mut received_lengths[..]);
     let send = offsets(&lengths).filter(|_| outgoing.len() == processes.size);
     let receive = offsets(&received_lengths);
@@ -221,14 +230,14 @@ pub fn exchange(outgoing: &[Vec<f64>]) -> Result<Vec<Vec<f64>>, String> {
     if any(false) {
         return Err("another process's messages exceed MPI's 2^31 - 1 numbers".to_string());
     }
-    let sent: Vec<f64> = outgoing.concat();
+    let sent: Vec<T> = outgoing.concat();
     let elsewhere: usize = (outgoing.iter().enumerate())
         .filter(|&(to, _)| to != processes.rank)
         .map(|(_, message)| message.len())
         .sum();
-    count(Traffic::Points, 8 * elsewhere as u64);
+    count(kind, width * elsewhere as u64);
     let total = receive_counts.iter().map(|&c| c as usize).sum();
-    let mut received = vec![0.0f64; total];
+    let mut received = vec![T::default(); total];
     {
         let send = mpi::datatype::Partition::new(&sent[..], &send_counts[..], &send_offsets[..]);
         let mut receive = mpi::datatype::PartitionMut::new(
@@ -248,13 +257,18 @@ pub fn exchange(outgoing: &[Vec<f64>]) -> Result<Vec<Vec<f64>>, String> {
 /// Every process's `local`, by rank (collective: `MPI_Allgather` of the lengths, then
 /// `MPI_Allgatherv`).
 pub fn gather_all(local: &[u64]) -> Result<Vec<Vec<u64>>, String> {
+    gather_all_counted(local, Traffic::Points)
+}
+
+/// [`gather_all`], its bytes counted as `kind`.
+pub fn gather_all_counted(local: &[u64], kind: Traffic) -> Result<Vec<Vec<u64>>, String> {
     let Some(processes) = processes() else {
         return Ok(vec![local.to_vec()]);
     };
     let world = SimpleCommunicator::world();
     let mut lengths = vec![0i64; processes.size];
     let others = processes.size as u64 - 1;
-    count(Traffic::Points, 8 * others * (1 + local.len() as u64));
+    count(kind, 8 * others * (1 + local.len() as u64));
     world.all_gather_into(&(local.len() as i64), &mut lengths[..]);
     // the same lengths on every process: the same decision
     let (counts, offsets) = offsets(&lengths).ok_or_else(|| {

@@ -11,18 +11,25 @@
 //! step on (λ replaced by 1, [`Ramp::Held`]) while the other loads follow the schedule: the
 //! weight of soil that starts from its geostatic stress (`initial_stress`) before a footing is
 //! pushed into it.
+//!
+//! In a staged scene, `body_force([..], #{ until_stage: "s" })` releases the force at the start
+//! of the later stage s: ramped down over it from its value at the end of the stage before,
+//! `(1 − λ_s) b`, and absent after it (`declarations::released_factor`): the weight of a
+//! stage taken off again.
 
 use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 use rhai::Dynamic;
 
-use super::declarations::{LoadSummary, held_option};
+use super::declarations::{
+    LoadSummary, held_option, released_factor, until_stage, until_stage_option,
+};
 use crate::components::{Mass, Support};
 use crate::mechanics::spread_force;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{CurrentStage, GridFields, LoadStep, Ramp, Stage, StageClock};
 use crate::scene::{
-    CallSpec, Located, Options, Resolver, SceneApi, SceneSpec, ScriptError, numbers,
+    CallSpec, Located, Options, Resolver, SceneApi, SceneSpec, ScriptError, Stages, numbers,
 };
 
 /// The scene's body force per unit mass at load factor 1 (one entry per axis).
@@ -33,6 +40,15 @@ pub struct BodyForceSpec(pub Vec<f64>);
 /// absent: it follows the schedule).
 #[derive(Resource, Clone, Copy, Debug, Default, PartialEq)]
 pub struct BodyForceRamp(pub Ramp);
+
+/// The stage whose start releases the body force (`until_stage`; a part of the scene and a
+/// resource; absent: never released).
+#[derive(Resource, Clone, Copy, Debug, PartialEq)]
+pub struct BodyForceRelease(pub usize);
+
+/// The `until_stage` option as declared (the stage's name).
+#[derive(Clone, Debug, PartialEq)]
+struct BodyForceUntil(String);
 
 /// Where the scene declared its body force (for `impm check`).
 #[derive(Clone, Debug, PartialEq)]
@@ -64,12 +80,20 @@ impl Plugin for BodyForceModule {
         ));
         api.call(CallSpec::args(
             "body_force",
-            "body_force([b0, ..], #{ held: bool })",
-            "the same; with `held: true` the force is applied in full from the first load step on instead of following the load factor (the weight of soil that starts from its geostatic stress, `initial_stress`, while other loads ramp)",
+            "body_force([b0, ..], #{ held: bool, until_stage: \"stage\" })",
+            "the same; with `held: true` the force is applied in full from the first load step on instead of following the load factor (the weight of soil that starts from its geostatic stress, `initial_stress`, while other loads ramp); with `until_stage` it is released at the start of that later stage, ramped down to zero over it (docs/plasticity.md, \"Staged analysis\")",
             2,
             |builder, args, at| {
-                let options = Options::read("body_force", &args[1], &[held_option()], None)?;
+                let options = Options::read(
+                    "body_force",
+                    &args[1],
+                    &[held_option(), until_stage_option()],
+                    None,
+                )?;
                 let ramp = Ramp::staged(options.flag("held").unwrap_or(false), builder.stage());
+                if let Some(until) = options.text("until_stage") {
+                    builder.declare(Located::new(BodyForceUntil(until.to_string()), at));
+                }
                 declare_body_force(builder, &args[0], ramp, at)
             },
         ));
@@ -93,6 +117,16 @@ impl Plugin for BodyForceModule {
         scene.spec.set_part(BodyForceLine(declared.at.line()));
         if let Some(ramp) = scene.declarations::<BodyForceRamp>().first() {
             scene.spec.set_part(ramp.value);
+        }
+        if let Some(until) = scene.declarations::<BodyForceUntil>().first() {
+            let stage = until_stage(
+                scene.spec,
+                "body_force",
+                &until.value.0,
+                until.stage,
+                until.at,
+            )?;
+            scene.spec.set_part(BodyForceRelease(stage));
         }
         Ok(())
     }
@@ -121,8 +155,15 @@ impl Plugin for BodyForceModule {
         );
         let ramp = spec.part::<BodyForceRamp>().map_or(Ramp::Schedule, |r| r.0);
         let summary = summary.in_stage(spec, ramp.stage());
+        let released = match (spec.part::<BodyForceRelease>(), spec.part::<Stages>()) {
+            (Some(until), Some(stages)) => format!(
+                ", released at the start of stage '{}' (ramped down over that stage)",
+                stages.name(until.0)
+            ),
+            _ => String::new(),
+        };
         Some(format!(
-            "{:?} per unit mass {}\n    {}",
+            "{:?} per unit mass {}{released}\n    {}",
             b.0,
             if ramp.is_held() {
                 "held in full from the first step".to_string()
@@ -150,15 +191,21 @@ impl Plugin for BodyForceModule {
         if let Some(ramp) = simulation.spec().part::<BodyForceRamp>().copied() {
             simulation.world().insert_resource(ramp);
         }
+        if let Some(release) = simulation.spec().part::<BodyForceRelease>().copied() {
+            simulation.world().insert_resource(release);
+        }
         simulation.add_systems(Hook::Loads, apply_body_force::<D>);
     }
 }
 
 /// f_ext,i += λ m_p b N_i(x_p) (λ = 1 for a held body force; in a scene with stages the
-/// factor of its stage, `LoadStep::factor_in`) over every material point.
+/// factor of its stage, `LoadStep::factor_in`, or of its release,
+/// `declarations::released_factor`) over every material point.
+#[allow(clippy::too_many_arguments)]
 pub fn apply_body_force<const D: usize>(
     body_force: Res<BodyForce<D>>,
     ramp: Option<Res<BodyForceRamp>>,
+    release: Option<Res<BodyForceRelease>>,
     step: Res<LoadStep>,
     stage: Option<Res<CurrentStage>>,
     mut fields: ResMut<GridFields<D>>,
@@ -167,7 +214,12 @@ pub fn apply_body_force<const D: usize>(
 ) {
     let _timer = clock.time(Stage::Loads);
     let ramp = ramp.map_or(Ramp::Schedule, |r| r.0);
-    let acceleration = body_force.0 * step.factor_in(ramp, stage.map_or(0, |s| s.0));
+    let stage = stage.map_or(0, |s| s.0);
+    let factor = match release {
+        Some(release) => released_factor(&step, ramp, Some(release.0), stage),
+        None => step.factor_in(ramp, stage),
+    };
+    let acceleration = body_force.0 * factor;
     for (mass, support) in points.iter() {
         spread_force(
             &(acceleration * mass.0),

@@ -1,9 +1,14 @@
 //! What `impm check` says of a load declaration: its line, what it selects (how many points,
 //! their coordinate range) and the total force at load factor 1, so that a user verifies the
 //! loads before solving. Each load module keeps a [`LoadSummary`] per declaration in its part
-//! of the scene and prints them in its `describe`. Also the `held` option the loads share.
+//! of the scene and prints them in its `describe`. Also the options the loads share: `held`,
+//! and `until_stage` (a load or support released at a later stage's start, [`until_stage`],
+//! the load then ramped down over that stage, [`released_factor`]).
 
-use crate::scene::{Kind, OptionSpec, SceneSpec, Stages};
+use rhai::Position;
+
+use crate::resources::{LoadStep, Ramp};
+use crate::scene::{Kind, OptionSpec, SceneSpec, ScriptError, Stages};
 
 /// The option of a load that can be held (`traction`, `point_load_at`, `body_force`): `held`
 /// (`resources::Ramp`).
@@ -13,6 +18,77 @@ pub fn held_option() -> OptionSpec {
         Kind::Flag,
         "true: applied in full from the first load step on instead of following the load factor (default false)",
     )
+}
+
+/// The option of a load released at a later stage's start (`body_force`): `until_stage`.
+pub fn until_stage_option() -> OptionSpec {
+    OptionSpec::new(
+        "until_stage",
+        Kind::Text,
+        "the (later) stage whose start releases the load: it is ramped down to zero over that stage, f = (1 − λ) f_end, and is absent after it",
+    )
+}
+
+/// The index of stage `until` (an `until_stage` option) of a declaration of `function` that
+/// belongs to stage `from`: refused with the line `at` when the scene has no stages, no stage
+/// of that name, or the stage is not after `from`.
+pub fn until_stage(
+    spec: &SceneSpec,
+    function: &str,
+    until: &str,
+    from: usize,
+    at: Position,
+) -> Result<usize, ScriptError> {
+    let stages = spec.part::<Stages>().map_or(&[][..], |s| &s.0);
+    let names = || {
+        stages
+            .iter()
+            .map(|stage| format!("'{}'", stage.name))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let Some(index) = stages.iter().position(|stage| stage.name == until) else {
+        let why = if stages.is_empty() {
+            "the scene has no stages (until_stage releases a load or constraint at a stage's start: declare the stages with stage(...))".to_string()
+        } else {
+            format!("the stages are {}", names())
+        };
+        return Err(ScriptError::at(
+            at,
+            format!("{function}(...): until_stage: no stage is named '{until}': {why}"),
+        ));
+    };
+    if index <= from {
+        return Err(ScriptError::at(
+            at,
+            format!(
+                "{function}(...): until_stage: '{until}' is not after the stage the {} belongs to ('{}'): it is released at the start of a later stage (the stages are {})",
+                if matches!(function, "fix" | "displace") {
+                    "constraint"
+                } else {
+                    "load"
+                },
+                stages[from].name,
+                names()
+            ),
+        ));
+    }
+    Ok(index)
+}
+
+/// The factor a load of `ramp` released at the start of stage `until` is applied with in a
+/// step of stage `stage`: as [`LoadStep::factor_in`] before stage `until`, ramped down over
+/// it (its value at the end of the stage before, held in full, times `1 − λ`), and 0 after it:
+///
+/// ```text
+///   f(stage s = until) = (1 − λ_s) f_end,   f(stage > until) = 0.
+/// ```
+pub fn released_factor(step: &LoadStep, ramp: Ramp, until: Option<usize>, stage: usize) -> f64 {
+    match until {
+        Some(until) if stage == until => (1.0 - step.factor) * step.factor_in(ramp, stage),
+        Some(until) if stage > until => 0.0,
+        _ => step.factor_in(ramp, stage),
+    }
 }
 
 /// One load declaration as `impm check` lists it.

@@ -1,5 +1,6 @@
 //! F-bar for MPM: the volume change of every point replaced by the average over the points of
-//! its background cell, against volumetric locking (Coombs, Charlton, Cortis & Augarde 2018,
+//! its background cell (or of the cells around it, or its projection onto the grid's tent
+//! functions), against volumetric locking (Coombs, Charlton, Cortis & Augarde 2018,
 //! "Overcoming volumetric locking in material point methods", CMAME 333; after de Souza Neto,
 //! Perić, Dutko & Owen 1996). Used for the bodies whose `body(..)` call sets `fbar: true`.
 //!
@@ -33,6 +34,32 @@
 //! average. Everything below holds with the sums over the sources and the rank-one terms
 //! added for the members only. A uniform deformation still gives the standard answer.
 //!
+//! # Nodal projection (`fbar: "nodal"`)
+//! With `fbar: "nodal"` the volume change is projected onto a continuous space instead of
+//! being averaged over a cell: the linear tent functions `N̂_a` of the background grid's
+//! vertices `a` (the `q − 1` space of quadratic B-splines, the B-bar/F-bar projection of
+//! Elguedj, Bazilevs, Calo & Hughes 2008; for linear MPM a smoother space than the
+//! cell-constant one, Bonet & Burton's nodal averaging). A lumped-mass L2 projection, with the
+//! positions and volumes at the step start:
+//!
+//! ```text
+//!   c_a = Σ_q N̂_a(x_q^n) V_q^n Δj_q / m_a,   m_a = Σ_q N̂_a(x_q^n) V_q^n,
+//!   Δj̄_p = Σ_a N̂_a(x_p^n) c_a,               Δf̄_p = (Δj̄_p / Δj_p)^{1/D} Δf_p.
+//! ```
+//!
+//! The vertices whose tents reach a point of cell `c` are `c`'s `2^D` corners, and the points
+//! those tents reach lie in the `3^D` cells around `c`, so the group of cell `c` has the
+//! patch's sources and each member its own `Δj̄_p`; its derivative keeps the rank-one form
+//! below with per-member weights:
+//!
+//! ```text
+//!   ∂ ln Δj̄_p = Σ_q α_q^p g^q,    α_q^p = Σ_a N̂_a(x_p) N̂_a(x_q) V_q^n Δj_q / (m_a Δj̄_p).
+//! ```
+//!
+//! A uniform volume change gives `c_a = Δj` and, the tents summing to one in every cell,
+//! `Δj̄_p = Δj`: the standard answer. The projection is [`project_volume_change`], a pure
+//! kernel on one group.
+//!
 //! # Internal force and consistent tangent
 //! The internal force keeps the form of `mechanics`, `f_int,i = Σ_p V0_p τ̄_p g_i` with `τ̄_p`
 //! the Kirchhoff stress at `F̄_p` and `g_i = Δf_p⁻ᵀ ∇_n N_i` the gradient in the current
@@ -44,6 +71,8 @@
 //! ```text
 //!   ḡ_j = Σ_{q∈c} α_q g_j^q,    α_q = V_q^n Δj_q / Σ_{r∈c} V_r^n Δj_r     (g_j^q = 0 off q's support)
 //! ```
+//!
+//! (`α_q^p` of the member `p` for the nodal projection, so `ḡ_j` is then the member's own)
 //!
 //! the tangent is the standard block of `mechanics` (taken at `b̄`, `τ̄`, `c̄` and the point's own
 //! `g`) plus a rank-one term that couples the point's support nodes `i` with every node `j` of
@@ -104,6 +133,8 @@ pub enum FbarAveraging {
     Cell,
     /// The body's points in the `3^D` cells around the cell (`fbar: "patch"`).
     Patch,
+    /// The lumped L2 projection onto the grid's linear tent functions (`fbar: "nodal"`).
+    Nodal,
 }
 
 /// The bodies (indices into `SceneSpec::bodies`) with F-bar, and how each averages.
@@ -128,8 +159,13 @@ pub struct FbarGroup {
     pub nodes: Vec<usize>,
     /// For each source, the position in `nodes` of each of its support entries.
     pub local: Vec<Vec<usize>>,
-    /// `α_q = V_q^n Δj_q / Σ_r V_r^n Δj_r` of the current iterate, per source.
+    /// `α_q = V_q^n Δj_q / Σ_r V_r^n Δj_r` of the current iterate, per source; for a nodal
+    /// group `α_q^p` per member `p` (row) and source `q` (column), row-major.
     pub weights: Vec<f64>,
+    /// Nodal groups only: `N̂_a(x_q^n)` of the cell's `2^D` vertices `a` (vertex `a` is the
+    /// cell's lower corner plus `e_k` along every axis `k` with bit `k` of `a` set), per source,
+    /// row-major; empty for cell and patch groups.
+    pub tents: Vec<f64>,
 }
 
 /// The F-bar points and groups of the current load step.
@@ -169,9 +205,9 @@ impl Plugin for FbarModule {
             OptionSpec::new(
                 "fbar",
                 Kind::Value {
-                    what: "true | false | \"cell\" | \"patch\"",
+                    what: "true | false | \"cell\" | \"patch\" | \"nodal\"",
                 },
-                "F-bar against volumetric locking (Coombs et al. 2018): each point's volume change is the volume-weighted average over the body's points in its background cell (`true` or \"cell\"), or in the 3^D cells around it (\"patch\", for B-splines of order 2; experimental: Newton does not converge on the plastic strip footing, docs/plasticity.md); default false; MPM bases only; makes the tangent non-symmetric",
+                "F-bar against volumetric locking (Coombs et al. 2018): each point's volume change is the volume-weighted average over the body's points in its background cell (`true` or \"cell\"), or in the 3^D cells around it (\"patch\", for B-splines of order 2; experimental: Newton does not converge on the plastic strip footing, docs/plasticity.md), or projected onto the grid's linear tent functions (\"nodal\": a lumped L2 projection from the points of the 3^D cells around, for B-splines of order 2 the B-bar of the q − 1 space; experimental: on the plastic strip footing no better than \"cell\", docs/plasticity.md); default false; MPM bases only; makes the tangent non-symmetric",
             ),
         );
     }
@@ -217,6 +253,7 @@ impl Plugin for FbarModule {
                 .map(|&(b, averaging)| match averaging {
                     FbarAveraging::Cell => spec_bodies[b].name.clone(),
                     FbarAveraging::Patch => format!("{} (patch)", spec_bodies[b].name),
+                    FbarAveraging::Nodal => format!("{} (nodal)", spec_bodies[b].name),
                 })
                 .collect();
             format!("bodies {}", names.join(", "))
@@ -240,6 +277,16 @@ impl Plugin for FbarModule {
         let bodies = spec
             .part::<FbarSpec>()
             .map_or(Vec::new(), |f| f.bodies.clone());
+        if crate::distributed::decomposed()
+            && bodies.iter().any(|&(_, a)| a == FbarAveraging::Nodal)
+        {
+            // the projection reads the neighbouring cells' points, which may be on another
+            // process (as the patch average, which the decomposition refuses)
+            simulation.fail(
+                "--decompose: F-bar with the nodal projection (fbar: \"nodal\") reads the neighbouring cells' points, which may be on another process; run it without --decompose",
+            );
+            return;
+        }
         simulation.nonsymmetric_tangent();
         let world = simulation.world();
         let points: Vec<(Entity, FbarAveraging)> = world
@@ -342,7 +389,8 @@ pub fn group_points_by_cell<const D: usize>(
             members: members.len(),
             ..FbarGroup::default()
         };
-        if keyed[members.start].4 == FbarAveraging::Patch {
+        let averaging = keyed[members.start].4;
+        if averaging != FbarAveraging::Cell {
             let centre = grid.0.cell_multi_index(*cell);
             for offset in 0..3usize.pow(D as u32) {
                 let mut neighbour = [0; D];
@@ -384,6 +432,23 @@ pub fn group_points_by_cell<const D: usize>(
             group.local.push(local);
         }
         group.weights = vec![0.0; group.sources.len()];
+        if averaging == FbarAveraging::Nodal {
+            let corner = grid.0.cell_multi_index(*cell);
+            for &source in &group.sources {
+                let x = points.get(cells.points[source]).map(|p| p.3.0);
+                for vertex in 0..1usize << D {
+                    let mut tent = 1.0;
+                    for (k, axis) in grid.0.axes.iter().enumerate() {
+                        // the knot coordinate t = (x − lower)/h; the vertex at corner + bit k
+                        let t = x.map_or(f64::INFINITY, |x| (x[k] - axis.lower) / axis.spacing());
+                        let at = (corner[k] + ((vertex >> k) & 1)) as f64;
+                        tent *= (1.0 - (t - at).abs()).max(0.0);
+                    }
+                    group.tents.push(tent);
+                }
+            }
+            group.weights = vec![0.0; group.members * group.sources.len()];
+        }
         if group.sources.len() > 1 {
             fields.couplings.push(group.nodes.clone());
         }
@@ -450,6 +515,14 @@ pub fn average_volume_change<const D: usize>(
         increments.push((df, dj, volume.0));
     }
     for group in cells.groups.iter_mut() {
+        if !group.tents.is_empty() {
+            project_volume_change::<D>(group, &increments[..], |q, df| {
+                if let Ok((.., mut seen)) = points.get_mut(cells.points[q]) {
+                    seen.0 = df;
+                }
+            });
+            continue;
+        }
         let volume: f64 = group.sources.iter().map(|&q| increments[q].2).sum();
         let changed: f64 = group
             .sources
@@ -467,6 +540,62 @@ pub fn average_volume_change<const D: usize>(
                 seen.0 = df * (average / dj).powf(1.0 / D as f64);
             }
         }
+    }
+}
+
+/// The nodal projection of a group (module docs, "Nodal projection"): from the sources'
+/// increments `(Δf_q, Δj_q, V_q^n)` (indexed by [`FbarCells::points`]) the vertex values
+/// `c_a = Σ_q N̂_a(x_q) V_q Δj_q / m_a`, `m_a = Σ_q N̂_a(x_q) V_q`, each member's
+/// `Δj̄_p = Σ_a N̂_a(x_p) c_a` and its weights `α_q^p` (stored in `group.weights`), and
+/// `modified(q, Δf̄_q)` for every member `q`.
+pub fn project_volume_change<const D: usize>(
+    group: &mut FbarGroup,
+    increments: &[(SMatrix<f64, D, D>, f64, f64)],
+    mut modified: impl FnMut(usize, SMatrix<f64, D, D>),
+) {
+    let vertices = 1usize << D;
+    let sources = group.sources.len();
+    // m_a and Σ_q N̂_a V_q Δj_q per vertex
+    let mut mass = [0.0; 8];
+    let mut changed = [0.0; 8];
+    for (&q, tents) in group.sources.iter().zip(group.tents.chunks_exact(vertices)) {
+        let (_, dj, v) = increments[q];
+        for a in 0..vertices {
+            mass[a] += tents[a] * v;
+            changed[a] += tents[a] * v * dj;
+        }
+    }
+    for member in 0..group.members {
+        let own = &group.tents[member * vertices..(member + 1) * vertices];
+        let averaged: f64 = (0..vertices)
+            .filter(|&a| own[a] > 0.0)
+            .map(|a| own[a] * changed[a] / mass[a])
+            .sum();
+        let row = &mut group.weights[member * sources..(member + 1) * sources];
+        let q = group.sources[member];
+        let (df, dj, _) = increments[q];
+        if !(averaged.is_finite() && averaged > 0.0) {
+            // no tent reaches the member (a point the step could not place): its own increment
+            row.fill(0.0);
+            row[member] = 1.0;
+            modified(q, df);
+            continue;
+        }
+        for ((weight, &q), tents) in row
+            .iter_mut()
+            .zip(&group.sources)
+            .zip(group.tents.chunks_exact(vertices))
+        {
+            let (_, dj, v) = increments[q];
+            *weight = (0..vertices)
+                .filter(|&a| own[a] > 0.0)
+                .map(|a| own[a] * tents[a] / mass[a])
+                .sum::<f64>()
+                * v
+                * dj
+                / averaged;
+        }
+        modified(q, df * (averaged / dj).powf(1.0 / D as f64));
     }
 }
 
@@ -501,23 +630,34 @@ pub fn assemble_fbar_tangent<const D: usize>(
             continue;
         }
         let n = group.nodes.len();
-        scratch.averaged.clear();
-        scratch.averaged.resize(n, SVector::zeros());
-        for ((&q, local), alpha) in group.sources.iter().zip(&group.local).zip(&group.weights) {
-            let Ok((support, trial, _)) = points.get(cells.points[q]) else {
-                continue;
-            };
-            for (w, &l) in support.0.iter().zip(local) {
-                scratch.averaged[l] += trial.0.spatial_gradient(&w.gradient) * *alpha;
+        let nodal = !group.tents.is_empty();
+        let average = |averaged: &mut Vec<SVector<f64, D>>, weights: &[f64]| {
+            averaged.clear();
+            averaged.resize(n, SVector::zeros());
+            for ((&q, local), alpha) in group.sources.iter().zip(&group.local).zip(weights) {
+                let Ok((support, trial, _)) = points.get(cells.points[q]) else {
+                    continue;
+                };
+                for (w, &l) in support.0.iter().zip(local) {
+                    averaged[l] += trial.0.spatial_gradient(&w.gradient) * *alpha;
+                }
             }
+        };
+        if !nodal {
+            average(&mut scratch.averaged, &group.weights);
         }
         scratch.blocks.clear();
         scratch.blocks.resize(n * n, SMatrix::zeros());
+        let sources = group.sources.len();
         let members = group.sources[..group.members].iter().zip(&group.local);
-        for (&q, local) in members.filter(|(q, _)| here(q)) {
+        for (member, (&q, local)) in members.enumerate().filter(|(_, (q, _))| here(q)) {
             let Ok((support, trial, v0)) = points.get(cells.points[q]) else {
                 continue;
             };
+            if nodal {
+                let row = &group.weights[member * sources..(member + 1) * sources];
+                average(&mut scratch.averaged, row);
+            }
             let state = &trial.0;
             let projection = volumetric_projection(state);
             scratch.gradients.clear();
@@ -567,7 +707,8 @@ fn volumetric_projection<const D: usize>(
     })
 }
 
-/// The averaging of a `fbar` option's value: `true` or `"cell"`, `"patch"`; `false`: none.
+/// The averaging of a `fbar` option's value: `true` or `"cell"`, `"patch"`, `"nodal"`; `false`:
+/// none.
 fn fbar_averaging(value: &rhai::Dynamic) -> Result<Option<FbarAveraging>, String> {
     if let Ok(flag) = value.as_bool() {
         return Ok(flag.then_some(FbarAveraging::Cell));
@@ -575,8 +716,9 @@ fn fbar_averaging(value: &rhai::Dynamic) -> Result<Option<FbarAveraging>, String
     match value.clone().into_string().as_deref() {
         Ok("cell") => Ok(Some(FbarAveraging::Cell)),
         Ok("patch") => Ok(Some(FbarAveraging::Patch)),
+        Ok("nodal") => Ok(Some(FbarAveraging::Nodal)),
         _ => Err(format!(
-            "option 'fbar' must be true, false, \"cell\" or \"patch\", got {}",
+            "option 'fbar' must be true, false, \"cell\", \"patch\" or \"nodal\", got {}",
             crate::scene::describe(value)
         )),
     }

@@ -46,7 +46,7 @@ use rhai::{Dynamic, FnPtr, Position};
 
 use crate::checkpoint::CheckpointPart;
 use crate::components::GridNode;
-use crate::effects::declarations::{factor_one, selection_ranges};
+use crate::effects::declarations::{factor_one, selection_ranges, until_stage};
 use crate::effects::surface_conditions::AXES;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{CurrentStage, GridFields, LoadStep, Ramp, Stage, StageClock, Warnings};
@@ -853,35 +853,7 @@ fn window_of(
     let Some(until) = &declaration.value.until else {
         return Ok(Window { from, until: None });
     };
-    let stages = scene.spec.part::<Stages>().map_or(&[][..], |s| &s.0);
-    let names = || {
-        stages
-            .iter()
-            .map(|stage| format!("'{}'", stage.name))
-            .collect::<Vec<_>>()
-            .join(", ")
-    };
-    let Some(index) = stages.iter().position(|stage| &stage.name == until) else {
-        let why = if stages.is_empty() {
-            "the scene has no stages (until_stage releases a constraint at a stage's start: declare the stages with stage(...))".to_string()
-        } else {
-            format!("the stages are {}", names())
-        };
-        return Err(ScriptError::at(
-            declaration.at,
-            format!("{function}(...): until_stage: no stage is named '{until}': {why}"),
-        ));
-    };
-    if index <= from {
-        return Err(ScriptError::at(
-            declaration.at,
-            format!(
-                "{function}(...): until_stage: '{until}' is not after the stage the constraint belongs to ('{}'): it is released at the start of a later stage (the stages are {})",
-                stages[from].name,
-                names()
-            ),
-        ));
-    }
+    let index = until_stage(scene.spec, function, until, from, declaration.at)?;
     Ok(Window {
         from,
         until: Some(index),

@@ -3,6 +3,9 @@
 //! adds `M`'s stress update at `Hook::StressUpdate`, its history commit at `Hook::PointUpdate`
 //! and its output fields at `Hook::PointFields`. A scene whose bodies use two models runs two
 //! stress-update systems, each over its own points; a model no body uses schedules nothing.
+//! A body switched to or from the model in a later stage (`material_of`,
+//! `effects::material_switches`) adds the model's switching systems; a scene without
+//! `material_of` schedules none.
 //!
 //! ```text
 //! let modules = impm::effects::built_in().with(MaterialModule::<MyModel>::default());
@@ -16,6 +19,9 @@ use bevy_ecs::prelude::*;
 use crate::checkpoint::{self, CheckpointPart};
 use crate::components::{BodyIndex, PointId, ReferencePosition, Trial};
 use crate::effects::initial_stress::InitialStressSpec;
+use crate::effects::material_switches::{
+    MaterialSwitches, SwitchPlan, restore_active, save_active, switch_in, switch_out,
+};
 use crate::material::HistoryValues;
 use crate::material::Material;
 use crate::plugin::{Extension, Hook, Plugin};
@@ -71,7 +77,9 @@ impl<M: Material> Plugin for MaterialModule<M> {
             spec.materials
                 .get(body.material)
                 .is_some_and(|m| m.model == M::MODEL)
-        })
+        }) || spec
+            .part::<MaterialSwitches>()
+            .is_some_and(|switches| switches.to_model(spec, M::MODEL))
     }
 
     fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
@@ -95,8 +103,43 @@ impl<M: Material> Plugin for MaterialModule<M> {
                 }
             }
         }
+        // The scene's materials of this model, by index, when a body switches to or from it
+        // in a later stage (`material_of`).
+        let switches = spec
+            .part::<MaterialSwitches>()
+            .filter(|switches| switches.involve_model(spec, M::MODEL));
+        let mut switch_models = Vec::new();
+        if let Some(switches) = switches {
+            for material in &spec.materials {
+                if material.model != M::MODEL {
+                    switch_models.push(None);
+                    continue;
+                }
+                match M::from_parameters(&material.parameters) {
+                    Ok(model) => switch_models.push(Some(model)),
+                    Err(why) => {
+                        simulation.fail(format!("material '{}': {why}", material.name));
+                        return;
+                    }
+                }
+            }
+            if !M::HAS_HISTORY
+                && let Some(to) = switches
+                    .0
+                    .iter()
+                    .find(|s| switch_models[s.material].is_some())
+            {
+                simulation.fail(format!(
+                    "material_of(...){}: model '{}' has no history to hold the body's current stress: a body cannot switch to it",
+                    to.line.map(|l| format!(" at line {l}")).unwrap_or_default(),
+                    M::MODEL
+                ));
+                return;
+            }
+        }
         if models
             .iter()
+            .chain(&switch_models)
             .flatten()
             .any(|model| !model.tangent_is_symmetric())
         {
@@ -128,18 +171,26 @@ impl<M: Material> Plugin for MaterialModule<M> {
             simulation.fail(why);
             return;
         }
+        if let Some(switches) = switches {
+            let plan = SwitchPlan::new(spec, switches, switch_models);
+            simulation.world().insert_resource(plan);
+            simulation
+                .add_systems(Hook::Connectivity, switch_out::<D, M>)
+                .add_systems(Hook::Constraints, switch_in::<D, M>);
+        }
         simulation.add_systems(Hook::StressUpdate, update_stress::<D, M>);
         simulation.point_state(M::MODEL, pack_point::<M>, move |point, body, values| {
             unpack_point(&models, point, body, values)
         });
         if M::HAS_HISTORY {
-            simulation
-                .add_systems(Hook::PointUpdate, commit_history::<M>)
-                .checkpoint(CheckpointPart {
-                    name: M::MODEL,
-                    save: save_history::<M>,
-                    restore: restore_history::<M>,
-                });
+            simulation.add_systems(Hook::PointUpdate, commit_history::<M>);
+        }
+        if M::HAS_HISTORY || switches.is_some() {
+            simulation.checkpoint(CheckpointPart {
+                name: M::MODEL,
+                save: save_history::<M>,
+                restore: restore_history::<M>,
+            });
         }
         if !M::output_fields().is_empty() {
             simulation.add_systems(Hook::PointFields, history_fields::<M>);
@@ -218,15 +269,22 @@ fn unpack_point<M: Material>(
     Ok(())
 }
 
-/// The committed history of the model's points: (point id, values) records in id order.
+/// The committed history of the model's points: (point id, values) records in id order;
+/// in a scene with material switches first the material each body holds of the model
+/// (`material_switches::save_active`).
 fn save_history<M: Material>(world: &mut World) -> Vec<f64> {
+    let mut values = Vec::new();
+    save_active::<M>(world, &mut values);
+    if !M::HAS_HISTORY {
+        return values;
+    }
     let mut rows: Vec<(u32, M::History)> = world
         .query::<(&PointId, &PointHistory<M>)>()
         .iter(world)
         .map(|(id, h)| (id.0, h.committed.clone()))
         .collect();
     rows.sort_by_key(|(id, _)| *id);
-    let mut values = Vec::with_capacity(rows.len() * (1 + M::History::LEN));
+    values.reserve(rows.len() * (1 + M::History::LEN));
     for (id, history) in rows {
         values.push(id as f64);
         history.write(&mut values);
@@ -235,6 +293,13 @@ fn save_history<M: Material>(world: &mut World) -> Vec<f64> {
 }
 
 fn restore_history<M: Material>(world: &mut World, values: &[f64]) -> Result<(), String> {
+    let values = restore_active::<M>(world, values)?;
+    if !M::HAS_HISTORY {
+        return match values.is_empty() {
+            true => Ok(()),
+            false => Err("a history for a model without one".into()),
+        };
+    }
     let mut query = world.query::<(&PointId, &mut PointHistory<M>)>();
     let count = query.iter(world).len();
     let mut saved = std::collections::HashMap::with_capacity(count);

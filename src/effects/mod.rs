@@ -6,6 +6,7 @@
 //! | module | what |
 //! |---|---|
 //! | `materials.rs` | a material model per body (Hencky elasticity; von Mises, Drucker–Prager and Mohr–Coulomb plasticity) |
+//! | `material_switches.rs` | a body's material changed at a later stage's start (`material_of`) |
 //! | `point_domains.rs` | GIMP, CPDI and domain-averaged B-splines: weights over point domains |
 //! | `fem_mesh/` | linear FEM on the body-fitted mesh of grid cells |
 //! | `body_force.rs` | body force per unit mass |
@@ -36,6 +37,7 @@ pub mod grid_constraints;
 pub mod history;
 pub mod initial_stress;
 pub mod line_search;
+pub mod material_switches;
 pub mod materials;
 pub mod point_domains;
 pub mod point_loads;
@@ -57,6 +59,7 @@ pub fn built_in() -> ModuleSet {
         .with(materials::MaterialModule::<VonMises>::default())
         .with(materials::MaterialModule::<DruckerPrager>::default())
         .with(materials::MaterialModule::<MohrCoulomb>::default())
+        .with(material_switches::MaterialSwitchesModule)
         .with(point_domains::PointDomainsModule)
         .with(fem_mesh::FemMeshModule)
         .with(body_force::BodyForceModule)

@@ -30,7 +30,8 @@
 //! `output`, `stress_recovery`, `initial_stress`) belong to every stage: a scene of two or
 //! more stages refuses them after its second `stage(...)` call (only the calls that follow
 //! stages, `body_force`, `traction`, `point_load_at`, `surface_displace`, `fix`, `displace`,
-//! `point_load`, `point_load_total`, and the observers, `record`, `probe`, `reference`, may
+//! `point_load`, `point_load_total`, `material_of` (`effects::material_switches`: a body's
+//! material changed at its stage's start), and the observers, `record`, `probe`, `reference`, may
 //! come there), and refuses anywhere the calls that follow the one load factor without
 //! telling stages apart (`pressure`, `analytic_column`, and any call these lists do not know:
 //! a module's new load is refused until it follows stages), naming the line.
@@ -104,6 +105,7 @@ const STAGED_CALLS: &[&str] = &[
     "displace",
     "point_load",
     "point_load_total",
+    "material_of",
 ];
 
 /// The calls that may come after the second `stage(...)` call besides those: the stages

@@ -31,7 +31,9 @@
 //! * **Decomposed points** (`impm run --decompose`, [`decomposition`]): each process holds only
 //!   its slab's points instead of every point; the exchange moves them at each step start,
 //!   the processes agree on the active nodes and the pattern, and `f_ext` is summed like
-//!   `f_int`. Scenes with modules that cannot follow their points are refused.
+//!   `f_int`. Scenes with modules that cannot follow their points are refused. The decomposed
+//!   grid's owners and global numbering ([`grid`]) are computed every step and checked
+//!   against the replicated grid; the assembly and the solve do not use them yet.
 //!
 //! * **Terms added after the assembly** (`Hook::AfterAssembly`) are added once over the
 //!   processes: F-bar's rank-one terms by the process that assembles the group's members (a
@@ -68,6 +70,7 @@ use crate::solver::{PetscSolver, ProcessSum};
 use crate::stages::output::{OutputPlan, ParticlePieces, WrittenPiece};
 
 pub mod decomposition;
+pub mod grid;
 
 /// The module: built when the process is one of a distributed run (`mpirun`).
 #[derive(Clone, Copy, Debug, Default)]
@@ -196,7 +199,13 @@ impl Plugin for DistributedModule {
                 decomposition::agree_on_grid::<D>
                     .after(StepSystems::Connectivity)
                     .before(StepSystems::Dofs),
+                // likewise: the owned nodes, ghosts and global numbers, checked against the
+                // replicated grid's
+                grid::number_decomposed_grid::<D>
+                    .after(StepSystems::Dofs)
+                    .before(StepSystems::Loads),
             ));
+            world.init_resource::<grid::DecomposedGrid>();
         } else {
             mark_assembly_share::<D>(world);
         }
@@ -210,6 +219,14 @@ impl Plugin for DistributedModule {
         }
         if decompose {
             simulation.add_systems(Hook::Loads, decomposition::sum_external_force::<D>);
+            let numbered = |world: &mut World| {
+                let grid = world.get_resource::<grid::DecomposedGrid>()?;
+                grid.ownership.as_ref()?;
+                Some((grid.owned_dofs as f64, grid.ghost_nodes as f64))
+            };
+            simulation
+                .add_measure("owned_dofs", move |world, _| numbered(world).map(|n| n.0))
+                .add_measure("ghost_nodes", move |world, _| numbered(world).map(|n| n.1));
         } else {
             simulation.add_systems(Hook::Connectivity, mark_assembly_share::<D>);
         }
