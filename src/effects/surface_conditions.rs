@@ -6,17 +6,18 @@
 //! A condition is declared on a flat piece of the body's boundary (`on:`, the geometry words of
 //! `traction(...)`: `scene::seed_surface`), seeded as boundary points s with reference position
 //! X_s, reference area A_s (length in 2D) and a host, the nearest material point: the piece is
-//! cut into `per_cell` parts per cell crossed and every part into 2 shares per edge, a point
-//! at the centre of each share (`scene::seed_boundary`). A point stands for its share: its
-//! half-edges, deformed with its host's F at the start of each step, and its weights are the
-//! basis averaged over the share (`basis::surface`), so `Σ_s A_s N̄_i,s = ∫ N_i dΓ` exactly
-//! wherever the material has carried the shares against the knot lines (sampling the basis at
-//! carried points is not: where a body's side moves into a new column of cells, a function
-//! supported by a sliver of material is decided by that error, and a homogeneous squeeze
-//! under a smooth platen came out with `σ_xx` of ±40 % of `σ_yy` at the corner). A boundary
-//! point carries its total displacement u_s = x_s − X_s. At the start of each load step it gets
+//! cut into `per_cell` parts per cell crossed, each integrated with the 2-point Gauss rule per
+//! edge, so that a piece whose parts lie within knot spans integrates the B-spline products of
+//! the boundary terms exactly (quadratic and cubic). Unlike traction points (which average the
+//! basis over their carried share: `effects::tractions`), boundary points sample it, so once
+//! the material has moved the parts off the knot spans the boundary terms are not exact, and
+//! where a body's free side moves into a new column of cells next to the condition a function
+//! supported by a sliver of material is decided by that error (docs/boundaries.md, "Free
+//! sides": a homogeneous squeeze under a smooth platen with a free side). Shares carried by the
+//! host's F were tried and not kept: under the footing's large penetration the host's F
+//! distorts them (dips of 14 % against 5 %). A boundary point carries its total displacement u_s = x_s − X_s. At the start of each load step it gets
 //! weights N̂_i over active nodes, with which the grid increment is read at the point,
-//! Δu_s = Σ_i N̂_i Δu_i: the averaged basis, N̂_i = N̄_i,s, when every node of its support is
+//! Δu_s = Σ_i N̂_i Δu_i: the basis there, N̂_i = N_i(x_s), when every node of its support is
 //! active (the usual case: the surface inside or on the face of a cell with material points);
 //! otherwise (the surface has left the cells its material points support, e.g. a linear
 //! basis's top row of nodes once the material has moved past it) the host's first-order
@@ -230,9 +231,9 @@ use crate::resources::{
     StageClock,
 };
 use crate::scene::{
-    CallSpec, Choice, Kind, Located, ModuleNotes, ModuleWarnings, OptionSpec, Options, Range,
-    Resolver, SceneApi, SceneSpec, ScriptError, SurfacePointSeed, is_plastic_model, points_across,
-    seed_surface,
+    CallSpec, Choice, Kind, Located, ModuleNotes, ModuleWarnings, OptionSpec, Options, PartRule,
+    Range, Resolver, SceneApi, SceneSpec, ScriptError, SurfacePointSeed, is_plastic_model,
+    points_across, seed_surface,
 };
 
 /// How a condition is imposed.
@@ -354,14 +355,13 @@ pub struct BoundaryPoint<const D: usize> {
     /// Current position (converged, start of the load step).
     pub position: SVector<f64, D>,
     pub area: f64,
-    /// The half-edges of its share of the surface in the reference configuration, deformed
-    /// with the host's F (module docs, "Boundary points").
+    /// The half-edges of its share of the surface (none: the basis is sampled at the point;
+    /// module docs, "Boundary points").
     pub half_edges: Vec<SVector<f64, D>>,
     pub host: Entity,
     /// The material points of the fit at the reference position, with their weights.
     pub fit: Vec<(Entity, f64)>,
-    /// The active nodes of the basis averaged over the share, with the weights N̂_i (module
-    /// docs).
+    /// The active nodes of the basis at `position` with the weights N̂_i (module docs).
     pub weights: Vec<(usize, f64)>,
     /// Symmetric Nitsche: the host's trial state at the step's first iterate, whose tangent
     /// builds the adjoint term for the whole step (module docs, "Symmetric Nitsche").
@@ -505,7 +505,7 @@ impl Plugin for SurfaceConditionsModule {
                         min: 1,
                         max: Some(1000),
                     },
-                    "parts per cell crossed, each with 2 boundary points per edge, each weighted by the basis averaged over its share (default 1)",
+                    "parts per cell crossed, each with 2 Gauss points per edge (default 1)",
                 ),
                 OptionSpec::new(
                     "name",
@@ -1451,7 +1451,7 @@ fn resolve_conditions(scene: &Resolver) -> Result<Vec<SurfaceConditionSpec>, Scr
             &material_points,
             &d.corners,
             d.per_cell,
-            2,
+            PartRule::Gauss(2),
             "boundary points",
         )
         .map_err(fail)?;

@@ -68,8 +68,8 @@ use crate::resources::{
     CurrentStage, Grid, GridFields, LoadStep, Ramp, RunStatus, SolverError, Stage, StageClock,
 };
 use crate::scene::{
-    CallSpec, Kind, Located, OptionSpec, Options, Resolver, SceneApi, SceneSpec, ScriptError,
-    seed_surface,
+    CallSpec, Kind, Located, OptionSpec, Options, PartRule, Resolver, SceneApi, SceneSpec,
+    ScriptError, seed_surface,
 };
 use crate::stages::output::{OutputPlan, pad};
 
@@ -556,7 +556,7 @@ fn resolve_tractions(
             &material_points,
             &traction.corners,
             traction.per_cell,
-            1,
+            PartRule::Shares(1),
             "traction points",
         )
         .map_err(fail)?;
