@@ -71,12 +71,14 @@ pub mod domain;
 pub mod error;
 pub mod gimp;
 pub mod grid;
+pub mod surface;
 
 pub use axis::{Axis, OutsideGrid};
 pub use bspline::control_points_1d;
 pub use domain::{DomainScratch, eval_point_domain};
 pub use error::DomainError;
 pub use grid::{BasisScratch, GridBasis, GridSpec, NodeWeight};
+pub use surface::SurfaceScratch;
 
 /// Which family of grid functions maps between points and grid.
 #[derive(Clone, Copy, Debug, PartialEq)]

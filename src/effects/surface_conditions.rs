@@ -8,8 +8,14 @@
 //! X_s, reference area A_s (length in 2D) and a host, the nearest material point: the piece is
 //! cut into `per_cell` parts per cell crossed, each integrated with the 2-point Gauss rule per
 //! edge, so that a piece whose parts lie within knot spans integrates the B-spline products of
-//! the boundary terms exactly (quadratic and cubic). A boundary
-//! point carries its total displacement u_s = x_s − X_s. At the start of each load step it gets
+//! the boundary terms exactly (quadratic and cubic). Unlike traction points (which average the
+//! basis over their carried share: `effects::tractions`), boundary points sample it, so once
+//! the material has moved the parts off the knot spans the boundary terms are not exact, and
+//! where a body's free side moves into a new column of cells next to the condition a function
+//! supported by a sliver of material is decided by that error (docs/boundaries.md, "Free
+//! sides": a homogeneous squeeze under a smooth platen with a free side). Shares carried by the
+//! host's F were tried and not kept: under the footing's large penetration the host's F
+//! distorts them (dips of 14 % against 5 %). A boundary point carries its total displacement u_s = x_s − X_s. At the start of each load step it gets
 //! weights N̂_i over active nodes, with which the grid increment is read at the point,
 //! Δu_s = Σ_i N̂_i Δu_i: the basis there, N̂_i = N_i(x_s), when every node of its support is
 //! active (the usual case: the surface inside or on the face of a cell with material points);
@@ -210,7 +216,7 @@ use nalgebra::{SMatrix, SVector};
 use rhai::Dynamic;
 
 use super::carried_points::{carried_point, restore_positions, save_positions};
-use crate::basis::{BasisKind, BasisScratch, GimpDomain, NodeWeight};
+use crate::basis::{BasisKind, GimpDomain, NodeWeight, SurfaceScratch};
 use crate::checkpoint::CheckpointPart;
 use crate::components::{
     AssembledElsewhere, DeformationGradient, Position, ReferencePosition, Support, Trial,
@@ -225,9 +231,9 @@ use crate::resources::{
     StageClock,
 };
 use crate::scene::{
-    CallSpec, Choice, Kind, Located, ModuleNotes, ModuleWarnings, OptionSpec, Options, Range,
-    Resolver, SceneApi, SceneSpec, ScriptError, SurfacePointSeed, is_plastic_model, points_across,
-    seed_surface,
+    CallSpec, Choice, Kind, Located, ModuleNotes, ModuleWarnings, OptionSpec, Options, PartRule,
+    Range, Resolver, SceneApi, SceneSpec, ScriptError, SurfacePointSeed, is_plastic_model,
+    points_across, seed_surface,
 };
 
 /// How a condition is imposed.
@@ -271,6 +277,8 @@ impl Imposition {
 pub struct BoundaryPointSpec {
     pub position: Vec<f64>,
     pub area: f64,
+    /// The half-edges of its share of the surface (`scene::BoundarySeed`).
+    pub half_edges: Vec<Vec<f64>>,
     /// The host material point (global point index).
     pub host: usize,
     /// The material points nearest to the reference position and their least-squares linear
@@ -347,6 +355,9 @@ pub struct BoundaryPoint<const D: usize> {
     /// Current position (converged, start of the load step).
     pub position: SVector<f64, D>,
     pub area: f64,
+    /// The half-edges of its share of the surface (none: the basis is sampled at the point;
+    /// module docs, "Boundary points").
+    pub half_edges: Vec<SVector<f64, D>>,
     pub host: Entity,
     /// The material points of the fit at the reference position, with their weights.
     pub fit: Vec<(Entity, f64)>,
@@ -746,6 +757,12 @@ fn spawn_boundary_points<const D: usize>(
                         .ok_or_else(|| format!("material point {k} of a fit does not exist"))
                 })
                 .collect::<Result<Vec<_>, String>>()?;
+            if point.half_edges.iter().any(|edge| edge.len() != D) {
+                return Err(format!(
+                    "boundary point share of '{}' not in {D}D",
+                    spec.name
+                ));
+            }
             batch.push(BoundaryPoint::<D> {
                 fit,
                 condition,
@@ -753,6 +770,11 @@ fn spawn_boundary_points<const D: usize>(
                 reference_position: position,
                 position,
                 area: point.area,
+                half_edges: point
+                    .half_edges
+                    .iter()
+                    .map(|edge| SVector::from_column_slice(edge))
+                    .collect(),
                 host,
                 weights: Vec::new(),
                 adjoint_state: None,
@@ -837,17 +859,17 @@ pub fn find_boundary_supports<const D: usize>(
     mut fields: ResMut<GridFields<D>>,
     mut status: ResMut<RunStatus>,
     mut clock: ResMut<StageClock>,
-    mut scratch: Local<(BasisScratch, Vec<NodeWeight<D>>)>,
-    hosts: Query<(&Support<D>, &Position<D>)>,
+    mut scratch: Local<(SurfaceScratch<D>, Vec<NodeWeight<D>>, Vec<SVector<f64, D>>)>,
+    hosts: Query<(&Support<D>, &Position<D>, &DeformationGradient<D>)>,
     mut points: Query<&mut BoundaryPoint<D>>,
 ) {
     let _timer = clock.time(Stage::Connectivity);
-    let (scratch, support) = &mut *scratch;
+    let (scratch, support, half_edges) = &mut *scratch;
     let fields = &mut *fields;
     if let Some(nitsche) = set.0.iter().find(|c| c.imposition.is_nitsche()) {
         // round-off slivers get no DOF (module docs, "Round-off slivers")
         let slivers = sliver_nodes(
-            hosts.iter().map(|(s, _)| s.0.as_slice()),
+            hosts.iter().map(|(s, _, _)| s.0.as_slice()),
             nitsche.cell,
             &fields.active,
         );
@@ -866,14 +888,20 @@ pub fn find_boundary_supports<const D: usize>(
             ),
             recoverable: false,
         };
-        if grid.0.eval(&point.position, scratch, support).is_err() {
-            status.fail(fail("left the background grid"));
-            return;
-        }
-        let Ok((host, host_position)) = hosts.get(point.host) else {
+        let Ok((host, host_position, f)) = hosts.get(point.host) else {
             status.fail(fail("has lost its host material point"));
             return;
         };
+        half_edges.clear();
+        half_edges.extend(point.half_edges.iter().map(|edge| f.0 * edge));
+        if grid
+            .0
+            .eval_surface_average(&point.position, half_edges, scratch, support)
+            .is_err()
+        {
+            status.fail(fail("left the background grid"));
+            return;
+        }
         let offset = point.position - host_position.0;
         let weights = boundary_weights(support, &host.0, &offset, &fields.active);
         if weights.is_empty() || weights.iter().any(|(node, _)| !fields.active[*node]) {
@@ -1423,7 +1451,7 @@ fn resolve_conditions(scene: &Resolver) -> Result<Vec<SurfaceConditionSpec>, Scr
             &material_points,
             &d.corners,
             d.per_cell,
-            2,
+            PartRule::Gauss(2),
             "boundary points",
         )
         .map_err(fail)?;
@@ -1507,6 +1535,7 @@ fn resolve_conditions(scene: &Resolver) -> Result<Vec<SurfaceConditionSpec>, Scr
                     Ok(BoundaryPointSpec {
                         position: s.position,
                         area: s.area,
+                        half_edges: s.half_edges,
                         host: s.host,
                         fit,
                     })

@@ -1,13 +1,17 @@
 //! Surface tractions (paper eqs. 1 and 9): the Neumann term of the external force,
 //!
 //! ```text
-//!   f_ext,i += λ ∫_ΓN h N_i dΓ  ≈  λ Σ_s h_s A_s N_i(x_s),
+//!   f_ext,i += λ ∫_ΓN h N_i dΓ  =  λ Σ_s h_s A_s N̄_is,     N̄_is = (1/|Γ_s|) ∫_Γs N_i dΓ,
 //! ```
 //!
-//! integrated with traction points s: quadrature points seeded on a flat piece of boundary
-//! (`traction(...)` in scenes, see `scene::seed_boundary`) that need not align with the grid.
-//! Each carries its reference area A_s and the traction h_s (force per unit reference area, of
-//! fixed direction: a dead load), and moves with the material ([`update_traction_points`]).
+//! integrated with traction points s seeded on a flat piece of boundary (`traction(...)` in
+//! scenes, see `scene::seed_boundary`) that need not align with the grid. Each carries its
+//! share Γ_s of the piece (a part of it: its reference area A_s and half-edges), the traction
+//! h_s (force per unit reference area, of fixed direction: a dead load), and moves with the
+//! material ([`update_traction_points`]); its weights are the basis averaged over the share
+//! as the host's F has deformed it (`basis::surface`), exact wherever the shares lie against
+//! the knot lines (the basis sampled at the point, the midpoint rule, is not, and a side of a
+//! body moving into a new column of cells turns that error into a wrong stress next to it).
 //!
 //! **Point loads at any position** (`point_load_at(#{ at, force })`) are load points of the
 //! same kind: a point of unit "area" carrying the force P at a reference position X that need
@@ -20,8 +24,8 @@
 //!
 //! Systems, added only when a scene declares tractions:
 //!
-//! * [`apply_tractions`] (`Hook::Loads`): evaluate the basis at x_s and spread λ h_s A_s over
-//!   the support (`mechanics::spread_over_active`).
+//! * [`apply_tractions`] (`Hook::Loads`): average the basis over the share and spread
+//!   λ h_s A_s over the support (`mechanics::spread_over_active`).
 //! * [`update_traction_points`] (`Hook::PointUpdate`, after the material points):
 //!   x_s = x_p + F_p (X_s − X_p), with p the host of s, the material point nearest to it in the
 //!   reference configuration. This keeps the traction point on the body's boundary exactly for
@@ -54,7 +58,7 @@ use rhai::Dynamic;
 use super::carried_points::{carried_point, restore_positions, save_positions};
 use super::declarations::{LoadSummary, held_option};
 use super::probes::material_point_near;
-use crate::basis::{BasisKind, BasisScratch, NodeWeight};
+use crate::basis::{BasisKind, NodeWeight, SurfaceScratch};
 use crate::checkpoint::CheckpointPart;
 use crate::components::{DeformationGradient, Position, ReferencePosition, Support};
 use crate::mechanics::spread_over_active;
@@ -64,8 +68,8 @@ use crate::resources::{
     CurrentStage, Grid, GridFields, LoadStep, Ramp, RunStatus, SolverError, Stage, StageClock,
 };
 use crate::scene::{
-    CallSpec, Kind, Located, OptionSpec, Options, Resolver, SceneApi, SceneSpec, ScriptError,
-    seed_surface,
+    CallSpec, Kind, Located, OptionSpec, Options, PartRule, Resolver, SceneApi, SceneSpec,
+    ScriptError, seed_surface,
 };
 use crate::stages::output::{OutputPlan, pad};
 
@@ -86,10 +90,13 @@ pub struct TractionPoint<const D: usize> {
     /// X_s − X_p: the reference offset from the host.
     pub offset: SVector<f64, D>,
     pub area: f64,
+    /// The half-edges of its share of the surface in the reference configuration (none for a
+    /// load point); deformed with the host's F, like the offset.
+    pub half_edges: Vec<SVector<f64, D>>,
     pub traction: SVector<f64, D>,
     /// Ramped with the load factor, or held in full from the first step (`held: true`).
     pub ramp: Ramp,
-    /// The basis at `position` for this load step.
+    /// The basis averaged over the share (`basis::surface`) for this load step.
     pub support: Vec<NodeWeight<D>>,
 }
 
@@ -102,6 +109,9 @@ pub struct TractionPoint<const D: usize> {
 pub struct TractionPointSpec {
     pub position: Vec<f64>,
     pub area: f64,
+    /// The half-edges of its share of the surface (`scene::BoundarySeed`; none for a load
+    /// point).
+    pub half_edges: Vec<Vec<f64>>,
     pub traction: Vec<f64>,
     pub host: usize,
     /// Ramped with the load factor, or held in full from the first step (`held: true`).
@@ -341,6 +351,11 @@ fn spawn_traction_points<const D: usize>(simulation: &mut Extension<'_, D>) -> R
             .get::<ReferencePosition<D>>(host)
             .ok_or("traction point host is not a material point")?
             .0;
+        let half_edges = point
+            .half_edges
+            .iter()
+            .map(|edge| vector(edge, "share"))
+            .collect::<Result<_, _>>()?;
         batch.push(TractionPoint {
             id: id as u32,
             position,
@@ -348,6 +363,7 @@ fn spawn_traction_points<const D: usize>(simulation: &mut Extension<'_, D>) -> R
             host,
             offset: position - host_position,
             area: point.area,
+            half_edges,
             traction: vector(&point.traction, "traction")?,
             ramp: point.ramp,
             support: Vec::new(),
@@ -375,7 +391,8 @@ pub fn host_weights<const D: usize>(
         .collect()
 }
 
-/// Traction forces λ h_s A_s N_i(x_s) at the start-of-step positions.
+/// Traction forces λ h_s A_s N̄_is with the basis averaged over each point's share at the start
+/// of the step (its half-edges deformed by the host's F).
 #[allow(clippy::too_many_arguments)] // a system: its parameters are what it reads and writes
 pub fn apply_tractions<const D: usize>(
     grid: Res<Grid<D>>,
@@ -385,17 +402,18 @@ pub fn apply_tractions<const D: usize>(
     mut fields: ResMut<GridFields<D>>,
     mut status: ResMut<RunStatus>,
     mut clock: ResMut<StageClock>,
-    mut scratch: Local<BasisScratch>,
-    hosts: Query<(&Support<D>, &Position<D>)>,
+    mut scratch: Local<(SurfaceScratch<D>, Vec<SVector<f64, D>>)>,
+    hosts: Query<(&Support<D>, &Position<D>, &DeformationGradient<D>)>,
     mut points: Query<&mut TractionPoint<D>>,
 ) {
     let _timer = clock.time(Stage::Loads);
+    let (scratch, half_edges) = &mut *scratch;
     let fields = &mut *fields;
     let stage = stage.map_or(0, |s| s.0);
     for mut point in points.iter_mut() {
         let point = &mut *point;
         if *weights == LoadPointWeights::Host {
-            let Ok((host, x)) = hosts.get(point.host) else {
+            let Ok((host, x, _)) = hosts.get(point.host) else {
                 status.fail(SolverError::Module {
                     step: step.number,
                     what: format!("load point {} has lost its host material point", point.id),
@@ -422,9 +440,14 @@ pub fn apply_tractions<const D: usize>(
             ),
             recoverable: false,
         };
+        half_edges.clear();
+        if let Ok((_, _, f)) = hosts.get(point.host) {
+            half_edges.extend(point.half_edges.iter().map(|edge| f.0 * edge));
+        }
+        half_edges.resize(point.half_edges.len(), SVector::zeros());
         if grid
             .0
-            .eval(&point.position, &mut scratch, &mut point.support)
+            .eval_surface_average(&point.position, half_edges, scratch, &mut point.support)
             .is_err()
         {
             status.fail(fail("left the background grid"));
@@ -533,7 +556,7 @@ fn resolve_tractions(
             &material_points,
             &traction.corners,
             traction.per_cell,
-            1,
+            PartRule::Shares(1),
             "traction points",
         )
         .map_err(fail)?;
@@ -551,6 +574,7 @@ fn resolve_tractions(
         points.extend(seeded.into_iter().map(|seed| TractionPointSpec {
             position: seed.position,
             area: seed.area,
+            half_edges: seed.half_edges,
             traction: traction.traction.clone(),
             host: seed.host,
             ramp: traction.ramp,
@@ -595,6 +619,7 @@ fn resolve_point_loads_at(
         loads.push(TractionPointSpec {
             position: load.at.clone(),
             area: 1.0,
+            half_edges: Vec::new(),
             traction: load.force.clone(),
             host,
             ramp: load.ramp,

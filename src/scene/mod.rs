@@ -73,8 +73,8 @@ pub use rank::{points_across, rank_warnings};
 pub use registry::{CallSpec, Declare, SceneApi};
 pub use schedule::{MAX_STEPS, phase_factors};
 pub use seeding::{
-    Placement, SurfacePointSeed, first_point_outside_grid, nearest_points, seed_boundary, seed_box,
-    seed_points, seed_points_placed, seed_surface,
+    PartRule, Placement, SurfacePointSeed, first_point_outside_grid, nearest_points, seed_boundary,
+    seed_box, seed_points, seed_points_placed, seed_surface,
 };
 pub use stages::{StageDeclaration, StageSpec, Stages};
 pub use words::{BasisRefinement, BasisWord, FieldSpec, ModelSpec, Seeder, Word, Words};

@@ -178,6 +178,28 @@ pub fn first_point_outside_grid<E>(
     Ok(found)
 }
 
+/// How the points of a part of a flat piece of boundary are placed ([`seed_boundary`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PartRule {
+    /// `k` equal shares per edge, a point at the centre of each, weighted by the basis
+    /// averaged over its share (tractions).
+    Shares(usize),
+    /// The `k`-point Gauss rule per edge, the basis sampled at the points (surface conditions).
+    Gauss(usize),
+}
+
+/// A quadrature point of a flat piece of boundary and its *share* of it: the segment (2D) or
+/// parallelogram (3D) it stands for, centred at the point with the half-edges `half_edges`
+/// (none in 1D). Its weights are the grid's functions averaged over the share
+/// (`basis::surface`), so the shares' sum integrates them exactly wherever the shares lie.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BoundarySeed {
+    pub position: Vec<f64>,
+    /// Reference area of the share (length in 2D, 1 in 1D).
+    pub area: f64,
+    pub half_edges: Vec<Vec<f64>>,
+}
+
 /// Quadrature points of a flat piece of boundary given by `dim` corners (the grid's dimension):
 ///
 /// * 1D: one corner, the end of the bar: one point of area 1 (the bar's unit cross-section);
@@ -186,32 +208,25 @@ pub fn first_point_outside_grid<E>(
 ///   `corners[2] − corners[0]`.
 ///
 /// Each edge e is split into `n = max(1, ceil(per_cell · max_a |e_a| / h_a))` equal parts (h_a =
-/// cell size along axis a), so there are about `per_cell` points per cell crossed; the points
-/// sit at the part midpoints and carry the part's area (midpoint rule: the areas sum exactly to
-/// the segment length / parallelogram area). Returns `(position, area)` pairs, first edge
-/// fastest, or `Err(count)` if there would be more than `max_points`.
+/// cell size along axis a), so there are about `per_cell` parts per cell crossed. With
+/// [`PartRule::Shares`]`(k)` every part is cut into `k` equal shares along each edge, a point at
+/// the centre of each share carrying it (its area and half-edges); with [`PartRule::Gauss`]`(k)`
+/// the points sit at the `k`-point Gauss–Legendre points of each part along each edge and carry
+/// its area times their weights, and no share (the basis is sampled at them). The areas sum
+/// exactly to the segment length / parallelogram area. Returns the points first edge fastest,
+/// or `Err(count)` if there would be more than `max_points`.
 pub fn seed_boundary(
     grid: &GridSpec,
     corners: &[Vec<f64>],
     per_cell: usize,
+    rule: PartRule,
     max_points: usize,
-) -> Result<Vec<(Vec<f64>, f64)>, usize> {
-    seed_boundary_gauss(grid, corners, per_cell, 1, max_points)
-}
-
-/// As [`seed_boundary`], with the `gauss`-point Gauss–Legendre rule along each edge of every
-/// part instead of its midpoint (`gauss` = 1): `gauss^(D−1)` points per part, exact for
-/// polynomials of degree 2 gauss − 1 on each part. Surface conditions use 2 points, so that a
-/// part within one knot span integrates products of B-splines up to cubic exactly.
-pub fn seed_boundary_gauss(
-    grid: &GridSpec,
-    corners: &[Vec<f64>],
-    per_cell: usize,
-    gauss: usize,
-    max_points: usize,
-) -> Result<Vec<(Vec<f64>, f64)>, usize> {
-    let gauss = gauss.max(1);
-    let rule = gauss_legendre_unit(gauss);
+) -> Result<Vec<BoundarySeed>, usize> {
+    let (shares, gauss) = match rule {
+        PartRule::Shares(k) => (k.max(1), None),
+        PartRule::Gauss(k) => (1, Some(gauss_legendre_unit(k.max(1)))),
+    };
+    let per_part = gauss.as_ref().map_or(1, |g| g.len());
     let dim = grid.dim();
     let origin = &corners[0];
     let edges: Vec<Vec<f64>> = corners[1..]
@@ -227,7 +242,7 @@ pub fn seed_boundary_gauss(
                         / (grid.upper[axis] - grid.lower[axis])
                 })
                 .fold(0.0, f64::max);
-            ((per_cell.max(1) as f64 * cells_crossed).ceil() as usize).max(1)
+            ((per_cell.max(1) as f64 * cells_crossed).ceil() as usize).max(1) * shares
         })
         .collect();
     let area = match edges.len() {
@@ -245,28 +260,41 @@ pub fn seed_boundary_gauss(
     };
     let count = parts
         .iter()
-        .try_fold(1usize, |count, &n| count.checked_mul(n * gauss))
+        .try_fold(1usize, |count, &n| count.checked_mul(n * per_part))
         .unwrap_or(usize::MAX);
     if count > max_points {
         return Err(count);
     }
-    let part_area = area / parts.iter().product::<usize>() as f64;
-    // (part, Gauss point) along each edge: index = part * gauss + g
-    let ranges: Vec<(i64, i64)> = parts.iter().map(|&n| (0, (n * gauss) as i64)).collect();
+    let share_area = area / parts.iter().product::<usize>() as f64;
+    let half_edges: Vec<Vec<f64>> = edges
+        .iter()
+        .zip(&parts)
+        .map(|(edge, &n)| edge.iter().map(|e| 0.5 * e / n as f64).collect())
+        .collect();
+    // (part, point) along each edge: index = part * per_part + g
+    let ranges: Vec<(i64, i64)> = parts.iter().map(|&n| (0, (n * per_part) as i64)).collect();
     let mut points = Vec::with_capacity(count);
     let _ = for_each_index::<std::convert::Infallible>(&ranges, |index| {
         let mut position = origin.clone();
         let mut weight = 1.0;
         for (edge, (&k, &n)) in edges.iter().zip(index.iter().zip(&parts)) {
-            let (i, g) = (k as usize / gauss, k as usize % gauss);
-            let (u, w) = rule[g];
+            let (i, g) = (k as usize / per_part, k as usize % per_part);
+            let (u, w) = gauss.as_ref().map_or((0.5, 1.0), |rule| rule[g]);
             let t = (i as f64 + u) / n as f64;
             weight *= w;
             for (x, e) in position.iter_mut().zip(edge) {
                 *x += t * e;
             }
         }
-        points.push((position, part_area * weight));
+        points.push(BoundarySeed {
+            position,
+            area: share_area * weight,
+            half_edges: if gauss.is_some() {
+                Vec::new()
+            } else {
+                half_edges.clone()
+            },
+        });
         Ok(())
     });
     Ok(points)
@@ -544,16 +572,61 @@ pub(crate) mod tests {
     #[test]
     fn boundary_points_split_segments_and_parallelograms_by_the_cell_size() {
         // 1D: the end point, unit area
-        let points = seed_boundary(&grid(&[0.0], &[2.0], &[4]), &[vec![2.0]], 3, 10).unwrap();
-        assert_eq!(points, [(vec![2.0], 1.0)]);
+        let points = seed_boundary(
+            &grid(&[0.0], &[2.0], &[4]),
+            &[vec![2.0]],
+            3,
+            PartRule::Shares(1),
+            10,
+        )
+        .unwrap();
+        assert_eq!(points.len(), 1);
+        assert_eq!((&points[0].position[..], points[0].area), (&[2.0][..], 1.0));
+        assert!(points[0].half_edges.is_empty());
         // 2D: a slanted segment crossing 2 cells along x and 1 along y, 2 per cell -> 4 parts
         let g = grid(&[0.0, 0.0], &[4.0, 4.0], &[4, 4]);
-        let points = seed_boundary(&g, &[vec![1.0, 1.0], vec![3.0, 2.0]], 2, 10).unwrap();
+        let points = seed_boundary(
+            &g,
+            &[vec![1.0, 1.0], vec![3.0, 2.0]],
+            2,
+            PartRule::Shares(1),
+            10,
+        )
+        .unwrap();
         assert_eq!(points.len(), 4);
-        let length: f64 = points.iter().map(|(_, a)| a).sum();
+        let length: f64 = points.iter().map(|p| p.area).sum();
         assert!((length - 5f64.sqrt()).abs() < 1e-12);
-        assert_eq!(points[0].0, [1.25, 1.125]);
-        assert_eq!(points[3].0, [2.75, 1.875]);
+        assert_eq!(points[0].position, [1.25, 1.125]);
+        assert_eq!(points[3].position, [2.75, 1.875]);
+        // each share reaches its neighbour's: half-edges of a quarter of the segment, halved
+        assert_eq!(points[0].half_edges, [vec![0.25, 0.125]]);
+        // two shares per part: 8 points, at the centres of eighths
+        let halves = seed_boundary(
+            &g,
+            &[vec![1.0, 1.0], vec![3.0, 2.0]],
+            2,
+            PartRule::Shares(2),
+            10,
+        )
+        .unwrap();
+        assert_eq!(halves.len(), 8);
+        assert_eq!(halves[0].position, [1.125, 1.0625]);
+        assert_eq!(halves[0].half_edges, [vec![0.125, 0.0625]]);
+        // the 2-point Gauss rule per part: the points of the old rule, the basis sampled there
+        let gauss = seed_boundary(
+            &g,
+            &[vec![1.0, 1.0], vec![3.0, 2.0]],
+            2,
+            PartRule::Gauss(2),
+            10,
+        )
+        .unwrap();
+        assert_eq!(gauss.len(), 8);
+        let t = 0.5 - 0.5 / 3f64.sqrt();
+        assert!((gauss[0].position[0] - (1.0 + 0.5 * t)).abs() < 1e-15);
+        assert!(
+            (gauss[0].area - 5f64.sqrt() / 8.0).abs() < 1e-15 && gauss[0].half_edges.is_empty()
+        );
         // 3D: a 2 x 1 rectangle in the plane z = 1 with 1 point per cell of size 0.5
         let g = grid(&[0.0, 0.0, 0.0], &[2.0, 2.0, 2.0], &[4, 4, 4]);
         let corners = [
@@ -561,12 +634,23 @@ pub(crate) mod tests {
             vec![2.0, 0.0, 1.0],
             vec![0.0, 1.0, 1.0],
         ];
-        let points = seed_boundary(&g, &corners, 1, 8).unwrap();
-        assert_eq!(seed_boundary(&g, &corners, 1, 7), Err(8));
+        let points = seed_boundary(&g, &corners, 1, PartRule::Shares(1), 8).unwrap();
+        assert_eq!(
+            seed_boundary(&g, &corners, 1, PartRule::Shares(1), 7),
+            Err(8)
+        );
         assert_eq!(points.len(), 4 * 2);
-        assert!(points.iter().all(|(x, a)| x[2] == 1.0 && *a == 0.25));
-        assert_eq!(points[1].0, [0.75, 0.25, 1.0]);
-        assert_eq!(points[4].0, [0.25, 0.75, 1.0]);
+        assert!(
+            points
+                .iter()
+                .all(|p| p.position[2] == 1.0 && p.area == 0.25)
+        );
+        assert_eq!(points[1].position, [0.75, 0.25, 1.0]);
+        assert_eq!(points[4].position, [0.25, 0.75, 1.0]);
+        assert_eq!(
+            points[4].half_edges,
+            [vec![0.25, 0.0, 0.0], vec![0.0, 0.25, 0.0]]
+        );
     }
 
     #[test]
@@ -681,15 +765,16 @@ pub struct SurfacePointSeed {
     pub position: Vec<f64>,
     /// Reference area (length in 2D, 1 in 1D) the point carries.
     pub area: f64,
+    /// The half-edges of its share of the surface ([`BoundarySeed`]).
+    pub half_edges: Vec<Vec<f64>>,
     /// The material point nearest to it in the reference configuration (global index): its
     /// host, whose deformation it follows.
     pub host: usize,
 }
 
 /// The quadrature points of a flat piece of boundary given by its corners (`on: [...]` of
-/// `traction(...)` and of the surface conditions; see `seed_boundary_gauss` for the shapes and
-/// `gauss`), each
-/// with its host material point. `points` names the points in messages ("traction points").
+/// `traction(...)` and of the surface conditions; see [`seed_boundary`] for the shapes and
+/// `rule`), each with its share (if any) and its host material point. `points` names the points in messages ("traction points").
 /// Errors (to be located at the declaring call): corners of the wrong number or dimension,
 /// outside the grid, of zero extent, or too many points.
 pub fn seed_surface(
@@ -697,7 +782,7 @@ pub fn seed_surface(
     material_points: &[&[f64]],
     corners: &[Vec<f64>],
     per_cell: usize,
-    gauss: usize,
+    rule: PartRule,
     points: &str,
 ) -> Result<Vec<SurfacePointSeed>, String> {
     let dim = grid.dim();
@@ -736,24 +821,24 @@ pub fn seed_surface(
             ));
         }
     }
-    let seeded = seed_boundary_gauss(grid, corners, per_cell, gauss, MAX_SEED_CANDIDATES).map_err(
-        |count| {
+    let seeded =
+        seed_boundary(grid, corners, per_cell, rule, MAX_SEED_CANDIDATES).map_err(|count| {
             format!("{count} {points} exceed the limit of {MAX_SEED_CANDIDATES}; lower per_cell")
-        },
-    )?;
-    if seeded.iter().all(|(_, area)| *area == 0.0) {
+        })?;
+    if seeded.iter().all(|seed| seed.area == 0.0) {
         return Err(
             "the boundary piece has zero length or area (repeated or collinear points)".into(),
         );
     }
-    let positions: Vec<Vec<f64>> = seeded.iter().map(|(x, _)| x.clone()).collect();
+    let positions: Vec<Vec<f64>> = seeded.iter().map(|seed| seed.position.clone()).collect();
     let hosts = nearest_points(grid, material_points, &positions);
     Ok(seeded
         .into_iter()
         .zip(hosts)
-        .map(|((position, area), host)| SurfacePointSeed {
-            position,
-            area,
+        .map(|(seed, host)| SurfacePointSeed {
+            position: seed.position,
+            area: seed.area,
+            half_edges: seed.half_edges,
             // bodies are resolved first and have points
             host: host.unwrap_or_default(),
         })
