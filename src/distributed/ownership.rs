@@ -25,7 +25,7 @@
 //! offset of the process (an exclusive scan of the owned counts `n_s`, [`offsets`]). The
 //! owned nodes with any free component ("blocks": PETSc's padded whole-node rows, the
 //! constrained components being uncoupled rows) are numbered the same way, `B_r + j`. The
-//! owner sends each process that touches an owned node its numbers ([`number_messages`]), and
+//! owner sends each process that touches an owned node its numbers ([`Numbering::number_messages`]), and
 //! the process fills in its ghosts ([`Numbering::receive`]), checking that every ghost got
 //! numbers from its owner and that the owner's free components are its own.
 //!

@@ -765,7 +765,7 @@ pub struct SurfacePointSeed {
     pub position: Vec<f64>,
     /// Reference area (length in 2D, 1 in 1D) the point carries.
     pub area: f64,
-    /// The half-edges of its share of the surface ([`BoundarySeed`]).
+    /// The half-edges of its share of the surface (`BoundarySeed`).
     pub half_edges: Vec<Vec<f64>>,
     /// The material point nearest to it in the reference configuration (global index): its
     /// host, whose deformation it follows.
