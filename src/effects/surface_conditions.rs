@@ -15,7 +15,10 @@
 //! supported by a sliver of material is decided by that error (docs/boundaries.md, "Free
 //! sides": a homogeneous squeeze under a smooth platen with a free side). Shares carried by the
 //! host's F were tried and not kept: under the footing's large penetration the host's F
-//! distorts them (dips of 14 % against 5 %). A boundary point carries its total displacement u_s = x_s − X_s. At the start of each load step it gets
+//! distorts them (dips of 14 % against 5 %).
+//!
+//! A boundary point carries its total displacement u_s = x_s − X_s. At the start of each load
+//! step it gets
 //! weights N̂_i over active nodes, with which the grid increment is read at the point,
 //! Δu_s = Σ_i N̂_i Δu_i: the basis there, N̂_i = N_i(x_s), when every node of its support is
 //! active (the usual case: the surface inside or on the face of a cell with material points);
@@ -216,7 +219,7 @@ use nalgebra::{SMatrix, SVector};
 use rhai::Dynamic;
 
 use super::carried_points::{carried_point, restore_positions, save_positions};
-use crate::basis::{BasisKind, GimpDomain, NodeWeight, SurfaceScratch};
+use crate::basis::{BasisKind, BasisScratch, GimpDomain, NodeWeight};
 use crate::checkpoint::CheckpointPart;
 use crate::components::{
     AssembledElsewhere, DeformationGradient, Position, ReferencePosition, Support, Trial,
@@ -277,8 +280,6 @@ impl Imposition {
 pub struct BoundaryPointSpec {
     pub position: Vec<f64>,
     pub area: f64,
-    /// The half-edges of its share of the surface (`scene::BoundarySeed`).
-    pub half_edges: Vec<Vec<f64>>,
     /// The host material point (global point index).
     pub host: usize,
     /// The material points nearest to the reference position and their least-squares linear
@@ -355,9 +356,6 @@ pub struct BoundaryPoint<const D: usize> {
     /// Current position (converged, start of the load step).
     pub position: SVector<f64, D>,
     pub area: f64,
-    /// The half-edges of its share of the surface (none: the basis is sampled at the point;
-    /// module docs, "Boundary points").
-    pub half_edges: Vec<SVector<f64, D>>,
     pub host: Entity,
     /// The material points of the fit at the reference position, with their weights.
     pub fit: Vec<(Entity, f64)>,
@@ -757,12 +755,6 @@ fn spawn_boundary_points<const D: usize>(
                         .ok_or_else(|| format!("material point {k} of a fit does not exist"))
                 })
                 .collect::<Result<Vec<_>, String>>()?;
-            if point.half_edges.iter().any(|edge| edge.len() != D) {
-                return Err(format!(
-                    "boundary point share of '{}' not in {D}D",
-                    spec.name
-                ));
-            }
             batch.push(BoundaryPoint::<D> {
                 fit,
                 condition,
@@ -770,11 +762,6 @@ fn spawn_boundary_points<const D: usize>(
                 reference_position: position,
                 position,
                 area: point.area,
-                half_edges: point
-                    .half_edges
-                    .iter()
-                    .map(|edge| SVector::from_column_slice(edge))
-                    .collect(),
                 host,
                 weights: Vec::new(),
                 adjoint_state: None,
@@ -859,17 +846,17 @@ pub fn find_boundary_supports<const D: usize>(
     mut fields: ResMut<GridFields<D>>,
     mut status: ResMut<RunStatus>,
     mut clock: ResMut<StageClock>,
-    mut scratch: Local<(SurfaceScratch<D>, Vec<NodeWeight<D>>, Vec<SVector<f64, D>>)>,
-    hosts: Query<(&Support<D>, &Position<D>, &DeformationGradient<D>)>,
+    mut scratch: Local<(BasisScratch, Vec<NodeWeight<D>>)>,
+    hosts: Query<(&Support<D>, &Position<D>)>,
     mut points: Query<&mut BoundaryPoint<D>>,
 ) {
     let _timer = clock.time(Stage::Connectivity);
-    let (scratch, support, half_edges) = &mut *scratch;
+    let (scratch, support) = &mut *scratch;
     let fields = &mut *fields;
     if let Some(nitsche) = set.0.iter().find(|c| c.imposition.is_nitsche()) {
         // round-off slivers get no DOF (module docs, "Round-off slivers")
         let slivers = sliver_nodes(
-            hosts.iter().map(|(s, _, _)| s.0.as_slice()),
+            hosts.iter().map(|(s, _)| s.0.as_slice()),
             nitsche.cell,
             &fields.active,
         );
@@ -888,17 +875,11 @@ pub fn find_boundary_supports<const D: usize>(
             ),
             recoverable: false,
         };
-        let Ok((host, host_position, f)) = hosts.get(point.host) else {
+        let Ok((host, host_position)) = hosts.get(point.host) else {
             status.fail(fail("has lost its host material point"));
             return;
         };
-        half_edges.clear();
-        half_edges.extend(point.half_edges.iter().map(|edge| f.0 * edge));
-        if grid
-            .0
-            .eval_surface_average(&point.position, half_edges, scratch, support)
-            .is_err()
-        {
+        if grid.0.eval(&point.position, scratch, support).is_err() {
             status.fail(fail("left the background grid"));
             return;
         }
@@ -1535,7 +1516,6 @@ fn resolve_conditions(scene: &Resolver) -> Result<Vec<SurfaceConditionSpec>, Scr
                     Ok(BoundaryPointSpec {
                         position: s.position,
                         area: s.area,
-                        half_edges: s.half_edges,
                         host: s.host,
                         fit,
                     })
