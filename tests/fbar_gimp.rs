@@ -255,7 +255,7 @@ fn weakest_columns(basis: &str, done: usize) -> (f64, Vec<usize>) {
     (smallest / typical, weak)
 }
 
-/// Why Newton fails on this footing with GIMP (docs/plasticity.md, "GIMP with F-bar: why Newton
+/// What Newton fails with on this footing with GIMP (docs/plasticity.md, "GIMP with F-bar: why Newton
 /// fails"): the heave beside the footing pushes the top points' domains over the grid line of
 /// the original surface, and the nodes of the row above get DOFs that only the tips of those
 /// domains reach — a tip `d` deep gives its node a weight ∝ d², a force ∝ d and a stiffness ∝ d²,
