@@ -110,13 +110,16 @@ impl LoadStepControl for StepCutting {
 }
 
 /// The norms of one Newton iterate's forces (over the active nodes): the out-of-balance force
-/// at the free DOFs, the external and the internal force; and the load factor λ of the iterate.
+/// at the free DOFs, the external and the internal force; the load factor λ of the iterate;
+/// and the largest force of a converged iterate so far, `max(‖f_ext‖, ‖f_int‖)` (kept in a
+/// scene that releases a load or support, `resources::LargestForce`; 0 otherwise).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ResidualNorms {
     pub free: f64,
     pub external: f64,
     pub internal: f64,
     pub load_factor: f64,
+    pub largest: f64,
 }
 
 /// When a Newton iterate has converged.
@@ -147,6 +150,28 @@ pub trait ConvergenceCriterion: Send + Sync {
 /// on the test columns, independent of λ. Relative to the current forces that floor is
 /// 1e-6..1e-5 at λ = 1e-6, far above any useful tolerance, and cutting the step makes it worse;
 /// relative to the load scale it stays below the default tolerance 1e-9 for any increment.
+///
+/// **Releases.** A stage that releases a load (`until_stage`: the load ramped down to zero,
+/// `(1 − λ) f_end`) can take the body's last load away: at its end `f_ext` is zero and `f_int`
+/// is round-off, so the scale above vanishes with them and the measure stays of order 1 however
+/// well the iterate balances (Newton did not converge there). In a scene that releases a load
+/// or support, the scale has a floor: the largest force a converged iterate carried so far in
+/// the run, `F = max over converged iterates of max(‖f_ext‖, ‖f_int‖)` (`ResidualNorms::largest`,
+/// kept by `stages::newton` in `resources::LargestForce`, a checkpoint part):
+///
+/// ```text
+///   ‖f_ext − f_int‖_free / max(max(‖f_ext‖, ‖f_int‖)/s, F)
+/// ```
+///
+/// Why this force: the released load was carried at the end of the stage before the release,
+/// so `F` is at least its size, and the displacement error Newton leaves is then
+/// `tolerance · F / stiffness` in every step, as at the largest load, instead of being
+/// required to vanish with the load. Why not the stage's starting force or the reactions: the
+/// run's largest force needs no knowledge of stages (one number, updated at every converged
+/// iterate), does not shrink when a stage starts from a released state, and the reactions are
+/// part of `f_int` already. Where the current scale is at least `F` (loading: always, before a
+/// release) the measure is computed exactly as without the floor, bit for bit; a scene that
+/// releases nothing keeps no `F` (0) and is computed as before.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct NormalisedResidual;
 
@@ -159,7 +184,9 @@ impl ConvergenceCriterion for NormalisedResidual {
         } else {
             1.0
         };
-        if scale > 0.0 {
+        if norms.largest > 0.0 && norms.largest * to_unit_load > scale {
+            norms.free / norms.largest
+        } else if scale > 0.0 {
             norms.free * to_unit_load / scale
         } else {
             norms.free
@@ -253,6 +280,7 @@ mod tests {
             external: 10.0,
             internal: 20.0,
             load_factor: 1.0,
+            largest: 0.0,
         };
         assert_eq!(NormalisedResidual.measure(&norms), 5e-5);
         assert!(NormalisedResidual.converged(5e-5, &[], 1e-4));
@@ -261,6 +289,7 @@ mod tests {
             external: 0.0,
             internal: 0.0,
             load_factor: 0.0,
+            largest: 0.0,
         };
         assert_eq!(NormalisedResidual.measure(&unloaded), 1e-12);
         // at λ = 1e-3 the forces are 1e-3 of the load scale: relative to that scale
@@ -274,5 +303,49 @@ mod tests {
             ..norms
         };
         assert_eq!(NormalisedResidual.measure(&beyond), 5e-5);
+    }
+
+    /// In a scene with a release, the run's largest force is the floor of the scale: a
+    /// released body (no force left) is measured against it; where the current scale is at
+    /// least the floor the measure is the one without it, bit for bit.
+    #[test]
+    fn a_released_body_is_measured_against_the_largest_force_of_the_run() {
+        let released = ResidualNorms {
+            free: 1e-9,
+            external: 0.0,
+            internal: 1e-11,
+            load_factor: 1.0,
+            largest: 100.0,
+        };
+        assert!((NormalisedResidual.measure(&released) - 1e-11).abs() < 1e-24);
+        let without = ResidualNorms {
+            largest: 0.0,
+            ..released
+        };
+        assert!(NormalisedResidual.measure(&without) > 0.09);
+        // half released: 50 of the 100 carried, at λ = 0.5 of the release (s = 0.5: scale 100)
+        let half = ResidualNorms {
+            free: 3e-7,
+            external: 50.0,
+            internal: 50.0 + 1e-9,
+            load_factor: 0.5,
+            largest: 100.0,
+        };
+        let plain = ResidualNorms {
+            largest: 0.0,
+            ..half
+        };
+        assert_eq!(
+            NormalisedResidual.measure(&half).to_bits(),
+            NormalisedResidual.measure(&plain).to_bits()
+        );
+        // three quarters released: 25 at λ = 0.75, measured against 100 (not 25/0.75)
+        let late = ResidualNorms {
+            external: 25.0,
+            internal: 25.0,
+            load_factor: 0.75,
+            ..half
+        };
+        assert!((NormalisedResidual.measure(&late) - 3e-9).abs() < 1e-22);
     }
 }

@@ -189,6 +189,13 @@ impl Default for Convergence {
     }
 }
 
+/// The largest force the bodies carried at a converged Newton iterate so far,
+/// `max(‖f_ext‖, ‖f_int‖)` over the active nodes: the floor of the convergence criterion's
+/// force scale in a scene that releases a load or support (`control::NormalisedResidual`,
+/// `effects::declarations::keep_largest_force`; absent otherwise: the criterion as before).
+#[derive(Resource, Clone, Copy, Debug, Default, PartialEq)]
+pub struct LargestForce(pub f64);
+
 /// The state of the Newton loop of the current step.
 #[derive(Resource)]
 pub struct Newton {

@@ -22,14 +22,15 @@ use nalgebra::SVector;
 use rhai::Dynamic;
 
 use super::declarations::{
-    LoadSummary, held_option, released_factor, until_stage, until_stage_option,
+    LoadSummary, held_option, keep_largest_force, released_factor, released_note, until_stage,
+    until_stage_option,
 };
 use crate::components::{Mass, Support};
 use crate::mechanics::spread_force;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{CurrentStage, GridFields, LoadStep, Ramp, Stage, StageClock};
 use crate::scene::{
-    CallSpec, Located, Options, Resolver, SceneApi, SceneSpec, ScriptError, Stages, numbers,
+    CallSpec, Located, Options, Resolver, SceneApi, SceneSpec, ScriptError, numbers,
 };
 
 /// The scene's body force per unit mass at load factor 1 (one entry per axis).
@@ -155,13 +156,7 @@ impl Plugin for BodyForceModule {
         );
         let ramp = spec.part::<BodyForceRamp>().map_or(Ramp::Schedule, |r| r.0);
         let summary = summary.in_stage(spec, ramp.stage());
-        let released = match (spec.part::<BodyForceRelease>(), spec.part::<Stages>()) {
-            (Some(until), Some(stages)) => format!(
-                ", released at the start of stage '{}' (ramped down over that stage)",
-                stages.name(until.0)
-            ),
-            _ => String::new(),
-        };
+        let released = released_note(spec, spec.part::<BodyForceRelease>().map(|r| r.0));
         Some(format!(
             "{:?} per unit mass {}{released}\n    {}",
             b.0,
@@ -193,6 +188,7 @@ impl Plugin for BodyForceModule {
         }
         if let Some(release) = simulation.spec().part::<BodyForceRelease>().copied() {
             simulation.world().insert_resource(release);
+            keep_largest_force(simulation);
         }
         simulation.add_systems(Hook::Loads, apply_body_force::<D>);
     }

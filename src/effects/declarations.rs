@@ -7,7 +7,9 @@
 
 use rhai::Position;
 
-use crate::resources::{LoadStep, Ramp};
+use crate::checkpoint::CheckpointPart;
+use crate::plugin::Extension;
+use crate::resources::{LargestForce, LoadStep, Ramp};
 use crate::scene::{Kind, OptionSpec, SceneSpec, ScriptError, Stages};
 
 /// The option of a load that can be held (`traction`, `point_load_at`, `body_force`): `held`
@@ -91,6 +93,53 @@ pub fn released_factor(step: &LoadStep, ramp: Ramp, until: Option<usize>, stage:
     }
 }
 
+/// Keeps the run's largest converged force (`resources::LargestForce`, the floor of the
+/// convergence criterion's scale, `control::NormalisedResidual` "Releases") in a scene that
+/// releases a load or support: every module with a release calls this in its `build`; the
+/// first inserts the resource and its checkpoint part, the others find them.
+pub fn keep_largest_force<const D: usize>(simulation: &mut Extension<'_, D>) {
+    if simulation.world().contains_resource::<LargestForce>() {
+        return;
+    }
+    simulation.world().insert_resource(LargestForce::default());
+    simulation.checkpoint(CheckpointPart {
+        name: "largest force",
+        save: |world| vec![world.resource::<LargestForce>().0],
+        restore: |world, values| match values {
+            [value] => {
+                world.resource_mut::<LargestForce>().0 = *value;
+                Ok(())
+            }
+            _ => Err(format!("{} values saved, 1 expected", values.len())),
+        },
+    });
+}
+
+/// ", released at the start of stage 's' (ramped down over that stage)" for `impm check`: what
+/// a load's `until_stage` does (empty for a load never released).
+pub fn released_note(spec: &SceneSpec, until: Option<usize>) -> String {
+    match (until, spec.part::<Stages>()) {
+        (Some(until), Some(stages)) => format!(
+            ", released at the start of stage '{}' (ramped down over that stage)",
+            stages.name(until)
+        ),
+        _ => String::new(),
+    }
+}
+
+/// The stage an optional `until_stage` names ([`until_stage`], refused with the line `at`).
+pub fn until_stage_of(
+    spec: &SceneSpec,
+    function: &str,
+    until: Option<&str>,
+    from: usize,
+    at: Position,
+) -> Result<Option<usize>, ScriptError> {
+    until
+        .map(|until| until_stage(spec, function, until, from, at))
+        .transpose()
+}
+
 /// One load declaration as `impm check` lists it.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LoadSummary {
@@ -145,6 +194,12 @@ impl LoadSummary {
     /// The summary of a load of stage `stage` (its factor named by [`factor_one`]).
     pub fn in_stage(mut self, spec: &SceneSpec, stage: usize) -> Self {
         self.factor = factor_one(spec, stage);
+        self
+    }
+
+    /// The summary of a load released at the start of stage `until` ([`released_note`]).
+    pub fn released(mut self, spec: &SceneSpec, until: Option<usize>) -> Self {
+        self.factor += &released_note(spec, until);
         self
     }
 

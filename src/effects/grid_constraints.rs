@@ -46,7 +46,7 @@ use rhai::{Dynamic, FnPtr, Position};
 
 use crate::checkpoint::CheckpointPart;
 use crate::components::GridNode;
-use crate::effects::declarations::{factor_one, selection_ranges, until_stage};
+use crate::effects::declarations::{factor_one, keep_largest_force, selection_ranges, until_stage};
 use crate::effects::surface_conditions::AXES;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{CurrentStage, GridFields, LoadStep, Ramp, Stage, StageClock, Warnings};
@@ -364,6 +364,7 @@ impl Plugin for GridConstraintsModule {
             .add_systems(Hook::Constraints, constrain_nodes::<D>)
             .add_systems(Hook::AfterStep, grid_reactions::<D>);
         if releases {
+            keep_largest_force(simulation);
             simulation
                 .add_systems(Hook::Loads, apply_released_supports::<D>)
                 .checkpoint(CheckpointPart {

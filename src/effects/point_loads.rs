@@ -9,9 +9,14 @@
 //! unloaded points).
 //!
 //! In a staged scene (`scene::stages`) a load declared in stage k is absent before stage k,
-//! follows stage k's own λ in it and is held in full after it (`LoadStep::factor_in`): the
-//! loads of the first stage are the [`PointLoad`]s, those of later stages the points'
-//! [`LaterPointLoads`] (a point state of their own, only in a scene that has them).
+//! follows stage k's own λ in it and is held in full after it (`LoadStep::factor_in`).
+//! `point_load(.., #{ held: true })` applies it in full from its stage's start instead
+//! (`resources::Ramp::Held` / `HeldFrom`), and `#{ until_stage: "s" }` releases it at the start
+//! of the later stage s: ramped down over that stage from its value at the end of the stage
+//! before, `(1 − λ_s) P`, and absent after it (`declarations::released_factor`). The loads of
+//! the first stage that follow the schedule are the [`PointLoad`]s (as in a scene without
+//! stages); the others (later stages, held, released) the points' [`LaterPointLoads`] (a point
+//! state of their own, only in a scene that has them).
 
 use bevy_ecs::prelude::*;
 use nalgebra::SVector;
@@ -20,13 +25,17 @@ use std::collections::BTreeMap;
 
 use rhai::{Dynamic, FnPtr};
 
-use super::declarations::{LoadSummary, factor_one, selection_ranges};
+use super::declarations::{
+    LoadSummary, factor_one, held_option, keep_largest_force, released_factor, selection_ranges,
+    until_stage_of, until_stage_option,
+};
 use crate::components::{PointId, Support};
 use crate::mechanics::spread_force;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{CurrentStage, GridFields, LoadStep, Ramp, Stage, StageClock};
 use crate::scene::{
-    CallSpec, FieldSpec, Located, Resolver, SceneApi, SceneSpec, ScriptError, function, numbers,
+    CallSpec, FieldSpec, Located, Options, Resolver, SceneApi, SceneBuilder, SceneSpec,
+    ScriptError, function, numbers,
 };
 use crate::stages::output::{PointFields, pad};
 
@@ -38,8 +47,18 @@ pub struct PointLoadSpec {
     pub point: usize,
     /// The force P (length = dimension).
     pub force: Vec<f64>,
-    /// The stage it belongs to (0 without stages).
-    pub stage: usize,
+    /// How it follows the schedule: its stage (0 without stages), held or ramped.
+    pub ramp: Ramp,
+    /// The stage whose start releases it (`until_stage`), if any.
+    pub until: Option<usize>,
+}
+
+impl PointLoadSpec {
+    /// Whether it is a load of the first stage that follows the schedule and is never
+    /// released (a [`PointLoad`]; the others are [`LaterPointLoads`]).
+    fn is_plain(&self) -> bool {
+        self.ramp == Ramp::Schedule && self.until.is_none()
+    }
 }
 
 /// The scene's point loads (summed per point).
@@ -67,23 +86,26 @@ struct PointLoadDeclaration {
     selector: FnPtr,
     force: Vec<f64>,
     share: Share,
+    ramp: Ramp,
+    until: Option<String>,
 }
 
 /// A force on the material point at load factor 1; only points that carry one have it.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct PointLoad<const D: usize>(pub SVector<f64, D>);
 
-/// The forces of later stages on the material point, `(stage, force at that stage's load
-/// factor 1)`; only points that carry one have it.
+/// The other forces on the material point (of later stages, held or released): `(how it
+/// follows the schedule, the stage that releases it, force at load factor 1)`; only points
+/// that carry one have it.
 #[derive(Component, Clone, Debug, PartialEq)]
-pub struct LaterPointLoads<const D: usize>(pub Vec<(usize, SVector<f64, D>)>);
+pub struct LaterPointLoads<const D: usize>(pub Vec<(Ramp, Option<usize>, SVector<f64, D>)>);
 
 impl<const D: usize> LaterPointLoads<D> {
-    /// Σ_k λ_k P_k in `step` of stage `stage` (module docs).
+    /// Σ_k f_k P_k in `step` of stage `stage`, f_k each load's factor (module docs).
     fn force(&self, step: &LoadStep, stage: usize) -> SVector<f64, D> {
         self.0
             .iter()
-            .map(|(k, force)| force * step.factor_in(Ramp::staged(false, *k), stage))
+            .map(|(ramp, until, force)| force * released_factor(step, *ramp, *until, stage))
             .sum()
     }
 }
@@ -117,19 +139,24 @@ impl Plugin for PointLoadsModule {
                 signature,
                 doc,
                 2,
+                move |builder, args, at| declare(builder, name, share, args, None, at),
+            ));
+            api.call(CallSpec::args(
+                name,
+                match share {
+                    Share::Each => "point_load(|x| predicate, [force components], #{ held: bool, until_stage: \"stage\" })",
+                    Share::Total => "point_load_total(|x| predicate, [total force components], #{ held: bool, until_stage: \"stage\" })",
+                },
+                "the same; with `held: true` the force is applied in full from its stage's first load step on instead of following the load factor; with `until_stage` it is released at the start of that later stage, ramped down to zero over it (docs/plasticity.md, \"Staged analysis\")",
+                3,
                 move |builder, args, at| {
-                    let selector = function(&args[0], &format!("{name}(...): the first argument"))?;
-                    let force = numbers(&args[1], &format!("{name}(...): the force"))?;
-                    builder.declare(Located::new(
-                        PointLoadDeclaration {
-                            function: name,
-                            selector,
-                            force,
-                            share,
-                        },
-                        at,
-                    ));
-                    Ok(Dynamic::UNIT)
+                    let options = Options::read(
+                        name,
+                        &args[2],
+                        &[held_option(), until_stage_option()],
+                        None,
+                    )?;
+                    declare(builder, name, share, args, Some(&options), at)
                 },
             ));
         }
@@ -153,7 +180,7 @@ impl Plugin for PointLoadsModule {
         let mut totals: BTreeMap<usize, Vec<f64>> = BTreeMap::new();
         for load in loads {
             let total = totals
-                .entry(load.stage)
+                .entry(load.ramp.stage())
                 .or_insert_with(|| vec![0.0; spec.dim()]);
             for (sum, c) in total.iter_mut().zip(&load.force) {
                 *sum += c;
@@ -208,22 +235,27 @@ impl Plugin for PointLoadsModule {
             let force = SVector::<f64, D>::from_fn(|a, _| load.force[a]);
             let world = simulation.world();
             let mut point = world.entity_mut(entity);
-            if load.stage == 0 {
+            if load.is_plain() {
                 point.insert(PointLoad(force));
             } else if let Some(mut later) = point.get_mut::<LaterPointLoads<D>>() {
-                later.0.push((load.stage, force));
+                later.0.push((load.ramp, load.until, force));
             } else {
-                point.insert(LaterPointLoads(vec![(load.stage, force)]));
+                point.insert(LaterPointLoads(vec![(load.ramp, load.until, force)]));
             }
         }
-        if loads.is_some_and(|loads| loads.0.iter().any(|load| load.stage > 0)) {
+        if loads.is_some_and(|loads| loads.0.iter().any(|load| load.until.is_some())) {
+            keep_largest_force(simulation);
+        }
+        if loads.is_some_and(|loads| loads.0.iter().any(|load| !load.is_plain())) {
             simulation.point_state(
                 "later point loads",
                 |point, values| {
-                    for (stage, force) in
+                    for (ramp, until, force) in
                         point.get::<LaterPointLoads<D>>().iter().flat_map(|l| &l.0)
                     {
-                        values.push(*stage as f64);
+                        values.push(ramp.stage() as f64);
+                        values.push(if ramp.is_held() { 1.0 } else { 0.0 });
+                        values.push(until.map_or(-1.0, |u| u as f64));
                         values.extend(force.iter());
                     }
                 },
@@ -231,18 +263,19 @@ impl Plugin for PointLoadsModule {
                     if values.is_empty() {
                         return Ok(());
                     }
-                    if values.len() % (D + 1) != 0 {
+                    if values.len() % (D + 3) != 0 {
                         return Err(format!(
                             "later point loads of {} values in {D}D",
                             values.len()
                         ));
                     }
                     let loads = values
-                        .chunks(D + 1)
+                        .chunks(D + 3)
                         .map(|record| {
                             (
-                                record[0] as usize,
-                                SVector::<f64, D>::from_column_slice(&record[1..]),
+                                Ramp::staged(record[1] != 0.0, record[0] as usize),
+                                (record[2] >= 0.0).then_some(record[2] as usize),
+                                SVector::<f64, D>::from_column_slice(&record[3..]),
                             )
                         })
                         .collect();
@@ -271,6 +304,35 @@ impl Plugin for PointLoadsModule {
             .add_systems(Hook::Loads, apply_point_loads::<D>)
             .add_systems(Hook::PointFields, point_load_field::<D>);
     }
+}
+
+/// Declares a `point_load` / `point_load_total` (its options, when given, from the third
+/// argument).
+fn declare(
+    builder: &mut SceneBuilder,
+    name: &'static str,
+    share: Share,
+    args: &[Dynamic],
+    options: Option<&Options>,
+    at: rhai::Position,
+) -> Result<Dynamic, String> {
+    let selector = function(&args[0], &format!("{name}(...): the first argument"))?;
+    let force = numbers(&args[1], &format!("{name}(...): the force"))?;
+    let held = options.and_then(|o| o.flag("held")).unwrap_or(false);
+    builder.declare(Located::new(
+        PointLoadDeclaration {
+            function: name,
+            selector,
+            force,
+            share,
+            ramp: Ramp::staged(held, builder.stage()),
+            until: options
+                .and_then(|o| o.text("until_stage"))
+                .map(str::to_string),
+        },
+        at,
+    ));
+    Ok(Dynamic::UNIT)
 }
 
 /// f_ext,i += λ P_p N_i(x_p) for every point p that carries a [`PointLoad`].
@@ -333,8 +395,9 @@ fn resolve_point_loads(
     let dim = scene.spec.dim();
     let positions = scene.spec.material_point_positions();
     let mut summaries = Vec::new();
-    // (stage, point) -> force: stage 0 first, in point order
-    let mut forces: BTreeMap<(usize, usize), Vec<f64>> = BTreeMap::new();
+    // (stage, held, release, point) -> force: stage 0 first, in point order
+    type Key = (usize, bool, Option<usize>, usize);
+    let mut forces: BTreeMap<Key, Vec<f64>> = BTreeMap::new();
     for declaration in scene.declarations::<PointLoadDeclaration>() {
         let load = &declaration.value;
         let function = load.function;
@@ -367,6 +430,13 @@ fn resolve_point_loads(
                 ),
             ));
         }
+        let until = until_stage_of(
+            scene.spec,
+            function,
+            load.until.as_deref(),
+            declaration.stage,
+            declaration.at,
+        )?;
         let total_volume: f64 = selected.iter().map(|(_, volume)| volume).sum();
         let count = match load.share {
             Share::Each => selected.len() as f64,
@@ -380,7 +450,8 @@ fn resolve_point_loads(
                 selected.iter().map(|(index, _)| positions[*index]),
                 load.force.iter().map(|c| c * count).collect(),
             )
-            .in_stage(scene.spec, declaration.stage),
+            .in_stage(scene.spec, declaration.stage)
+            .released(scene.spec, until),
         );
         for (index, volume) in selected {
             let scale = match load.share {
@@ -388,7 +459,7 @@ fn resolve_point_loads(
                 Share::Total => volume / total_volume,
             };
             let force = forces
-                .entry((declaration.stage, index))
+                .entry((declaration.stage, load.ramp.is_held(), until, index))
                 .or_insert_with(|| vec![0.0; dim]);
             for (sum, component) in force.iter_mut().zip(&load.force) {
                 *sum += scale * component;
@@ -397,10 +468,11 @@ fn resolve_point_loads(
     }
     let loads = forces
         .into_iter()
-        .map(|((stage, point), force)| PointLoadSpec {
+        .map(|((stage, held, until, point), force)| PointLoadSpec {
             point,
             force,
-            stage,
+            ramp: Ramp::staged(held, stage),
+            until,
         })
         .collect();
     Ok((loads, summaries))

@@ -20,7 +20,10 @@
 //! (`point_load`) is the special case X = X_p.
 //!
 //! Both take `held: true` to apply the load in full from the first load step on (λ replaced by
-//! 1, `resources::Ramp::Held`) while the other loads follow the schedule.
+//! 1, `resources::Ramp::Held`) while the other loads follow the schedule. In a staged scene
+//! both take `until_stage: "s"`: released at the start of the later stage s, ramped down over
+//! it from the value at the end of the stage before and absent after it,
+//! `f = (1 − λ_s) f_end` (`declarations::released_factor`, [`TractionPoint::factor`]).
 //!
 //! Systems, added only when a scene declares tractions:
 //!
@@ -56,7 +59,10 @@ use nalgebra::SVector;
 use rhai::Dynamic;
 
 use super::carried_points::{carried_point, restore_positions, save_positions};
-use super::declarations::{LoadSummary, held_option};
+use super::declarations::{
+    LoadSummary, held_option, keep_largest_force, released_factor, until_stage_of,
+    until_stage_option,
+};
 use super::probes::material_point_near;
 use crate::basis::{BasisKind, NodeWeight, SurfaceScratch};
 use crate::checkpoint::CheckpointPart;
@@ -96,6 +102,8 @@ pub struct TractionPoint<const D: usize> {
     pub traction: SVector<f64, D>,
     /// Ramped with the load factor, or held in full from the first step (`held: true`).
     pub ramp: Ramp,
+    /// The stage whose start releases it (`until_stage`), if any.
+    pub until: Option<usize>,
     /// The basis averaged over the share (`basis::surface`) for this load step.
     pub support: Vec<NodeWeight<D>>,
 }
@@ -116,6 +124,8 @@ pub struct TractionPointSpec {
     pub host: usize,
     /// Ramped with the load factor, or held in full from the first step (`held: true`).
     pub ramp: Ramp,
+    /// The stage whose start releases it (`until_stage`), if any.
+    pub until: Option<usize>,
 }
 
 /// The traction points of every `traction(...)` of the scene.
@@ -129,6 +139,7 @@ struct TractionDeclaration {
     traction: Vec<f64>,
     per_cell: usize,
     ramp: Ramp,
+    until: Option<String>,
 }
 
 /// `point_load_at(...)`: a force at a reference position, carried by a load point.
@@ -137,6 +148,7 @@ struct PointLoadAtDeclaration {
     at: Vec<f64>,
     force: Vec<f64>,
     ramp: Ramp,
+    until: Option<String>,
 }
 
 /// The load points of the scene's `point_load_at(...)`: traction points of unit area whose
@@ -192,6 +204,7 @@ impl Plugin for TractionsModule {
                     "traction points per cell crossed (default 2)",
                 ),
                 held_option(),
+                until_stage_option(),
             ],
             |builder, options: &Options, at| {
                 builder.declare(Located::new(
@@ -200,6 +213,7 @@ impl Plugin for TractionsModule {
                         traction: options.numbers("traction").unwrap_or_default().to_vec(),
                         per_cell: options.whole("per_cell").unwrap_or(2),
                         ramp: Ramp::staged(options.flag("held").unwrap_or(false), builder.stage()),
+                        until: options.text("until_stage").map(str::to_string),
                     },
                     at,
                 ));
@@ -217,6 +231,7 @@ impl Plugin for TractionsModule {
                 ),
                 OptionSpec::required("force", Kind::Numbers, "the force P, one entry per axis"),
                 held_option(),
+                until_stage_option(),
             ],
             |builder, options: &Options, at| {
                 builder.declare(Located::new(
@@ -224,6 +239,7 @@ impl Plugin for TractionsModule {
                         at: options.numbers("at").unwrap_or_default().to_vec(),
                         force: options.numbers("force").unwrap_or_default().to_vec(),
                         ramp: Ramp::staged(options.flag("held").unwrap_or(false), builder.stage()),
+                        until: options.text("until_stage").map(str::to_string),
                     },
                     at,
                 ));
@@ -303,6 +319,9 @@ impl Plugin for TractionsModule {
         } else {
             LoadPointWeights::Basis
         });
+        if load_point_specs(simulation.spec()).any(|point| point.until.is_some()) {
+            keep_largest_force(simulation);
+        }
         let dir = simulation.world().resource::<OutputPlan>().dir.clone();
         simulation
             .world()
@@ -366,6 +385,7 @@ fn spawn_traction_points<const D: usize>(simulation: &mut Extension<'_, D>) -> R
             half_edges,
             traction: vector(&point.traction, "traction")?,
             ramp: point.ramp,
+            until: point.until,
             support: Vec::new(),
         });
     }
@@ -374,6 +394,14 @@ fn spawn_traction_points<const D: usize>(simulation: &mut Extension<'_, D>) -> R
 }
 
 carried_point!(TractionPoint);
+
+impl<const D: usize> TractionPoint<D> {
+    /// The factor of its load in `step` of stage `stage`: its stage's λ, 1 when held, ramped
+    /// down over the stage that releases it and 0 after (`declarations::released_factor`).
+    pub fn factor(&self, step: &LoadStep, stage: usize) -> f64 {
+        released_factor(step, self.ramp, self.until, stage)
+    }
+}
 
 /// The weights N_a(x_p) + ∇N_a(x_p) · `offset` of a host's support expanded to a point at
 /// x_p + `offset` (module docs: load points with linear FEM). They sum to one when the host's
@@ -422,7 +450,7 @@ pub fn apply_tractions<const D: usize>(
                 return;
             };
             point.support = host_weights(&host.0, &(point.position - x.0));
-            let force = point.traction * (point.area * step.factor_in(point.ramp, stage));
+            let force = point.traction * (point.area * point.factor(&step, stage));
             spread_over_active(
                 &force,
                 &point.support,
@@ -453,7 +481,7 @@ pub fn apply_tractions<const D: usize>(
             status.fail(fail("left the background grid"));
             return;
         }
-        let force = point.traction * (point.area * step.factor_in(point.ramp, stage));
+        let force = point.traction * (point.area * point.factor(&step, stage));
         if !spread_over_active(
             &force,
             &point.support,
@@ -505,7 +533,7 @@ pub fn write_tractions<const D: usize>(
     for point in &rows {
         reference.extend(pad(&point.reference_position));
         area.push(point.area);
-        let factor = step.factor_in(point.ramp, stage.as_ref().map_or(0, |s| s.0));
+        let factor = point.factor(&step, stage.as_ref().map_or(0, |s| s.0));
         traction.extend(pad(&(point.traction * factor)));
         force.extend(pad(&(point.traction * (point.area * factor))));
     }
@@ -560,6 +588,13 @@ fn resolve_tractions(
             "traction points",
         )
         .map_err(fail)?;
+        let until = until_stage_of(
+            scene.spec,
+            "traction",
+            traction.until.as_deref(),
+            declaration.stage,
+            declaration.at,
+        )?;
         let area: f64 = seeded.iter().map(|seed| seed.area).sum();
         summaries.push(
             LoadSummary::new(
@@ -569,7 +604,8 @@ fn resolve_tractions(
                 seeded.iter().map(|seed| &seed.position[..]),
                 traction.traction.iter().map(|c| c * area).collect(),
             )
-            .in_stage(scene.spec, traction.ramp.stage()),
+            .in_stage(scene.spec, traction.ramp.stage())
+            .released(scene.spec, until),
         );
         points.extend(seeded.into_iter().map(|seed| TractionPointSpec {
             position: seed.position,
@@ -578,6 +614,7 @@ fn resolve_tractions(
             traction: traction.traction.clone(),
             host: seed.host,
             ramp: traction.ramp,
+            until,
         }));
     }
     Ok(points)
@@ -606,6 +643,13 @@ fn resolve_point_loads_at(
             }
         }
         let host = material_point_near(scene.spec, &load.at).map_err(fail)?;
+        let until = until_stage_of(
+            scene.spec,
+            "point_load_at",
+            load.until.as_deref(),
+            declaration.stage,
+            declaration.at,
+        )?;
         summaries.push(
             LoadSummary::new(
                 declaration.at.line(),
@@ -614,7 +658,8 @@ fn resolve_point_loads_at(
                 std::iter::once(&load.at[..]),
                 load.force.clone(),
             )
-            .in_stage(scene.spec, load.ramp.stage()),
+            .in_stage(scene.spec, load.ramp.stage())
+            .released(scene.spec, until),
         );
         loads.push(TractionPointSpec {
             position: load.at.clone(),
@@ -623,6 +668,7 @@ fn resolve_point_loads_at(
             traction: load.force.clone(),
             host,
             ramp: load.ramp,
+            until,
         });
     }
     Ok(loads)

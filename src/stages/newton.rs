@@ -6,8 +6,9 @@
 //!   ‖f_ext − f_int‖_free · min(|λ|, 1) / max(‖f_ext‖, ‖f_int‖)   (norms over all active components)
 //! ```
 //!
-//! relative to the load scale, so that tiny load increments converge; see
-//! `control::NormalisedResidual`
+//! relative to the load scale, so that tiny load increments converge; in a scene that
+//! releases a load, with the run's largest converged force as the scale's floor, kept here in
+//! `resources::LargestForce`; see `control::NormalisedResidual`
 //!
 //! ) falls below the tolerance, or fails after `max_iterations` linear solves. The solve is the
 //! linear-solver layer's (`solver`), told whether the tangent is symmetric; with
@@ -20,7 +21,7 @@ use bevy_ecs::prelude::*;
 use crate::basis::GridBasis;
 use crate::components::{BodyIndex, Support};
 use crate::control::ResidualNorms;
-use crate::resources::{BodyNames, Grid};
+use crate::resources::{BodyNames, Grid, LargestForce};
 use crate::resources::{
     Convergence, GridFields, LoadStep, Newton, NewtonSettings, RunStatus, SolverError, Stage,
     StageClock,
@@ -42,6 +43,7 @@ pub fn check_convergence<const D: usize>(
     step: Res<LoadStep>,
     mut newton: ResMut<Newton>,
     mut status: ResMut<RunStatus>,
+    largest: Option<ResMut<LargestForce>>,
 ) {
     let newton = &mut *newton;
     let (mut free, mut external, mut internal) = (0.0, 0.0, 0.0);
@@ -60,11 +62,13 @@ pub fn check_convergence<const D: usize>(
             }
         }
     }
+    let (external, internal) = (external.sqrt(), internal.sqrt());
     let norm = criterion.0.measure(&ResidualNorms {
         free: free.sqrt(),
-        external: external.sqrt(),
-        internal: internal.sqrt(),
+        external,
+        internal,
         load_factor: step.factor,
+        largest: largest.as_ref().map_or(0.0, |l| l.0),
     });
     newton.residuals.push(norm);
     if !norm.is_finite() {
@@ -77,6 +81,9 @@ pub fn check_convergence<const D: usize>(
     }
     let (earlier, _) = newton.residuals.split_at(newton.residuals.len() - 1);
     newton.converged = criterion.0.converged(norm, earlier, settings.tolerance);
+    if let Some(mut largest) = largest.filter(|_| newton.converged) {
+        largest.0 = largest.0.max(external.max(internal));
+    }
     // Diverging: the residual has grown by orders of magnitude over the step's first one.
     let first = newton.residuals[0].max(1.0);
     if !newton.converged && newton.residuals.len() > 2 && norm > DIVERGENCE_GROWTH * first {
