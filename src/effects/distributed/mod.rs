@@ -24,7 +24,8 @@
 //!   and process 0 lists them in `particles_NNNN.pvtu`, which `particles.pvd` lists. ParaView
 //!   reads it as one data set; `impm merge OUT_DIR` writes `particles_NNNN.vtu` from the
 //!   pieces (in `point_id` order, the serial file) for tools that do not read `.pvtu`. The grid
-//!   and node files are process 0's (the grid is replicated).
+//!   and node files are process 0's (the grid is replicated); with `--decompose` they are not
+//!   written (each process holds its own nodes), which the run says.
 //! * **Failures are collective.** `Hook::Combine` runs after a failed stage too: if a stage
 //!   failed on any process, every process fails the iteration (then cuts the step alike, or
 //!   stops alike: a failure step cutting cannot recover on one process is one everywhere).
