@@ -223,6 +223,23 @@ pub struct Newton {
     /// the sum over the points it assembles (the linear solver adds the processes' shares):
     /// the checks that need all of K (a body that nothing holds, `solver::modes`) are skipped.
     pub whole_tangent: bool,
+    /// The grid split among processes (a distributed run's decomposed grid,
+    /// `effects::distributed::grid`): how the convergence norms are summed, the whole
+    /// problem's DOFs; `None`: this process numbers the whole grid.
+    pub shared_grid: Option<Box<dyn SharedGrid>>,
+}
+
+/// A grid split among processes (the decomposed grid of a distributed run): each process
+/// numbers only its nodes' DOFs, so the convergence norms count each node once, on the
+/// process that owns it (a ghost node's force is also on its owner), summed over the
+/// processes, and the step's DOF count is the processes' owned DOFs summed.
+pub trait SharedGrid: Send + Sync {
+    /// Whether this process owns `node` (its norms count here).
+    fn owned(&self, node: usize) -> bool;
+    /// The sums over the processes of `squares` (collective; the same on every process).
+    fn sum(&self, squares: [f64; 3]) -> Result<[f64; 3], String>;
+    /// The DOFs of the whole problem (this process's are `Newton::matrix`'s).
+    fn dofs(&self) -> usize;
 }
 
 impl Default for Newton {
@@ -239,6 +256,7 @@ impl Default for Newton {
             converged: false,
             iterations: 0,
             whole_tangent: true,
+            shared_grid: None,
         }
     }
 }

@@ -466,7 +466,7 @@ impl<const D: usize> Simulation<D> {
         self.world.run_schedule(StepSchedule);
         let outcome = self.take_failure();
         let newton = self.world.resource::<Newton>();
-        record.dofs = newton.matrix.size();
+        record.dofs = (newton.shared_grid.as_ref()).map_or(newton.matrix.size(), |g| g.dofs());
         record.multigrid = newton.solver.hierarchy();
         record.linear_backend = newton.solver.choice();
         let failure = outcome.as_ref().err().map(|e| e.to_string());

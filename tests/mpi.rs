@@ -214,10 +214,12 @@ fn outcome(out: &Path) -> Outcome {
 }
 
 /// The decomposed grid's numbering in every step of a run over `n` processes (the run itself
-/// checks that the processes' owned DOFs add up to the replicated grid's and that every ghost
-/// got its numbers from its owner, and fails otherwise): process 0 owns all DOFs alone and
-/// none are ghosts; with more processes it owns some but not all, there are ghosts, and
-/// numbers were sent.
+/// checks that its DOF stage numbered exactly its owned and ghost DOFs and that every ghost
+/// got its numbers from its owner, and fails otherwise; `dofs` is the whole problem's, the
+/// owned DOFs summed over the processes): process 0 owns all DOFs alone and none are ghosts;
+/// with more processes it owns some but not all, its local system (owned and ghost DOFs; the
+/// lowest rank touching a node owns it, so process 0 has no ghosts) is smaller than the whole
+/// problem, there are ghosts, and numbers were sent.
 fn decomposed_grid_is_numbered(script: &str, n: usize, steps: &[serde_json::Value]) {
     for (k, step) in steps.iter().enumerate() {
         let value = |name: &str| {
@@ -226,12 +228,14 @@ fn decomposed_grid_is_numbered(script: &str, n: usize, steps: &[serde_json::Valu
                 .unwrap_or_else(|| panic!("{script} -n {n}: no {name} in step {}", k + 1))
         };
         let (dofs, owned, ghosts) = (value("dofs"), value("owned_dofs"), value("ghost_nodes"));
+        let local = value("local_dofs");
         if n == 1 {
             assert_eq!((owned, ghosts), (dofs, 0.0), "{script} step {}", k + 1);
+            assert_eq!(local, dofs, "{script} step {}", k + 1);
         } else {
             assert!(
-                owned > 0.0 && owned < dofs,
-                "{script} -n {n}: {owned} of {dofs}"
+                owned > 0.0 && owned <= local && local < dofs,
+                "{script} -n {n}: owns {owned}, holds {local} of {dofs}"
             );
             assert!(ghosts > 0.0, "{script} -n {n}: no ghosts in step {}", k + 1);
             assert!(value("bytes_grid_numbers") > 0.0);
@@ -239,13 +243,15 @@ fn decomposed_grid_is_numbered(script: &str, n: usize, steps: &[serde_json::Valu
     }
     let last = steps.last().unwrap();
     eprintln!(
-        "{script} -n {n}: decomposed grid, last step: {} DOFs, process 0 owns {}, ghost nodes \
-         {}, bytes_grid_numbers {} (bytes_points {})",
+        "{script} -n {n}: decomposed grid, last step: {} DOFs, process 0 owns {} and holds {}, \
+         ghost nodes {}, bytes_grid_numbers {} (bytes_points {}, bytes_gathered {})",
         last["dofs"],
         last["owned_dofs"],
+        last["local_dofs"],
         last["ghost_nodes"],
         last["bytes_grid_numbers"],
-        last["bytes_points"]
+        last["bytes_points"],
+        last["bytes_gathered"]
     );
 }
 

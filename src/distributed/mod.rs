@@ -13,7 +13,8 @@
 //!
 //! With `impm run --decompose` the **points are decomposed** instead: every process holds only
 //! the points of its slab, and points move to the process of their slab at each step start
-//! (`effects::distributed::decomposition`; the grid stays replicated).
+//! (`effects::distributed::decomposition`), and each process numbers and assembles only the
+//! grid nodes its points touch (`effects::distributed::grid`, [`ownership`]).
 //!
 //! Built in every configuration: the pure kernels [`partition`] (the slabs), [`ownership`]
 //! (the decomposed grid: each node's owner and the global DOF numbers, from messages to the

@@ -35,7 +35,7 @@ pub use krylov::{Jacobi, KrylovSolver, Preconditioner, multiply};
 pub use matrix::{DofLayout, NO_DOF, NO_ENTRY, SparseMatrix};
 pub use multigrid::{Hierarchy, Multigrid, Smoother};
 #[cfg(feature = "mpi")]
-pub use petsc::ProcessSum;
+pub use petsc::{GlobalBlocks, ProcessSum, SharedBlocks};
 #[cfg(feature = "petsc")]
 pub use petsc::{PetscSolver, set_command_line_options as set_petsc_command_line_options};
 

@@ -47,18 +47,38 @@ pub fn check_convergence<const D: usize>(
 ) {
     let newton = &mut *newton;
     let (mut free, mut external, mut internal) = (0.0, 0.0, 0.0);
+    let shared = newton.shared_grid.as_deref();
     for (node, dofs) in fields.dofs.iter().enumerate() {
         if !fields.active[node] {
             continue;
         }
+        let counts = shared.is_none_or(|s| s.owned(node));
         let (fe, fi) = (fields.external_force[node], fields.internal_force[node]);
-        external += fe.norm_squared();
-        internal += fi.norm_squared();
+        if counts {
+            external += fe.norm_squared();
+            internal += fi.norm_squared();
+        }
         for (c, &dof) in dofs.iter().enumerate() {
             if dof != NO_DOF {
                 let r = fe[c] - fi[c];
                 newton.residual[dof as usize] = r;
-                free += r * r;
+                if counts {
+                    free += r * r;
+                }
+            }
+        }
+    }
+    // a grid split among processes: the squares summed over them
+    if let Some(shared) = shared {
+        match shared.sum([free, external, internal]) {
+            Ok(sums) => [free, external, internal] = sums,
+            Err(why) => {
+                status.fail(SolverError::Module {
+                    step: step.number,
+                    what: format!("summing the convergence norms over the processes: {why}"),
+                    recoverable: false,
+                });
+                return;
             }
         }
     }

@@ -1,8 +1,8 @@
 //! Decomposed points (`mpirun -n N impm run SCENE --decompose`): every process holds only the
 //! points of its slab of cells, and points move to the process of the slab they are in at the
-//! start of each load step. The grid stays replicated (every process numbers the same DOFs
-//! and builds the same sparsity pattern, and gets the whole correction), so the solver is
-//! that of the replicated runs (`docs/distributed.md`).
+//! start of each load step. The grid is decomposed too: each process numbers, assembles and
+//! gets back from the solver only the nodes its own points touch (its owned nodes and ghost
+//! layer, `super::grid`; `docs/distributed.md`).
 //!
 //! **Ownership** (as the replicated runs' assembly share, `distributed::partition`): with
 //! `n_i` the points in cell layer `i` along the slab axis, summed over the processes, layer `i`
@@ -22,14 +22,11 @@
 //!    the sums over points are taken in; `tests/migration.rs`). At the start of a run every
 //!    process spawns its slab's points only (`distributed::initial_points`, from the seeds'
 //!    positions; no message).
-//! 2. [`agree_on_grid`] (after the basis, before DOF numbering): a node is active when a
-//!    point of *any* process supports it, and two nodes couple in `K` when a point of any
-//!    process has both in its support (or in a coupling group a module added from its points:
-//!    F-bar's groups). Each process sends the distinct supports of its points and its coupling
-//!    groups to all (`distributed::gather_all`) and marks the others' nodes active and their
-//!    groups as coupling groups (`GridFields::couplings`): every process then numbers the same
-//!    DOFs and builds the serial run's pattern. It first shares failures (a point outside the grid
-//!    fails the basis on its own process only), as `Hook::Combine` does.
+//! 2. The core's basis and DOF stages on the process's own points: its active nodes are the
+//!    nodes its points touch, its pattern that of their supports and of its modules' coupling
+//!    groups (F-bar's, whose members lie in one cell, so on one process); then the decomposed
+//!    grid's owners and global numbers (`super::grid`, which first shares failures: a point
+//!    outside the grid fails the basis on its own process only).
 //! 3. [`sum_external_force`] (`Hook::Loads`, after the modules' loads): the body force is
 //!    spread from the points a process holds, so `f_ext` is a sum over the processes, as
 //!    `f_int` is at `Hook::Combine`.
@@ -41,17 +38,15 @@
 //! own points). Modules that keep points' entities or read other points are refused
 //! ([`refusal`]).
 
-use std::collections::BTreeSet;
-
 use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 
-use super::{AssemblyShare, point_slices, share_failure, sum_grid_vectors};
-use crate::components::{PointId, Support};
+use super::{AssemblyShare, point_slices, sum_grid_vectors};
+use crate::components::PointId;
 use crate::distributed::migration::{PointRecord, pack_points, plan_departures, unpack_points};
 use crate::distributed::partition::slab_owners;
 use crate::distributed::respawn::{spawn_record, take_record};
-use crate::distributed::{exchange, gather_all, sum_counts};
+use crate::distributed::{exchange, sum_counts};
 use crate::effects::fbar::{FbarAveraging, FbarSpec};
 use crate::effects::stages::DisplacementOrigin;
 use crate::plugin::Extension;
@@ -262,73 +257,6 @@ fn settle<const D: usize>(world: &mut World) -> Result<(), String> {
     share.points = points_held;
     share.moved = moved[0] as usize;
     Ok(())
-}
-
-/// Step 2 of the module docs: the processes agree on the active nodes and the pattern
-/// (collective; runs after a failure too, and shares it).
-pub fn agree_on_grid<const D: usize>(world: &mut World) {
-    let step = world.resource::<LoadStep>().number;
-    if share_failure(&mut world.resource_mut::<RunStatus>(), step) {
-        return;
-    }
-    world.resource_scope(|world, mut clock: Mut<StageClock>| {
-        let _timer = clock.time(Stage::Connectivity);
-        share_supports::<D>(world, step);
-    });
-}
-
-/// The supports of the other processes' points and the coupling groups their modules added
-/// from their points (F-bar's groups): their nodes active, each a coupling group.
-fn share_supports<const D: usize>(world: &mut World, step: usize) {
-    let mut query = world.query::<&Support<D>>();
-    let mut distinct: BTreeSet<Vec<u64>> = query
-        .iter(world)
-        .map(|support| support.0.iter().map(|w| w.node as u64).collect())
-        .collect();
-    distinct.extend(
-        world
-            .resource::<GridFields<D>>()
-            .couplings
-            .iter()
-            .map(|group| group.iter().map(|&node| node as u64).collect::<Vec<u64>>()),
-    );
-    let mut message = Vec::new();
-    for nodes in &distinct {
-        message.push(nodes.len() as u64);
-        message.extend(nodes);
-    }
-    let rank = world.resource::<AssemblyShare>().processes.rank;
-    let all = match gather_all(&message) {
-        Ok(all) => all,
-        Err(why) => {
-            // the lengths were gathered: every process sees the same too-long message
-            world.resource_mut::<RunStatus>().fail(SolverError::Module {
-                step,
-                what: format!("sharing the points' supports: {why}"),
-                recoverable: false,
-            });
-            return;
-        }
-    };
-    let mut fields = world.resource_mut::<GridFields<D>>();
-    let nodes = fields.active.len();
-    for (from, message) in all.iter().enumerate().filter(|(from, _)| *from != rank) {
-        let mut rest = &message[..];
-        while let Some((&length, tail)) = rest.split_first() {
-            let length = (length as usize).min(tail.len());
-            let group: Vec<usize> = tail[..length]
-                .iter()
-                .map(|&node| node as usize)
-                .filter(|&node| node < nodes)
-                .collect();
-            for &node in &group {
-                fields.active[node] = true;
-            }
-            fields.couplings.push(group);
-            rest = &tail[length..];
-        }
-        debug_assert!(rest.is_empty(), "process {from}'s supports");
-    }
 }
 
 /// Step 3 of the module docs: `f_ext` summed over the processes (`Hook::Loads`).

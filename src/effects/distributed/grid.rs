@@ -9,13 +9,16 @@
 //! owned and ghost counts to all (`3 P` + `3 P` numbers), then the shared nodes and their numbers to
 //! the neighbours only (`MPI_Alltoallv`, empty for the others).
 //!
-//! **Where it stands.** The core still numbers and assembles the replicated grid
-//! (`decomposition::agree_on_grid`): this numbering is computed and **checked against it at
-//! every step** — the owned DOFs summed over the processes must equal the replicated
-//! grid's DOFs and the owned blocks its nodes with a free component, and every ghost must get
-//! its numbers from its owner with the same free components — but the assembly, the PETSc
-//! matrix and the correction do not use it yet (`docs/distributed.md`, "Not done yet"). A
-//! disagreement fails the run on every process (never a wrong answer silently).
+//! **What uses it.** The core's DOF stage numbers exactly these nodes (no other process's
+//! supports reach it), so its DOFs are this process's local DOFs; this system hands their
+//! global block numbers to the linear solver ([`SolverNumbers`], `solver::GlobalBlocks`: the
+//! local rows added with global indices, the correction brought back to the local rows) and
+//! the owned nodes to the convergence norms (`resources::SharedGrid`: each node counted on
+//! its owner, the squares gathered from every process and summed in rank order, so every
+//! process decides alike). It checks that the DOF stage's local DOFs are exactly the owned
+//! and ghost DOFs numbered here, and every ghost gets its numbers from its owner with the same
+//! free components; a disagreement fails the run on every process (never a wrong answer
+//! silently).
 
 use std::collections::BTreeSet;
 
@@ -23,11 +26,53 @@ use bevy_ecs::prelude::*;
 
 use super::{AssemblyShare, share_failure};
 use crate::components::Support;
-use crate::distributed::ownership::{LocalNodes, Numbering, Ownership, offsets, shared_messages};
+use crate::distributed::ownership::{
+    LocalNodes, NONE, Numbering, Ownership, offsets, shared_messages,
+};
 use crate::distributed::traffic::Traffic;
 use crate::distributed::{any, exchange_counted, gather_all_counted};
-use crate::resources::{Grid, GridFields, LoadStep, RunStatus, SolverError, Stage, StageClock};
-use crate::solver::NO_DOF;
+use crate::resources::{
+    Grid, GridFields, LoadStep, Newton, RunStatus, SharedGrid, SolverError, Stage, StageClock,
+};
+use crate::solver::{GlobalBlocks, NO_DOF, SharedBlocks};
+
+/// The linear solver's view of the numbering (`PetscSolver::decomposed`), refilled every step.
+#[derive(Resource)]
+pub struct SolverNumbers(pub SharedBlocks);
+
+/// The decomposed grid for the core: the nodes this process owns (in increasing order) count
+/// in the convergence norms here.
+struct OwnedNodes {
+    owned: Vec<usize>,
+    /// The DOFs over all processes.
+    dofs: usize,
+}
+
+impl SharedGrid for OwnedNodes {
+    fn owned(&self, node: usize) -> bool {
+        self.owned.binary_search(&node).is_ok()
+    }
+
+    /// Gathered and summed in rank order: the same bits on every process (an all-reduce may
+    /// add in another order on each).
+    fn sum(&self, squares: [f64; 3]) -> Result<[f64; 3], String> {
+        let all = gather_all_counted(&squares.map(f64::to_bits), Traffic::Reductions)?;
+        let mut sums = [0.0; 3];
+        for part in &all {
+            if part.len() != 3 {
+                return Err(format!("a process sent {} norms, not 3", part.len()));
+            }
+            for (sum, &bits) in sums.iter_mut().zip(part) {
+                *sum += f64::from_bits(bits);
+            }
+        }
+        Ok(sums)
+    }
+
+    fn dofs(&self) -> usize {
+        self.dofs
+    }
+}
 
 /// This process's part of the decomposed grid in the current load step.
 #[derive(Resource, Default)]
@@ -38,6 +83,8 @@ pub struct DecomposedGrid {
     pub numbering: Option<Numbering>,
     /// Free components of the nodes it owns.
     pub owned_dofs: u64,
+    /// Free components of its nodes (owned and ghosts): the DOFs of its local system.
+    pub local_dofs: u64,
     /// Ghost nodes summed over the processes (a node counts once per process that touches
     /// it without owning it).
     pub ghost_nodes: usize,
@@ -122,23 +169,42 @@ fn number<const D: usize>(world: &mut World) -> Result<(), String> {
     let messages = numbering.number_messages(&local, &ownership);
     let received = exchange_counted(&messages, kind)?;
     numbering.receive(&local, &ownership, &received)?;
-    // the replicated grid's numbering, which every process holds alike
+    // the DOF stage's local DOFs are exactly the owned and ghost ones numbered here
     let fields = world.resource::<GridFields<D>>();
-    let replicated_blocks = (fields.dofs.iter())
-        .filter(|dofs| dofs.iter().any(|&d| d != NO_DOF))
-        .count() as u64;
-    if all_dofs != fields.dof_count as u64 || all_blocks != replicated_blocks {
+    let numbered = numbering.dofs.iter().filter(|&&n| n != NONE).count();
+    let active = fields.active.iter().filter(|&&a| a).count();
+    if numbered != fields.dof_count || active != local.nodes.len() {
         return Err(format!(
-            "the processes own {all_dofs} DOFs in {all_blocks} nodes, the replicated grid has \
-             {} in {replicated_blocks}",
-            fields.dof_count
+            "the DOF stage numbered {} DOFs on {active} nodes, the decomposed grid {numbered} \
+             on {} nodes",
+            fields.dof_count,
+            local.nodes.len()
         ));
     }
+    let owned: Vec<usize> = (local.nodes.iter().zip(&ownership.owner))
+        .filter(|&(_, &owner)| owner == rank)
+        .map(|(&node, _)| node)
+        .collect();
+    let blocks = GlobalBlocks {
+        nodes: local.nodes.clone(),
+        blocks: numbering.blocks.clone(),
+        first: block_offsets[rank],
+        owned: blocks,
+        total: all_blocks,
+    };
+    if let Some(shared) = world.get_resource::<SolverNumbers>() {
+        *shared.0.lock().unwrap_or_else(|e| e.into_inner()) = Some(blocks);
+    }
+    world.resource_mut::<Newton>().shared_grid = Some(Box::new(OwnedNodes {
+        owned,
+        dofs: all_dofs as usize,
+    }));
     world.insert_resource(DecomposedGrid {
         local,
         ownership: Some(ownership),
         numbering: Some(numbering),
         owned_dofs: dofs,
+        local_dofs: numbered as u64,
         ghost_nodes: column(2).iter().sum::<u64>() as usize,
     });
     Ok(())

@@ -24,16 +24,17 @@
 //!   and process 0 lists them in `particles_NNNN.pvtu`, which `particles.pvd` lists. ParaView
 //!   reads it as one data set; `impm merge OUT_DIR` writes `particles_NNNN.vtu` from the
 //!   pieces (in `point_id` order, the serial file) for tools that do not read `.pvtu`. The grid
-//!   and node files are process 0's (the grid is replicated).
+//!   and node files are process 0's (the grid is replicated); with `--decompose` they are not
+//!   written (each process holds its own nodes), which the run says.
 //! * **Failures are collective.** `Hook::Combine` runs after a failed stage too: if a stage
 //!   failed on any process, every process fails the iteration (then cuts the step alike, or
 //!   stops alike: a failure step cutting cannot recover on one process is one everywhere).
 //! * **Decomposed points** (`impm run --decompose`, [`decomposition`]): each process holds only
 //!   its slab's points instead of every point; the exchange moves them at each step start,
-//!   the processes agree on the active nodes and the pattern, and `f_ext` is summed like
-//!   `f_int`. Scenes with modules that cannot follow their points are refused. The decomposed
-//!   grid's owners and global numbering ([`grid`]) are computed every step and checked
-//!   against the replicated grid; the assembly and the solve do not use them yet.
+//!   and `f_ext` is summed like `f_int`. Scenes with modules that cannot follow their points
+//!   are refused. The grid is decomposed too ([`grid`]): each process numbers only the nodes
+//!   its points touch, the solver adds its local rows with the global numbers and gives back
+//!   its local rows only, and the convergence norms count each node on its owner.
 //!
 //! * **Terms added after the assembly** (`Hook::AfterAssembly`) are added once over the
 //!   processes: F-bar's rank-one terms by the process that assembles the group's members (a
@@ -66,7 +67,7 @@ use crate::resources::{
     Grid, GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock, Warnings,
 };
 use crate::scene::{LinearBackend, SceneSpec};
-use crate::solver::{PetscSolver, ProcessSum};
+use crate::solver::{PetscSolver, ProcessSum, SharedBlocks};
 use crate::stages::output::{OutputPlan, ParticlePieces, WrittenPiece};
 
 pub mod decomposition;
@@ -134,8 +135,17 @@ impl Plugin for DistributedModule {
         let axis = slab_axis(&cells);
         let world = simulation.world();
         {
+            let solver = if decompose {
+                // the local system of the decomposed grid, with the global numbers the
+                // numbering gives every step
+                let blocks = SharedBlocks::default();
+                world.insert_resource(grid::SolverNumbers(blocks.clone()));
+                PetscSolver::decomposed(&options, blocks)
+            } else {
+                PetscSolver::distributed(&options)
+            };
             let mut newton = world.resource_mut::<Newton>();
-            newton.solver = Box::new(PetscSolver::distributed(&options));
+            newton.solver = Box::new(solver);
             // one process assembles every point: its share is all of K
             newton.whole_tangent = processes.size == 1;
         }
@@ -149,9 +159,10 @@ impl Plugin for DistributedModule {
         let state = if decompose {
             "the points are decomposed (each process holds the points of its slab of cells \
              along axis {axis}, balanced by points, and they move between the processes as \
-             they cross slabs; the grid is replicated; no checkpoints are written): the \
-             stages on points, the assembly and the linear solve (PETSc MPIAIJ, CG or GMRES \
-             with GAMG unless petsc_options say otherwise) are split"
+             they cross slabs; each numbers and assembles only the grid nodes its points \
+             touch; no checkpoints are written): the stages on points, the assembly and the \
+             linear solve (PETSc MPIAIJ, CG or GMRES with GAMG unless petsc_options say \
+             otherwise) are split"
         } else {
             "every process holds the whole state (all points and the grid: replicated, not \
              decomposed); only the assembly (slabs of cells along axis {axis}, balanced by \
@@ -163,6 +174,16 @@ impl Plugin for DistributedModule {
             processes.size,
             state.replace("{axis}", &axis.to_string())
         ));
+        if decompose && world.resource::<OutputPlan>().grid_files {
+            // each process holds its own nodes' increments and activity, and its own points
+            world.resource_mut::<OutputPlan>().grid_files = false;
+            world.resource_mut::<Warnings>().0.push(
+                "--decompose: the grid and node files (grid_NNNN.vtu, nodes_NNNN.vtu) are not \
+                 written: each process holds only the grid nodes and points of its slab, and \
+                 writing them in pieces is not done yet; the particle file is written"
+                    .to_string(),
+            );
+        }
         if processes.size > 1 {
             // the pieces go into process 0's folder (the others run in scratch folders)
             let dir = world.resource::<OutputPlan>().dir.clone();
@@ -195,12 +216,8 @@ impl Plugin for DistributedModule {
                 decomposition::exchange_points::<D>
                     .in_set(StepSystems::Connectivity)
                     .before(Hook::Basis),
-                // not in a stage's set: it runs after a failure too, and shares it
-                decomposition::agree_on_grid::<D>
-                    .after(StepSystems::Connectivity)
-                    .before(StepSystems::Dofs),
-                // likewise: the owned nodes, ghosts and global numbers, checked against the
-                // replicated grid's
+                // not in a stage's set: it runs after a failure too, and shares it; the
+                // owned nodes, ghosts and global numbers, for the solver and the norms
                 grid::number_decomposed_grid::<D>
                     .after(StepSystems::Dofs)
                     .before(StepSystems::Loads),
@@ -222,11 +239,16 @@ impl Plugin for DistributedModule {
             let numbered = |world: &mut World| {
                 let grid = world.get_resource::<grid::DecomposedGrid>()?;
                 grid.ownership.as_ref()?;
-                Some((grid.owned_dofs as f64, grid.ghost_nodes as f64))
+                Some((
+                    grid.owned_dofs as f64,
+                    grid.ghost_nodes as f64,
+                    grid.local_dofs as f64,
+                ))
             };
             simulation
                 .add_measure("owned_dofs", move |world, _| numbered(world).map(|n| n.0))
-                .add_measure("ghost_nodes", move |world, _| numbered(world).map(|n| n.1));
+                .add_measure("ghost_nodes", move |world, _| numbered(world).map(|n| n.1))
+                .add_measure("local_dofs", move |world, _| numbered(world).map(|n| n.2));
         } else {
             simulation.add_systems(Hook::Connectivity, mark_assembly_share::<D>);
         }

@@ -18,8 +18,23 @@
 //! of the order of `K`'s diagonal). "Converged" is re-checked on the true residual
 //! `‖r − K δ‖ / ‖r‖` computed by PETSc on the distributed objects (`MatMult`, `VecNorm`), so the
 //! decision is the same on every process.
+//!
+//! **The decomposed grid** (`impm run --decompose`, [`PetscSolver::decomposed`]): each
+//! process passes its *local* system instead — the DOFs of the nodes its own points touch
+//! (owned nodes and ghost layer), numbered by its own DOF stage — and the decomposed grid's
+//! global block numbers of those nodes ([`GlobalBlocks`]: the lowest rank touching a node owns
+//! it, owned blocks numbered contiguously per process, `distributed::ownership`). Local padded
+//! row `b D + c` (block `b`, component `c`) is global row `g(b) D + c`; process `r` owns the
+//! rows of its owned blocks, `[first D, (first + owned) D)`. The owned rows are preallocated
+//! from every process's local pattern (a `MATPREALLOCATOR` matrix: each process inserts its
+//! local rows with global indices, rows of ghost nodes travel to their owners), each process
+//! adds its local rows with `MatSetValues(ADD_VALUES)` and global indices, sets the
+//! right-hand side's owned rows, the rigid-body modes come from the owned nodes, and the
+//! correction comes back to this process's local rows only (`VecScatterCreate` with their
+//! global numbers): no process holds the whole grid's pattern or vectors.
 
 use std::ffi::CStr;
+use std::sync::{Arc, Mutex};
 
 use super::ffi::{self, PetscInt};
 use super::{
@@ -40,6 +55,15 @@ impl PetscSolver {
         solver
     }
 
+    /// A distributed solver over the decomposed grid: the tangent passed is this process's
+    /// local system, and `blocks` holds its nodes' global block numbers (refilled every step
+    /// by the decomposed grid's numbering, before the first solve; see the module docs).
+    pub fn decomposed(options: &str, blocks: SharedBlocks) -> Self {
+        let mut solver = Self::distributed(options);
+        solver.global_blocks = Some(blocks);
+        solver
+    }
+
     /// `LinearSolver::solve` of a distributed solver.
     pub(super) fn solve_distributed(
         &mut self,
@@ -49,8 +73,20 @@ impl PetscSolver {
     ) -> Result<SolverKind, LinearSolveError> {
         let _session = session()?;
         let prefix = self.prefix()?;
+        let blocks = match &self.global_blocks {
+            Some(shared) => {
+                let blocks = shared.lock().unwrap_or_else(|e| e.into_inner());
+                Some(blocks.clone().ok_or_else(|| {
+                    LinearSolveError::Backend(
+                        "the decomposed grid's global numbers are missing".to_string(),
+                    )
+                })?)
+            }
+            None => None,
+        };
         let (objects, _) = objects_for(&mut self.distributed_objects, matrix, symmetric, || {
-            let (objects, tolerance) = DistributedObjects::new(matrix, symmetric, &prefix)?;
+            let (objects, tolerance) =
+                DistributedObjects::new(matrix, symmetric, &prefix, blocks.as_ref())?;
             self.tolerance = tolerance;
             Ok(objects)
         })?;
@@ -81,20 +117,45 @@ impl PetscSolver {
     }
 }
 
+/// The decomposed grid's global numbers of the nodes a process holds, for the solver.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct GlobalBlocks {
+    /// The nodes this process holds (its points' supports' nodes), in increasing order.
+    pub nodes: Vec<usize>,
+    /// Each node's global block number (`u64::MAX`: no free component).
+    pub blocks: Vec<u64>,
+    /// The first global block this process owns, and how many.
+    pub first: u64,
+    pub owned: u64,
+    /// Global blocks over all processes.
+    pub total: u64,
+}
+
+/// The global numbers shared between the decomposed grid's numbering (which fills them every
+/// step) and the solver (which reads them when it builds its objects).
+pub type SharedBlocks = Arc<Mutex<Option<GlobalBlocks>>>;
+
 /// The distributed PETSc objects of one pattern.
 pub(super) struct DistributedObjects {
     built_for: BuiltFor,
     padding: Padding,
-    /// The padded rows this process owns: `first..end`.
+    /// The padded rows this process owns (global numbers): `first..end`.
     first: usize,
     end: usize,
+    /// Global padded rows: the whole padded system on every process (replicated grid).
+    size_global: usize,
+    /// The global row of each local padded row (decomposed grid); `None`: the identity.
+    global: Option<Vec<PetscInt>>,
+    /// `padding.columns` in global numbers (decomposed grid).
+    global_columns: Vec<PetscInt>,
     matrix: ffi::Mat,
     rhs: ffi::Vec,
     solution: ffi::Vec,
     /// `r − K δ`, for the true-residual check.
     residual: ffi::Vec,
     ksp: ffi::KSP,
-    /// Gathers the solution to every process.
+    /// Gathers the solution to every process (replicated grid), or brings this process's
+    /// local rows back (decomposed grid).
     scatter: ffi::VecScatter,
     gathered: ffi::Vec,
     method: String,
@@ -127,25 +188,46 @@ impl PatternObjects for DistributedObjects {
 }
 
 impl DistributedObjects {
-    /// Creates the objects for `matrix`'s pattern; returns them and the relative tolerance the
-    /// options set. Collective; the caller holds the session.
+    /// Creates the objects for `matrix`'s pattern (with `blocks`: the local system of a
+    /// decomposed grid); returns them and the relative tolerance the options set.
+    /// Collective; the caller holds the session.
     fn new(
         matrix: &SparseMatrix,
         symmetric: bool,
         prefix: &CStr,
+        blocks: Option<&GlobalBlocks>,
     ) -> Result<(Self, f64), LinearSolveError> {
         let padding = Padding::new(matrix)?;
         let processes = crate::distributed::processes()
             .unwrap_or(crate::distributed::Processes { rank: 0, size: 1 });
-        let blocks = padding.size / padding.block;
         let (rank, size) = (processes.rank, processes.size.max(1));
-        let first = blocks * rank / size * padding.block;
-        let end = blocks * (rank + 1) / size * padding.block;
+        let d = padding.block;
+        let (first, end, size_global, global) = match blocks {
+            None => {
+                let blocks = padding.size / d;
+                let first = blocks * rank / size * d;
+                let end = blocks * (rank + 1) / size * d;
+                (first, end, padding.size, None)
+            }
+            Some(numbers) => {
+                let global = global_rows(matrix, &padding, numbers)?;
+                let first = numbers.first as usize * d;
+                let end = (numbers.first + numbers.owned) as usize * d;
+                (first, end, numbers.total as usize * d, Some(global))
+            }
+        };
+        let global_columns = match &global {
+            Some(rows) => padding.columns.iter().map(|&c| rows[c as usize]).collect(),
+            None => Vec::new(),
+        };
         let null = std::ptr::null_mut();
         let mut objects = Self {
             built_for: BuiltFor::of(matrix, symmetric),
             first,
             end,
+            size_global,
+            global,
+            global_columns,
             matrix: null,
             rhs: null,
             solution: null,
@@ -160,13 +242,10 @@ impl DistributedObjects {
             size,
             padding,
         };
-        let owned = objects.first..objects.end;
-        let rows = &objects.padding.row_start;
-        let mut ghosts: Vec<PetscInt> = objects.padding.columns
-            [rows[objects.first] as usize..rows[objects.end] as usize]
-            .iter()
-            .copied()
-            .filter(|&c| !owned.contains(&(c as usize)))
+        let mut ghosts: Vec<PetscInt> = (0..objects.padding.size)
+            .filter(|&p| objects.owns(p))
+            .flat_map(|p| objects.columns_of(p).to_vec())
+            .filter(|&c| !(objects.first..objects.end).contains(&(c as usize)))
             .collect();
         ghosts.sort_unstable();
         ghosts.dedup();
@@ -180,11 +259,121 @@ impl DistributedObjects {
         }
     }
 
+    /// The global row of local padded row `p`.
+    fn global_row(&self, p: usize) -> usize {
+        self.global.as_ref().map_or(p, |rows| rows[p] as usize)
+    }
+
+    /// Whether this process owns local padded row `p`.
+    fn owns(&self, p: usize) -> bool {
+        (self.first..self.end).contains(&self.global_row(p))
+    }
+
+    /// The global columns of local padded row `p`.
+    fn columns_of(&self, p: usize) -> &[PetscInt] {
+        let rows = &self.padding.row_start;
+        let range = rows[p] as usize..rows[p + 1] as usize;
+        match self.global {
+            Some(_) => &self.global_columns[range],
+            None => &self.padding.columns[range],
+        }
+    }
+
     fn create(&mut self, prefix: &CStr) -> Result<f64, LinearSolveError> {
-        let padding = &self.padding;
         let comm = Comm::World.raw();
         let local = (self.end - self.first) as PetscInt;
-        let global = padding.size as PetscInt;
+        let global = self.size_global as PetscInt;
+        let block = self.padding.block as PetscInt;
+        // SAFETY: the session is held; the arrays passed are copied by PETSc.
+        unsafe {
+            check(ffi::MatCreate(comm, &mut self.matrix), "MatCreate")?;
+            check(
+                ffi::MatSetSizes(self.matrix, local, local, global, global),
+                "MatSetSizes",
+            )?;
+            check(ffi::MatSetBlockSize(self.matrix, block), "MatSetBlockSize")?;
+            check(
+                ffi::MatSetType(self.matrix, c"mpiaij".as_ptr()),
+                "MatSetType",
+            )?;
+            match self.global {
+                None => self.preallocate_replicated()?,
+                Some(_) => self.preallocate_decomposed()?,
+            }
+            if let Some(coordinates) = &self.padding.coordinates {
+                // the owned blocks' nodes, in their global order (node order: the owned
+                // blocks are numbered node-major in node order, as the local ones)
+                let owned: Vec<f64> = match self.global {
+                    None => coordinates[self.first..self.end].to_vec(),
+                    Some(_) => (0..self.padding.size)
+                        .filter(|&p| self.owns(p))
+                        .map(|p| coordinates[p])
+                        .collect(),
+                };
+                set_rigid_body_modes(self.matrix, self.padding.block, &owned, Comm::World)?;
+            }
+            for vector in [&mut self.rhs, &mut self.solution, &mut self.residual] {
+                check(
+                    ffi::VecCreateMPI(comm, local, global, vector),
+                    "VecCreateMPI",
+                )?;
+            }
+            match &self.global {
+                None => check(
+                    ffi::VecScatterCreateToAll(
+                        self.solution,
+                        &mut self.scatter,
+                        &mut self.gathered,
+                    ),
+                    "VecScatterCreateToAll",
+                )?,
+                Some(rows) => {
+                    let count = rows.len() as PetscInt;
+                    check(
+                        ffi::VecCreateSeq(ffi::comm_self(), count, &mut self.gathered),
+                        "VecCreateSeq",
+                    )?;
+                    let mut set = std::ptr::null_mut();
+                    check(
+                        ffi::ISCreateGeneral(
+                            ffi::comm_self(),
+                            count,
+                            rows.as_ptr(),
+                            ffi::PETSC_COPY_VALUES,
+                            &mut set,
+                        ),
+                        "ISCreateGeneral",
+                    )?;
+                    let null = std::ptr::null_mut();
+                    let created = check(
+                        ffi::VecScatterCreate(
+                            self.solution,
+                            set,
+                            self.gathered,
+                            null,
+                            &mut self.scatter,
+                        ),
+                        "VecScatterCreate",
+                    );
+                    ffi::ISDestroy(&mut set);
+                    created?;
+                }
+            }
+            check(ffi::KSPCreate(comm, &mut self.ksp), "KSPCreate")?;
+            let symmetric = self.built_for.symmetric;
+            let (method, relative) = configure_ksp(self.ksp, self.matrix, symmetric, prefix)?;
+            self.method = method;
+            Ok(relative)
+        }
+    }
+
+    /// The replicated grid: every process holds the whole pattern and gives PETSc its owned
+    /// rows' CSR.
+    ///
+    /// # Safety
+    /// The session is held; the matrix is created with its sizes and type.
+    unsafe fn preallocate_replicated(&self) -> Result<(), LinearSolveError> {
+        let padding = &self.padding;
         let base = padding.row_start[self.first];
         let starts: Vec<PetscInt> = padding.row_start[self.first..=self.end]
             .iter()
@@ -192,21 +381,8 @@ impl DistributedObjects {
             .collect();
         let columns = &padding.columns[base as usize..padding.row_start[self.end] as usize];
         let zeros = vec![0.0; columns.len()];
-        // SAFETY: the session is held; the CSR arrays are copied by PETSc.
+        // SAFETY: as the caller promises; the CSR arrays are copied by PETSc.
         unsafe {
-            check(ffi::MatCreate(comm, &mut self.matrix), "MatCreate")?;
-            check(
-                ffi::MatSetSizes(self.matrix, local, local, global, global),
-                "MatSetSizes",
-            )?;
-            check(
-                ffi::MatSetBlockSize(self.matrix, padding.block as PetscInt),
-                "MatSetBlockSize",
-            )?;
-            check(
-                ffi::MatSetType(self.matrix, c"mpiaij".as_ptr()),
-                "MatSetType",
-            )?;
             check(
                 ffi::MatMPIAIJSetPreallocationCSR(
                     self.matrix,
@@ -215,30 +391,73 @@ impl DistributedObjects {
                     zeros.as_ptr(),
                 ),
                 "MatMPIAIJSetPreallocationCSR",
-            )?;
-            if let Some(coordinates) = &padding.coordinates {
-                set_rigid_body_modes(
-                    self.matrix,
-                    padding.block,
-                    &coordinates[self.first..self.end],
-                    Comm::World,
-                )?;
-            }
-            for vector in [&mut self.rhs, &mut self.solution, &mut self.residual] {
+            )
+        }
+    }
+
+    /// The decomposed grid: no process holds all of its owned rows' pattern (a neighbour's
+    /// points add to the rows of the nodes it shares), so every process inserts its local
+    /// rows, with global numbers, into a `MATPREALLOCATOR` matrix, whose assembly sends the
+    /// rows of ghost nodes to their owners; it then preallocates the matrix, zeros filled in
+    /// (the pattern fixed for the load step).
+    ///
+    /// # Safety
+    /// The session is held; the matrix is created with its sizes and type.
+    unsafe fn preallocate_decomposed(&self) -> Result<(), LinearSolveError> {
+        let comm = Comm::World.raw();
+        let local = (self.end - self.first) as PetscInt;
+        let global = self.size_global as PetscInt;
+        let mut preallocator = std::ptr::null_mut();
+        // SAFETY: as the caller promises; every row passed has its columns' count of values.
+        unsafe {
+            let result = (|| {
+                check(ffi::MatCreate(comm, &mut preallocator), "MatCreate")?;
                 check(
-                    ffi::VecCreateMPI(comm, local, global, vector),
-                    "VecCreateMPI",
+                    ffi::MatSetSizes(preallocator, local, local, global, global),
+                    "MatSetSizes",
                 )?;
-            }
-            check(
-                ffi::VecScatterCreateToAll(self.solution, &mut self.scatter, &mut self.gathered),
-                "VecScatterCreateToAll",
-            )?;
-            check(ffi::KSPCreate(comm, &mut self.ksp), "KSPCreate")?;
-            let symmetric = self.built_for.symmetric;
-            let (method, relative) = configure_ksp(self.ksp, self.matrix, symmetric, prefix)?;
-            self.method = method;
-            Ok(relative)
+                check(
+                    ffi::MatSetBlockSize(preallocator, self.padding.block as PetscInt),
+                    "MatSetBlockSize",
+                )?;
+                check(
+                    ffi::MatSetType(preallocator, c"preallocator".as_ptr()),
+                    "MatSetType",
+                )?;
+                check(ffi::MatSetUp(preallocator), "MatSetUp")?;
+                let mut zeros = Vec::new();
+                for p in 0..self.padding.size {
+                    let columns = self.columns_of(p);
+                    zeros.resize(columns.len(), 0.0);
+                    let row = self.global_row(p) as PetscInt;
+                    check(
+                        ffi::MatSetValues(
+                            preallocator,
+                            1,
+                            &row,
+                            columns.len() as PetscInt,
+                            columns.as_ptr(),
+                            zeros.as_ptr(),
+                            ffi::INSERT_VALUES,
+                        ),
+                        "MatSetValues",
+                    )?;
+                }
+                check(
+                    ffi::MatAssemblyBegin(preallocator, ffi::MAT_FINAL_ASSEMBLY),
+                    "MatAssemblyBegin",
+                )?;
+                check(
+                    ffi::MatAssemblyEnd(preallocator, ffi::MAT_FINAL_ASSEMBLY),
+                    "MatAssemblyEnd",
+                )?;
+                check(
+                    ffi::MatPreallocatorPreallocate(preallocator, ffi::PETSC_TRUE, self.matrix),
+                    "MatPreallocatorPreallocate",
+                )
+            })();
+            ffi::MatDestroy(&mut preallocator);
+            result
         }
     }
 
@@ -248,7 +467,13 @@ impl DistributedObjects {
         let values = matrix.values();
         let padding = &self.padding;
         let share: f64 = padding.diagonal.iter().map(|&k| values[k].abs()).sum();
-        let mean = crate::distributed::sum(share) / padding.diagonal.len().max(1) as f64;
+        // the diagonal's entries over the processes (a ghost's counted by each holder: `s`
+        // only has to be of the order of K's diagonal)
+        let entries = match self.global {
+            None => padding.diagonal.len() as f64,
+            Some(_) => crate::distributed::sum(padding.diagonal.len() as f64),
+        };
+        let mean = crate::distributed::sum(share) / entries.max(1.0);
         let scale = if mean > 0.0 && mean.is_finite() {
             mean
         } else {
@@ -257,39 +482,45 @@ impl DistributedObjects {
         // SAFETY: the session is held; every row passed has its columns' count of values.
         unsafe {
             check(ffi::MatZeroEntries(self.matrix), "MatZeroEntries")?;
-            for p in 0..padding.size {
+            for p in 0..self.padding.size {
+                let padding = &self.padding;
                 let range = padding.row_start[p] as usize..padding.row_start[p + 1] as usize;
-                let owned = (self.first..self.end).contains(&p);
-                self.row.clear();
-                self.row
-                    .extend(padding.source[range.clone()].iter().map(|&k| {
-                        if k != IDENTITY {
-                            values[k]
-                        } else if owned {
-                            scale
-                        } else {
-                            0.0
-                        }
-                    }));
-                if self.row.iter().all(|&v| v == 0.0) {
-                    continue;
+                let owned = self.owns(p);
+                let mut row = std::mem::take(&mut self.row);
+                row.clear();
+                row.extend(padding.source[range].iter().map(|&k| {
+                    if k != IDENTITY {
+                        values[k]
+                    } else if owned {
+                        scale
+                    } else {
+                        0.0
+                    }
+                }));
+                let columns = self.columns_of(p);
+                let skip = row.iter().all(|&v| v == 0.0);
+                if !skip && !owned {
+                    count(Traffic::MatrixEntries, 16 * row.len() as u64);
                 }
-                if !owned {
-                    count(Traffic::MatrixEntries, 16 * self.row.len() as u64);
-                }
-                let row = p as PetscInt;
-                check(
-                    ffi::MatSetValues(
-                        self.matrix,
-                        1,
-                        &row,
-                        self.row.len() as PetscInt,
-                        padding.columns[range].as_ptr(),
-                        self.row.as_ptr(),
-                        ffi::ADD_VALUES,
-                    ),
-                    "MatSetValues",
-                )?;
+                let result = if skip {
+                    Ok(())
+                } else {
+                    let global_row = self.global_row(p) as PetscInt;
+                    check(
+                        ffi::MatSetValues(
+                            self.matrix,
+                            1,
+                            &global_row,
+                            row.len() as PetscInt,
+                            columns.as_ptr(),
+                            row.as_ptr(),
+                            ffi::ADD_VALUES,
+                        ),
+                        "MatSetValues",
+                    )
+                };
+                self.row = row;
+                result?;
             }
             check(
                 ffi::MatAssemblyBegin(self.matrix, ffi::MAT_FINAL_ASSEMBLY),
@@ -302,21 +533,29 @@ impl DistributedObjects {
         }
     }
 
-    /// Solves for `rhs` (the same on every process; in place, every process gets the whole
-    /// solution); returns PETSc's iterations and the true relative residual. Collective.
+    /// Solves for `rhs` (in place; replicated grid: the same on every process, every process
+    /// gets the whole solution; decomposed grid: this process's local system, right for its
+    /// owned rows, and it gets its local rows back); returns PETSc's iterations and the true
+    /// relative residual. Collective.
     fn solve(&mut self, rhs: &mut [f64], tolerance: f64) -> Result<(usize, f64), LinearSolveError> {
-        let padding = &self.padding;
         self.padded.fill(0.0);
-        for (&p, &r) in padding.of_dof.iter().zip(rhs.iter()) {
+        for (&p, &r) in self.padding.of_dof.iter().zip(rhs.iter()) {
             self.padded[p] = r;
         }
         let mut array = std::ptr::null_mut();
         // SAFETY: the session is held; the local part of an MPI vector has end − first
-        // entries, the gathered vector all of them.
+        // entries, the gathered vector the replicated system's or this process's local rows.
         unsafe {
             check(ffi::VecGetArray(self.rhs, &mut array), "VecGetArray")?;
-            std::slice::from_raw_parts_mut(array, self.end - self.first)
-                .copy_from_slice(&self.padded[self.first..self.end]);
+            let owned = std::slice::from_raw_parts_mut(array, self.end - self.first);
+            match self.global {
+                None => owned.copy_from_slice(&self.padded[self.first..self.end]),
+                Some(_) => {
+                    for p in (0..self.padding.size).filter(|&p| self.owns(p)) {
+                        owned[self.global_row(p) - self.first] = self.padded[p];
+                    }
+                }
+            }
             check(
                 ffi::VecRestoreArray(self.rhs, &mut array),
                 "VecRestoreArray",
@@ -328,15 +567,15 @@ impl DistributedObjects {
                 Traffic::KrylovHalo,
                 8 * (self.ghosts * (iterations + 1)) as u64,
             );
-            let others = self.size as u64 - 1;
-            count(
-                Traffic::Gathered,
-                8 * others * (self.end - self.first) as u64,
-            );
+            let received = match self.global {
+                None => (self.size as u64 - 1) * (self.end - self.first) as u64,
+                Some(_) => (0..self.padding.size).filter(|&p| !self.owns(p)).count() as u64,
+            };
+            count(Traffic::Gathered, 8 * received);
             gather_to_all(self.scatter, self.solution, self.gathered)?;
             check(ffi::VecGetArray(self.gathered, &mut array), "VecGetArray")?;
-            let all = std::slice::from_raw_parts(array, padding.size);
-            for (&p, r) in padding.of_dof.iter().zip(rhs.iter_mut()) {
+            let all = std::slice::from_raw_parts(array, self.padding.size);
+            for (&p, r) in self.padding.of_dof.iter().zip(rhs.iter_mut()) {
                 *r = all[p];
             }
             check(
@@ -365,6 +604,46 @@ impl DistributedObjects {
             Ok((iterations, relative))
         }
     }
+}
+
+/// The global padded row of each local padded row of `matrix` (its blocks' nodes looked up
+/// in `numbers`). Errors when a block's node is not among the numbered ones, or has no global
+/// block (the DOF stage and the numbering disagree).
+fn global_rows(
+    matrix: &SparseMatrix,
+    padding: &Padding,
+    numbers: &GlobalBlocks,
+) -> Result<Vec<PetscInt>, LinearSolveError> {
+    let d = padding.block;
+    let layout = matrix.layout();
+    if d != layout.dimension || layout.node.len() * d != padding.size {
+        return Err(LinearSolveError::Backend(
+            "the decomposed grid needs the whole-node (padded) system".to_string(),
+        ));
+    }
+    let mut rows = Vec::with_capacity(padding.size);
+    for &node in &layout.node {
+        let block = numbers
+            .nodes
+            .binary_search(&node)
+            .ok()
+            .map(|i| numbers.blocks[i])
+            .filter(|&b| b != u64::MAX && b < numbers.total)
+            .ok_or_else(|| {
+                LinearSolveError::Backend(format!(
+                    "node {node} has DOFs here but no global number in the decomposed grid"
+                ))
+            })?;
+        for c in 0..d {
+            let row = block as usize * d + c;
+            rows.push(PetscInt::try_from(row).map_err(|_| {
+                LinearSolveError::Backend(format!(
+                    "the system has {row} rows, more than PETSc's PetscInt holds"
+                ))
+            })?);
+        }
+    }
+    Ok(rows)
 }
 
 /// Copies the distributed vector `from` into `to`, the whole vector on every process, with a

@@ -91,6 +91,12 @@ pub type MatNullSpace = *mut Opaque;
 /// `VecScatter` (a `PetscSF`).
 #[cfg(feature = "mpi")]
 pub type VecScatter = *mut Opaque;
+#[cfg(feature = "mpi")]
+pub type IS = *mut Opaque;
+#[cfg(feature = "mpi")]
+pub type PetscCopyMode = c_int;
+#[cfg(feature = "mpi")]
+pub const PETSC_COPY_VALUES: PetscCopyMode = 0;
 /// `PetscOptions`; null is the global options database.
 pub type PetscOptions = *mut Opaque;
 /// OpenMPI's `MPI_Comm` (`struct ompi_communicator_t *`).
@@ -254,6 +260,32 @@ unsafe extern "C" {
         to: Vec,
         mode: InsertMode,
         direction: ScatterMode,
+    ) -> PetscErrorCode;
+    #[cfg(feature = "mpi")]
+    pub fn VecScatterCreate(
+        from: Vec,
+        from_indices: IS,
+        to: Vec,
+        to_indices: IS,
+        scatter: *mut VecScatter,
+    ) -> PetscErrorCode;
+    #[cfg(feature = "mpi")]
+    pub fn ISCreateGeneral(
+        comm: MPI_Comm,
+        count: PetscInt,
+        indices: *const PetscInt,
+        mode: PetscCopyMode,
+        set: *mut IS,
+    ) -> PetscErrorCode;
+    #[cfg(feature = "mpi")]
+    pub fn ISDestroy(set: *mut IS) -> PetscErrorCode;
+    #[cfg(feature = "mpi")]
+    pub fn MatSetUp(matrix: Mat) -> PetscErrorCode;
+    #[cfg(feature = "mpi")]
+    pub fn MatPreallocatorPreallocate(
+        preallocator: Mat,
+        fill: PetscBool,
+        matrix: Mat,
     ) -> PetscErrorCode;
     #[cfg(feature = "mpi")]
     pub fn VecScatterDestroy(scatter: *mut VecScatter) -> PetscErrorCode;

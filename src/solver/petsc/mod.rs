@@ -55,7 +55,7 @@ mod distributed;
 mod ffi;
 
 #[cfg(feature = "mpi")]
-pub use distributed::ProcessSum;
+pub use distributed::{GlobalBlocks, ProcessSum, SharedBlocks};
 
 use std::ffi::{CStr, CString, c_char, c_int, c_void};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -241,6 +241,10 @@ pub struct PetscSolver {
     distributed: bool,
     #[cfg(feature = "mpi")]
     distributed_objects: Option<UnderLock<distributed::DistributedObjects>>,
+    /// The decomposed grid's global block numbers (`impm run --decompose`): the tangent
+    /// passed is this process's local system, numbered by its own DOF stage.
+    #[cfg(feature = "mpi")]
+    global_blocks: Option<distributed::SharedBlocks>,
 }
 
 impl PetscSolver {
@@ -258,6 +262,8 @@ impl PetscSolver {
             distributed: false,
             #[cfg(feature = "mpi")]
             distributed_objects: None,
+            #[cfg(feature = "mpi")]
+            global_blocks: None,
         }
     }
 
