@@ -18,9 +18,8 @@
 //! distorts them (dips of 14 % against 5 %).
 //!
 //! A boundary point carries its total displacement u_s = x_s − X_s. At the start of each load
-//! step it gets
-//! weights N̂_i over active nodes, with which the grid increment is read at the point,
-//! Δu_s = Σ_i N̂_i Δu_i: the basis there, N̂_i = N_i(x_s), when every node of its support is
+//! step it gets weights N̂_i over active nodes, with which the grid increment is read at the
+//! point, Δu_s = Σ_i N̂_i Δu_i: the basis there, N̂_i = N_i(x_s), when every node of its support is
 //! active (the usual case: the surface inside or on the face of a cell with material points);
 //! otherwise (the surface has left the cells its material points support, e.g. a linear
 //! basis's top row of nodes once the material has moved past it) the host's first-order
