@@ -7,23 +7,26 @@
 
 mod common;
 
+/// The shipped footing with the benchmark's soil (Kardani et al. 2015) and method (linear MPM,
+/// F-bar, the Newton line search), and `more` parameters.
+fn penetration(more: &[(&str, &str)]) -> impm::run::Simulation<2> {
+    let mut set = vec![
+        ("material", "tresca"),
+        ("E", "100.0"),
+        ("nu", "0.495"),
+        ("su", "1.0"),
+        ("basis", "linear"),
+        ("fbar", "true"),
+        ("line_search", "true"),
+    ];
+    set.extend_from_slice(more);
+    common::run_shipped::<2>("strip_footing.rhai", &set)
+}
+
 #[test]
 fn the_footing_pushed_one_width_deep_rises_above_prandtl() {
     let steps = 40;
-    let sim = common::run_shipped::<2>(
-        "strip_footing.rhai",
-        &[
-            ("material", "tresca"),
-            ("E", "100.0"),
-            ("nu", "0.495"),
-            ("su", "1.0"),
-            ("settlement", "1.0"),
-            ("steps", "40"),
-            ("basis", "linear"),
-            ("fbar", "true"),
-            ("line_search", "true"),
-        ],
-    );
+    let sim = penetration(&[("settlement", "1.0"), ("steps", "40")]);
     assert_eq!(sim.summary.steps.len(), steps);
     let prandtl = 2.0 + std::f64::consts::PI;
     // s_u = 1: footing_pressure is q / s_u
@@ -79,23 +82,13 @@ fn the_footing_pushed_one_width_deep_rises_above_prandtl() {
 #[test]
 fn the_finer_footing_gets_past_half_a_width_with_the_ghost_penalty() {
     let steps = 20;
-    let sim = common::run_shipped::<2>(
-        "strip_footing.rhai",
-        &[
-            ("material", "tresca"),
-            ("E", "100.0"),
-            ("nu", "0.495"),
-            ("su", "1.0"),
-            ("settlement", "0.5"),
-            ("steps", "20"),
-            ("basis", "linear"),
-            ("fbar", "true"),
-            ("line_search", "true"),
-            ("cells", "8"),
-            ("ghost_penalty", "0.01"),
-            ("top_room", "4"),
-        ],
-    );
+    let sim = penetration(&[
+        ("settlement", "0.5"),
+        ("steps", "20"),
+        ("cells", "8"),
+        ("ghost_penalty", "0.01"),
+        ("top_room", "4"),
+    ]);
     assert_eq!(sim.summary.steps.len(), steps);
     let prandtl = 2.0 + std::f64::consts::PI;
     let measure = |name: &str| -> Vec<f64> {

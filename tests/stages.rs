@@ -883,23 +883,17 @@ fn a_support_added_in_a_later_stage_acts_from_its_start() {
 /// is of (each stage has its own schedule), and when a support is released.
 #[test]
 fn check_names_the_stage_of_every_load() {
-    let dir = common::temp_dir("stages-check", "names");
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join("staged.rhai");
-    let text = staged_column(
-        "fix(|x| x[1] == 10.0, [1], #{ until_stage: \"release\" });\n\
+    let text = check_output(
+        "names",
+        &staged_column(
+            "fix(|x| x[1] == 10.0, [1], #{ until_stage: \"release\" });\n\
          stage(#{ name: \"gravity\", steps: 2 });\n\
          body_force([0.0, -10.0]);\n\
          stage(#{ name: \"release\", steps: 2 });\n\
          traction(#{ on: [[0.0, 10.0], [1.0, 10.0]], traction: [0.0, -50.0] });\n\
          displace(|x| x[1] > 8.0 && x[1] < 9.9, [1], [1.0e-4]);",
+        ),
     );
-    std::fs::write(&path, text).unwrap();
-    let out = common::impm(&["check", path.to_str().unwrap()]);
-    let text = String::from_utf8_lossy(&out.stdout).into_owned()
-        + String::from_utf8_lossy(&out.stderr).as_ref();
-    eprintln!("{text}");
-    assert!(out.status.success(), "{text}");
     for expected in [
         "per unit mass at load factor 1 of stage 'gravity'",
         "total force [0.0, -50.0] at load factor 1 of stage 'release'",
@@ -909,7 +903,21 @@ fn check_names_the_stage_of_every_load() {
         assert!(text.contains(expected), "missing {expected:?}");
     }
     assert!(!text.contains("at load factor 1 ("), "{text}");
+}
+
+/// What `impm check` prints (stdout and stderr) for the scene `text`, which it must accept.
+fn check_output(tag: &str, text: &str) -> String {
+    let dir = common::temp_dir("stages-check", tag);
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("scene.rhai");
+    std::fs::write(&path, text).unwrap();
+    let out = common::impm(&["check", path.to_str().unwrap()]);
     let _ = std::fs::remove_dir_all(dir);
+    let text = String::from_utf8_lossy(&out.stdout).into_owned()
+        + String::from_utf8_lossy(&out.stderr).as_ref();
+    eprintln!("{text}");
+    assert!(out.status.success(), "{text}");
+    text
 }
 
 /// Point loads follow stages: `point_load_total` of 100 on the column's top points in stage
@@ -1408,24 +1416,18 @@ fn a_von_mises_block_released_past_yield_keeps_the_closed_form_permanent_set() {
 /// `point_load`, `point_load_total`, `body_force`).
 #[test]
 fn check_says_which_stage_releases_each_load() {
-    let dir = common::temp_dir("stages-check", "releases");
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join("released.rhai");
-    let text = staged_column(
-        "stage(#{ name: \"load\", steps: 2 });\n\
+    let text = check_output(
+        "releases",
+        &staged_column(
+            "stage(#{ name: \"load\", steps: 2 });\n\
          body_force([0.0, -10.0], #{ until_stage: \"unload\" });\n\
          traction(#{ on: [[0.0, 10.0], [1.0, 10.0]], traction: [0.0, -50.0], until_stage: \"unload\" });\n\
          point_load_at(#{ at: [0.5, 10.0], force: [0.0, -5.0], until_stage: \"unload\" });\n\
          point_load(|x| x[1] > 9.6, [0.0, -1.0], #{ held: true, until_stage: \"unload\" });\n\
          point_load_total(|x| x[1] > 9.6, [0.0, -3.0], #{ until_stage: \"unload\" });\n\
          stage(#{ name: \"unload\", steps: 2 });",
+        ),
     );
-    std::fs::write(&path, text).unwrap();
-    let out = common::impm(&["check", path.to_str().unwrap()]);
-    let text = String::from_utf8_lossy(&out.stdout).into_owned()
-        + String::from_utf8_lossy(&out.stderr).as_ref();
-    eprintln!("{text}");
-    assert!(out.status.success(), "{text}");
     let released = "released at the start of stage 'unload' (ramped down over that stage)";
     for call in [
         "per unit mass",
@@ -1440,5 +1442,4 @@ fn check_says_which_stage_releases_each_load() {
             .unwrap_or_else(|| panic!("no line with {call:?}"));
         assert!(line.contains(released), "{call}: {line}");
     }
-    let _ = std::fs::remove_dir_all(dir);
 }
