@@ -524,17 +524,48 @@ pub fn extend_increments<const D: usize>(
 mod tests {
     use super::*;
 
-    /// On a 4 × 3 node grid whose top row is barely reached, the top nodes are extrapolated
-    /// from the two rows below (2 u_j − u_k), the others are not weak.
-    #[test]
-    fn top_row_is_extrapolated_from_the_two_rows_below() {
-        let grid = GridBasis::<2>::from_spec(&crate::basis::GridSpec {
+    /// A 4 × 3 node grid of linear hats, 3 × 2 unit cells.
+    fn grid() -> GridBasis<2> {
+        GridBasis::<2>::from_spec(&crate::basis::GridSpec {
             lower: vec![0.0, 0.0],
             upper: vec![3.0, 2.0],
             cells: vec![3, 2],
             basis: BasisKind::Linear,
         })
-        .unwrap();
+        .unwrap()
+    }
+
+    /// Where only the neighbour inward is active and not weak, the node is tied to it
+    /// (`u_i = u_j`); where no neighbour is, its free components are counted as left, and a
+    /// constrained component of a master leaves that component free.
+    #[test]
+    fn nodes_without_two_masters_are_tied_or_left() {
+        let grid = grid();
+        let n = grid.num_nodes();
+        let node = |x, y| grid.node_index([x, y]);
+        let mut active = vec![false; n];
+        let mut share = vec![0.0; n];
+        // (0, 2) weak above (0, 1), whose node below is inactive: a tie
+        for (x, y, s) in [(0, 2, 1e-6), (0, 1, 0.5), (3, 0, 1e-6), (3, 1, 1e-6)] {
+            active[node(x, y)] = true;
+            share[node(x, y)] = s;
+        }
+        let mut constrained = vec![[false; 2]; n];
+        constrained[node(0, 1)][0] = true;
+        let (ties, count, left) = find_ties(&grid, &active, &constrained, &share, 1e-3);
+        // (3, 0) and (3, 1) are weak with no strong neighbour: 4 components left; (0, 2)'s
+        // x component is left because its master's is constrained
+        assert_eq!((count, left, ties.len()), (3, 5, 1));
+        assert_eq!(ties[0].node, node(0, 2));
+        assert_eq!(ties[0].masters, vec![(node(0, 1), 1.0)]);
+        assert_eq!(ties[0].components, [false, true]);
+    }
+
+    /// On a 4 × 3 node grid whose top row is barely reached, the top nodes are extrapolated
+    /// from the two rows below (2 u_j − u_k), the others are not weak.
+    #[test]
+    fn top_row_is_extrapolated_from_the_two_rows_below() {
+        let grid = grid();
         let n = grid.num_nodes();
         let share: Vec<f64> = (0..n)
             .map(|i| {
