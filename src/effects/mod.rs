@@ -23,6 +23,7 @@
 //! | `initial_stress.rs` | geostatic `K0` initial stresses (`initial_stress`), applied by the materials' modules |
 //! | `line_search.rs` | the Newton line search (`solver(#{ line_search: true })`; the method in `stages::line_search`) |
 //! | `arc_length.rs` | arc-length load control (`solver(#{ control: "arc_length" })`; the method in `stages::arc_length`) |
+//! | `weak_nodes.rs` | nodes the material barely reaches, extended from interior nodes (`solver(#{ weak_nodes: ε })`) |
 
 pub mod arc_length;
 pub mod body_force;
@@ -47,6 +48,7 @@ pub mod stages;
 pub mod stress_recovery;
 pub mod surface_conditions;
 pub mod tractions;
+pub mod weak_nodes;
 
 use crate::material::{DruckerPrager, Hencky, MohrCoulomb, VonMises};
 use crate::plugin::ModuleSet;
@@ -77,7 +79,9 @@ pub fn built_in() -> ModuleSet {
         .with(history::HistoryModule)
         .with(initial_stress::InitialStressModule)
         .with(line_search::LineSearchModule)
-        .with(arc_length::ArcLengthModule);
+        .with(arc_length::ArcLengthModule)
+        // after every module that adds to the tangent: it transforms the whole system
+        .with(weak_nodes::WeakNodesModule);
     // last: it checks what the modules before it added after the assembly
     #[cfg(feature = "mpi")]
     let modules = modules.with(distributed::DistributedModule);
