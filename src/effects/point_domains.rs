@@ -77,7 +77,7 @@ impl Plugin for PointDomainsModule {
         })
         .word(BasisWord {
             word: "cpdi",
-            doc: "CPDI1 (Sadeghirad et al. 2011): hat functions averaged from the corners of each point's domain carried by F; a corner leaving the grid is an error naming the point",
+            doc: "CPDI1 (Sadeghirad et al. 2011): hat functions averaged from the corners of each point's domain carried by F; a corner that a sheared domain tilts across a grid face (a symmetry plane, a fixed base) by up to a twentieth of a cell is projected onto it, as GIMP clips its domains; a domain leaving the grid otherwise is an error naming the point",
             kind: |_| Ok(BasisKind::Cpdi),
             seeder: None,
         })
