@@ -91,17 +91,17 @@ pub enum NewtonSystems {
 /// |------|-----------------|----------------|
 /// | `Basis` | step, connectivity: the one system that evaluates the basis at the points | point basis (default), point domains (GIMP, CPDI, domain-averaged B-splines), FEM elements |
 /// | `Connectivity` | step, connectivity, after the basis; node groups coupled in the tangent (`GridFields::couplings`) | ghost faces, F-bar cells |
-/// | `Constraints` | step, before DOF numbering: constrained components, extra couplings | grid constraints (`fix`, `displace`) |
+/// | `Constraints` | step, before DOF numbering: constrained components, extra couplings | grid constraints (`fix`, `displace`), weak nodes (which nodes, their masters) |
 /// | `AfterDofs` | step, after DOF numbering, before the loads | arc-length control (the loads at λ = 1) |
 /// | `Loads` | step, external forces and prescribed increments of the step | body force, point loads, tractions, prescribed displacements |
 /// | `BeforeSolve` | step, after the loads, before the Newton iterations | arc-length control (keeps f̂) |
 /// | `Kinematics` | Newton, before the stress update: the increment of deformation a material sees, when not the point's own (`components::ModifiedIncrement`), e.g. averaged over the points of a cell | F-bar |
 /// | `StressUpdate` | Newton: trial stress and tangent of every point | one system per material kind |
 /// | `BeforeAssembly` | Newton, after the stress update | (plugins) |
-/// | `AfterAssembly` | Newton, after assembly: contributions to f_int and K, also blocks between the nodes of a coupling group | ghost penalty, F-bar |
+/// | `AfterAssembly` | Newton, after assembly: contributions to f_int and K, also blocks between the nodes of a coupling group | ghost penalty, F-bar, weak nodes (`K' = Tᵀ K T` after the others) |
 /// | `Combine` | Newton, after all of assembly, before the convergence check; runs after a failure of the iteration too (every process must take part in collective operations) | distributed runs: the processes' sums of f_int, a failure on any process |
 /// | `Convergence` | Newton, after the convergence check: may overrule the verdict | arc-length control (an iterate that went back along the path), the line search (accepts or shortens the iterate) |
-/// | `AfterLinearSolve` | Newton, after the linear solve; runs in a converged iteration too, where no solve happened (`Newton::iterations` did not grow) | arc-length control (the load factor's correction) |
+/// | `AfterLinearSolve` | Newton, after the linear solve; runs in a converged iteration too, where no solve happened (`Newton::iterations` did not grow) | arc-length control (the load factor's correction), weak nodes (their increments from their masters') |
 /// | `PointUpdate` | step, after the G2P update: state that follows the material | traction points, FEM mesh, material history |
 /// | `AfterStep` | step, after the point update, before output | stress recovery |
 /// | `PointFields` | output, before the particle file: extra point fields | point loads, stress recovery |
