@@ -236,8 +236,9 @@ pub struct Newton {
 pub trait SharedGrid: Send + Sync {
     /// Whether this process owns `node` (its norms count here).
     fn owned(&self, node: usize) -> bool;
-    /// The sums over the processes of `squares` (collective; the same on every process).
-    fn sum(&self, squares: [f64; 3]) -> Result<[f64; 3], String>;
+    /// The sums over the processes of `values` (collective; the same bits on every process:
+    /// the convergence norms' squares, the reactions of the owned nodes).
+    fn sum(&self, values: &[f64]) -> Result<Vec<f64>, String>;
     /// The DOFs of the whole problem (this process's are `Newton::matrix`'s).
     fn dofs(&self) -> usize;
 }

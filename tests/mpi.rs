@@ -291,6 +291,7 @@ fn compare_runs(
         counts: decomposed.unwrap_or(&[1, 2, 3]),
         measures: &[],
         fields: &[],
+        history: &[],
     };
     compare_with(scene, set, tag, &runs)
 }
@@ -310,6 +311,22 @@ struct Runs<'a> {
     /// Point fields compared in the last point file to 1e-8 of their largest value, or of the
     /// body's extent where that is larger (a field zeroed by a stage).
     fields: &'a [&'a str],
+    /// history.csv's columns compared in every row to 1e-8 of the column's largest value.
+    history: &'a [&'a str],
+}
+
+/// The column `name` of the history.csv in `dir`, by row.
+fn history_column(dir: &Path, name: &str) -> Vec<f64> {
+    let text = std::fs::read_to_string(dir.join("history.csv")).expect("history.csv");
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let k = header
+        .iter()
+        .position(|h| h.trim() == name)
+        .unwrap_or_else(|| panic!("no column {name} in {header:?}"));
+    lines
+        .map(|line| line.split(',').nth(k).unwrap().trim().parse().unwrap())
+        .collect()
 }
 
 /// The scene's runs over each of `runs.counts` processes against its serial run (direct
@@ -404,6 +421,19 @@ fn compare_with(scene: &Path, set: &[&str], tag: &str, runs: &Runs<'_>) -> Vec<f
             }
             let last = reference.steps.last().unwrap()[name].as_f64().unwrap();
             eprintln!("{script} -n {n}: {name} {last:e} (serial), difference {difference:.1e}");
+            assert!(difference <= 1e-8, "{script} -n {n}: {name} {difference:e}");
+        }
+        for name in runs.history {
+            let (serial, distributed) = (
+                history_column(&serial_dir, name),
+                history_column(&dir, name),
+            );
+            let difference = relative_difference(&distributed, &serial);
+            eprintln!(
+                "{script} -n {n}: history.csv {name} {:e} (serial, last row), difference \
+                 {difference:.1e}",
+                serial.last().unwrap()
+            );
             assert!(difference <= 1e-8, "{script} -n {n}: {name} {difference:e}");
         }
         // said in the log (process 0's stderr, once) and in summary.json
@@ -546,6 +576,7 @@ fn the_strip_footing_over_2_and_3_processes_equals_the_serial_run() {
         counts: &[2, 3],
         measures: &["footing_pressure", "footing_reaction_x"],
         fields: &[],
+        history: &[],
     };
     let scene = shipped_scene("strip_footing.rhai");
     compare_with(&scene, &["cells=4", "steps=2"], "footing", &runs);
@@ -561,6 +592,7 @@ fn a_tresca_footing_with_fbar_over_2_and_3_processes_equals_the_serial_run() {
         counts: &[2, 3],
         measures: &["footing_pressure"],
         fields: &[],
+        history: &[],
     };
     let scene = shipped_scene("strip_footing.rhai");
     let set = [
@@ -584,6 +616,7 @@ fn the_ghost_penalty_over_2_and_3_processes_equals_the_serial_run() {
         counts: &[2, 3],
         measures: &[],
         fields: &[],
+        history: &[],
     };
     let scene = shipped_scene("sliver_column.rhai");
     compare_with(&scene, &["steps=2"], "sliver", &runs);
@@ -628,8 +661,129 @@ fn a_staged_scene_zeroing_displacements_with_decomposed_points_equals_the_serial
         counts: &[2, 3],
         measures: &[],
         fields: &["displacement"],
+        history: &[],
     };
     compare_with(&scene, &[], "staged-dec", &runs);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A block on a fixed base between two rollers under its weight (stage "gravity", 2 steps),
+/// the rollers then released (stage "open", 2 steps: their forces at the end of "gravity"
+/// become loads ramped down to zero, and the block spreads sideways), with decomposed points
+/// and grid. The reactions sum the owners' nodes over the processes, and a released force is
+/// added by the node's owner only: the base's and the left roller's reactions and the
+/// external resultant in summary.json (every step) and history.csv equal the serial run's to
+/// 1e-8, and the base carries the block's weight, `λ ρ g V = λ 150` in "gravity" and 150 in
+/// "open", to the Newton tolerance (1e-6 asserted).
+const RELEASED_BLOCK: &str =
+    "grid(#{ lower: [0.0, 0.0], upper: [1.0, 2.0], cells: [4, 8], basis: \"bspline\", order: 2 });
+const soil = material(#{ name: \"soil\", E: 1000.0, nu: 0.3, density: 1.0 });
+body(#{ name: \"soil\", material: soil, region: box([0.0, 0.0], [1.0, 1.5]), ppc: 2 });
+fix(|x| x[1] == 0.0);
+fix(|x| x[0] == 0.0, [0], #{ until_stage: \"open\" });
+fix(|x| x[0] == 1.0, [0], #{ until_stage: \"open\" });
+stage(#{ name: \"gravity\", steps: 2 });
+body_force([0.0, -100.0]);
+stage(#{ name: \"open\", steps: 2 });
+record(#{ name: \"base\", quantity: \"fix1_reaction_y\" });
+record(#{ name: \"left\", quantity: \"fix2_reaction_x\" });
+";
+
+#[test]
+fn reactions_with_decomposed_points_and_grid_equal_the_serial_run() {
+    let dir = temp_dir("mpi", "released-scene");
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = dir.join("released_block.rhai");
+    std::fs::write(&scene, RELEASED_BLOCK).unwrap();
+    let runs = Runs {
+        paraview: false,
+        decompose: true,
+        counts: &[2, 3],
+        measures: &["fix1_reaction_y", "fix2_reaction_x", "external_force_y"],
+        fields: &[],
+        history: &["base", "left"],
+    };
+    compare_with(&scene, &[], "released-dec", &runs);
+    // the serial run (compared with above): the base carries the weight
+    if mpirun_available() {
+        let serial = temp_dir("mpi", "released-weight");
+        let output = run(None, &scene, &[], &serial, &[]);
+        assert!(output.status.success());
+        let base = history_column(&serial, "base");
+        let factors = history_column(&serial, "load_factor");
+        assert_eq!(base.len(), 4);
+        for (k, (reaction, factor)) in base.iter().zip(&factors).enumerate() {
+            let weight = if k < 2 { 150.0 * factor } else { 150.0 };
+            let error = (reaction - weight).abs() / 150.0;
+            eprintln!(
+                "released block, step {}: base reaction {reaction}, weight {weight}, error {error:.1e}",
+                k + 1
+            );
+            assert!(error <= 1e-6, "step {}: {reaction} against {weight}", k + 1);
+        }
+        let _ = std::fs::remove_dir_all(&serial);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A block whose points fill only the lowest 2 of the grid's 4 cell layers along the slab
+/// axis: over 3 processes the slabs, balanced by points, give process 1 no points at all
+/// (layer 0 goes to process 0, layer 1 to process 2), so it has no nodes and no DOFs but
+/// takes part in every collective call (the matrix's block size, the rigid-body modes, the
+/// sums, the correction's scatter).
+const HALF_FILLED_BLOCK: &str =
+    "grid(#{ lower: [0.0, 0.0], upper: [1.0, 2.0], cells: [2, 4], basis: \"bspline\", order: 2 });
+const soil = material(#{ name: \"soil\", E: 1000.0, nu: 0.3, density: 1.0 });
+body(#{ name: \"soil\", material: soil, region: box([0.0, 0.0], [1.0, 1.0]), ppc: 2 });
+fix(|x| x[1] == 0.0);
+fix(|x| x[0] == 0.0, [0]);
+body_force([0.0, -100.0]);
+load_steps(2);
+";
+
+/// A process that holds no points under `--decompose` (`HALF_FILLED_BLOCK`, `-n 3`): the run
+/// ends, with exit status 0, within a bounded time (no hang), process 1's piece of the
+/// particle file has no points, and the run equals the serial one (iterations, eq. 15 error,
+/// stresses, positions to 1e-8, the base's reaction in every step).
+#[test]
+fn a_process_holding_no_points_takes_part_and_the_run_equals_the_serial_run() {
+    if !mpirun_available() {
+        return;
+    }
+    let dir = temp_dir("mpi", "empty-slab-scene");
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = dir.join("half_filled_block.rhai");
+    std::fs::write(&scene, HALF_FILLED_BLOCK).unwrap();
+    {
+        let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+        let out = temp_dir("mpi", "empty-slab-3");
+        let args = run_arguments(&scene, &[], &out, &["--decompose"]);
+        let logs = temp_dir("mpi", "empty-slab-logs");
+        let limit = std::time::Duration::from_secs(120);
+        let (status, stderr) = run_within(impm_command(Some(3), &args), &logs, limit)
+            .expect("the run over 3 processes, one without points, ends (no hang)");
+        assert!(status.success(), "{stderr}");
+        let pieces: Vec<usize> = (0..3)
+            .map(|k| {
+                let piece = out.join(format!("particles_0002_p{k}.vtu"));
+                read_vtu(&piece).unwrap().points.len()
+            })
+            .collect();
+        eprintln!("half-filled block -n 3: points per process {pieces:?}");
+        assert_eq!(pieces[1], 0, "{pieces:?}");
+        assert!(pieces[0] > 0 && pieces[2] > 0, "{pieces:?}");
+        let _ = std::fs::remove_dir_all(&out);
+        let _ = std::fs::remove_dir_all(&logs);
+    }
+    let runs = Runs {
+        paraview: false,
+        decompose: true,
+        counts: &[3],
+        measures: &["fix1_reaction_y"],
+        fields: &[],
+        history: &[],
+    };
+    compare_with(&scene, &[], "empty-slab-dec", &runs);
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -686,8 +840,9 @@ fn a_plastic_column_with_decomposed_points_equals_the_serial_run() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// Modules that keep their points' entities (point loads) are refused with decomposed points,
-/// naming them, once, without an abort; `--decompose` outside mpirun is refused.
+/// Modules that keep their points' entities (point loads) or read other points (probes) are
+/// refused with decomposed points, naming them and the lines of their calls, once, without an
+/// abort; `--decompose` outside mpirun is refused.
 #[test]
 fn decomposition_refuses_what_cannot_follow_its_points() {
     if !mpirun_available() {
@@ -700,11 +855,29 @@ fn decomposition_refuses_what_cannot_follow_its_points() {
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(!output.status.success());
     assert_eq!(
-        stderr.matches("point loads (keeps the entities").count(),
+        stderr
+            .matches("point loads (line 35: keeps the entities")
+            .count(),
         1,
         "{stderr}"
     );
     assert!(stderr.contains("without --decompose"), "{stderr}");
+    assert!(!stderr.contains("MPI_Abort"), "{stderr}");
+    // probes read the nearest points, which may be on another process: refused, naming
+    // the line of each probe call
+    let probed = dir.join("probed_block.rhai");
+    std::fs::create_dir_all(&dir).unwrap();
+    let probes =
+        "probe(#{ name: \"a\", at: [0.5, 0.5] });\nprobe(#{ name: \"b\", at: [0.5, 0.25] });\n";
+    std::fs::write(&probed, format!("{HALF_FILLED_BLOCK}{probes}")).unwrap();
+    let output = run(Some(2), &probed, &[], &dir.join("out"), &["--decompose"]);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert_eq!(
+        stderr.matches("probes (lines 8, 9: interpolates").count(),
+        1,
+        "{stderr}"
+    );
     assert!(!stderr.contains("MPI_Abort"), "{stderr}");
     let output = run(None, &scene, &[], &dir, &["--decompose"]);
     let stderr = String::from_utf8_lossy(&output.stderr);

@@ -33,6 +33,16 @@
 //! the processes' nodes is the serial run's active nodes, each with one owner), which the
 //! tests below check against a serial numbering, and a run checks at every step against the
 //! count of the replicated grid (`effects::distributed::grid`).
+//!
+//! **Sums at the shared nodes** (the force sums `f_int`, `f_ext` of a decomposed grid): each
+//! process holds its own points' share of a per-node quantity at its nodes (`width` numbers
+//! per node, in the order of `LocalNodes::nodes`). A node's sum is its owner's: every
+//! process touching the node but not owning it sends its share to the owner
+//! ([`shares_to_owners`]), the owner adds them to its own in rank order ([`add_shares`]) and
+//! sends the sums back to those processes ([`sums_to_sharers`], [`set_sums`]), so every
+//! process holds the same bits at each of its nodes, and nothing leaves the neighbours.
+//! A message holds no node numbers: sender and receiver list the nodes they share in the
+//! same order (both keep them sorted), and a message of another length is an error.
 
 /// No number: an inactive or constrained component, or a node with no free component.
 pub const NONE: u64 = u64::MAX;
@@ -279,6 +289,114 @@ impl Numbering {
     }
 }
 
+/// The nodes shared with `s` (indices in `LocalNodes::nodes`, sorted) that `owner` owns.
+fn shared_owned_by(ownership: &Ownership, s: usize, owner: usize) -> Vec<usize> {
+    (ownership.shared.get(s).into_iter().flatten())
+        .copied()
+        .filter(|&i| ownership.owner[i] == owner)
+        .collect()
+}
+
+/// The values of `nodes` (`width` each).
+fn values_of(nodes: &[usize], values: &[f64], width: usize) -> Vec<f64> {
+    (nodes.iter())
+        .flat_map(|&i| values[i * width..(i + 1) * width].iter().copied())
+        .collect()
+}
+
+/// The nodes a message from (or to) `s` lists, checked against its length.
+fn message_nodes(
+    ownership: &Ownership,
+    s: usize,
+    owner: usize,
+    message: &[f64],
+    width: usize,
+) -> Result<Vec<usize>, String> {
+    let nodes = shared_owned_by(ownership, s, owner);
+    if message.len() != nodes.len() * width {
+        return Err(format!(
+            "process {s} sent {} values for {} shared nodes of {width} values each",
+            message.len(),
+            nodes.len()
+        ));
+    }
+    Ok(nodes)
+}
+
+/// What this process sends each process `s`: its shares at the nodes `s` owns.
+pub fn shares_to_owners(ownership: &Ownership, values: &[f64], width: usize) -> Vec<Vec<f64>> {
+    (0..ownership.shared.len())
+        .map(|s| values_of(&shared_owned_by(ownership, s, s), values, width))
+        .collect()
+}
+
+/// Adds the shares received (by source rank, added in rank order) to the nodes this process
+/// owns.
+pub fn add_shares(
+    ownership: &Ownership,
+    values: &mut [f64],
+    width: usize,
+    received: &[Vec<f64>],
+) -> Result<(), String> {
+    let add = |values: &mut [f64], share: &[f64]| {
+        for (value, add) in values.iter_mut().zip(share) {
+            *value += add;
+        }
+    };
+    receive_values(
+        ownership,
+        values,
+        width,
+        received,
+        Some(ownership.rank),
+        add,
+    )
+}
+
+/// What this process sends each process `s`: the sums at the nodes it owns that `s` touches.
+pub fn sums_to_sharers(ownership: &Ownership, values: &[f64], width: usize) -> Vec<Vec<f64>> {
+    (0..ownership.shared.len())
+        .map(|s| {
+            values_of(
+                &shared_owned_by(ownership, s, ownership.rank),
+                values,
+                width,
+            )
+        })
+        .collect()
+}
+
+/// Sets the nodes other processes own to the sums their owners sent (by source rank).
+pub fn set_sums(
+    ownership: &Ownership,
+    values: &mut [f64],
+    width: usize,
+    received: &[Vec<f64>],
+) -> Result<(), String> {
+    let set = |values: &mut [f64], sum: &[f64]| values.copy_from_slice(sum);
+    receive_values(ownership, values, width, received, None, set)
+}
+
+/// Applies each message received (by source rank `s`, in rank order) to the nodes shared
+/// with `s` that `owner` owns (`None`: `s` itself), `width` values per node.
+fn receive_values(
+    ownership: &Ownership,
+    values: &mut [f64],
+    width: usize,
+    received: &[Vec<f64>],
+    owner: Option<usize>,
+    mut apply: impl FnMut(&mut [f64], &[f64]),
+) -> Result<(), String> {
+    for (s, message) in received.iter().enumerate() {
+        let owner = owner.unwrap_or(s);
+        let nodes = message_nodes(ownership, s, owner, message, width)?;
+        for (&i, part) in nodes.iter().zip(message.chunks_exact(width)) {
+            apply(&mut values[i * width..(i + 1) * width], part);
+        }
+    }
+    Ok(())
+}
+
 /// The whole procedure for processes simulated in one (the messages handed over in memory):
 /// each process's ownership and numbering, for tests and the docs' examples.
 pub fn number_all(processes: &[LocalNodes]) -> Result<Vec<(Ownership, Numbering)>, String> {
@@ -512,6 +630,74 @@ mod tests {
             .find(|&i| ownership.owner[i] != ownership.rank && local.free_of(i).iter().all(|&f| f))
             .unwrap();
         local.nodes[i]
+    }
+
+    /// Sums at the shared nodes, processes simulated in one: each process's share at a node
+    /// is a number of its own (`1000 r + node + c / 2`, exact in binary), and after the two
+    /// exchanges every process holds, at each of its nodes, the sum over the processes
+    /// touching it; a message of the wrong length is an error.
+    #[test]
+    fn shares_at_shared_nodes_add_up_on_every_process_touching_the_node() {
+        for cuts in [vec![0], vec![0, 3], vec![0, 2, 4], vec![0, 1, 2]] {
+            let processes = slabs(3, 6, &cuts);
+            let numbered = number_all(&processes).unwrap();
+            let ownerships: Vec<&Ownership> = numbered.iter().map(|(o, _)| o).collect();
+            let share =
+                |r: usize, node: usize, c: usize| 1000.0 * r as f64 + node as f64 + c as f64 / 2.0;
+            let mut values: Vec<Vec<f64>> = (processes.iter().enumerate())
+                .map(|(r, local)| {
+                    (local.nodes.iter())
+                        .flat_map(|&n| (0..2).map(move |c| share(r, n, c)))
+                        .collect()
+                })
+                .collect();
+            let mut expected: BTreeMap<(usize, usize), f64> = BTreeMap::new();
+            for (r, local) in processes.iter().enumerate() {
+                for &n in &local.nodes {
+                    for c in 0..2 {
+                        *expected.entry((n, c)).or_default() += share(r, n, c);
+                    }
+                }
+            }
+            let received_by = |r: usize, sent: &[Vec<Vec<f64>>]| -> Vec<Vec<f64>> {
+                sent.iter().map(|from| from[r].clone()).collect()
+            };
+            let sent: Vec<Vec<Vec<f64>>> = (0..processes.len())
+                .map(|r| shares_to_owners(ownerships[r], &values[r], 2))
+                .collect();
+            for r in 0..processes.len() {
+                add_shares(ownerships[r], &mut values[r], 2, &received_by(r, &sent)).unwrap();
+            }
+            let sent: Vec<Vec<Vec<f64>>> = (0..processes.len())
+                .map(|r| sums_to_sharers(ownerships[r], &values[r], 2))
+                .collect();
+            for r in 0..processes.len() {
+                set_sums(ownerships[r], &mut values[r], 2, &received_by(r, &sent)).unwrap();
+            }
+            for (r, local) in processes.iter().enumerate() {
+                for (i, &n) in local.nodes.iter().enumerate() {
+                    for c in 0..2 {
+                        assert_eq!(
+                            values[r][i * 2 + c],
+                            expected[&(n, c)],
+                            "cuts {cuts:?} process {r} node {n}"
+                        );
+                    }
+                }
+            }
+            if cuts.len() > 1 {
+                // a share too few from process 1 to process 0
+                let mut short = shares_to_owners(ownerships[1], &values[1], 2);
+                short[0].pop();
+                let wrong = add_shares(
+                    ownerships[0],
+                    &mut values[0],
+                    2,
+                    &[vec![], short[0].clone()],
+                );
+                assert!(wrong.unwrap_err().contains("shared nodes"), "{cuts:?}");
+            }
+        }
     }
 
     #[test]

@@ -7,8 +7,8 @@
 //! | [`Traffic::Reductions`] | `MPI_Allreduce` / broadcasts of impm's decisions and small sums | the values this process contributes |
 //! | [`Traffic::Points`] | migration records (`exchange`), the supports shared (`gather_all`) | sent to other processes (a gathered message once per other process) |
 //! | [`Traffic::MatrixEntries`] | `MatSetValues` entries in rows another process owns | 16 per entry (row and column index, value) |
-//! | [`Traffic::VectorEntries`] | `VecSetValues` entries (the sums of `f_int`, `f_ext`) another process owns | 12 per entry (index, value) |
-//! | [`Traffic::Gathered`] | `VecScatterCreateToAll` gathers (the correction, the sums back to all) | the owned part, 8 per value, once per other process |
+//! | [`Traffic::VectorEntries`] | `VecSetValues` entries (the sums of `f_int`, `f_ext`) another process owns; with the decomposed grid, the shares at ghost nodes sent to their owners | 12 per entry (index, value); decomposed: 8 per value (and the counts' all-to-all) |
+//! | [`Traffic::Gathered`] | `VecScatterCreateToAll` gathers (the correction, the sums back to all); with the decomposed grid, the correction's ghost rows and the owners' sums sent back to the processes touching their nodes | the owned part, 8 per value, once per other process; decomposed: 8 per value received (correction) or sent (sums) |
 //! | [`Traffic::KrylovHalo`] | the ghost values of one `MatMult` (PETSc's `MPIAIJ` off-diagonal columns) per Krylov iteration | received, 8 per ghost value and iteration |
 //! | [`Traffic::GridNumbers`] | the decomposed grid's ownership and numbering (`ownership`): layer ranges and owned counts to all, shared nodes and their numbers to the neighbours | sent to other processes, 8 per number (a gathered message once per other process) |
 //!

@@ -49,7 +49,10 @@ use crate::components::GridNode;
 use crate::effects::declarations::{factor_one, keep_largest_force, selection_ranges, until_stage};
 use crate::effects::surface_conditions::AXES;
 use crate::plugin::{Extension, Hook, Plugin};
-use crate::resources::{CurrentStage, GridFields, LoadStep, Ramp, Stage, StageClock, Warnings};
+use crate::resources::{
+    CurrentStage, GridFields, LoadStep, Newton, Ramp, RunStatus, SharedGrid, SolverError, Stage,
+    StageClock, Warnings,
+};
 use crate::scene::{
     CallSpec, Kind, Located, OptionSpec, Options, Resolver, SceneApi, SceneBuilder, SceneSpec,
     ScriptError, Stages, function, numbers, whole_numbers,
@@ -436,23 +439,36 @@ pub struct GridReactions<const D: usize> {
 /// After a converged step, the reaction of each declaration: at its constrained components,
 /// R = f_int − f_ext (equilibrium f_int = f_ext + R; f_int includes every module's
 /// contribution, e.g. a surface condition's force on nodes that are also constrained). A
-/// component selected by two declarations counts in both.
+/// component selected by two declarations counts in both. On a grid split among processes
+/// (`Newton::shared_grid`) each node counts on its owner (its forces are summed there) and
+/// the owners' sums are added over the processes, so every process records the whole run's.
 pub fn grid_reactions<const D: usize>(
     step: Res<LoadStep>,
     stage: Option<Res<CurrentStage>>,
     fields: Res<GridFields<D>>,
     mut reactions: ResMut<GridReactions<D>>,
+    newton: Res<Newton>,
+    mut status: ResMut<RunStatus>,
 ) {
     let stage = stage_of(&stage);
+    let shared = newton.shared_grid.as_deref();
+    let counts = |node: usize| shared.is_none_or(|s| s.owned(node));
     let reactions = &mut *reactions;
-    reactions.external = fields.external_force.iter().sum();
+    reactions.external = (fields.external_force.iter().enumerate())
+        .filter(|&(node, _)| counts(node))
+        .map(|(_, f)| f)
+        .sum();
     reactions.reactions.clear();
     for (declaration, released) in reactions.declarations.iter().zip(&mut reactions.released) {
         let mut force = SVector::<f64, D>::zeros();
         let window = declaration.window;
         if window.covers(stage) {
             for (k, &(node, c)) in declaration.components.iter().enumerate() {
-                let reaction = fields.internal_force[node][c] - fields.external_force[node][c];
+                let reaction = if counts(node) {
+                    fields.internal_force[node][c] - fields.external_force[node][c]
+                } else {
+                    0.0 // its owner's
+                };
                 force[c] += reaction;
                 if let Some(kept) = released.get_mut(k) {
                     *kept = reaction;
@@ -461,13 +477,54 @@ pub fn grid_reactions<const D: usize>(
         } else if window.until == Some(stage) {
             let ramp = 1.0 - step.factor;
             for (&(node, c), &reaction) in declaration.components.iter().zip(released.iter()) {
-                if !fields.constrained[node][c] {
+                if !fields.constrained[node][c] && counts(node) {
                     force[c] += reaction * ramp;
                 }
             }
         }
         reactions.reactions.push(force);
     }
+    if let Some(shared) = shared
+        && let Err(why) = sum_reactions(shared, reactions, stage)
+    {
+        status.fail(SolverError::Module {
+            step: step.number,
+            what: format!("summing the reactions over the processes: {why}"),
+            recoverable: false,
+        });
+    }
+}
+
+/// The owners' parts of the reactions, the external resultant and the forces kept for a
+/// release (those of the declarations acting in `stage`) added over the processes
+/// (collective: every process gets the same sums).
+fn sum_reactions<const D: usize>(
+    shared: &dyn SharedGrid,
+    reactions: &mut GridReactions<D>,
+    stage: usize,
+) -> Result<(), String> {
+    let GridReactions {
+        declarations,
+        reactions,
+        released,
+        external,
+    } = reactions;
+    let kept = (declarations.iter().zip(released.iter_mut()))
+        .filter(|(declaration, _)| declaration.window.covers(stage))
+        .flat_map(|(_, kept)| kept.iter_mut());
+    let mut values: Vec<&mut f64> = (external.iter_mut())
+        .chain(reactions.iter_mut().flat_map(|r| r.iter_mut()))
+        .chain(kept)
+        .collect();
+    let parts: Vec<f64> = values.iter().map(|v| **v).collect();
+    let sums = shared.sum(&parts)?;
+    if sums.len() != parts.len() {
+        return Err(format!("{} sums of {} values", sums.len(), parts.len()));
+    }
+    for (value, sum) in values.iter_mut().zip(sums) {
+        **value = sum;
+    }
+    Ok(())
 }
 
 /// In the stage that releases a support (`until_stage`): its force at the end of the stage before,
@@ -479,16 +536,20 @@ pub fn apply_released_supports<const D: usize>(
     reactions: Res<GridReactions<D>>,
     mut fields: ResMut<GridFields<D>>,
     mut clock: ResMut<StageClock>,
+    newton: Res<Newton>,
 ) {
     let _timer = clock.time(Stage::Loads);
     let stage = stage_of(&stage);
     let ramp = 1.0 - step.factor;
+    // a grid split among processes: added by the node's owner only (the processes' external
+    // forces are summed after the loads)
+    let shared = newton.shared_grid.as_deref();
     for (declaration, released) in reactions.declarations.iter().zip(&reactions.released) {
         if declaration.window.until != Some(stage) {
             continue;
         }
         for (&(node, c), &reaction) in declaration.components.iter().zip(released) {
-            if !fields.constrained[node][c] {
+            if !fields.constrained[node][c] && shared.is_none_or(|s| s.owned(node)) {
                 fields.external_force[node][c] += reaction * ramp;
             }
         }

@@ -70,7 +70,10 @@ pub fn check_convergence<const D: usize>(
     }
     // a grid split among processes: the squares summed over them
     if let Some(shared) = shared {
-        match shared.sum([free, external, internal]) {
+        let sums = shared.sum(&[free, external, internal]).and_then(|sums| {
+            <[f64; 3]>::try_from(sums).map_err(|s| format!("{} sums of 3 norms", s.len()))
+        });
+        match sums {
             Ok(sums) => [free, external, internal] = sums,
             Err(why) => {
                 status.fail(SolverError::Module {

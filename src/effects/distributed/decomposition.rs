@@ -101,7 +101,7 @@ pub fn refusal(spec: &SceneSpec) -> Option<String> {
             REFUSED
                 .iter()
                 .find(|(name, _)| *name == module.name())
-                .map(|(name, why)| format!("{name} ({why})"))
+                .map(|(name, why)| format!("{name} ({}{why})", lines_note(spec, name)))
         })
         .collect();
     let patch = spec.part::<FbarSpec>().is_some_and(|fbar| {
@@ -123,6 +123,33 @@ pub fn refusal(spec: &SceneSpec) -> Option<String> {
             refused.join(", ")
         )
     })
+}
+
+/// "line 12: ", "lines 12, 14: " — the scene lines of a refused module's calls, for the
+/// modules whose declarations keep them (point loads, tractions and loads at positions,
+/// surface conditions, probes); empty for the others.
+fn lines_note(spec: &SceneSpec, module: &str) -> String {
+    use crate::effects::{point_loads, probes, surface_conditions, tractions};
+    let lines: Vec<Option<usize>> = match module {
+        "point loads" => (spec.part::<point_loads::PointLoadDeclarations>())
+            .map_or(Vec::new(), |d| d.0.iter().map(|l| l.line).collect()),
+        "tractions" => (spec.part::<tractions::LoadPointDeclarations>())
+            .map_or(Vec::new(), |d| d.0.iter().map(|l| l.line).collect()),
+        "surface conditions" => (spec.part::<surface_conditions::SurfaceConditions>())
+            .map_or(Vec::new(), |c| c.0.iter().map(|c| c.line).collect()),
+        "probes" => (spec.part::<probes::Probes>())
+            .map_or(Vec::new(), |p| p.0.iter().map(|p| p.line).collect()),
+        _ => Vec::new(),
+    };
+    let mut lines: Vec<usize> = lines.into_iter().flatten().collect();
+    lines.sort_unstable();
+    lines.dedup();
+    let list: Vec<String> = lines.iter().map(usize::to_string).collect();
+    match list.len() {
+        0 => String::new(),
+        1 => format!("line {}: ", list[0]),
+        _ => format!("lines {}: ", list.join(", ")),
+    }
 }
 
 /// A stage's displacement origins (`effects::stages::DisplacementOrigin`, set at the start of
@@ -266,9 +293,10 @@ pub fn sum_external_force<const D: usize>(
     mut status: ResMut<RunStatus>,
     mut clock: ResMut<StageClock>,
     step: Res<LoadStep>,
+    grid: Res<super::grid::DecomposedGrid>,
 ) {
     let _timer = clock.time(Stage::Loads);
-    if let Err(why) = sum_grid_vectors(&mut share, &mut fields.external_force) {
+    if let Err(why) = sum_grid_vectors(&mut share, Some(&grid), &mut fields.external_force) {
         status.fail(SolverError::Module {
             step: step.number,
             what: format!("summing the external force over the processes: {why}"),

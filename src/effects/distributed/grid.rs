@@ -15,7 +15,10 @@
 //! local rows added with global indices, the correction brought back to the local rows) and
 //! the owned nodes to the convergence norms (`resources::SharedGrid`: each node counted on
 //! its owner, the squares gathered from every process and summed in rank order, so every
-//! process decides alike). It checks that the DOF stage's local DOFs are exactly the owned
+//! process decides alike), to the force sums (`f_int` at `Hook::Combine`, `f_ext` after the
+//! loads: [`sum_at_nodes`], each node's shares added by its owner and sent back, neighbours
+//! only) and to the reactions (`fix`/`displace` measures: each node counted on its owner, the
+//! owners' parts added over the processes). It checks that the DOF stage's local DOFs are exactly the owned
 //! and ghost DOFs numbered here, and every ghost gets its numbers from its owner with the same
 //! free components; a disagreement fails the run on every process (never a wrong answer
 //! silently).
@@ -26,8 +29,11 @@ use bevy_ecs::prelude::*;
 
 use super::{AssemblyShare, share_failure};
 use crate::components::Support;
+use nalgebra::SVector;
+
 use crate::distributed::ownership::{
-    LocalNodes, NONE, Numbering, Ownership, offsets, shared_messages,
+    LocalNodes, NONE, Numbering, Ownership, add_shares, offsets, set_sums, shared_messages,
+    shares_to_owners, sums_to_sharers,
 };
 use crate::distributed::traffic::Traffic;
 use crate::distributed::{any, exchange_counted, gather_all_counted};
@@ -40,27 +46,34 @@ use crate::solver::{GlobalBlocks, NO_DOF, SharedBlocks};
 #[derive(Resource)]
 pub struct SolverNumbers(pub SharedBlocks);
 
-/// The decomposed grid for the core: the nodes this process owns (in increasing order) count
-/// in the convergence norms here.
+/// The decomposed grid for the core: the nodes this process owns count in the convergence
+/// norms and the reactions here.
 struct OwnedNodes {
-    owned: Vec<usize>,
+    /// Whether this process owns each node of the grid (a mask, as `GridFields`' vectors are
+    /// sized by the whole grid: one byte per node, read once per node per Newton iteration).
+    owned: Vec<bool>,
     /// The DOFs over all processes.
     dofs: usize,
 }
 
 impl SharedGrid for OwnedNodes {
     fn owned(&self, node: usize) -> bool {
-        self.owned.binary_search(&node).is_ok()
+        self.owned.get(node).copied().unwrap_or(false)
     }
 
     /// Gathered and summed in rank order: the same bits on every process (an all-reduce may
     /// add in another order on each).
-    fn sum(&self, squares: [f64; 3]) -> Result<[f64; 3], String> {
-        let all = gather_all_counted(&squares.map(f64::to_bits), Traffic::Reductions)?;
-        let mut sums = [0.0; 3];
+    fn sum(&self, values: &[f64]) -> Result<Vec<f64>, String> {
+        let bits: Vec<u64> = values.iter().map(|v| v.to_bits()).collect();
+        let all = gather_all_counted(&bits, Traffic::Reductions)?;
+        let mut sums = vec![0.0; values.len()];
         for part in &all {
-            if part.len() != 3 {
-                return Err(format!("a process sent {} norms, not 3", part.len()));
+            if part.len() != values.len() {
+                return Err(format!(
+                    "a process sent {} values to sum, this one {}",
+                    part.len(),
+                    values.len()
+                ));
             }
             for (sum, &bits) in sums.iter_mut().zip(part) {
                 *sum += f64::from_bits(bits);
@@ -181,16 +194,17 @@ fn number<const D: usize>(world: &mut World) -> Result<(), String> {
             local.nodes.len()
         ));
     }
-    let owned: Vec<usize> = (local.nodes.iter().zip(&ownership.owner))
-        .filter(|&(_, &owner)| owner == rank)
-        .map(|(&node, _)| node)
-        .collect();
+    let mut owned = vec![false; fields.active.len()];
+    for (&node, &owner) in local.nodes.iter().zip(&ownership.owner) {
+        owned[node] = owner == rank;
+    }
     let blocks = GlobalBlocks {
         nodes: local.nodes.clone(),
         blocks: numbering.blocks.clone(),
         first: block_offsets[rank],
         owned: blocks,
         total: all_blocks,
+        components: D,
     };
     if let Some(shared) = world.get_resource::<SolverNumbers>() {
         *shared.0.lock().unwrap_or_else(|e| e.into_inner()) = Some(blocks);
@@ -207,5 +221,42 @@ fn number<const D: usize>(world: &mut World) -> Result<(), String> {
         local_dofs: numbered as u64,
         ghost_nodes: column(2).iter().sum::<u64>() as usize,
     });
+    Ok(())
+}
+
+/// Sums `vectors` (one per node of the whole grid; this process's own points' share at its
+/// nodes) over the processes touching each of its nodes (`distributed::ownership`, "Sums at
+/// the shared nodes": the shares to the owner, the owner's sum back), so that every process
+/// holds at each of its nodes, owned or ghost, `f_i = Σ_p f_i^p` over the processes `p`
+/// touching node `i`, the same bits as the owner's. The other nodes are left as they are (no
+/// point of this process reaches them). Collective; an error on one process is every
+/// process's.
+pub fn sum_at_nodes<const D: usize>(
+    grid: &DecomposedGrid,
+    vectors: &mut [SVector<f64, D>],
+) -> Result<(), String> {
+    let Some(ownership) = grid.ownership.as_ref() else {
+        // the same on every process: the numbering fails the step on all of them alike
+        return Err("the decomposed grid is not numbered in this step".to_string());
+    };
+    let nodes = &grid.local.nodes;
+    let mut values: Vec<f64> = (nodes.iter())
+        .flat_map(|&n| vectors[n].iter().copied())
+        .collect();
+    let shares = shares_to_owners(ownership, &values, D);
+    let received = exchange_counted(&shares, Traffic::VectorEntries)?;
+    // no early return between the two exchanges: every process takes part in both
+    let added = add_shares(ownership, &mut values, D, &received);
+    let sums = sums_to_sharers(ownership, &values, D);
+    let received = exchange_counted(&sums, Traffic::Gathered)?;
+    let result = added.and_then(|()| set_sums(ownership, &mut values, D, &received));
+    if any(result.is_err()) {
+        return Err(result
+            .err()
+            .unwrap_or_else(|| "summing at the shared nodes failed on another process".into()));
+    }
+    for (&n, value) in nodes.iter().zip(values.chunks_exact(D)) {
+        vectors[n] = SVector::<f64, D>::from_column_slice(value);
+    }
     Ok(())
 }

@@ -34,7 +34,11 @@
 //!   and `f_ext` is summed like `f_int`. Scenes with modules that cannot follow their points
 //!   are refused. The grid is decomposed too ([`grid`]): each process numbers only the nodes
 //!   its points touch, the solver adds its local rows with the global numbers and gives back
-//!   its local rows only, and the convergence norms count each node on its owner.
+//!   its local rows only, the convergence norms and the reactions count each node on its
+//!   owner, and the force sums add each node's shares on its owner and send the sum back to
+//!   the processes touching the node (`grid::sum_at_nodes`, no whole-grid vector: `ProcessSum`
+//!   is the replicated path's). A process may hold no points (more processes than cell layers
+//!   with points): it has no DOFs and takes part in every collective call.
 //!
 //! * **Terms added after the assembly** (`Hook::AfterAssembly`) are added once over the
 //!   processes: F-bar's rank-one terms by the process that assembles the group's members (a
@@ -379,12 +383,17 @@ fn share_failure(status: &mut RunStatus, step: usize) -> bool {
     true
 }
 
-/// Adds `vectors` (one per node) over the processes through the share's PETSc sum: every
-/// process gets the same bits.
+/// Adds `vectors` (one per node) over the processes: with the decomposed grid at its nodes
+/// only, over the processes touching each (`grid::sum_at_nodes`, neighbours only); otherwise
+/// the whole grid's through the share's PETSc sum. Every process gets the same bits.
 fn sum_grid_vectors<const D: usize>(
     share: &mut AssemblyShare,
+    decomposed: Option<&grid::DecomposedGrid>,
     vectors: &mut [SVector<f64, D>],
 ) -> Result<(), String> {
+    if let Some(grid) = decomposed {
+        return grid::sum_at_nodes(grid, vectors);
+    }
     share.buffer.clear();
     share
         .buffer
@@ -408,12 +417,14 @@ pub fn combine_assembly<const D: usize>(
     mut status: ResMut<RunStatus>,
     mut clock: ResMut<StageClock>,
     step: Res<LoadStep>,
+    decomposed: Option<Res<grid::DecomposedGrid>>,
 ) {
     let _timer = clock.time(Stage::Assembly);
     if share_failure(&mut status, step.number) {
         return;
     }
-    if let Err(why) = sum_grid_vectors(&mut share, &mut fields.internal_force) {
+    let decomposed = decomposed.as_deref();
+    if let Err(why) = sum_grid_vectors(&mut share, decomposed, &mut fields.internal_force) {
         status.fail(SolverError::Module {
             step: step.number,
             what: format!("summing the internal force over the processes: {why}"),

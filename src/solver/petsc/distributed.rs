@@ -129,6 +129,8 @@ pub struct GlobalBlocks {
     pub owned: u64,
     /// Global blocks over all processes.
     pub total: u64,
+    /// Components per node (the block size; also on a process with no DOFs).
+    pub components: usize,
 }
 
 /// The global numbers shared between the decomposed grid's numbering (which fills them every
@@ -137,6 +139,9 @@ pub type SharedBlocks = Arc<Mutex<Option<GlobalBlocks>>>;
 
 /// The distributed PETSc objects of one pattern.
 pub(super) struct DistributedObjects {
+    /// The block size (the padding's; the grid's components for a decomposed grid, also on
+    /// a process with no DOFs: PETSc wants the same on every process).
+    block: usize,
     built_for: BuiltFor,
     padding: Padding,
     /// The padded rows this process owns (global numbers): `first..end`.
@@ -201,7 +206,7 @@ impl DistributedObjects {
         let processes = crate::distributed::processes()
             .unwrap_or(crate::distributed::Processes { rank: 0, size: 1 });
         let (rank, size) = (processes.rank, processes.size.max(1));
-        let d = padding.block;
+        let d = blocks.map_or(padding.block, |numbers| numbers.components);
         let (first, end, size_global, global) = match blocks {
             None => {
                 let blocks = padding.size / d;
@@ -222,6 +227,7 @@ impl DistributedObjects {
         };
         let null = std::ptr::null_mut();
         let mut objects = Self {
+            block: d,
             built_for: BuiltFor::of(matrix, symmetric),
             first,
             end,
@@ -283,7 +289,7 @@ impl DistributedObjects {
         let comm = Comm::World.raw();
         let local = (self.end - self.first) as PetscInt;
         let global = self.size_global as PetscInt;
-        let block = self.padding.block as PetscInt;
+        let block = self.block as PetscInt;
         // SAFETY: the session is held; the arrays passed are copied by PETSc.
         unsafe {
             check(ffi::MatCreate(comm, &mut self.matrix), "MatCreate")?;
@@ -300,7 +306,10 @@ impl DistributedObjects {
                 None => self.preallocate_replicated()?,
                 Some(_) => self.preallocate_decomposed()?,
             }
-            if let Some(coordinates) = &self.padding.coordinates {
+            // (collective: a decomposed grid's process with no DOFs, hence no positions,
+            // takes part with no coordinates)
+            let empty = (self.global.is_some() && self.padding.size == 0).then(Vec::new);
+            if let Some(coordinates) = self.padding.coordinates.as_ref().or(empty.as_ref()) {
                 // the owned blocks' nodes, in their global order (node order: the owned
                 // blocks are numbered node-major in node order, as the local ones)
                 let owned: Vec<f64> = match self.global {
@@ -310,7 +319,7 @@ impl DistributedObjects {
                         .map(|p| coordinates[p])
                         .collect(),
                 };
-                set_rigid_body_modes(self.matrix, self.padding.block, &owned, Comm::World)?;
+                set_rigid_body_modes(self.matrix, self.block, &owned, Comm::World)?;
             }
             for vector in [&mut self.rhs, &mut self.solution, &mut self.residual] {
                 check(
@@ -417,7 +426,7 @@ impl DistributedObjects {
                     "MatSetSizes",
                 )?;
                 check(
-                    ffi::MatSetBlockSize(preallocator, self.padding.block as PetscInt),
+                    ffi::MatSetBlockSize(preallocator, self.block as PetscInt),
                     "MatSetBlockSize",
                 )?;
                 check(
@@ -547,7 +556,7 @@ impl DistributedObjects {
         // entries, the gathered vector the replicated system's or this process's local rows.
         unsafe {
             check(ffi::VecGetArray(self.rhs, &mut array), "VecGetArray")?;
-            let owned = std::slice::from_raw_parts_mut(array, self.end - self.first);
+            let owned = local_part(array, self.end - self.first);
             match self.global {
                 None => owned.copy_from_slice(&self.padded[self.first..self.end]),
                 Some(_) => {
@@ -574,7 +583,7 @@ impl DistributedObjects {
             count(Traffic::Gathered, 8 * received);
             gather_to_all(self.scatter, self.solution, self.gathered)?;
             check(ffi::VecGetArray(self.gathered, &mut array), "VecGetArray")?;
-            let all = std::slice::from_raw_parts(array, self.padding.size);
+            let all: &[f64] = local_part(array, self.padding.size);
             for (&p, r) in self.padding.of_dof.iter().zip(rhs.iter_mut()) {
                 *r = all[p];
             }
@@ -614,9 +623,12 @@ fn global_rows(
     padding: &Padding,
     numbers: &GlobalBlocks,
 ) -> Result<Vec<PetscInt>, LinearSolveError> {
-    let d = padding.block;
+    let d = numbers.components;
     let layout = matrix.layout();
-    if d != layout.dimension || layout.node.len() * d != padding.size {
+    if padding.size == 0 {
+        return Ok(Vec::new()); // no DOFs here: the process takes part in the collective calls
+    }
+    if d != padding.block || d != layout.dimension || layout.node.len() * d != padding.size {
         return Err(LinearSolveError::Backend(
             "the decomposed grid needs the whole-node (padded) system".to_string(),
         ));
@@ -644,6 +656,19 @@ fn global_rows(
         }
     }
     Ok(rows)
+}
+
+/// The `len` entries of a vector's local part at `array` (`VecGetArray`), empty for none (a
+/// process of a decomposed grid without DOFs: PETSc may hand back no array).
+///
+/// # Safety
+/// `array` holds `len` entries, valid while the slice is used.
+unsafe fn local_part<'a>(array: *mut f64, len: usize) -> &'a mut [f64] {
+    if len == 0 || array.is_null() {
+        return &mut [];
+    }
+    // SAFETY: as the caller promises.
+    unsafe { std::slice::from_raw_parts_mut(array, len) }
 }
 
 /// Copies the distributed vector `from` into `to`, the whole vector on every process, with a
