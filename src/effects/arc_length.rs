@@ -241,7 +241,7 @@ impl Plugin for ArcLengthModule {
         spec.part::<ArcLengthSpec>().map(|arc| {
             format!(
                 "target {} iterations per step, at most {} steps, first arc from the load \
-                 increment {}{}{}",
+                 increment {}{}{}{}",
                 arc.target_iterations,
                 spec.load_factors.len(),
                 spec.load_factors.first().copied().unwrap_or(0.0),
@@ -254,6 +254,12 @@ impl Plugin for ArcLengthModule {
                     String::new()
                 } else {
                     format!(", rebalance: {}", arc.rebalance.word())
+                },
+                if arc.fixed_loads {
+                    "; the held loads stay in full beside the controlled ones (f_ext = f_fixed \
+                     + λ f̂), balanced at λ = 0 before the first arc"
+                } else {
+                    ""
                 }
             )
         })
