@@ -1,41 +1,49 @@
 //! Arc-length load control as a scene option: `solver(#{ control: "arc_length",
 //! target_iterations: 5, max_load_factor: 2.0 })`. The method is in `stages::arc_length`; this
 //! module reads the options, refuses what the arc cannot control, adds the arc's five systems
-//! (six with `rebalance`) at their hooks (scenes without the option schedule none of them) and the measure
+//! (six with `rebalance`, seven with held loads) at their hooks (scenes without the option schedule none of them) and the measure
 //! `initial_imbalance` (each step's out-of-balance force at its start, relative to λ_n f̂):
 //!
 //! ```text
 //!   Hook::AfterDofs         unit_load              the loads are evaluated at λ = 1 ...
-//!   Hook::BeforeSolve       take_reference_load    ... and kept as f̂; f_ext = λ_n f̂
+//!   Hook::BeforeSolve       split_fixed_loads      (held loads only) again at λ = 0: f_fixed, f̂ = f(1) − f(0)
+//!   Hook::BeforeSolve       take_reference_load    ... and kept as f̂; f_ext = f_fixed + λ_n f̂
 //!   Hook::Convergence       record_start_imbalance the step's start residual, warned when large
-//!   Hook::Convergence       finish_rebalance       (rebalance only) the start residual removed: the arc begins
+//!   Hook::Convergence       finish_rebalance       (rebalance or held loads) the start residual removed: the arc begins
 //!   Hook::Convergence       keep_going_forward     a converged iterate that went back is refused
 //!   Hook::AfterLinearSolve  correct_load_factor    K δu_f = f̂, δλ from the arc, Δu += δu_r + δλ δu_f
 //! ```
 //!
 //! The arc controls proportional loads f_ext = λ f̂: tractions, follower pressures
 //! (`effects::pressure`, whose f̂ follows the current shape), point loads and a body force that
-//! follow the load factor. It refuses, at the scene line that asks for them:
+//! follow the load factor. Held loads (`held: true`) are f_fixed beside them,
+//! f_ext = f_fixed + λ f̂: with them the loads are evaluated a second time per step at λ = 0
+//! (`split_fixed_loads` before `take_reference_load`; [`add_load_system`]) and the first step
+//! first balances them (module docs of `stages::arc_length`, "Held loads"). It refuses, at the
+//! scene line that asks for them:
 //! * a prescribed displacement that is not zero (`displace`, `surface_displace` with a
 //!   `displacement`): its ramp would be a second load parameter the arc does not constrain;
 //!   supports (`fix`, zero displacements) are fine;
-//! * held loads (`held: true`): they are not proportional to λ;
 //! * the Newton line search, which would move the iterate off the arc;
 //! * runs under `mpirun` with more than one process (the arc's second solve and its dot
 //!   products are not distributed yet).
 
 use super::body_force::BodyForceRamp;
 use super::grid_constraints::ConstraintDeclarations;
+use super::point_loads::PointLoads;
 use crate::checkpoint::CheckpointPart;
 use crate::method::Hook;
 use crate::plugin::{Extension, Plugin};
-use crate::resources::Ramp;
+use crate::resources::RunStatus;
 use crate::scene::{Choice, Kind, OptionSpec, Range, Resolver, SceneApi, SceneSpec, ScriptError};
 use crate::stages::arc_length::{
-    ArcLength, ArcLengthSpec, Rebalance, correct_load_factor, finish_rebalance, keep_going_forward,
-    record_start_imbalance, restore_arc_state, save_arc_state, take_reference_load, unit_load,
+    ArcLength, ArcLengthSpec, FixedLoadSlot, FixedLoadSlots, FixedLoadsSchedule, Rebalance,
+    correct_load_factor, finish_rebalance, keep_going_forward, record_start_imbalance,
+    restore_arc_state, save_arc_state, split_fixed_loads, take_reference_load, unit_load,
 };
-use bevy_ecs::prelude::World;
+use bevy_ecs::prelude::{IntoScheduleConfigs, Res, World};
+use bevy_ecs::schedule::{Schedule, Schedules, SingleThreadedExecutor};
+use bevy_ecs::system::ScheduleSystem;
 
 /// The module: built when the scene asks for arc-length control.
 #[derive(Clone, Copy, Debug, Default)]
@@ -64,7 +72,7 @@ impl Plugin for ArcLengthModule {
                              past its limit load; the first load factor sizes the first arc, the \
                              schedule's step count is the most steps; tractions, pressures, \
                              point loads and a body force following the load factor are the \
-                             controlled loads",
+                             controlled loads, held loads (held: true) stay in full beside them",
                         ),
                     },
                 ]),
@@ -196,20 +204,22 @@ impl Plugin for ArcLengthModule {
                 ));
             }
         }
-        for name in ["traction", "point_load_at"] {
-            for call in scene.every_call_options(name) {
-                if call.value.flag("held") == Some(true) {
-                    return Err(conflict(&format!("a held {name}"), call.at.line()));
-                }
-            }
-        }
-        if let Some(held) = scene
-            .declarations::<BodyForceRamp>()
-            .iter()
-            .find(|r| r.value.0 == Ramp::Held)
-        {
-            return Err(conflict("a held body force", held.at.line()));
-        }
+        // held loads are f_fixed beside the controlled λ f̂ (module docs of
+        // `stages::arc_length`, "Held loads")
+        let held_call = ["traction", "point_load_at"].iter().any(|name| {
+            scene
+                .every_call_options(name)
+                .any(|call| call.value.flag("held") == Some(true))
+        });
+        let fixed_loads = held_call
+            || scene
+                .declarations::<BodyForceRamp>()
+                .iter()
+                .any(|r| r.value.0.is_held())
+            || scene
+                .spec
+                .part::<PointLoads>()
+                .is_some_and(|loads| loads.0.iter().any(|l| l.ramp.is_held()));
         let default = ArcLengthSpec::default();
         scene.spec.set_part(ArcLengthSpec {
             target_iterations: options
@@ -222,6 +232,7 @@ impl Plugin for ArcLengthModule {
                 .text("rebalance")
                 .and_then(Rebalance::from_word)
                 .unwrap_or(default.rebalance),
+            fixed_loads,
         });
         Ok(())
     }
@@ -230,7 +241,7 @@ impl Plugin for ArcLengthModule {
         spec.part::<ArcLengthSpec>().map(|arc| {
             format!(
                 "target {} iterations per step, at most {} steps, first arc from the load \
-                 increment {}{}{}",
+                 increment {}{}{}{}",
                 arc.target_iterations,
                 spec.load_factors.len(),
                 spec.load_factors.first().copied().unwrap_or(0.0),
@@ -243,6 +254,12 @@ impl Plugin for ArcLengthModule {
                     String::new()
                 } else {
                     format!(", rebalance: {}", arc.rebalance.word())
+                },
+                if arc.fixed_loads {
+                    "; the held loads stay in full beside the controlled ones (f_ext = f_fixed \
+                     + λ f̂), balanced at λ = 0 before the first arc"
+                } else {
+                    ""
                 }
             )
         })
@@ -258,14 +275,19 @@ impl Plugin for ArcLengthModule {
         let rebalance = spec
             .part::<ArcLengthSpec>()
             .map_or(Rebalance::Off, |a| a.rebalance);
+        let fixed_loads = spec.part::<ArcLengthSpec>().is_some_and(|a| a.fixed_loads);
         let mut arc = ArcLength::<D>::new(first);
         arc.rebalance = rebalance;
+        arc.fixed_loads = fixed_loads;
         simulation.world().insert_resource(arc);
+        simulation.add_systems(Hook::AfterDofs, unit_load);
+        if fixed_loads {
+            simulation.add_systems(Hook::BeforeSolve, split_fixed_loads::<D>);
+        }
         simulation
-            .add_systems(Hook::AfterDofs, unit_load)
             .add_systems(Hook::BeforeSolve, take_reference_load::<D>)
             .add_systems(Hook::Convergence, record_start_imbalance::<D>);
-        if rebalance != Rebalance::Off {
+        if rebalance != Rebalance::Off || fixed_loads {
             simulation.add_systems(Hook::Convergence, finish_rebalance::<D>);
         }
         simulation
@@ -293,4 +315,46 @@ impl Plugin for ArcLengthModule {
                 });
         }
     }
+}
+
+/// Adds a load's system at `Hook::Loads` and, in a scene with held loads under arc-length
+/// control, to the loads' second evaluation at λ = 0 ([`FixedLoadsSchedule`], module docs of
+/// `stages::arc_length`, "Held loads"), in the order the modules add them. A load module
+/// whose force is not affine in the load factor, or that is evaluated elsewhere, must not use
+/// it.
+pub fn add_load_system<const D: usize, M>(
+    simulation: &mut Extension<'_, D>,
+    system: impl IntoScheduleConfigs<ScheduleSystem, M> + Copy,
+) {
+    simulation.add_systems(Hook::Loads, system);
+    if !simulation
+        .spec()
+        .part::<ArcLengthSpec>()
+        .is_some_and(|a| a.fixed_loads)
+    {
+        return;
+    }
+    let world = simulation.world();
+    let slot = {
+        let mut slots = world.get_resource_or_init::<FixedLoadSlots>();
+        slots.0 += 1;
+        FixedLoadSlot(slots.0 - 1)
+    };
+    let mut schedules = world.resource_mut::<Schedules>();
+    if !schedules.contains(FixedLoadsSchedule) {
+        let mut schedule = Schedule::new(FixedLoadsSchedule);
+        schedule.set_executor(SingleThreadedExecutor::new());
+        schedules.insert(schedule);
+    }
+    let schedule = schedules.entry(FixedLoadsSchedule);
+    if slot.0 == 0 {
+        schedule.configure_sets(slot);
+    } else {
+        schedule.configure_sets(slot.after(FixedLoadSlot(slot.0 - 1)));
+    }
+    schedule.add_systems(
+        system
+            .in_set(slot)
+            .run_if(|status: Res<RunStatus>| status.0.is_none()),
+    );
 }

@@ -21,13 +21,14 @@ use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 use rhai::Dynamic;
 
+use super::arc_length::add_load_system;
 use super::declarations::{
     LoadSummary, held_option, keep_largest_force, released_factor, released_note, until_stage,
     until_stage_option,
 };
 use crate::components::{Mass, Support};
 use crate::mechanics::spread_force;
-use crate::plugin::{Extension, Hook, Plugin};
+use crate::plugin::{Extension, Plugin};
 use crate::resources::{CurrentStage, GridFields, LoadStep, Ramp, Stage, StageClock};
 use crate::scene::{
     CallSpec, Located, Options, Resolver, SceneApi, SceneSpec, ScriptError, numbers,
@@ -190,7 +191,7 @@ impl Plugin for BodyForceModule {
             simulation.world().insert_resource(release);
             keep_largest_force(simulation);
         }
-        simulation.add_systems(Hook::Loads, apply_body_force::<D>);
+        add_load_system(simulation, apply_body_force::<D>);
     }
 }
 

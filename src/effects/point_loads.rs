@@ -25,6 +25,7 @@ use std::collections::BTreeMap;
 
 use rhai::{Dynamic, FnPtr};
 
+use super::arc_length::add_load_system;
 use super::declarations::{
     LoadSummary, factor_one, held_option, keep_largest_force, released_factor, selection_ranges,
     until_stage_of, until_stage_option,
@@ -301,8 +302,8 @@ impl Plugin for PointLoadsModule {
                     n => Err(format!("a force of {n} components in {D}D")),
                 },
             )
-            .add_systems(Hook::Loads, apply_point_loads::<D>)
             .add_systems(Hook::PointFields, point_load_field::<D>);
+        add_load_system(simulation, apply_point_loads::<D>);
     }
 }
 

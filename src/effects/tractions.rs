@@ -58,6 +58,7 @@ use nalgebra::SVector;
 
 use rhai::Dynamic;
 
+use super::arc_length::add_load_system;
 use super::carried_points::{carried_point, restore_positions, save_positions};
 use super::declarations::{
     LoadSummary, held_option, keep_largest_force, released_factor, until_stage_of,
@@ -332,8 +333,9 @@ impl Plugin for TractionsModule {
                 save: save_positions::<D, TractionPoint<D>>,
                 restore: restore_positions::<D, TractionPoint<D>>,
             })
-            .series(|world| vec![&mut world.resource_mut::<TractionSeries>().into_inner().0])
-            .add_systems(Hook::Loads, apply_tractions::<D>)
+            .series(|world| vec![&mut world.resource_mut::<TractionSeries>().into_inner().0]);
+        add_load_system(simulation, apply_tractions::<D>);
+        simulation
             .add_systems(Hook::PointUpdate, update_traction_points::<D>)
             .add_systems(Hook::Output, write_tractions::<D>);
     }

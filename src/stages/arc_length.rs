@@ -60,6 +60,29 @@
 //! step makes, Δu·f̂ of order −1e-15 is noise, not a turn-back (the 8-cell footing was cut on
 //! such values); a real turn-back onto the unloading branch has a cosine of order 0.1 to 1.
 //!
+//! # Held loads
+//!
+//! A scene may hold loads beside the controlled ones (`held: true`: the weight that balances a
+//! geostatic initial stress while a footing is pushed). Every load is affine in the load factor,
+//! so the external force splits into a held part and the controlled one,
+//!
+//! ```text
+//!   f_ext(λ) = f_fixed + λ f̂,     f_fixed = f(λ = 0),     f̂ = f(1) − f(0),
+//! ```
+//!
+//! and the arc, the predictor's δu_f = K⁻¹ f̂, the turn-back tests and λ act on f̂ only: the
+//! residual above becomes f_fixed + (λ_n + Δλ) f̂ − f_int. The loads are evaluated twice per
+//! step ([`split_fixed_loads`]): at λ = 1 in `Hook::Loads` as without held loads, then at λ = 0
+//! by running the load modules' systems again ([`FixedLoadsSchedule`]; a load module adds its
+//! system to both with `effects::arc_length::add_load_system`). A scene without held loads
+//! evaluates them once and computes f_ext = λ f̂ as before, bit for bit. The first step first
+//! puts the body in equilibrium under f_fixed at λ = 0 (a rebalancing at a fixed load factor,
+//! below, whatever `rebalance` says for the later steps): held loads balanced by an initial
+//! stress take no iteration there, held loads on a stress-free body are applied in full, as
+//! load control's first step applies them, and the arc's first step starts from that
+//! equilibrium (its start residual is the held loads', not a cell crossing: not warned).
+//! A follower pressure is not held (`effects::pressure` keeps its own f̂ part up to date).
+//!
 //! # A step that starts out of balance
 //!
 //! At Δu = 0 the residual is λ_n f̂ − f_int(u_n) on the new grid: the previous step's converged
@@ -145,6 +168,9 @@ pub struct ArcLengthSpec {
     /// Whether (and how) a step first removes the out-of-balance force it starts with
     /// (module docs, "Rebalancing before the arc").
     pub rebalance: Rebalance,
+    /// Whether the scene has held loads: f_ext = f_fixed + λ f̂, the loads evaluated twice per
+    /// step (module docs, "Held loads").
+    pub fixed_loads: bool,
 }
 
 impl Default for ArcLengthSpec {
@@ -153,6 +179,7 @@ impl Default for ArcLengthSpec {
             target_iterations: 5,
             max_load_factor: f64::INFINITY,
             rebalance: Rebalance::Off,
+            fixed_loads: false,
         }
     }
 }
@@ -277,8 +304,13 @@ pub fn load_correction(
 /// arc-length control), in node order where it outlives the step's DOF numbering.
 #[derive(Resource, Debug)]
 pub struct ArcLength<const D: usize> {
-    /// f̂: the external force at λ = 1, by node.
+    /// f̂: the external force at λ = 1, by node (without the held loads).
     reference: Vec<SVector<f64, D>>,
+    /// f_fixed: the held loads, by node (empty in a scene without them: f_ext = λ f̂).
+    fixed: Vec<SVector<f64, D>>,
+    /// Whether the scene has held loads ([`split_fixed_loads`] runs; the first step starts
+    /// with a rebalancing at λ = 0).
+    pub fixed_loads: bool,
     /// f̂ at the free DOFs.
     reference_dofs: Vec<f64>,
     /// λ at the start of the step (set by the driver).
@@ -321,6 +353,8 @@ impl<const D: usize> ArcLength<D> {
     pub fn new(first_increment: f64) -> Self {
         Self {
             reference: Vec::new(),
+            fixed: Vec::new(),
+            fixed_loads: false,
             reference_dofs: Vec::new(),
             start: 0.0,
             factor: 0.0,
@@ -349,7 +383,7 @@ impl<const D: usize> ArcLength<D> {
         self.corrected = 0;
         self.linearised = 0;
         self.current.clear();
-        self.rebalancing = self.rebalance != Rebalance::Off;
+        self.rebalancing = self.rebalance != Rebalance::Off || self.balances_held_loads();
         self.origin.clear();
         self.rebalanced = None;
     }
@@ -357,6 +391,35 @@ impl<const D: usize> ArcLength<D> {
     /// Whether the current attempt is still removing its start residual.
     pub fn rebalancing(&self) -> bool {
         self.rebalancing
+    }
+
+    /// Whether this attempt is the first step's with held loads, which first puts the body in
+    /// equilibrium under them at λ = 0 (module docs, "Held loads").
+    fn balances_held_loads(&self) -> bool {
+        self.fixed_loads && self.previous.is_empty() && self.start == 0.0
+    }
+
+    /// How the current attempt rebalances: the scene's choice, or at a fixed λ when only the
+    /// held loads ask for it.
+    fn rebalancing_mode(&self) -> Rebalance {
+        match self.rebalance {
+            Rebalance::Off => Rebalance::Fixed,
+            mode => mode,
+        }
+    }
+
+    /// f_ext at load factor `factor`: f_fixed + λ f̂ (λ f̂ without held loads).
+    fn set_external(&self, external: &mut [SVector<f64, D>], factor: f64) {
+        if self.fixed.is_empty() {
+            for (f, reference) in external.iter_mut().zip(&self.reference) {
+                *f = reference * factor;
+            }
+        } else {
+            for ((f, reference), fixed) in external.iter_mut().zip(&self.reference).zip(&self.fixed)
+            {
+                *f = fixed + reference * factor;
+            }
+        }
     }
 
     /// A follower load's force at λ = 1 changed by `change` (by node) with the iterate: f̂ is
@@ -397,6 +460,48 @@ pub fn unit_load(mut step: ResMut<LoadStep>) {
     step.factor = 1.0;
 }
 
+/// The loads' second evaluation in a scene with held loads (module docs, "Held loads"): the
+/// load modules add their `Hook::Loads` systems to it too, run by [`split_fixed_loads`] at
+/// λ = 0.
+#[derive(bevy_ecs::schedule::ScheduleLabel, Clone, Debug, PartialEq, Eq, Hash)]
+pub struct FixedLoadsSchedule;
+
+/// The place of the n-th system added to [`FixedLoadsSchedule`] (they run in the order added,
+/// as in their hook).
+#[derive(bevy_ecs::schedule::SystemSet, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct FixedLoadSlot(pub usize);
+
+/// How many systems [`FixedLoadsSchedule`] holds.
+#[derive(Resource, Clone, Copy, Debug, Default)]
+pub struct FixedLoadSlots(pub usize);
+
+/// `Hook::BeforeSolve`, before [`take_reference_load`] (scheduled only in a scene with held
+/// loads): the loads were evaluated at λ = 1, f(1) = f_fixed + f̂; evaluated again at λ = 0
+/// ([`FixedLoadsSchedule`]) they give f_fixed, and f̂ = f(1) − f(0) is left as the external
+/// force for [`take_reference_load`]. Every load is affine in λ, so f(λ) = f_fixed + λ f̂.
+pub fn split_fixed_loads<const D: usize>(world: &mut World) {
+    if world.resource::<RunStatus>().0.is_some() {
+        return;
+    }
+    let unit = std::mem::take(&mut world.resource_mut::<GridFields<D>>().external_force);
+    {
+        let mut fields = world.resource_mut::<GridFields<D>>();
+        fields.external_force = vec![SVector::zeros(); unit.len()];
+    }
+    world.resource_mut::<LoadStep>().factor = 0.0;
+    let _ = world.try_run_schedule(FixedLoadsSchedule); // absent: no load module added to it
+    world.resource_mut::<LoadStep>().factor = 1.0;
+    let fixed = std::mem::replace(
+        &mut world.resource_mut::<GridFields<D>>().external_force,
+        unit,
+    );
+    let mut fields = world.resource_mut::<GridFields<D>>();
+    for (f, held) in fields.external_force.iter_mut().zip(&fixed) {
+        *f -= held;
+    }
+    world.resource_mut::<ArcLength<D>>().fixed = fixed;
+}
+
 /// `Hook::BeforeSolve`, before the Newton loop (so after `Hook::Loads`): keeps f̂ and puts
 /// f_ext = λ_n f̂ and λ_n back.
 pub fn take_reference_load<const D: usize>(
@@ -422,15 +527,13 @@ pub fn take_reference_load<const D: usize>(
             step: step.number,
             what: "arc-length control: the loads at load factor 1 put no force on a free \
                    degree of freedom (arc-length controls tractions, point loads and a body \
-                   force that follows the load factor)"
+                   force that follow the load factor; held loads are not controlled)"
                 .to_string(),
             recoverable: false,
         });
         return;
     }
-    for (f, reference) in fields.external_force.iter_mut().zip(&arc.reference) {
-        *f = reference * arc.start;
-    }
+    arc.set_external(&mut fields.external_force, arc.start);
     step.factor = arc.start;
     if arc.rebalancing {
         if arc.rebalancing_step == Some(step.number) {
@@ -445,7 +548,7 @@ pub fn take_reference_load<const D: usize>(
                      start from the committed state, out of balance, as without rebalancing \
                      (warned once per run; summary.json steps without rebalance_iterations)",
                     step.number,
-                    arc.rebalance.word()
+                    arc.rebalancing_mode().word()
                 ));
             }
         } else {
@@ -531,9 +634,12 @@ pub fn record_start_imbalance<const D: usize>(
         return;
     }
     arc.start_imbalance = imbalance(&fields, &newton);
+    // the first step's start residual is the held loads' (none without them), not a crossing
+    let first = arc.previous.is_empty();
     if let Some(imbalance) = arc.start_imbalance
         && imbalance > START_IMBALANCE
         && !arc.warned_imbalance
+        && !first
     {
         arc.warned_imbalance = true;
         warnings.0.push(imbalance_warning(step.number, imbalance));
@@ -614,11 +720,11 @@ pub fn finish_rebalance<const D: usize>(
                  not converge in {} iterations (residuals {:.1e} to {:.1e}): the committed \
                  state has no equilibrium near it on this step's grid{}; the step's next \
                  attempts go without",
-                arc.rebalance.word(),
+                arc.rebalancing_mode().word(),
                 newton.iterations,
                 newton.residuals.first().copied().unwrap_or(f64::NAN),
                 newton.residuals.last().copied().unwrap_or(f64::NAN),
-                if arc.rebalance == Rebalance::Fixed {
+                if arc.rebalancing_mode() == Rebalance::Fixed {
                     " at the same load factor (rebalance: \"free\" lets it move)"
                 } else {
                     ""
@@ -662,7 +768,7 @@ pub fn correct_load_factor<const D: usize>(
         return; // no solve in this iteration
     }
     arc.corrected = newton.iterations;
-    if arc.rebalancing && arc.rebalance == Rebalance::Fixed {
+    if arc.rebalancing && arc.rebalancing_mode() == Rebalance::Fixed {
         return; // Δu += δu_r at λ = λ_n
     }
     let residual_part = newton.residual.clone();
@@ -775,9 +881,7 @@ fn set_factor<const D: usize>(
 ) {
     arc.factor = factor;
     step.factor = arc.factor;
-    for (f, reference) in fields.external_force.iter_mut().zip(&arc.reference) {
-        *f = reference * arc.factor;
-    }
+    arc.set_external(&mut fields.external_force, factor);
 }
 
 /// Δu by node, with the inactive and constrained components (which carry none) zero.

@@ -248,3 +248,22 @@ pub fn stress_difference(a: &[(f64, f64)], b: &[(f64, f64)]) -> f64 {
         })
         .fold(0.0, f64::max)
 }
+
+/// The largest load factor of a run's steps, and its first peak: the load factor and the
+/// measure `measure` of the last step before the load factor first falls (panics if it never
+/// falls: the run did not pass a limit).
+pub fn largest_and_first_peak(
+    steps: &[impm::records::StepRecord],
+    measure: &str,
+) -> (f64, (f64, f64)) {
+    let largest = steps
+        .iter()
+        .map(|s| s.load_factor)
+        .fold(f64::NEG_INFINITY, f64::max);
+    let first_peak = steps
+        .windows(2)
+        .find(|w| w[1].load_factor < w[0].load_factor)
+        .map(|w| (w[0].load_factor, w[0].measure(measure).unwrap()))
+        .expect("the load factor falls after a peak");
+    (largest, first_peak)
+}
