@@ -263,7 +263,7 @@ pub fn resolve_stages(builder: &SceneBuilder) -> Result<Option<(Stages, Vec<f64>
         }) {
             return Err(ScriptError::at(
                 solver.at,
-                "solver(#{ control: \"arc_length\" }) in a scene of several stages: the arc would need the earlier stages' loads held beside the controlled ones, which it cannot take yet; run the stages under load control",
+                "solver(#{ control: \"arc_length\" }) in a scene of several stages: the arc controls the loads of the whole run from the first step (held loads stay in full beside them), and switching from load control to the arc at a stage's start is not built; run the stages under load control, or one stage with held loads under the arc",
             ));
         }
     }
