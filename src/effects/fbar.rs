@@ -34,6 +34,13 @@
 //! average. Everything below holds with the sums over the sources and the rank-one terms
 //! added for the members only. A uniform deformation still gives the standard answer.
 //!
+//! # Linear FEM (`basis: "fem"`)
+//! On the body-fitted mesh a group is an element: its Gauss points stay in it however the mesh
+//! moves (`effects::fem_mesh::ElementPoint`), and the volume-weighted average of `Δj` over them
+//! is the element's volume change (`det J` is multilinear in `ξ`, so the Gauss rule of the
+//! scene's `ppc ≥ 2` integrates it exactly). This is the F-bar element of de Souza Neto et al.
+//! 1996 with the element average in place of the centroid value; only `fbar: true` applies.
+//!
 //! # Nodal projection (`fbar: "nodal"`)
 //! With `fbar: "nodal"` the volume change is projected onto a continuous space instead of
 //! being averaged over a cell: the linear tent functions `N̂_a` of the background grid's
@@ -118,6 +125,7 @@ use crate::components::{
     AssembledElsewhere, BodyIndex, ModifiedIncrement, PointId, Position, ReferenceVolume, Support,
     Trial, Volume,
 };
+use crate::effects::fem_mesh::ElementPoint;
 use crate::mechanics::{embed, increment_gradient};
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{
@@ -187,8 +195,8 @@ pub struct FbarCells {
 /// start is sparse (module docs).
 pub const SPARSE_CELL_FRACTION: f64 = 0.5;
 
-/// Why F-bar does not apply to linear FEM.
-const NOT_WITH_FEM: &str = "fbar averages the volume change over the points of a background cell of MPM; basis \"fem\" has no such cells (remove fbar)";
+/// Why only the cell average applies to linear FEM.
+const ONLY_CELL_WITH_FEM: &str = "with basis \"fem\" F-bar averages over the Gauss points of each element (fbar: true); the \"patch\" and \"nodal\" averages read the background grid's neighbouring cells, which a body-fitted mesh does not have";
 
 /// The module.
 #[derive(Clone, Copy, Debug, Default)]
@@ -207,7 +215,7 @@ impl Plugin for FbarModule {
                 Kind::Value {
                     what: "true | false | \"cell\" | \"patch\" | \"nodal\"",
                 },
-                "F-bar against volumetric locking (Coombs et al. 2018): each point's volume change is the volume-weighted average over the body's points in its background cell (`true` or \"cell\"), or in the 3^D cells around it (\"patch\", for B-splines of order 2; experimental: Newton does not converge on the plastic strip footing, docs/plasticity.md), or projected onto the grid's linear tent functions (\"nodal\": a lumped L2 projection from the points of the 3^D cells around, for B-splines of order 2 the B-bar of the q − 1 space; experimental: on the plastic strip footing no better than \"cell\", docs/plasticity.md); default false; MPM bases only; makes the tangent non-symmetric",
+                "F-bar against volumetric locking (Coombs et al. 2018): each point's volume change is the volume-weighted average over the body's points in its background cell (`true` or \"cell\"), or in the 3^D cells around it (\"patch\", for B-splines of order 2; experimental: Newton does not converge on the plastic strip footing, docs/plasticity.md), or projected onto the grid's linear tent functions (\"nodal\": a lumped L2 projection from the points of the 3^D cells around, for B-splines of order 2 the B-bar of the q − 1 space; experimental: on the plastic strip footing no better than \"cell\", docs/plasticity.md); default false; with basis \"fem\" only true (the average over each element's Gauss points); makes the tangent non-symmetric",
             ),
         );
     }
@@ -225,10 +233,10 @@ impl Plugin for FbarModule {
                     }
                 },
             };
-            if scene.spec.grid.basis == BasisKind::Fem {
+            if scene.spec.grid.basis == BasisKind::Fem && averaging != FbarAveraging::Cell {
                 return Err(ScriptError::at(
                     options.at,
-                    format!("body(...): {NOT_WITH_FEM}"),
+                    format!("body(...): {ONLY_CELL_WITH_FEM}"),
                 ));
             }
             let name = options.value.text("name").unwrap_or_default();
@@ -264,16 +272,8 @@ impl Plugin for FbarModule {
         spec.part::<FbarSpec>().is_some()
     }
 
-    fn applies_to(&self, spec: &SceneSpec) -> bool {
-        spec.grid.basis != BasisKind::Fem
-    }
-
     fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
         let spec = simulation.spec();
-        if !self.applies_to(spec) {
-            simulation.fail(NOT_WITH_FEM);
-            return;
-        }
         let bodies = spec
             .part::<FbarSpec>()
             .map_or(Vec::new(), |f| f.bodies.clone());
@@ -349,6 +349,7 @@ pub fn group_points_by_cell<const D: usize>(
             &Support<D>,
             &FbarPoint,
             &Volume,
+            Option<&ElementPoint<D>>,
         ),
         With<FbarPoint>,
     >,
@@ -356,9 +357,14 @@ pub fn group_points_by_cell<const D: usize>(
 ) {
     let _timer = clock.time(Stage::Connectivity);
     let mut keyed = Vec::with_capacity(points.iter().len());
-    for (entity, id, body, x, _, averaging, _) in points.iter() {
-        match grid.0.cell_of(&x.0) {
-            Ok(cell) => keyed.push((body.0, grid.0.cell_index(cell), id.0, entity, averaging.0)),
+    for (entity, id, body, x, _, averaging, _, element) in points.iter() {
+        // a finite element's Gauss points stay in their element however the mesh moves
+        let cell = match element {
+            Some(element) => Ok(element.element),
+            None => grid.0.cell_of(&x.0).map(|cell| grid.0.cell_index(cell)),
+        };
+        match cell {
+            Ok(cell) => keyed.push((body.0, cell, id.0, entity, averaging.0)),
             Err(_) => {
                 status.fail(SolverError::BadPointState {
                     point: id.0,
@@ -412,7 +418,7 @@ pub fn group_points_by_cell<const D: usize>(
             }
         }
         for &source in &group.sources {
-            if let Ok((.., support, _, _)) = points.get(cells.points[source]) {
+            if let Ok((.., support, _, _, _)) = points.get(cells.points[source]) {
                 group.nodes.extend(support.0.iter().map(|w| w.node));
             }
         }
@@ -422,7 +428,7 @@ pub fn group_points_by_cell<const D: usize>(
             let local =
                 points
                     .get(cells.points[source])
-                    .map_or(Vec::new(), |(.., support, _, _)| {
+                    .map_or(Vec::new(), |(.., support, _, _, _)| {
                         support
                             .0
                             .iter()
