@@ -32,13 +32,17 @@
 //! node at the start of each step).
 //!
 //! # Weak imposition
-//! With P the projection onto the constrained components (all: I, rough / no slip; `smooth`:
-//! n nᵀ with n the surface's reference outward normal; listed components: the diagonal of
-//! those axes) and the gap at an iterate
+//! With P_s the projection onto the constrained components at boundary point s (all: I, rough
+//! / no slip; `smooth`: N_s N_sᵀ with N_s the surface's reference outward normal there; listed
+//! components: the diagonal of those axes), ū_s its prescribed displacement at load factor 1
+//! (the condition's `displacement`, or for `radial` the point's own: "Curved surfaces") and
+//! the gap at an iterate
 //!
 //! ```text
-//!   g_s = P (u_s^n + Σ_j N̂_j Δu_j − λ ū),
+//!   g_s = P_s (u_s^n + Σ_j N̂_j Δu_j − λ ū_s),
 //! ```
+//!
+//! (below P, ū and N stand for the point's P_s, ū_s and N_s),
 //!
 //! **penalty** adds to the internal force and the tangent (the Hessian of ½ α Σ_s A_s |g_s|²)
 //!
@@ -187,6 +191,38 @@
 //! uGIMP (−2.3 % at 40 steps). Silent: cpGIMP, CPDI, `integration: "domain"` (exact),
 //! quadratic B-splines with 2, 4, 5 or 6 points per cell (within 0.05 % at 5 steps).
 //!
+//! # Curved surfaces: `on: arc(..)` and `radial`
+//! In 2D `on:` also takes an `arc(#{ centre, radius, from, to })` (`effects::pressure`). It is
+//! cut into `per_cell` equal parts per cell of its length (at least one), each integrated with
+//! the 2-point Gauss rule in the angle, so a boundary point at angle θ_s carries the arc length
+//! A_s = R Δθ / 2 and the reference normal N_s = ±e_r(θ_s), e_r = (X_s − c)/R, pointing away
+//! from its host (the material must lie on one side of the arc, or the scene line is refused).
+//! Each point has its own N_s and P_s; the formulas above hold point by point. `radial: u`
+//! prescribes the displacement u along each point's radius, away from the centre (u > 0
+//! expands a bore), and holds only that component, the tangential motion being free:
+//!
+//! ```text
+//!   ū_s = u e_r(X_s),   P_s = N_s N_sᵀ,   g_s = N_s N_sᵀ (u_s − λ u e_r),
+//! ```
+//!
+//! i.e. the radial displacement of the material surface is λ u and nothing else is held (a
+//! smooth, expanding rigid pipe; the inner surface of a thick-walled cylinder moved out). The
+//! directions are the reference ones: exact while the surface points move along their radii
+//! (the axisymmetric expansion), a small-rotation approximation otherwise. The reaction R_s of
+//! each point (below, "Reactions") lies along N_s; the condition records the pressure it takes
+//! to hold the surface, the normal force per unit current length (area),
+//!
+//! ```text
+//!   p = −Σ_s R_s · N_s / Σ_s a_s,     a_s = J_h |F_h⁻ᵀ N_s| A_s   (Nanson, the host's F_h),
+//! ```
+//!
+//! as `NAME_pressure` (positive pushing on the body). On a quarter bore the resultant of a
+//! uniform p is p (a + u) along each axis; the discrete reaction is not uniform along the arc
+//! (the material points represent a curved boundary by whole cells' points), so the axes'
+//! reactions and p (a + u) differ by a discretisation error that falls with the cells
+//! (docs/plasticity.md, "Benchmark 3"). With every basis the condition is imposed as on a flat
+//! piece, and the quadrature warning before the run is the same.
+//!
 //! # Stages
 //!
 //! A condition declared in stage k of a staged scene (`scene::stages`) does nothing before
@@ -204,7 +240,25 @@
 //! first stage has `s_s = ũ_s,0 = 0`: the formulas above. The starts are a checkpoint part
 //! ("surface condition starts") in a scene with a condition of a later stage.
 //!
-//! Systems: [`find_boundary_supports`] (`Hook::Connectivity`), [`assemble_surface_conditions`]
+//! `until_stage: "s"` releases the condition at the start of the later stage s, with the
+//! excavation rule of the grid supports (`effects::grid_constraints`, "Stages"): each boundary
+//! point's force on the body at the last converged step of the stage before, R_s (its
+//! reaction, below), becomes a load ramped down over stage s and carried by the point, which
+//! moves with the material as before its stage,
+//!
+//! ```text
+//!   f_ext,i += (1 − λ_s) N̂_i R_s   in stage s,    nothing after it,
+//! ```
+//!
+//! so that the body starts stage s in equilibrium and is unloaded gradually (elastic soil
+//! springs back, plastic soil keeps a permanent set). The condition adds no stiffness from
+//! stage s on; its reaction measure is the ramped load in stage s and 0 after it; its
+//! displacement measures keep counting from its own start (the rebound); its checks stop.
+//! The forces R_s are a checkpoint part ("released surface conditions"), and the convergence
+//! criterion keeps its force floor (`declarations::keep_largest_force`).
+//!
+//! Systems: [`find_boundary_supports`] (`Hook::Connectivity`), [`apply_released_conditions`]
+//! (`Hook::Loads`, only with `until_stage`), [`assemble_surface_conditions`]
 //! (`Hook::AfterAssembly`; in a distributed run a boundary point's terms are added by the
 //! process that assembles its host, not marked `AssembledElsewhere`), [`update_boundary_points`] (`Hook::PointUpdate`),
 //! [`measure_material_at_conditions`] and [`check_surface_conditions`] (`Hook::AfterStep`).
@@ -225,7 +279,10 @@ use crate::components::{
 };
 use crate::mechanics::embed;
 
-use super::declarations::{coordinate_range, factor_one, round};
+use super::declarations::{
+    coordinate_range, factor_one, keep_largest_force, released_note, round, until_stage_of,
+};
+use super::pressure::ArcShape;
 use super::probes::{default_neighbours, fit_weights};
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{
@@ -234,8 +291,8 @@ use crate::resources::{
 };
 use crate::scene::{
     CallSpec, Choice, Kind, Located, ModuleNotes, ModuleWarnings, OptionSpec, Options, PartRule,
-    Range, Resolver, SceneApi, SceneSpec, ScriptError, SurfacePointSeed, is_plastic_model,
-    points_across, seed_surface,
+    Range, Resolver, SceneApi, SceneSpec, ScriptError, SurfacePointSeed, array_of,
+    is_plastic_model, nearest_points, numbers, points_across, seed_surface,
 };
 
 /// How a condition is imposed.
@@ -285,6 +342,14 @@ pub struct BoundaryPointSpec {
     /// fit weights there (`probes::fit_weights`): the material's displacement and stress at the
     /// boundary point (module docs, "The material at the condition").
     pub fit: Vec<(usize, f64)>,
+    /// The reference outward unit normal N_s (a flat piece's own; on an arc the radial
+    /// direction, away from the material).
+    pub normal: Vec<f64>,
+    /// The projection P_s onto the constrained components, D x D row by row (module docs).
+    pub projection: Vec<f64>,
+    /// The prescribed total displacement ū_s at load factor 1 (a flat piece's `displacement`;
+    /// `radial: u` on an arc: u e_r(X_s)).
+    pub displacement: Vec<f64>,
 }
 
 /// One `surface_displace(...)`, resolved.
@@ -295,11 +360,8 @@ pub struct SurfaceConditionSpec {
     /// Line of the declaring call, for messages and `impm check`.
     pub line: Option<usize>,
     pub points: Vec<BoundaryPointSpec>,
-    /// The projection P onto the constrained components, D x D row by row.
-    pub projection: Vec<f64>,
-    /// The reference outward unit normal.
-    pub normal: Vec<f64>,
-    /// The prescribed total displacement at load factor 1 (one entry per axis).
+    /// The prescribed total displacement at load factor 1 (one entry per axis; zero with
+    /// `radial`, whose points have their own: [`BoundaryPointSpec::displacement`]).
     pub displacement: Vec<f64>,
     pub imposition: Imposition,
     /// α = γ E / h (force per unit area per unit gap).
@@ -312,6 +374,11 @@ pub struct SurfaceConditionSpec {
     /// that stage's start on and prescribes the displacement from there (module docs,
     /// "Stages").
     pub stage: usize,
+    /// `until_stage`: the stage whose start releases it (module docs, "Stages").
+    pub until: Option<usize>,
+    /// `radial: u` on an arc: the prescribed radial displacement u at load factor 1 and the
+    /// arc's centre (module docs, "Curved surfaces"); `None` for the other conditions.
+    pub radial: Option<(f64, Vec<f64>)>,
 }
 
 impl SurfaceConditionSpec {
@@ -328,7 +395,12 @@ pub struct SurfaceConditions(pub Vec<SurfaceConditionSpec>);
 /// `surface_displace(...)` as declared.
 #[derive(Clone, Debug)]
 struct SurfaceDeclaration {
-    corners: Vec<Vec<f64>>,
+    /// `on:` the corners of a flat piece (`Some`) or an arc.
+    corners: Option<Vec<Vec<f64>>>,
+    arc: Option<ArcShape>,
+    radial: Option<f64>,
+    /// `until_stage`: the name of the stage whose start releases the condition.
+    until: Option<String>,
     displacement: Option<Vec<f64>>,
     components: Option<Vec<usize>>,
     smooth: bool,
@@ -367,14 +439,24 @@ pub struct BoundaryPoint<const D: usize> {
     /// condition's stage started (zero for a condition of the first stage; module docs,
     /// "Stages").
     pub start: [SVector<f64, D>; 2],
+    /// The reference outward unit normal N_s.
+    pub normal: SVector<f64, D>,
+    /// The projection P_s onto the constrained components.
+    pub projection: SMatrix<f64, D, D>,
+    /// The prescribed total displacement ū_s at load factor 1.
+    pub prescribed: SVector<f64, D>,
+    /// The force the point exerted on the body at the last converged step its condition acted
+    /// in: in the stage that releases the condition (`until_stage`) the load that replaces it,
+    /// ramped down (module docs, "Stages").
+    pub released: SVector<f64, D>,
 }
 
 /// One condition in the world: what the systems need, and its last reaction.
 #[derive(Clone, Debug)]
 pub struct SurfaceCondition<const D: usize> {
-    pub projection: SMatrix<f64, D, D>,
-    pub normal: SVector<f64, D>,
-    pub displacement: SVector<f64, D>,
+    /// max_s |P_s ū_s|_∞: the largest prescribed displacement component at load factor 1 (the
+    /// scale of the checks).
+    pub prescribed_scale: f64,
     pub imposition: Imposition,
     pub penalty: f64,
     pub area: f64,
@@ -408,12 +490,30 @@ pub struct SurfaceCondition<const D: usize> {
     pub material_force: SVector<f64, D>,
     /// The stage the condition belongs to: it acts from that stage's start on.
     pub stage: usize,
+    /// The stage whose start releases it (`until_stage`), if any.
+    pub until: Option<usize>,
+    /// Whether the reaction is also recorded as a pressure (`radial` on an arc).
+    pub pressure: bool,
+    /// The normal force per unit current length (area in 3D) at the last converged step,
+    /// p = −Σ_s R_s · N_s / Σ_s a_s (module docs, "Curved surfaces").
+    pub mean_pressure: f64,
 }
 
 impl<const D: usize> SurfaceCondition<D> {
-    /// Whether the condition acts in stage `stage`.
+    /// Whether the condition acts in stage `stage`: from its own stage's start until the start
+    /// of the stage that releases it.
     pub fn acts_in(&self, stage: usize) -> bool {
-        stage >= self.stage
+        stage >= self.stage && self.until.is_none_or(|until| stage < until)
+    }
+
+    /// Whether stage `stage` releases the condition: its force is then a load ramped down.
+    pub fn released_in(&self, stage: usize) -> bool {
+        self.until == Some(stage)
+    }
+
+    /// Whether stage `stage` is before the condition's own.
+    pub fn waits_in(&self, stage: usize) -> bool {
+        stage < self.stage
     }
 
     /// The factor of its prescribed displacement in `step` of stage `stage`: the load factor
@@ -452,17 +552,29 @@ impl Plugin for SurfaceConditionsModule {
         };
         api.call(CallSpec::options(
             "surface_displace",
-            "prescribes the total displacement (at load factor 1, ramped with it; zero: a support) of a flat piece of a body's surface that need not follow the grid, imposed weakly (penalty or Nitsche) on the grid functions supporting it through boundary points that move with the material; the reaction, mean traction and mean displacement are recorded every step as NAME_reaction_x, NAME_traction_x, NAME_displacement_x, ... (see docs/boundaries.md)",
+            "prescribes the total displacement (at load factor 1, ramped with it; zero: a support) of a flat piece of a body's surface, or in 2D of an arc (with `radial`: along its radii), that need not follow the grid, imposed weakly (penalty or Nitsche) on the grid functions supporting it through boundary points that move with the material; the reaction, mean traction and mean displacement are recorded every step as NAME_reaction_x, NAME_traction_x, NAME_displacement_x, ... (see docs/boundaries.md)",
             vec![
                 OptionSpec::required(
                     "on",
-                    Kind::Points,
-                    "the piece of surface: 1D `[[x]]`, 2D a segment `[[x0, y0], [x1, y1]]`, 3D a parallelogram `[c0, c1, c2]` (edges c1 − c0, c2 − c0)",
+                    Kind::Value {
+                        what: "[[..], ..] | arc(#{ .. })",
+                    },
+                    "the piece of surface: 1D `[[x]]`, 2D a segment `[[x0, y0], [x1, y1]]` or an `arc(#{ centre, radius, from, to })`, 3D a parallelogram `[c0, c1, c2]` (edges c1 − c0, c2 − c0)",
                 ),
                 OptionSpec::new(
                     "displacement",
                     Kind::Numbers,
                     "the total displacement at load factor 1, one entry per axis (default zero: a support)",
+                ),
+                OptionSpec::new(
+                    "radial",
+                    Kind::Number(Range::Any),
+                    "on an arc only: the radial displacement u at load factor 1 (positive away from the arc's centre: u > 0 expands a bore), each point moved along its own radius; only the normal (radial) component is held, the tangential motion is free; the reaction is also recorded as NAME_pressure, the normal force per unit current length",
+                ),
+                OptionSpec::new(
+                    "until_stage",
+                    Kind::Text,
+                    "the (later) stage whose start releases the condition: its force at the end of the stage before is ramped down to zero over that stage, f = (1 − λ) f_end, and it is absent after it (docs/plasticity.md, \"Staged analysis\")",
                 ),
                 OptionSpec::new(
                     "components",
@@ -525,9 +637,36 @@ impl Plugin for SurfaceConditionsModule {
                 if variant.is_some() && imposition != Imposition::Nitsche {
                     return Err("option 'nitsche' chooses a variant of method: \"nitsche\"; give that method or drop the option".into());
                 }
+                let radial = options.number("radial");
+                if radial.is_some()
+                    && let Some(other) = ["displacement", "components", "smooth"]
+                        .into_iter()
+                        .find(|&key| options.has(key))
+                {
+                    return Err(format!("option 'radial' prescribes the normal (radial) displacement and leaves the tangential motion free: drop option '{other}'"));
+                }
+                let on = options.value("on").cloned().unwrap_or(Dynamic::UNIT);
+                let (corners, arc) = match on.clone().try_cast::<ArcShape>() {
+                    Some(arc) => (None, Some(arc)),
+                    None => (
+                        Some(array_of(
+                            &on,
+                            "option 'on'",
+                            "points like [[0.0, 1.0], [2.0, 1.0]], or an arc(#{ centre, radius, from, to })",
+                            numbers,
+                        )?),
+                        None,
+                    ),
+                };
+                if radial.is_some() && arc.is_none() {
+                    return Err("option 'radial' moves the points of an arc along their radii: give on: arc(#{ centre, radius, from, to }) (on a flat piece give 'displacement')".into());
+                }
                 builder.declare(Located::new(
                     SurfaceDeclaration {
-                        corners: options.points("on").unwrap_or_default().to_vec(),
+                        corners,
+                        arc,
+                        radial,
+                        until: options.text("until_stage").map(str::to_string),
                         displacement: options.numbers("displacement").map(<[f64]>::to_vec),
                         components: options.wholes("components").map(<[usize]>::to_vec),
                         smooth: options.flag("smooth").unwrap_or(false),
@@ -561,13 +700,17 @@ impl Plugin for SurfaceConditionsModule {
             .map(|c| {
                 let line = c.line.map(|l| format!("line {l}: ")).unwrap_or_default();
                 let (lower, upper) = coordinate_range(c.points.iter().map(|p| &p.position[..]));
+                let displacement = match &c.radial {
+                    Some((u, centre)) => format!("radial {u} about {centre:?}"),
+                    None => format!("{:?}", c.displacement),
+                };
                 format!(
-                    "{line}'{}': {} boundary points, x in {lower:?} .. {upper:?}, area {}, displacement {:?} {}, components {}, {} (α = {:.4e})",
+                    "{line}'{}': {} boundary points, x in {lower:?} .. {upper:?}, area {}, displacement {displacement} {}{}, components {}, {} (α = {:.4e})",
                     c.name,
                     c.points.len(),
                     round(c.area()),
-                    c.displacement,
                     factor_one(spec, c.stage),
+                    released_note(spec, c.until),
                     c.components,
                     c.imposition.word(),
                     c.penalty
@@ -610,7 +753,17 @@ impl Plugin for SurfaceConditionsModule {
             specs.iter().map(|c| (c.name.clone(), c.line)).collect(),
         ));
         for (index, condition) in specs.iter().enumerate() {
-            add_condition_measures::<D>(simulation, index, &condition.name, condition.imposition);
+            add_condition_measures::<D>(simulation, index, condition);
+        }
+        if specs.iter().any(|c| c.until.is_some()) {
+            keep_largest_force(simulation);
+            simulation
+                .checkpoint(CheckpointPart {
+                    name: "released surface conditions",
+                    save: save_released::<D>,
+                    restore: restore_released::<D>,
+                })
+                .add_systems(Hook::Loads, apply_released_conditions::<D>);
         }
         if specs.iter().any(|c| c.stage > 0) {
             simulation.checkpoint(CheckpointPart {
@@ -644,13 +797,20 @@ pub const AXES: [&str; 3] = ["x", "y", "z"];
 /// `NAME_reaction_x`, `NAME_traction_x`, `NAME_displacement_x`, `NAME_material_displacement_x`,
 /// `NAME_material_force_x`, ..., `NAME_separation`, `NAME_material_offset`,
 /// `NAME_largest_material_offset` and `NAME_material_ratio` of condition `index`, and for
-/// Nitsche's method `NAME_symmetric` (1: the symmetric variant, 0: the non-symmetric one).
+/// Nitsche's method `NAME_symmetric` (1: the symmetric variant, 0: the non-symmetric one), and
+/// with `radial` `NAME_pressure` (module docs, "Curved surfaces").
 fn add_condition_measures<const D: usize>(
     simulation: &mut Extension<'_, D>,
     index: usize,
-    name: &str,
-    imposition: Imposition,
+    condition: &SurfaceConditionSpec,
 ) {
+    let (name, imposition) = (condition.name.as_str(), condition.imposition);
+    if condition.radial.is_some() {
+        simulation.add_measure(format!("{name}_pressure"), move |world, _| {
+            let set = world.get_resource::<SurfaceConditionSet<D>>()?;
+            Some(set.0.get(index)?.mean_pressure)
+        });
+    }
     type Quantity<const D: usize> = fn(&SurfaceCondition<D>) -> SVector<f64, D>;
     let quantities: [(&str, Quantity<D>); 5] = [
         ("reaction", |c| c.reaction),
@@ -697,17 +857,26 @@ fn world_conditions<const D: usize>(
 ) -> Result<SurfaceConditionSet<D>, String> {
     let mut set = Vec::with_capacity(specs.len());
     for spec in specs {
-        if spec.projection.len() != D * D || spec.displacement.len() != D || spec.normal.len() != D
-        {
+        let flat = |p: &BoundaryPointSpec| {
+            p.projection.len() == D * D && p.displacement.len() == D && p.normal.len() == D
+        };
+        if spec.displacement.len() != D || !spec.points.iter().all(flat) {
             return Err(format!(
                 "surface condition '{}' is not {D}-dimensional",
                 spec.name
             ));
         }
+        let prescribed_scale = spec
+            .points
+            .iter()
+            .map(|p| {
+                (SMatrix::<f64, D, D>::from_row_slice(&p.projection)
+                    * SVector::<f64, D>::from_column_slice(&p.displacement))
+                .amax()
+            })
+            .fold(0.0, f64::max);
         set.push(SurfaceCondition {
-            projection: SMatrix::from_row_slice(&spec.projection),
-            normal: SVector::from_column_slice(&spec.normal),
-            displacement: SVector::from_column_slice(&spec.displacement),
+            prescribed_scale,
             imposition: spec.imposition,
             penalty: spec.penalty,
             area: spec.area(),
@@ -723,6 +892,9 @@ fn world_conditions<const D: usize>(
             largest_material_offset: 0.0,
             material_force: SVector::zeros(),
             stage: spec.stage,
+            until: spec.until,
+            pressure: spec.radial.is_some(),
+            mean_pressure: 0.0,
         });
     }
     Ok(SurfaceConditionSet(set))
@@ -756,6 +928,10 @@ fn spawn_boundary_points<const D: usize>(
                 .collect::<Result<Vec<_>, String>>()?;
             batch.push(BoundaryPoint::<D> {
                 fit,
+                normal: SVector::from_column_slice(&point.normal),
+                projection: SMatrix::from_row_slice(&point.projection),
+                prescribed: SVector::from_column_slice(&point.displacement),
+                released: SVector::zeros(),
                 condition,
                 id: batch.len() as u32,
                 reference_position: position,
@@ -899,10 +1075,9 @@ pub fn find_boundary_supports<const D: usize>(
     }
 }
 
-/// The gap g_s = P (u_s^n + Σ N̂_i Δu_i − λ ū) of a boundary point.
+/// The gap g_s = P_s (u_s^n + Σ N̂_i Δu_i − λ ū_s) of a boundary point.
 fn gap<const D: usize>(
     point: &BoundaryPoint<D>,
-    condition: &SurfaceCondition<D>,
     increment: &[SVector<f64, D>],
     factor: f64,
 ) -> SVector<f64, D> {
@@ -910,33 +1085,29 @@ fn gap<const D: usize>(
     for &(node, n) in &point.weights {
         u += increment[node] * n;
     }
-    condition.projection * (u - condition.displacement * factor)
+    point.projection * (u - point.prescribed * factor)
 }
 
-/// m_s = F_hⁿ⁻ᵀ N A_s of a boundary point (module docs), F_hⁿ its host's committed F.
+/// m_s = F_hⁿ⁻ᵀ N_s A_s of a boundary point (module docs), F_hⁿ its host's committed F.
 fn nitsche_vector<const D: usize>(
     point: &BoundaryPoint<D>,
-    condition: &SurfaceCondition<D>,
     committed: &DeformationGradient<D>,
 ) -> SVector<f64, D> {
     let inverse = embed(&committed.0)
         .try_inverse()
         .map(|m| crate::mechanics::block::<D>(&m))
         .unwrap_or_else(SMatrix::identity);
-    inverse.transpose() * condition.normal * point.area
+    inverse.transpose() * point.normal * point.area
 }
 
 /// The Nitsche traction force T_s = τ_h Δf_h⁻ᵀ m_s of a boundary point (module docs), with
 /// the host's trial state; also returns Δf⁻ᵀ m_s.
 fn nitsche_traction<const D: usize>(
     point: &BoundaryPoint<D>,
-    condition: &SurfaceCondition<D>,
     trial: &Trial<D>,
     committed: &DeformationGradient<D>,
 ) -> (SVector<f64, D>, SVector<f64, D>) {
-    let g_m = trial
-        .0
-        .spatial_gradient(&nitsche_vector(point, condition, committed));
+    let g_m = trial.0.spatial_gradient(&nitsche_vector(point, committed));
     (trial.0.internal_force(1.0, &g_m), g_m)
 }
 
@@ -965,14 +1136,9 @@ pub fn assemble_surface_conditions<const D: usize>(
         if !condition.acts_in(stage) || elsewhere.contains(point.host) {
             continue;
         }
-        let p = &condition.projection;
+        let p = point.projection;
         let alpha_a = condition.penalty * point.area;
-        let g = gap(
-            &point,
-            condition,
-            &fields.increment,
-            condition.factor(&step, stage),
-        );
+        let g = gap(&point, &fields.increment, condition.factor(&step, stage));
         let force = g * alpha_a;
         let penalty_block = p * alpha_a;
         for &(i, n_i) in &point.weights {
@@ -991,7 +1157,7 @@ pub fn assemble_surface_conditions<const D: usize>(
         let Ok((support, trial, committed)) = hosts.get(point.host) else {
             continue;
         };
-        let (traction, g_m) = nitsche_traction(&point, condition, trial, committed);
+        let (traction, g_m) = nitsche_traction(&point, trial, committed);
         let projected = p * traction;
         for &(i, n_i) in &point.weights {
             fields.internal_force[i] -= projected * n_i;
@@ -1014,7 +1180,7 @@ pub fn assemble_surface_conditions<const D: usize>(
         let Some(frozen) = point.adjoint_state.as_ref() else {
             continue;
         };
-        let a_m = frozen.spatial_gradient(&nitsche_vector(&point, condition, committed));
+        let a_m = frozen.spatial_gradient(&nitsche_vector(&point, committed));
         for w in &support.0 {
             let c_t = frozen
                 .stiffness(1.0, &a_m, &frozen.spatial_gradient(&w.gradient))
@@ -1028,9 +1194,11 @@ pub fn assemble_surface_conditions<const D: usize>(
     }
 }
 
-/// After a converged step: each condition's reaction, mean displacement and largest gap, then
-/// the boundary points move with the increment they were held to, and how far the material's
-/// surface is from them ([`SurfaceCondition::separation`]).
+/// After a converged step: each condition's reaction, mean displacement and largest gap (and
+/// for `radial` its pressure), then the boundary points move with the increment they were held
+/// to, and how far the material's surface is from them ([`SurfaceCondition::separation`]). In
+/// the stage that releases a condition its reaction is the ramped load that replaces it
+/// (module docs, "Stages").
 pub fn update_boundary_points<const D: usize>(
     step: Res<LoadStep>,
     stage: Option<Res<CurrentStage>>,
@@ -1049,55 +1217,134 @@ pub fn update_boundary_points<const D: usize>(
         condition.mean_displacement = SVector::zeros();
         condition.largest_gap = 0.0;
         condition.separation = 0.0;
+        condition.mean_pressure = 0.0;
     }
+    // per condition: Σ_s a_s (the current length or area) and Σ_s −R_s · N_s
+    let mut normal_force = vec![(0.0, 0.0); set.0.len()];
     let stage = stage_of(&stage);
     for mut point in points.iter_mut() {
         let condition = &set.0[point.condition];
         let acts = condition.acts_in(stage);
-        let g = gap(
-            &point,
-            condition,
-            &fields.increment,
-            condition.factor(&step, stage),
-        );
-        let mut reaction = -g * (condition.penalty * point.area);
+        let g = gap(&point, &fields.increment, condition.factor(&step, stage));
         let host = hosts.get(point.host).ok();
-        if !acts {
-            reaction = SVector::zeros();
-        } else if condition.imposition.is_nitsche() {
-            // the host's F was just committed: T_s from the trial state and Fⁿ⁺¹ Δf⁻¹ = Fⁿ
-            if let Some((trial, ..)) = host {
+        let mut reaction = SVector::zeros();
+        if acts {
+            reaction = -g * (condition.penalty * point.area);
+            if condition.imposition.is_nitsche()
+                && let Some((trial, ..)) = host
+            {
+                // the host's F was just committed: T_s from the trial state and Fⁿ⁺¹ Δf⁻¹ = Fⁿ
                 let previous =
                     DeformationGradient(trial.0.increment_inverse * trial.0.deformation_gradient);
-                let (traction, _) = nitsche_traction(&point, condition, trial, &previous);
-                reaction += condition.projection * traction;
+                let (traction, _) = nitsche_traction(&point, trial, &previous);
+                reaction += point.projection * traction;
             }
+            point.released = reaction;
+        } else if condition.released_in(stage) {
+            reaction = point.released * (1.0 - step.factor);
         }
         let mut du = SVector::<f64, D>::zeros();
         for &(node, n) in &point.weights {
             du += fields.increment[node] * n;
         }
         point.position += du;
-        if !acts {
+        if condition.waits_in(stage) {
             // its stage has not started: it will prescribe the displacement from here
             point.start[0] = point.position - point.reference_position;
             continue;
         }
         let mut separation = 0.0;
         if let Some((_, f, x, reference)) = host {
-            let surface = x.0 + f.0 * (point.reference_position - reference.0);
-            separation = (condition.projection * (surface - point.position)).amax();
+            if acts {
+                let surface = x.0 + f.0 * (point.reference_position - reference.0);
+                separation = (point.projection * (surface - point.position)).amax();
+            }
+            if condition.pressure {
+                let sums = &mut normal_force[point.condition];
+                sums.0 += current_area(&f.0, &point.normal, point.area);
+                sums.1 -= reaction.dot(&point.normal);
+            }
         }
         let condition = &mut set.0[point.condition];
         condition.reaction += reaction;
         condition.mean_displacement +=
             (point.position - point.reference_position - point.start[0]) * point.area;
-        condition.largest_gap = condition.largest_gap.max(g.norm());
+        if acts {
+            condition.largest_gap = condition.largest_gap.max(g.norm());
+        }
         condition.separation = condition.separation.max(separation);
     }
-    for condition in set.0.iter_mut() {
+    for (condition, (area, force)) in set.0.iter_mut().zip(normal_force) {
         condition.mean_displacement /= condition.area;
+        if condition.pressure && area > 0.0 {
+            condition.mean_pressure = force / area;
+        }
     }
+}
+
+/// The current area (length in 2D) a_s = J |F⁻ᵀ N| A of a boundary point's piece of surface
+/// (Nanson's formula with its host's F; module docs, "Curved surfaces").
+pub fn current_area<const D: usize>(
+    f: &SMatrix<f64, D, D>,
+    normal: &SVector<f64, D>,
+    area: f64,
+) -> f64 {
+    let full = embed(f);
+    let Some(inverse) = full.try_inverse() else {
+        return 0.0;
+    };
+    let inverse = crate::mechanics::block::<D>(&inverse);
+    full.determinant() * (inverse.transpose() * normal).norm() * area
+}
+
+/// In the stage that releases a condition (`until_stage`): every boundary point's force at the
+/// end of the stage before, ramped down, f_ext,i += (1 − λ) N̂_i R_s (module docs, "Stages");
+/// the point is carried by the material as before its stage.
+pub fn apply_released_conditions<const D: usize>(
+    step: Res<LoadStep>,
+    stage: Option<Res<CurrentStage>>,
+    set: Res<SurfaceConditionSet<D>>,
+    mut fields: ResMut<GridFields<D>>,
+    mut clock: ResMut<StageClock>,
+    elsewhere: Query<(), With<AssembledElsewhere>>,
+    points: Query<&BoundaryPoint<D>>,
+) {
+    let _timer = clock.time(Stage::Loads);
+    let stage = stage_of(&stage);
+    let ramp = 1.0 - step.factor;
+    for point in points.iter() {
+        // distributed runs: added by the process that assembles the host, as its terms were
+        if !set.0[point.condition].released_in(stage) || elsewhere.contains(point.host) {
+            continue;
+        }
+        for &(node, n) in &point.weights {
+            fields.external_force[node] += point.released * (ramp * n);
+        }
+    }
+}
+
+/// Every boundary point's released force (`BoundaryPoint::released`), in `id` order.
+fn save_released<const D: usize>(world: &mut World) -> Vec<f64> {
+    let mut query = world.query::<&BoundaryPoint<D>>();
+    let mut rows: Vec<&BoundaryPoint<D>> = query.iter(world).collect();
+    rows.sort_by_key(|point| point.id);
+    rows.iter()
+        .flat_map(|point| point.released.iter().copied())
+        .collect()
+}
+
+/// Restores what [`save_released`] saved.
+fn restore_released<const D: usize>(world: &mut World, values: &[f64]) -> Result<(), String> {
+    let mut query = world.query::<&mut BoundaryPoint<D>>();
+    let count = query.iter(world).len();
+    let records: Vec<&[f64]> = crate::checkpoint::records(values, D, count)?.collect();
+    for mut point in query.iter_mut(world) {
+        let record = records
+            .get(point.id as usize)
+            .ok_or_else(|| format!("no released force saved for boundary point {}", point.id))?;
+        point.released = SVector::from_column_slice(record);
+    }
+    Ok(())
 }
 
 /// What a resumed run needs of the conditions besides their points (a `CheckpointPart::save`):
@@ -1212,17 +1459,20 @@ pub fn measure_material_at_conditions<const D: usize>(
             piola += crate::mechanics::block::<D>(&trial.0.kirchhoff) * inverse.transpose() * w;
         }
         let condition = &mut set.0[point.condition];
-        if !condition.acts_in(stage) {
+        if condition.waits_in(stage) {
             point.start[1] = u;
             continue;
         }
         let u = u - point.start[1];
-        let factor = condition.factor(&step, stage);
-        let offset = (condition.projection * (u - condition.displacement * factor)).norm();
         condition.material_displacement += u * point.area;
+        condition.material_force += piola * point.normal * point.area;
+        if !condition.acts_in(stage) {
+            continue; // released: nothing is prescribed
+        }
+        let factor = condition.factor(&step, stage);
+        let offset = (point.projection * (u - point.prescribed * factor)).norm();
         condition.material_offset += offset * point.area;
         condition.largest_material_offset = condition.largest_material_offset.max(offset);
-        condition.material_force += piola * condition.normal * point.area;
     }
     for condition in set.0.iter_mut() {
         condition.material_displacement /= condition.area;
@@ -1257,8 +1507,7 @@ pub fn check_surface_conditions<const D: usize>(
         if !condition.acts_in(stage) {
             continue;
         }
-        let prescribed =
-            (condition.projection * condition.displacement * condition.factor(&step, stage)).amax();
+        let prescribed = condition.prescribed_scale * condition.factor(&step, stage).abs();
         condition.largest_prescribed = condition.largest_prescribed.max(prescribed);
         let threshold = separation_threshold(condition.largest_prescribed, condition.cell);
         let ratio = condition.material_offset / threshold;
@@ -1360,7 +1609,7 @@ pub fn imposition_notes(conditions: &[SurfaceConditionSpec]) -> Vec<String> {
 pub fn quadrature_warning(spec: &SceneSpec, conditions: &[SurfaceConditionSpec]) -> Option<String> {
     let prescribed: Vec<String> = conditions
         .iter()
-        .filter(|c| c.displacement.iter().any(|&u| u != 0.0))
+        .filter(|c| (c.points.iter()).any(|p| p.displacement.iter().any(|&u| u != 0.0)))
         .map(|c| match c.line {
             Some(line) => format!("line {line}: '{}'", c.name),
             None => format!("'{}'", c.name),
@@ -1426,30 +1675,50 @@ fn resolve_conditions(scene: &Resolver) -> Result<Vec<SurfaceConditionSpec>, Scr
                 )));
             }
         }
-        let seeded = seed_surface(
-            grid,
-            &material_points,
-            &d.corners,
-            d.per_cell,
-            PartRule::Gauss(2),
-            "boundary points",
-        )
-        .map_err(fail)?;
-        let normal = outward_normal(&d.corners, &seeded, &material_points);
-        // the material under the piece (module docs, "The material at the condition"), within
-        // LAYER cells of its plane: the fit's neighbours are sought among these only
-        let depth = |x: &[f64]| -> f64 {
-            (0..dim)
-                .map(|a| normal[a] * (x[a] - d.corners[0][a]))
-                .sum::<f64>()
-                .abs()
-        };
-        let under: Vec<usize> = (0..material_points.len())
-            .filter(|&k| {
-                let x = material_points[k];
-                depth(x) <= LAYER * cell && under_piece(&d.corners, x, 1e-9 * cell)
-            })
-            .collect();
+        // the piece's boundary points with their outward normals, and which material points
+        // lie under it (module docs, "The material at the condition"), within LAYER cells
+        let (seeded, normals, under): (Vec<SurfacePointSeed>, Vec<Vec<f64>>, Vec<usize>) =
+            match (&d.corners, &d.arc) {
+                (Some(corners), _) => {
+                    let seeded = seed_surface(
+                        grid,
+                        &material_points,
+                        corners,
+                        d.per_cell,
+                        PartRule::Gauss(2),
+                        "boundary points",
+                    )
+                    .map_err(fail)?;
+                    let normal = outward_normal(corners, &seeded, &material_points);
+                    let depth = |x: &[f64]| -> f64 {
+                        (0..dim)
+                            .map(|a| normal[a] * (x[a] - corners[0][a]))
+                            .sum::<f64>()
+                            .abs()
+                    };
+                    let under = (0..material_points.len())
+                        .filter(|&k| {
+                            let x = material_points[k];
+                            depth(x) <= LAYER * cell && under_piece(corners, x, 1e-9 * cell)
+                        })
+                        .collect();
+                    (seeded.clone(), vec![normal; seeded.len()], under)
+                }
+                (None, Some(arc)) => {
+                    if dim != 2 {
+                        return Err(fail(format!(
+                            "an arc is a 2D boundary, the grid is {dim}-dimensional"
+                        )));
+                    }
+                    let (seeded, normals) =
+                        seed_arc(grid, &material_points, arc, d.per_cell, cell).map_err(fail)?;
+                    let under = (0..material_points.len())
+                        .filter(|&k| under_arc(arc, material_points[k], LAYER * cell))
+                        .collect();
+                    (seeded, normals, under)
+                }
+                (None, None) => return Err(fail("option 'on' is missing".into())),
+            };
         let under_points: Vec<&[f64]> = under.iter().map(|&k| material_points[k]).collect();
         let count = default_neighbours(dim);
         let fit = |at: &[f64]| -> Result<Vec<(usize, f64)>, ScriptError> {
@@ -1459,33 +1728,43 @@ fn resolve_conditions(scene: &Resolver) -> Result<Vec<SurfaceConditionSpec>, Scr
                     .map_err(|why| fail(format!("boundary point at {at:?}: {why}"))),
             }
         };
-        let (projection, components) = match (&d.components, d.smooth) {
-            (_, true) => (
-                (0..dim * dim)
-                    .map(|k| normal[k / dim] * normal[k % dim])
-                    .collect(),
-                "normal".to_string(),
-            ),
-            (Some(list), false) => (
-                (0..dim * dim)
-                    .map(|k| {
-                        let (r, c) = (k / dim, k % dim);
-                        if r == c && list.contains(&r) {
-                            1.0
-                        } else {
-                            0.0
-                        }
-                    })
-                    .collect(),
-                format!("{list:?}"),
-            ),
-            (None, false) => (
-                (0..dim * dim)
-                    .map(|k| if k / dim == k % dim { 1.0 } else { 0.0 })
-                    .collect(),
-                "all".to_string(),
-            ),
+        // P_s: the normal component (smooth, radial), the listed axes, or all of them
+        let projection = |normal: &[f64]| -> Vec<f64> {
+            (0..dim * dim)
+                .map(|k| {
+                    let (r, c) = (k / dim, k % dim);
+                    match (&d.components, d.smooth || d.radial.is_some()) {
+                        (_, true) => normal[r] * normal[c],
+                        (Some(list), false) => f64::from(u8::from(r == c && list.contains(&r))),
+                        (None, false) => f64::from(u8::from(r == c)),
+                    }
+                })
+                .collect()
         };
+        let components = match (&d.components, d.smooth, d.radial) {
+            (_, _, Some(_)) => "radial (the normal)".to_string(),
+            (_, true, _) => "normal".to_string(),
+            (Some(list), false, _) => format!("{list:?}"),
+            (None, false, _) => "all".to_string(),
+        };
+        // ū_s: the declared displacement, or u along the radius through X_s
+        let prescribed = |position: &[f64]| -> Vec<f64> {
+            match (d.radial, &d.arc) {
+                (Some(u), Some(arc)) => {
+                    let radius = [position[0] - arc.centre[0], position[1] - arc.centre[1]];
+                    let length = radius[0].hypot(radius[1]);
+                    vec![u * radius[0] / length, u * radius[1] / length]
+                }
+                _ => displacement.clone(),
+            }
+        };
+        let until = until_stage_of(
+            scene.spec,
+            "surface_displace",
+            d.until.as_deref(),
+            declaration.stage,
+            declaration.at,
+        )?;
         let name = d.name.clone().unwrap_or(format!("surface{}", index + 1));
         if name.is_empty() || name.contains(|c: char| c.is_whitespace() || c == ',') {
             return Err(fail(format!(
@@ -1510,9 +1789,13 @@ fn resolve_conditions(scene: &Resolver) -> Result<Vec<SurfaceConditionSpec>, Scr
             line: declaration.at.line(),
             points: seeded
                 .into_iter()
-                .map(|s| {
+                .zip(normals)
+                .map(|(s, normal)| {
                     let fit = fit(&s.position)?;
                     Ok(BoundaryPointSpec {
+                        projection: projection(&normal),
+                        displacement: prescribed(&s.position),
+                        normal,
                         position: s.position,
                         area: s.area,
                         host: s.host,
@@ -1520,13 +1803,17 @@ fn resolve_conditions(scene: &Resolver) -> Result<Vec<SurfaceConditionSpec>, Scr
                     })
                 })
                 .collect::<Result<Vec<_>, ScriptError>>()?,
-            projection,
-            normal,
-            displacement,
+            displacement: if d.radial.is_some() {
+                vec![0.0; dim]
+            } else {
+                displacement
+            },
             imposition,
             penalty: gamma * stiffness / cell,
             components,
             cell,
+            until,
+            radial: d.radial.zip(d.arc.as_ref().map(|arc| arc.centre.to_vec())),
             stage: declaration.stage,
         });
     }
@@ -1583,6 +1870,98 @@ fn under_piece(corners: &[Vec<f64>], x: &[f64], tolerance: f64) -> bool {
     }
 }
 
+/// The boundary points of an arc (module docs, "Curved surfaces"): `per_cell` equal parts per
+/// cell of its length (at least one), each with the 2-point Gauss rule in the angle (weights
+/// R Δθ / 2), their hosts (the nearest material points, within a cell) and their outward
+/// normals ±e_r, away from the hosts (refused when the material is on both sides).
+fn seed_arc(
+    grid: &crate::scene::GridSpec,
+    material_points: &[&[f64]],
+    arc: &ArcShape,
+    per_cell: usize,
+    cell: f64,
+) -> Result<(Vec<SurfacePointSeed>, Vec<Vec<f64>>), String> {
+    let wanted = (per_cell as f64 * arc.length() / cell).ceil().max(1.0);
+    if wanted > crate::scene::MAX_SEED_CANDIDATES as f64 / 2.0 {
+        return Err(format!(
+            "{wanted} parts of the arc exceed the limit of {} boundary points; lower per_cell",
+            crate::scene::MAX_SEED_CANDIDATES
+        ));
+    }
+    let parts = wanted as usize;
+    let step = (arc.to - arc.from) / parts as f64;
+    let gauss = 0.5 / 3f64.sqrt();
+    let area = 0.5 * arc.radius * step.abs().to_radians();
+    let positions: Vec<Vec<f64>> = (0..parts)
+        .flat_map(|k| {
+            let middle = arc.from + (k as f64 + 0.5) * step;
+            [-gauss, gauss].map(|g| arc.point(middle + g * step).to_vec())
+        })
+        .collect();
+    if let Some(x) = positions
+        .iter()
+        .find(|x| (0..2).any(|a| x[a] < grid.lower[a] || x[a] > grid.upper[a]))
+    {
+        return Err(format!(
+            "the arc's point {x:?} is outside the grid [{:?} .. {:?}]",
+            grid.lower, grid.upper
+        ));
+    }
+    let hosts = nearest_points(grid, material_points, &positions);
+    let mut seeded = Vec::with_capacity(positions.len());
+    let mut normals = Vec::with_capacity(positions.len());
+    let (mut outward, mut inward) = (0, 0);
+    for (position, host) in positions.into_iter().zip(hosts) {
+        let host = host.ok_or("the scene has no material points")?;
+        let h = material_points[host];
+        let distance = (position[0] - h[0]).hypot(position[1] - h[1]);
+        if distance > cell {
+            return Err(format!(
+                "the arc's point {position:?} is {distance:.3e} from the nearest material point, farther than a cell: put the arc on a body's boundary"
+            ));
+        }
+        let radial = [
+            (position[0] - arc.centre[0]) / arc.radius,
+            (position[1] - arc.centre[1]) / arc.radius,
+        ];
+        // outward: from the host towards the surface
+        let sign = if radial[0] * (position[0] - h[0]) + radial[1] * (position[1] - h[1]) >= 0.0 {
+            outward += 1;
+            1.0
+        } else {
+            inward += 1;
+            -1.0
+        };
+        normals.push(vec![sign * radial[0], sign * radial[1]]);
+        seeded.push(SurfacePointSeed {
+            position,
+            area,
+            half_edges: Vec::new(),
+            host,
+        });
+    }
+    if outward > 0 && inward > 0 {
+        return Err(format!(
+            "material points lie on both sides of the arc ({outward} boundary points have their nearest material point inside the circle, {inward} outside): put the arc on a body's boundary"
+        ));
+    }
+    Ok((seeded, normals))
+}
+
+/// Whether the reference position `x` lies under the arc: within `layer` of its circle and at
+/// an angle between its ends.
+fn under_arc(arc: &ArcShape, x: &[f64], layer: f64) -> bool {
+    let (dx, dy) = (x[0] - arc.centre[0], x[1] - arc.centre[1]);
+    if (dx.hypot(dy) - arc.radius).abs() > layer {
+        return false;
+    }
+    let (low, high) = (arc.from.min(arc.to), arc.from.max(arc.to));
+    let angle = dy.atan2(dx).to_degrees();
+    let turns = ((low - angle) / 360.0).ceil();
+    let tolerance = 1e-9;
+    angle + 360.0 * turns <= high + tolerance || angle + 360.0 * (turns - 1.0) >= low - tolerance
+}
+
 /// The unit normal of the surface piece (1D: the axis; 2D: the segment turned by 90°; 3D: the
 /// cross product of the edges), oriented away from the material: towards the side of the
 /// boundary points away from their hosts.
@@ -1623,4 +2002,113 @@ fn outward_normal(
         normal.iter_mut().for_each(|c| *c = -*c);
     }
     normal
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A quarter ring a = 1 ≤ r ≤ b = 2 of points on a 4 × 4 grid of cells 0.5, and its bore.
+    fn ring() -> (crate::scene::GridSpec, Vec<Vec<f64>>, ArcShape) {
+        let grid = crate::scene::GridSpec {
+            lower: vec![0.0, 0.0],
+            upper: vec![2.0, 2.0],
+            cells: vec![4, 4],
+            basis: BasisKind::Linear,
+        };
+        let points = (0..40)
+            .flat_map(|i| {
+                (0..40).map(move |j| vec![0.025 + 0.05 * i as f64, 0.025 + 0.05 * j as f64])
+            })
+            .filter(|x| (1.0..=2.0).contains(&x[0].hypot(x[1])))
+            .collect();
+        let arc = ArcShape {
+            centre: [0.0, 0.0],
+            radius: 1.0,
+            from: 0.0,
+            to: 90.0,
+        };
+        (grid, points, arc)
+    }
+
+    /// The bore's boundary points: 2 per part, `per_cell` parts per cell of arc length; their
+    /// lengths sum to the arc's (π/2), their normals point at the centre (away from the wall),
+    /// and the 2-point Gauss rule integrates e_r over the arc, ∫ e_r R dθ = R (1, 1), to the
+    /// rule's error (8e-7 with 7 parts: (Δθ)⁴ / 270 of each part's).
+    #[test]
+    fn an_arc_is_seeded_with_gauss_points_and_normals_away_from_the_material() {
+        let (grid, points, arc) = ring();
+        let refs: Vec<&[f64]> = points.iter().map(Vec::as_slice).collect();
+        let (seeded, normals) = seed_arc(&grid, &refs, &arc, 2, 0.5).unwrap();
+        assert_eq!(seeded.len(), 2 * 7); // ⌈2 π/2 / 0.5⌉ = 7 parts
+        let length: f64 = seeded.iter().map(|s| s.area).sum();
+        assert!(
+            (length - std::f64::consts::FRAC_PI_2).abs() < 1e-14,
+            "{length}"
+        );
+        let mut resultant = [0.0; 2];
+        for (s, n) in seeded.iter().zip(&normals) {
+            let r = s.position[0].hypot(s.position[1]);
+            assert!((r - 1.0).abs() < 1e-14);
+            for a in 0..2 {
+                assert!(
+                    (n[a] + s.position[a]).abs() < 1e-14,
+                    "{n:?} at {:?}",
+                    s.position
+                );
+                resultant[a] -= n[a] * s.area;
+            }
+        }
+        for value in resultant {
+            assert!((value - 1.0).abs() < 1e-6, "{resultant:?}");
+        }
+        // the material outside the arc: the normals turn round
+        let outer = ArcShape { radius: 2.0, ..arc };
+        let (seeded, normals) = seed_arc(&grid, &refs, &outer, 1, 0.5).unwrap();
+        for (s, n) in seeded.iter().zip(&normals) {
+            assert!((n[0] - s.position[0] / 2.0).abs() < 1e-14);
+        }
+    }
+
+    /// Under an arc: within the layer of its circle and between its angles, also across 0°.
+    #[test]
+    fn under_arc_reads_the_angles_across_zero() {
+        let arc = ArcShape {
+            centre: [1.0, 1.0],
+            radius: 1.0,
+            from: 350.0,
+            to: 370.0,
+        };
+        let at = |degrees: f64, r: f64| {
+            let t = degrees.to_radians();
+            [1.0 + r * t.cos(), 1.0 + r * t.sin()]
+        };
+        assert!(under_arc(&arc, &at(5.0, 1.1), 0.2));
+        assert!(under_arc(&arc, &at(-5.0, 0.9), 0.2));
+        assert!(!under_arc(&arc, &at(20.0, 1.0), 0.2));
+        assert!(!under_arc(&arc, &at(5.0, 1.3), 0.2));
+        let quarter = ArcShape {
+            centre: [0.0, 0.0],
+            radius: 1.0,
+            from: 90.0,
+            to: 0.0,
+        };
+        assert!(under_arc(&quarter, &[0.7, 0.8], 0.2));
+        assert!(!under_arc(&quarter, &[-0.1, 1.0], 0.05));
+    }
+
+    /// Nanson's a = J |F⁻ᵀ N| A in 2D is the stretched tangent |F t| A (t ⟂ N), for a general
+    /// F (stretch, shear, rotation).
+    #[test]
+    fn the_current_length_is_the_stretched_tangent() {
+        let f = SMatrix::<f64, 2, 2>::new(1.3, 0.4, -0.2, 0.8);
+        for degrees in [0.0f64, 30.0, 135.0, 250.0] {
+            let t = degrees.to_radians();
+            let normal = SVector::<f64, 2>::new(t.cos(), t.sin());
+            let tangent = SVector::<f64, 2>::new(-t.sin(), t.cos());
+            let expected = (f * tangent).norm() * 0.7;
+            let area = current_area(&f, &normal, 0.7);
+            assert!((area - expected).abs() < 1e-14, "{area} {expected}");
+        }
+    }
 }
