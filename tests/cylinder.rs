@@ -572,3 +572,20 @@ fn bad_radial_conditions_are_refused_with_the_scene_line() {
         ),
     ]);
 }
+
+/// The shipped scene refuses a `control` it does not know, naming the scene line and the
+/// three it has (it used to fall back to load control without a word).
+#[test]
+fn the_scene_refuses_an_unknown_control() {
+    let error = impm::run::load_scene(
+        &common::shipped_scene("thick_cylinder.rhai"),
+        &common::overrides(&[("control", "arclength")]),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        error.contains("thick_cylinder.rhai:") && error.contains("'arclength'"),
+        "{error}"
+    );
+    assert!(error.contains("\"displacement\""), "{error}");
+}
