@@ -203,8 +203,10 @@ fn run(cli: Cli) -> Result<(), Failure> {
             use_decomposition(decompose)?;
             // under mpirun: MPI until the end of the run; processes other than 0 silent
             #[cfg(feature = "mpi")]
-            let distributed =
-                cli::distributed::DistributedRun::start_if_launched(resume.is_some())?;
+            let distributed = cli::distributed::DistributedRun::start_if_launched(
+                resume.is_some(),
+                checkpoint_every.is_some(),
+            )?;
             #[cfg(feature = "mpi")]
             let out = match &distributed {
                 Some(run) => run.output_folder(out),

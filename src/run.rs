@@ -499,11 +499,8 @@ impl<const D: usize> Simulation<D> {
                 self.summary.stop(reason.status());
                 break;
             }
-            let record = self.step()?;
-            on_step(record);
-            if self.checkpoint_due() {
-                self.write_checkpoint()?;
-            }
+            let outcome = self.step_and_checkpoint(&mut on_step);
+            self.agree_on(outcome)?;
             if self.arc.as_ref().is_some_and(|arc| arc.end().is_some()) {
                 break;
             }
@@ -528,6 +525,36 @@ impl<const D: usize> Simulation<D> {
             step: self.steps_done,
             why: e,
         })
+    }
+
+    /// The next load step, its records and, when due, its checkpoint.
+    fn step_and_checkpoint(
+        &mut self,
+        on_step: &mut impl FnMut(&StepRecord),
+    ) -> Result<(), SolverError> {
+        on_step(self.step()?);
+        if self.checkpoint_due() {
+            self.write_checkpoint()?;
+        }
+        Ok(())
+    }
+
+    /// What the run did since the last load step, agreed between the processes of a
+    /// distributed run (collective there: `effects::distributed::share_outcome`; a process that
+    /// failed alone, e.g. writing a record, would leave the others waiting in their next
+    /// collective call), and a failure recorded in the summary if the step's own record did
+    /// not say it.
+    fn agree_on(&mut self, outcome: Result<(), SolverError>) -> Result<(), SolverError> {
+        #[cfg(feature = "mpi")]
+        let outcome = effects::distributed::share_outcome(outcome, self.steps_done);
+        if let Err(error) = &outcome
+            && self.summary.status != "failed"
+        {
+            self.summary.status = "failed";
+            self.summary.failure = Some(error.to_string());
+            let _ = self.summary.write();
+        }
+        outcome
     }
 
     /// Moves the step's warnings into the summary and prints them on stderr (a closed or
@@ -953,7 +980,10 @@ fn run_in<const D: usize>(
             Ok(()) => Ok(()),
             Err(why) => return (None, Err(RunError::Resume(why))),
         },
-        None => sim.write_initial_state(),
+        None => {
+            let written = sim.write_initial_state();
+            sim.agree_on(written)
+        }
     };
     let result = start
         .and_then(|()| sim.run(on_step))

@@ -7,15 +7,19 @@
 //! process runs into a scratch folder of its own under the system's temporary folder, removed
 //! when the run ends, with its standard output and error sent to `/dev/null`.
 //!
-//! **Nothing hangs.** Inside a load step every failure is shared (`Hook::Combine`, the output
-//! pieces): the processes fail and cut the step alike, and end their runs together. A stop
-//! (a signal, a deadline) is agreed between steps ([`agree_on_stop`]): if any process is asked
-//! to stop, all stop after the same step. A failure on one process elsewhere (process 0 cannot
-//! write `summary.json`, its output folder, a checkpoint) would leave the others waiting in
-//! their next collective call. So at its end every process meets
-//! the others ([`DistributedRun::end`], a barrier on a communicator of its own): a process
-//! whose run failed waits at most [`FAILED_PROCESS_WAIT`] for them, and if they do not come it
-//! says which process failed and why on the console's standard error and ends the job with
+//! **Nothing hangs.** Inside a load step every failure is shared where the processes meet
+//! (`effects::distributed`: every Newton iteration, after the point update, around the output)
+//! and so is what a process does alone between steps (process 0 writing `summary.json`,
+//! `history.csv`, a checkpoint: `effects::distributed::share_outcome`): the processes fail
+//! and cut the step alike, and end their runs together after the same step, process 0 naming
+//! the process that failed. A stop (a signal, a deadline) is agreed between steps
+//! ([`agree_on_stop`]): if any process is asked to stop, all stop after the same step. What
+//! is left, a failure before the run's first agreement (process 0 cannot lock or clear its
+//! output folder) or a process killed from outside, would leave the others waiting in their
+//! next collective call. So at its end every process meets the others
+//! ([`DistributedRun::end`], a barrier on a communicator of its own): a process whose run
+//! failed waits at most [`FAILED_PROCESS_WAIT`] for them, and if they do not come it says
+//! which process failed and why on the console's standard error and ends the job with
 //! `MPI_Abort` (exit status 1); files already written stay as they are. A panic on any process
 //! ends the job at once (exit status 101), from the main thread also when a worker of the
 //! thread pool panicked ([`DistributedRun::abort_on_panic`]). When the processes end together,
@@ -59,8 +63,10 @@ impl Drop for DistributedRun {
 impl DistributedRun {
     /// Starts MPI when this process was launched by `mpirun` (otherwise `None`: an ordinary
     /// run). A process other than 0 is silenced. `--resume` is refused with more than one
-    /// process (the other processes' checkpoints are not kept).
-    pub fn start_if_launched(resume: bool) -> Result<Option<Self>, Failure> {
+    /// process (the other processes' checkpoints are not kept), and `--resume` or
+    /// `--checkpoint-every` (`checkpoints`) with decomposed points, whose checkpoints are not
+    /// written yet.
+    pub fn start_if_launched(resume: bool, checkpoints: bool) -> Result<Option<Self>, Failure> {
         if launched_by_mpirun().is_none() {
             return Ok(None);
         }
@@ -70,6 +76,23 @@ impl DistributedRun {
                 "MPI started without processes".to_string(),
             ));
         };
+        if (resume || checkpoints) && impm::distributed::decomposed() {
+            let option = if resume {
+                "--resume"
+            } else {
+                "--checkpoint-every"
+            };
+            if processes.rank > 0 {
+                return Err(Failure::Quiet); // process 0 says why
+            }
+            return Err(Failure::Message(format!(
+                "{option} with --decompose is not supported yet: a decomposed run writes no \
+                 checkpoints (each process would have to write the points it holds with their \
+                 whole state, and a resumed run read them back and share them out again); run \
+                 without --decompose (every process holds the whole state and process 0 writes \
+                 the checkpoints; resume with mpirun -n 1 or without mpirun) or without {option}"
+            )));
+        }
         if resume && processes.size > 1 {
             return Err(Failure::Message(
                 "--resume under mpirun with more than one process is not supported yet (only \
@@ -138,12 +161,20 @@ impl DistributedRun {
         let wait = failed.then_some(FAILED_PROCESS_WAIT);
         match self.mpi.all_ended(failed, wait) {
             Ending::Together { process_0_failed } => {
-                if let Err(Failure::Message(why)) = &result
-                    && rank > 0
-                    && !process_0_failed
-                {
-                    to_console(&format!("error (process {rank} of {size}): {why}"));
-                }
+                // said before any process exits: mpirun ends the job when the first one exits
+                // with a failure, which could cut process 0's message
+                let result = match result {
+                    Err(Failure::Message(why)) if rank == 0 => {
+                        note(&format!("error: {why}"));
+                        Err(Failure::Quiet)
+                    }
+                    Err(Failure::Message(why)) if !process_0_failed => {
+                        to_console(&format!("error (process {rank} of {size}): {why}"));
+                        Err(Failure::Quiet)
+                    }
+                    other => other,
+                };
+                self.mpi.all_said();
                 result
             }
             Ending::NotTogether => {

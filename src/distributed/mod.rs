@@ -16,7 +16,9 @@
 //! (`effects::distributed::decomposition`), and each process numbers and assembles only the
 //! grid nodes its points touch (`effects::distributed::grid`, [`ownership`]).
 //!
-//! Built in every configuration: the pure kernels [`partition`] (the slabs), [`ownership`]
+//! Built in every configuration: the pure kernels [`partition`] (the slabs), [`failure`] (a
+//! failure on some processes made every process's: what travels, which one decides),
+//! [`ownership`]
 //! (the decomposed grid: each node's owner and the global DOF numbers, from messages to the
 //! neighbouring processes only) and [`migration`]
 //! (a point's whole state as numbers, who sends which points where), [`respawn`] (a point
@@ -27,6 +29,7 @@
 //! `processes`, `any`, `abort`) and the messages (`exchange`, `gather_all`, `sum_all`) exist
 //! with the feature `mpi` only.
 
+pub mod failure;
 pub mod migration;
 pub mod ownership;
 pub mod partition;
@@ -38,7 +41,7 @@ mod world;
 #[cfg(feature = "mpi")]
 pub use world::{
     Ending, Started, abort, any, exchange, exchange_counted, gather_all, gather_all_counted,
-    largest, path_of_process_0, processes, start, sum, sum_all, sum_counts,
+    largest, path_of_process_0, processes, share_failures, start, sum, sum_all, sum_counts,
 };
 
 /// This process's place in a distributed run.
@@ -62,16 +65,23 @@ pub fn launched_by_mpirun() -> Option<Processes> {
     })
 }
 
-/// The cell layer along `axis` that `x` lies in (a point outside the grid counts in layer 0:
-/// the basis stage fails it): what decides a point's process (`partition`).
+/// The cell layer along `axis` that `x` lies in: what decides a point's process
+/// (`partition`). A point outside the grid counts in the nearest layer along `axis` (a
+/// non-finite coordinate in layer 0), so it stays with the process that holds its side of the
+/// grid, whose basis stage then fails it (the failure is shared with the others:
+/// `effects::distributed`).
 pub fn layer_of<const D: usize>(
     grid: &crate::basis::GridBasis<D>,
     axis: usize,
     x: &nalgebra::SVector<f64, D>,
 ) -> usize {
-    let layers = grid.cells_per_axis()[axis];
-    let layer = grid.cell_of(x).map_or(0, |cell| cell[axis]);
-    layer.min(layers.saturating_sub(1))
+    let along = &grid.axes[axis];
+    let last = along.cells.saturating_sub(1);
+    match along.cell_of(x[axis]) {
+        Ok(layer) => layer.min(last),
+        Err(_) if x[axis] > along.lower => last,
+        Err(_) => 0,
+    }
 }
 
 /// In a decomposed run, whether this process spawns each point of the scene at the start

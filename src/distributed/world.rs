@@ -16,6 +16,7 @@ use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
 
 use super::Processes;
+use super::failure::{FailureNote, Severity};
 use super::traffic::{Traffic, count};
 
 static PROCESSES: OnceLock<Processes> = OnceLock::new();
@@ -76,6 +77,16 @@ impl Started {
     }
 }
 
+impl Started {
+    /// Waits until every process has come here (blocking, on the communicator of
+    /// [`Started::all_ended`], after it found the processes together): what a process says
+    /// before it comes here is said before any process exits (`mpirun` ends the whole job as
+    /// soon as one process exits with a failure).
+    pub fn all_said(&self) {
+        self.ending.barrier();
+    }
+}
+
 /// Ends every process of the job (`MPI_Abort` on `MPI_COMM_WORLD`, exit status `code`): for a
 /// process that cannot go on while the others wait for it in a collective call. Say why on
 /// standard error first.
@@ -121,6 +132,25 @@ pub fn largest(value: i32) -> i32 {
     count(Traffic::Reductions, 4);
     SimpleCommunicator::world().all_reduce_into(&value, &mut all, SystemOperation::max());
     all
+}
+
+/// Every process's failure at this point of the run, by rank, when any process failed
+/// (collective: an `MPI_Allreduce` of the severity; then, only when one failed, an all-gather
+/// of the failures, `failure::FailureNote::pack`); `None` when none did.
+pub fn share_failures(
+    mine: Option<&FailureNote>,
+) -> Result<Option<Vec<Option<FailureNote>>>, String> {
+    let level = Severity::level(mine.map(|f| f.severity));
+    if largest(level) == 0 {
+        return Ok(None);
+    }
+    let numbers = mine.map(FailureNote::pack).unwrap_or_default();
+    let all = gather_all_counted(&numbers, Traffic::Reductions)?;
+    Ok(Some(
+        all.iter()
+            .map(|numbers| FailureNote::unpack(numbers))
+            .collect(),
+    ))
 }
 
 /// The sum of `value` over the processes (collective). Not bit-identical across processes in

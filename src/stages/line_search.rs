@@ -190,6 +190,25 @@ fn for_free_dofs<const D: usize>(fields: &GridFields<D>, mut f: impl FnMut(usize
     }
 }
 
+/// ‖r‖ at the free DOFs. On a grid split among processes (`Newton::shared_grid`, a decomposed
+/// run) each process holds its own nodes' residual: each DOF counts on its node's owner and the
+/// squares are summed over the processes (collective), so every process judges a trial alike
+/// (a process's own norm would let one accept the trial another rejects, and then wait for
+/// it). Serially the sum runs over the DOFs in their order, as `‖r‖` of the whole vector.
+fn residual_norm<const D: usize>(fields: &GridFields<D>, newton: &Newton) -> Result<f64, String> {
+    let shared = newton.shared_grid.as_deref();
+    let mut squares = 0.0;
+    for_free_dofs(fields, |node, _, dof| {
+        if shared.is_none_or(|s| s.owned(node)) {
+            squares += newton.residual[dof] * newton.residual[dof];
+        }
+    });
+    if let Some(shared) = shared {
+        squares = shared.sum(&[squares])?.first().copied().unwrap_or(f64::NAN);
+    }
+    Ok(squares.sqrt())
+}
+
 /// `Hook::Convergence` (after the convergence check, before the solve; added by
 /// `effects::line_search`): accepts the iterate just
 /// evaluated or rejects it and puts the shorter step in its place (see the module docs).
@@ -208,7 +227,17 @@ pub fn judge_iterate<const D: usize>(
         // condition was evaluated before it; `retry_after_failure` decides what to do
         return;
     }
-    let norm = newton.residual.iter().map(|r| r * r).sum::<f64>().sqrt();
+    let norm = match residual_norm(&fields, newton) {
+        Ok(norm) => norm,
+        Err(why) => {
+            status.fail(SolverError::Module {
+                step: step.number,
+                what: format!("the line search's residual norm over the processes: {why}"),
+                recoverable: false,
+            });
+            return;
+        }
+    };
     let rejected = search.trial_pending(newton.iterations)
         && !newton.converged
         && !sufficient_decrease(search.start_norm, search.alpha, norm);
@@ -268,7 +297,12 @@ pub fn retry_after_failure<const D: usize>(world: &mut World) -> bool {
         Some(SolverError::BadPointState { .. }) => None,
         Some(SolverError::NotFinite { stage, .. }) if *stage != "linear solve" => None,
         Some(SolverError::Diverged { .. }) => {
-            Some(newton.residual.iter().map(|r| r * r).sum::<f64>().sqrt())
+            let fields = world.resource::<GridFields<D>>();
+            // every process diverged alike (the convergence check's norms are global)
+            match residual_norm(fields, newton) {
+                Ok(norm) => Some(norm),
+                Err(_) => return false,
+            }
         }
         _ => return false,
     };

@@ -106,7 +106,8 @@ pub struct DecomposedGrid {
 /// The system (collective; runs after a failure too, and shares it first).
 pub fn number_decomposed_grid<const D: usize>(world: &mut World) {
     let step = world.resource::<LoadStep>().number;
-    if share_failure(&mut world.resource_mut::<RunStatus>(), step) {
+    let iteration = world.resource::<Newton>().iterations;
+    if share_failure(&mut world.resource_mut::<RunStatus>(), step, iteration) {
         return;
     }
     let result = world.resource_scope(|world, mut clock: Mut<StageClock>| {

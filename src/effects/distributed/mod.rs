@@ -26,9 +26,20 @@
 //!   pieces (in `point_id` order, the serial file) for tools that do not read `.pvtu`. The grid
 //!   and node files are process 0's (the grid is replicated); with `--decompose` they are not
 //!   written (each process holds its own nodes), which the run says.
-//! * **Failures are collective.** `Hook::Combine` runs after a failed stage too: if a stage
-//!   failed on any process, every process fails the iteration (then cuts the step alike, or
-//!   stops alike: a failure step cutting cannot recover on one process is one everywhere).
+//! * **Failures are collective** (`distributed::failure`). A stage that runs on a process's
+//!   own points or files can fail on that process alone; the processes then share it at the
+//!   next point where they meet, before any collective call that follows: in every Newton
+//!   iteration at `Hook::Combine` (after the stress update and the assembly), after the basis
+//!   and DOF stages (`grid::number_decomposed_grid`), after the point update
+//!   ([`share_step_failure`], before the reactions' sum), after the step's last stages on
+//!   points (before the output), in the output ([`list_particle_pieces`], after the pieces
+//!   are written) and at its end (before the sums over points of the step's records), and
+//!   between load steps ([`share_outcome`]: what one process did alone after the step, such
+//!   as process 0 writing `summary.json`). These run after a failure too. If any process
+//!   failed, every process fails alike: the most severe failure (of the lowest rank) decides
+//!   whether the line search shortens the Newton step, the step is cut or the run stops, and
+//!   the processes that did not fail take it as theirs, naming the process it came from
+//!   (`process K of N failed: ...`), so process 0 reports it and `summary.json` records it.
 //! * **Decomposed points** (`impm run --decompose`, [`decomposition`]): each process holds only
 //!   its slab's points instead of every point; the exchange moves them at each step start,
 //!   and `f_ext` is summed like `f_int`. Scenes with modules that cannot follow their points
@@ -59,12 +70,13 @@ use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 
 use crate::components::{AssembledElsewhere, Position};
+use crate::distributed::failure::{self, FailureNote, Severity};
 use crate::distributed::partition::{slab_axis, slab_owners};
 use crate::distributed::traffic::{Traffic, counted};
 use crate::distributed::{
-    Processes, any, decomposed, largest, layer_of, path_of_process_0, processes,
+    Processes, decomposed, layer_of, path_of_process_0, processes, share_failures,
 };
-use crate::method::StepSystems;
+use crate::method::{BuiltInOutput, OutputSchedule, StepSchedule, StepSystems};
 use crate::output::write_pvtu;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{
@@ -236,7 +248,25 @@ impl Plugin for DistributedModule {
                 .map(|s| (s.points, s.moved))
         };
         if processes.size > 1 {
-            simulation.add_systems(Hook::Output, list_particle_pieces);
+            // synchronisation points that run after a failure too (`share_step_failure`)
+            let mut schedules = simulation.world().resource_mut::<Schedules>();
+            schedules.entry(StepSchedule).add_systems((
+                share_step_failure
+                    .after(Hook::PointUpdate)
+                    .before(Hook::AfterStep),
+                share_step_failure
+                    .after(StepSystems::UpdatePoints)
+                    .before(StepSystems::Output),
+                share_step_failure
+                    .after(StepSystems::Output)
+                    .before(StepSystems::ResetGrid),
+            ));
+            schedules.entry(OutputSchedule).add_systems(
+                list_particle_pieces
+                    .after(BuiltInOutput)
+                    .after(Hook::GridOutput)
+                    .before(Hook::Output),
+            );
         }
         if decompose {
             simulation.add_systems(Hook::Loads, decomposition::sum_external_force::<D>);
@@ -350,37 +380,162 @@ fn point_slices<const D: usize>(world: &mut World) -> (Vec<(Entity, usize)>, Vec
     (points, per_slice)
 }
 
-/// Whether a stage failed on any process (collective); if so every process fails, and alike:
-/// a failure step cutting cannot recover on one process is one on every process (otherwise
-/// some would cut the step and wait for the others, which stop).
-fn share_failure(status: &mut RunStatus, step: usize) -> bool {
-    let here = match &status.0 {
-        None => 0,
-        Some(error) if error.is_recoverable_by_cutting() => 1,
-        Some(_) => 2,
-    };
-    let all = largest(here);
-    if all == 0 {
-        return false;
-    }
-    let elsewhere = "a stage failed on another process of the distributed run (process 0 \
-                     reports its own failures)";
-    match (&status.0, all) {
-        (None, _) => status.fail(SolverError::Module {
-            step,
-            what: elsewhere.to_string(),
-            recoverable: all == 1,
-        }),
-        (Some(error), 2) if here == 1 => {
+/// Whether a stage failed on any process (collective; `distributed::failure`): if so every
+/// process fails, and alike. A process that did not fail takes the deciding failure (the most
+/// severe, of the lowest rank) as its own, naming the process it came from; a process that
+/// failed less severely takes it on top of its own. So all of them retry the Newton step
+/// (the line search, after an inadmissible trial state), cut the load step or stop together,
+/// and process 0 reports which process failed and why.
+fn share_failure(status: &mut RunStatus, step: usize, iteration: usize) -> bool {
+    let mine = status.0.as_ref().map(|error| note_of(error, step));
+    let failures = match share_failures(mine.as_ref()) {
+        Ok(None) => return false,
+        Ok(Some(failures)) => failures,
+        Err(why) => {
             status.0 = Some(SolverError::Module {
                 step,
-                what: format!("{error}; and {elsewhere}, one that cutting the step cannot recover"),
+                what: format!("sharing a failure between the processes: {why}"),
                 recoverable: false,
+            });
+            return true;
+        }
+    };
+    let size = failures.len();
+    let Some((rank, deciding)) = failure::deciding(&failures) else {
+        status.0 = Some(SolverError::Module {
+            step,
+            what: "a process of the distributed run failed, and what failed could not be read"
+                .to_string(),
+            recoverable: false,
+        });
+        return true;
+    };
+    match (&status.0, &mine) {
+        (None, _) => status.0 = Some(failure_elsewhere(deciding, rank, size, step, iteration)),
+        (Some(error), Some(note)) if note.severity < deciding.severity => {
+            let own = error.to_string();
+            status.0 = Some(SolverError::Module {
+                step,
+                what: format!(
+                    "{}; and process {rank} of {size} failed: {}",
+                    failure::without_step(&own, step),
+                    failure::without_step(&deciding.message, step)
+                ),
+                recoverable: deciding.severity == Severity::Recoverable,
             });
         }
         _ => {}
     }
     true
+}
+
+/// A failure as the other processes learn it (`distributed::failure`): an inadmissible trial
+/// state (a point's state, a non-finite value outside the linear solve: what the line search
+/// shortens the Newton step for), a failure cutting the step may recover, or another.
+fn note_of(error: &SolverError, step: usize) -> FailureNote {
+    let (severity, point, stage, detail) = match error {
+        SolverError::BadPointState { point, why, .. } => {
+            (Severity::TrialState, Some(*point), "", why.clone())
+        }
+        SolverError::NotFinite { stage, what, .. } if *stage != "linear solve" => {
+            (Severity::TrialState, None, *stage, what.clone())
+        }
+        other if other.is_recoverable_by_cutting() => {
+            (Severity::Recoverable, None, "", String::new())
+        }
+        _ => (Severity::Fatal, None, "", String::new()),
+    };
+    let message = error.to_string();
+    FailureNote {
+        severity,
+        point,
+        stage: stage.to_string(),
+        detail: if detail.is_empty() {
+            failure::without_step(&message, step).to_string()
+        } else {
+            detail
+        },
+        message,
+    }
+}
+
+/// The stages whose non-finite values are inadmissible trial states (`SolverError::NotFinite`
+/// keeps its stage as a `&'static str`).
+const TRIAL_STAGES: [&str; 4] = [
+    "assembly",
+    "point update",
+    "convergence check",
+    "stress recovery",
+];
+
+/// The failure of process `rank` of `size` (`deciding`) as this process's own: of the same
+/// kind when it is an inadmissible trial state (so this process's line search shortens the
+/// step as the failing process's does), else a module's failure saying which process failed
+/// and what, recoverable as the deciding one is.
+fn failure_elsewhere(
+    deciding: &FailureNote,
+    rank: usize,
+    size: usize,
+    step: usize,
+    iteration: usize,
+) -> SolverError {
+    let on = |detail: &str| format!("{detail} (on process {rank} of {size})");
+    match deciding.severity {
+        Severity::TrialState => match deciding.point {
+            Some(point) => SolverError::BadPointState {
+                point,
+                step,
+                iteration,
+                why: on(&deciding.detail),
+            },
+            None => SolverError::NotFinite {
+                stage: TRIAL_STAGES
+                    .into_iter()
+                    .find(|&stage| stage == deciding.stage)
+                    .unwrap_or("assembly"),
+                what: on(&deciding.detail),
+                step,
+            },
+        },
+        severity => SolverError::Module {
+            step,
+            what: format!(
+                "process {rank} of {size} failed: {}",
+                failure::without_step(&deciding.message, step)
+            ),
+            recoverable: severity == Severity::Recoverable,
+        },
+    }
+}
+
+/// Between load steps, and after the initial state (collective in a run over several
+/// processes; `Simulation::run`): whether any process failed since the last load step (a step
+/// that failed on every process, or what one process did alone after it: writing
+/// `summary.json`, `history.csv`, a checkpoint). A failure on any process is every process's,
+/// so all of them stop after the same step; one process returns `outcome` as it is.
+pub fn share_outcome(
+    outcome: Result<(), SolverError>,
+    steps_done: usize,
+) -> Result<(), SolverError> {
+    if processes().is_none_or(|p| p.size < 2) {
+        return outcome;
+    }
+    let mut status = RunStatus(outcome.err());
+    share_failure(&mut status, steps_done, 0);
+    match status.0 {
+        Some(error) => Err(error),
+        None => Ok(()),
+    }
+}
+
+/// A synchronisation point of the load step (collective; runs after a failure too): whether a
+/// stage failed on any process since the last one, so that every process goes on, or fails,
+/// alike. Placed where a stage that runs on each process's own points or files is followed by
+/// a collective call: after the point update (the reactions' sum follows), after the step's
+/// last stages on points (the particle pieces' listing follows) and at the end of the output
+/// (the sums over points of the step's records follow).
+pub fn share_step_failure(mut status: ResMut<RunStatus>, step: Res<LoadStep>, newton: Res<Newton>) {
+    share_failure(&mut status, step.number, newton.iterations);
 }
 
 /// Adds `vectors` (one per node) over the processes: with the decomposed grid at its nodes
@@ -418,9 +573,10 @@ pub fn combine_assembly<const D: usize>(
     mut clock: ResMut<StageClock>,
     step: Res<LoadStep>,
     decomposed: Option<Res<grid::DecomposedGrid>>,
+    newton: Res<Newton>,
 ) {
     let _timer = clock.time(Stage::Assembly);
-    if share_failure(&mut status, step.number) {
+    if share_failure(&mut status, step.number, newton.iterations) {
         return;
     }
     let decomposed = decomposed.as_deref();
@@ -433,34 +589,37 @@ pub fn combine_assembly<const D: usize>(
     }
 }
 
-/// After the processes wrote their pieces of the particle file (`ParticlePieces`): whether
-/// any failed (then every process fails the step: collective, and it also waits until every
-/// piece is written); then process 0 lists the pieces in `particles_NNNN.pvtu` and adds that
-/// to `particles.pvd`.
+/// After the processes wrote their pieces of the particle file (`ParticlePieces`), in an
+/// output step: whether any process failed, in the output stages before or writing its piece
+/// (collective; runs after a failure too: then every process fails the step, and alike); then
+/// process 0 lists the pieces in `particles_NNNN.pvtu` and adds that to `particles.pvd`.
 pub fn list_particle_pieces(
     mut pieces: ResMut<ParticlePieces>,
     mut plan: ResMut<OutputPlan>,
     share: Res<AssemblyShare>,
     mut status: ResMut<RunStatus>,
     step: Res<LoadStep>,
+    newton: Res<Newton>,
 ) {
-    let Some(written) = pieces.written.take() else {
+    let written = pieces.written.take();
+    if !plan.writes(&step) {
         return; // not an output step (the same on every process)
+    }
+    let arrays = match (written, &status.0) {
+        (Some(Ok(WrittenPiece { arrays, .. })), None) => Some(arrays),
+        (Some(Err(why)), None) => {
+            status.fail(SolverError::Output {
+                step: step.number,
+                why,
+            });
+            None
+        }
+        _ => None,
     };
-    if any(written.is_err()) {
-        let why = match written {
-            Err(why) => why,
-            Ok(_) => "a piece of the particle file could not be written by another process \
-                      of the distributed run"
-                .to_string(),
-        };
-        status.fail(SolverError::Output {
-            step: step.number,
-            why,
-        });
+    if share_failure(&mut status, step.number, newton.iterations) {
         return;
     }
-    let Ok(WrittenPiece { arrays, .. }) = written else {
+    let Some(arrays) = arrays else {
         return;
     };
     if share.processes.rank != 0 {
