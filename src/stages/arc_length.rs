@@ -169,8 +169,13 @@ pub struct ArcLengthSpec {
     /// (module docs, "Rebalancing before the arc").
     pub rebalance: Rebalance,
     /// Whether the scene has held loads: f_ext = f_fixed + λ f̂, the loads evaluated twice per
-    /// step (module docs, "Held loads").
+    /// step (module docs, "Held loads"); always in a staged scene whose arc starts after the
+    /// first stage (the earlier stages' loads are held).
     pub fixed_loads: bool,
+    /// The first load step the arc controls (1-based): 1, or the first step of the
+    /// arc-controlled stage of a staged scene (module docs, "Stages"); the steps before it are
+    /// load-controlled and nothing of the arc runs in them.
+    pub first_step: usize,
 }
 
 impl Default for ArcLengthSpec {
@@ -180,7 +185,18 @@ impl Default for ArcLengthSpec {
             max_load_factor: f64::INFINITY,
             rebalance: Rebalance::Off,
             fixed_loads: false,
+            first_step: 1,
         }
+    }
+}
+
+impl ArcLengthSpec {
+    /// The load factor that sizes the first arc: the first factor of the arc's steps.
+    pub fn first_factor(&self, load_factors: &[f64]) -> f64 {
+        load_factors
+            .get(self.first_step.saturating_sub(1))
+            .copied()
+            .unwrap_or(0.0)
     }
 }
 
@@ -347,6 +363,8 @@ pub struct ArcLength<const D: usize> {
     rebalancing_step: Option<usize>,
     /// Whether a step that went without its rebalancing was warned about (once per run).
     warned_unbalanced: bool,
+    /// The first load step the arc controls ([`ArcLengthSpec::first_step`]).
+    pub first_step: usize,
 }
 
 impl<const D: usize> ArcLength<D> {
@@ -372,7 +390,14 @@ impl<const D: usize> ArcLength<D> {
             rebalanced: None,
             rebalancing_step: None,
             warned_unbalanced: false,
+            first_step: 1,
         }
+    }
+
+    /// Whether the arc controls load step `step` (the steps before [`ArcLength::first_step`]
+    /// are load-controlled: a staged scene's earlier stages).
+    pub fn controls(&self, step: usize) -> bool {
+        step >= self.first_step
     }
 
     /// Prepares an attempt from λ = `start` with the arc `radius` (0: sized by the predictor).
@@ -422,6 +447,18 @@ impl<const D: usize> ArcLength<D> {
         }
     }
 
+    /// A follower load's held force changed by `change` (by node) with the iterate: f_fixed is
+    /// the loads at λ = 0 in the current configuration, so it follows (`effects::pressure`: a
+    /// pressure of an earlier stage under the arc of a later one).
+    pub fn change_fixed(&mut self, change: &[SVector<f64, D>]) {
+        if self.fixed.is_empty() {
+            self.fixed = vec![SVector::zeros(); change.len()];
+        }
+        for (f, df) in self.fixed.iter_mut().zip(change) {
+            *f += df;
+        }
+    }
+
     /// A follower load's force at λ = 1 changed by `change` (by node) with the iterate: f̂ is
     /// the loads at λ = 1 in the current configuration, so it and its free-DOF part follow
     /// (`effects::pressure`).
@@ -452,6 +489,12 @@ impl<const D: usize> ArcLength<D> {
             .sum::<f64>()
             .sqrt()
     }
+}
+
+/// The run condition of every system of the arc: the step is one the arc controls
+/// ([`ArcLength::controls`]; in a staged scene the earlier stages' steps are load-controlled).
+pub fn arc_controls_step<const D: usize>(arc: Res<ArcLength<D>>, step: Res<LoadStep>) -> bool {
+    arc.controls(step.number)
 }
 
 /// `Hook::AfterDofs` (so before `Hook::Loads`): the loads are evaluated at λ = 1
