@@ -27,6 +27,17 @@
 //! * the Newton line search, which would move the iterate off the arc;
 //! * runs under `mpirun` with more than one process (the arc's second solve and its dot
 //!   products are not distributed yet).
+//!
+//! # Stages
+//!
+//! In a staged scene the arc is asked for by the last stage, `stage(#{ .., control:
+//! "arc_length" })` (`scene::stages` refuses it on another stage, and `solver(#{ control:
+//! "arc_length" })`, which names no stage); `solver(...)` still tunes it (`target_iterations`,
+//! `max_load_factor`, `rebalance`). The refusals above are then made at the stage's line. The
+//! arc starts at the stage's first step ([`ArcLengthSpec::first_step`]); every system above is
+//! gated on it (`arc_controls_step`), so the earlier, load-controlled stages run as without
+//! the arc, bit for bit; the earlier stages' loads are held beside the arc's
+//! (`fixed_loads`, module docs of `stages::arc_length`, "Stages").
 
 use super::body_force::BodyForceRamp;
 use super::grid_constraints::ConstraintDeclarations;

@@ -65,8 +65,21 @@
 //! derivative of the residual with respect to λ): the same change is added to the arc's f̂
 //! ([`ArcLength::change_reference`]), and λ is the iterate's.
 //!
+//! # Stages
+//!
+//! A pressure declared in stage k follows that stage's load factor, is held in full (its p;
+//! its force still follows the boundary) in the stages after it, and with `until_stage: "s"`
+//! is ramped down over stage s (`declarations::released_factor`). The parts of the
+//! declarations that share a stage and a release form a group ([`PressureGroup`]) whose force
+//! is kept and scaled by the group's factor; a scene without stages has one group, and its
+//! factor is λ, as before. Under arc-length control in stage k each group's factor is affine in
+//! λ, c = c₀ + λ c₁ ([`PressureGroup::split`]): the change of its force with the iterate goes
+//! to the arc's f_fixed times c₀ and to its f̂ times c₁. [`apply_pressure`] is a load system of
+//! the arc's second evaluation at λ = 0 (`effects::arc_length::add_load_system`).
+//!
 //! Systems, added only when a scene declares a pressure: [`find_pressure_weights`]
-//! (`Hook::Connectivity`), [`apply_pressure`] (`Hook::Loads`), [`follow_pressure`]
+//! (`Hook::Connectivity`), [`apply_pressure`] (`Hook::Loads`; with held loads under the arc also
+//! at λ = 0), [`follow_pressure`]
 //! (`Hook::AfterAssembly`), [`carry_pressure_points`] (`Hook::PointUpdate`).
 
 use bevy_ecs::prelude::*;

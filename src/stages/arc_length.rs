@@ -83,6 +83,20 @@
 //! equilibrium (its start residual is the held loads', not a cell crossing: not warned).
 //! A follower pressure is not held (`effects::pressure` keeps its own f̂ part up to date).
 //!
+//! # Stages
+//!
+//! In a staged scene the last stage may be arc-controlled (`stage(#{ .., control:
+//! "arc_length" })`, `scene::stages`): its steps, from [`ArcLengthSpec::first_step`] on, are
+//! the arc's, the earlier stages' are load-controlled and no system of the arc runs in them
+//! ([`arc_controls_step`]). In the arc's stage k every load is affine in the stage's own λ (the
+//! earlier stages' loads held at their final value, the stage's own following λ), so the split
+//! above is exact with the loads evaluated at the stage's λ = 0 and 1: f_fixed holds the earlier
+//! stages' loads (and the stage's `held` ones), f̂ the stage's own. The scene always has held
+//! loads then (`fixed_loads`), so the arc's first step first balances f_fixed at λ = 0 from
+//! the last load-controlled state, and its first arc is sized by the stage's first load factor.
+//! A release ramped over the arc's stage, (1 − λ) f_end, is refused when the scene is read
+//! (λ goes past 1 under the arc).
+//!
 //! # A step that starts out of balance
 //!
 //! At Δu = 0 the residual is λ_n f̂ − f_int(u_n) on the new grid: the previous step's converged
@@ -424,9 +438,13 @@ impl<const D: usize> ArcLength<D> {
         self.fixed_loads && self.previous.is_empty() && self.start == 0.0
     }
 
-    /// How the current attempt rebalances: the scene's choice, or at a fixed λ when only the
-    /// held loads ask for it.
+    /// How the current attempt rebalances: at a fixed λ when it balances the held loads (the
+    /// first step's, whatever the scene chose for the later steps: with λ free the balance
+    /// of the held loads alone would move the controlled ones too), else the scene's choice.
     fn rebalancing_mode(&self) -> Rebalance {
+        if self.balances_held_loads() {
+            return Rebalance::Fixed;
+        }
         match self.rebalance {
             Rebalance::Off => Rebalance::Fixed,
             mode => mode,
