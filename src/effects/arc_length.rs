@@ -329,9 +329,8 @@ impl Plugin for ArcLengthModule {
 
     fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
         let spec = simulation.spec();
-        let Some(&arc_spec) = spec.part::<ArcLengthSpec>() else {
-            return;
-        };
+        // (built without the scene's part too: `impm check --explain` lists what it adds)
+        let arc_spec = spec.part::<ArcLengthSpec>().copied().unwrap_or_default();
         let first = arc_spec.first_factor(&spec.load_factors);
         let (rebalance, fixed_loads) = (arc_spec.rebalance, arc_spec.fixed_loads);
         let mut arc = ArcLength::<D>::new(first);
