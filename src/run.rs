@@ -121,7 +121,7 @@ impl<const D: usize> Simulation<D> {
             steps_done: 0,
             control: Box::new(StepCutting::new(spec.solver.max_step_cuts)),
             arc: spec.part::<ArcLengthSpec>().map(|arc| {
-                let first = spec.load_factors.first().copied().unwrap_or(0.0);
+                let first = arc.first_factor(&spec.load_factors);
                 ArcLengthControl::new(*arc, spec.solver.max_step_cuts, first)
             }),
             restart: None,
@@ -279,34 +279,22 @@ impl<const D: usize> Simulation<D> {
     /// Solves the next load step with the attempts the control policy asks for (see
     /// `control.rs`); on failure the error is also recorded in the summary.
     pub fn step(&mut self) -> Result<&StepRecord, SolverError> {
-        if self.arc.is_some() {
+        let number = self.steps_done + 1;
+        if self.arc_controls(number) {
             return self.arc_length_step();
         }
-        let number = self.steps_done + 1;
         let target = self.spec.load_factors[number - 1];
         // a stage's schedule starts from λ = 0 (`scene::stages`)
-        let (stage, starts_stage) = self.stage_of(number);
+        let (stage, starts_stage) = self.begin_stage(number);
         let start = match number {
             1 => 0.0,
             _ if starts_stage => 0.0,
             n => self.spec.load_factors[n - 2],
         };
-        self.world.resource_mut::<CurrentStage>().0 = stage;
-        if starts_stage
-            && self
-                .spec
-                .part::<Stages>()
-                .is_some_and(|stages| stages.zeroes_displacements(stage))
-        {
-            effects::stages::zero_displacements::<D>(&mut self.world);
-        }
         *self.world.resource_mut::<StageClock>() = StageClock::default();
         let clock = Instant::now();
         let mut record = StepRecord::new(number, target);
-        record.stage = self
-            .spec
-            .part::<Stages>()
-            .map(|stages| (stage, stages.name(stage).to_string()));
+        record.stage = self.stage_record(stage);
         let mut attempt = self.control.begin(start, target);
         loop {
             match self.attempt(number, attempt, &mut record) {
@@ -336,6 +324,39 @@ impl<const D: usize> Simulation<D> {
         self.spec
             .part::<Stages>()
             .map_or((0, number == 1), |stages| stages.of_step(number))
+    }
+
+    /// Whether arc-length control solves load step `number`: every step of a scene that asks
+    /// for it, the steps of the arc-controlled stage of a staged scene (the last stage; the
+    /// stages before it are load-controlled).
+    fn arc_controls(&self, number: usize) -> bool {
+        self.arc
+            .as_ref()
+            .is_some_and(|arc| number >= arc.spec.first_step)
+    }
+
+    /// Sets the stage of load step `number` for the step's systems and, at a stage's first
+    /// step, measures the displacements from its start if it asks for that; returns the stage
+    /// and whether the step starts it.
+    fn begin_stage(&mut self, number: usize) -> (usize, bool) {
+        let (stage, starts_stage) = self.stage_of(number);
+        self.world.resource_mut::<CurrentStage>().0 = stage;
+        if starts_stage
+            && self
+                .spec
+                .part::<Stages>()
+                .is_some_and(|stages| stages.zeroes_displacements(stage))
+        {
+            effects::stages::zero_displacements::<D>(&mut self.world);
+        }
+        (stage, starts_stage)
+    }
+
+    /// The stage's index and name for the step's record (none in a scene without stages).
+    fn stage_record(&self, stage: usize) -> Option<(usize, String)> {
+        self.spec
+            .part::<Stages>()
+            .map(|stages| (stage, stages.name(stage).to_string()))
     }
 
     /// Records a converged step (at the load factor of its record) and writes the records.
@@ -370,10 +391,14 @@ impl<const D: usize> Simulation<D> {
     /// one it converged at.
     fn arc_length_step(&mut self) -> Result<&StepRecord, SolverError> {
         let number = self.steps_done + 1;
+        // in a staged scene, the arc-controlled stage (its λ from 0, the earlier stages' loads
+        // held: `effects::arc_length`)
+        let (stage, _) = self.begin_stage(number);
         *self.world.resource_mut::<StageClock>() = StageClock::default();
         let clock = Instant::now();
         let start = self.arc_control().begin();
         let mut record = StepRecord::new(number, start);
+        record.stage = self.stage_record(stage);
         loop {
             let (start, radius, first) = self.arc_control().begin_attempt();
             {
@@ -442,7 +467,9 @@ impl<const D: usize> Simulation<D> {
         };
         record.seconds = self.world.resource::<StageClock>().clone();
         record.wall_seconds = clock.elapsed().as_secs_f64();
-        if let Some(arc) = &self.arc {
+        if let Some(arc) = &self.arc
+            && record.step >= arc.spec.first_step
+        {
             self.summary.arc_length = Some(failed_arc_length(arc, record.step, &error));
         }
         self.summary.fail(record, &error);
@@ -505,7 +532,9 @@ impl<const D: usize> Simulation<D> {
                 break;
             }
         }
-        if let Some(arc) = &self.arc {
+        if let Some(arc) = &self.arc
+            && self.steps_done >= arc.spec.first_step
+        {
             self.summary.arc_length = Some(arc.to_json());
             let report = arc.report();
             let stalled = arc.stalled_warning();

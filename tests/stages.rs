@@ -504,12 +504,6 @@ fn bad_stages_are_refused_with_the_scene_line() {
             vec!["given by the stages"],
         ),
         (
-            "unstaged load",
-            "pressure(#{ on: arc(#{ centre: [0.0, 0.0], radius: 1.0, from: 0.0, to: 90.0 }), pressure: 1.0 });\nstage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"b\", steps: 1 });",
-            5,
-            vec!["pressure", "does not follow stages"],
-        ),
-        (
             "unstaged column solution",
             "stage(#{ name: \"a\", steps: 1 });\nstage(#{ name: \"b\", steps: 1 });\nanalytic_column(#{ axis: 1, height: 1.0, material: soil, body_force: -10.0 });",
             7,

@@ -27,6 +27,17 @@
 //! * the Newton line search, which would move the iterate off the arc;
 //! * runs under `mpirun` with more than one process (the arc's second solve and its dot
 //!   products are not distributed yet).
+//!
+//! # Stages
+//!
+//! In a staged scene the arc is asked for by the last stage, `stage(#{ .., control:
+//! "arc_length" })` (`scene::stages` refuses it on another stage, and `solver(#{ control:
+//! "arc_length" })`, which names no stage); `solver(...)` still tunes it (`target_iterations`,
+//! `max_load_factor`, `rebalance`). The refusals above are then made at the stage's line. The
+//! arc starts at the stage's first step ([`ArcLengthSpec::first_step`]); every system above is
+//! gated on it (`arc_controls_step`), so the earlier, load-controlled stages run as without
+//! the arc, bit for bit; the earlier stages' loads are held beside the arc's
+//! (`fixed_loads`, module docs of `stages::arc_length`, "Stages").
 
 use super::body_force::BodyForceRamp;
 use super::grid_constraints::ConstraintDeclarations;
@@ -35,15 +46,19 @@ use crate::checkpoint::CheckpointPart;
 use crate::method::Hook;
 use crate::plugin::{Extension, Plugin};
 use crate::resources::RunStatus;
-use crate::scene::{Choice, Kind, OptionSpec, Range, Resolver, SceneApi, SceneSpec, ScriptError};
+use crate::scene::{
+    Choice, Kind, OptionSpec, Range, Resolver, SceneApi, SceneSpec, ScriptError, Stages,
+};
 use crate::stages::arc_length::{
     ArcLength, ArcLengthSpec, FixedLoadSlot, FixedLoadSlots, FixedLoadsSchedule, Rebalance,
-    correct_load_factor, finish_rebalance, keep_going_forward, record_start_imbalance,
-    restore_arc_state, save_arc_state, split_fixed_loads, take_reference_load, unit_load,
+    arc_controls_step, correct_load_factor, finish_rebalance, keep_going_forward,
+    record_start_imbalance, restore_arc_state, save_arc_state, split_fixed_loads,
+    take_reference_load, unit_load,
 };
 use bevy_ecs::prelude::{IntoScheduleConfigs, Res, World};
 use bevy_ecs::schedule::{Schedule, Schedules, SingleThreadedExecutor};
 use bevy_ecs::system::ScheduleSystem;
+use rhai::Position;
 
 /// The module: built when the scene asks for arc-length control.
 #[derive(Clone, Copy, Debug, Default)]
@@ -134,27 +149,45 @@ impl Plugin for ArcLengthModule {
     }
 
     fn resolve(&self, scene: &mut Resolver) -> Result<(), ScriptError> {
-        let Some(solver) = scene.call_options("solver") else {
-            return Ok(());
-        };
-        let (options, at) = (&solver.value, solver.at);
-        if options.text("control") != Some("arc_length") {
-            for key in ["target_iterations", "max_load_factor", "rebalance"] {
-                if options.has(key) {
-                    return Err(ScriptError::at(
-                        at,
-                        format!("solver(...): '{key}' applies to control: \"arc_length\" only"),
-                    ));
+        let solver = scene.call_options("solver");
+        // the arc-controlled stage of a staged scene (the last one): its call and first step
+        let staged = scene
+            .spec
+            .part::<Stages>()
+            .and_then(Stages::arc_length_stage);
+        let stage_call = staged.and_then(|(index, _)| scene.every_call_options("stage").nth(index));
+        let asked = solver.is_some_and(|s| s.value.text("control") == Some("arc_length"));
+        if !asked && staged.is_none() {
+            if let Some(solver) = solver {
+                for key in ["target_iterations", "max_load_factor", "rebalance"] {
+                    if solver.value.has(key) {
+                        return Err(ScriptError::at(
+                            solver.at,
+                            format!(
+                                "solver(...): '{key}' applies to control: \"arc_length\" only \
+                                 (in solver(...), or in a staged scene on the last \
+                                 stage(#{{ .., control: \"arc_length\" }}))"
+                            ),
+                        ));
+                    }
                 }
             }
             return Ok(());
         }
-        let refuse = |why: String| ScriptError::at(at, format!("solver(...): {why}"));
-        if options.flag("line_search") == Some(true) {
-            return Err(refuse(
-                "control: \"arc_length\" cannot be combined with line_search: true (the line \
-                 search would move the iterate off the arc)"
-                    .to_string(),
+        // refused at the line that asks for the arc: the arc-controlled stage, or solver(...)
+        let (subject, at) = match (stage_call, solver) {
+            (Some(stage), _) => ("stage(...)", stage.at),
+            (None, Some(solver)) => ("solver(...)", solver.at),
+            (None, None) => ("solver(...)", Position::NONE),
+        };
+        let refuse = |why: String| ScriptError::at(at, format!("{subject}: {why}"));
+        if let Some(solver) = solver
+            && solver.value.flag("line_search") == Some(true)
+        {
+            return Err(ScriptError::at(
+                solver.at,
+                "solver(...): control: \"arc_length\" cannot be combined with line_search: true \
+                 (the line search would move the iterate off the arc)",
             ));
         }
         if crate::distributed::launched_by_mpirun().is_some_and(|p| p.size > 1) {
@@ -165,13 +198,24 @@ impl Plugin for ArcLengthModule {
                     .to_string(),
             ));
         }
-        let first = scene.spec.load_factors.first().copied().unwrap_or(0.0);
+        let first_step = staged.map_or(1, |(_, first)| first);
+        let first = ArcLengthSpec {
+            first_step,
+            ..ArcLengthSpec::default()
+        }
+        .first_factor(&scene.spec.load_factors);
         if first == 0.0 || !first.is_finite() {
             return Err(refuse(format!(
-                "control: \"arc_length\" sizes its first arc from the first load factor, which \
-                 is {first}: give a schedule whose first factor is not zero"
+                "control: \"arc_length\" sizes its first arc from the first load factor{}, \
+                 which is {first}: give a schedule whose first factor is not zero",
+                if staged.is_some() {
+                    " of the stage"
+                } else {
+                    ""
+                }
             )));
         }
+        let options = solver.map(|s| &s.value);
         let conflict = |what: &str, line: Option<usize>| {
             let line = line.map(|l| format!(" (line {l})")).unwrap_or_default();
             refuse(format!(
@@ -211,7 +255,9 @@ impl Plugin for ArcLengthModule {
                 .every_call_options(name)
                 .any(|call| call.value.flag("held") == Some(true))
         });
-        let fixed_loads = held_call
+        // in a staged scene the earlier stages' loads are held under the arc (f_fixed)
+        let fixed_loads = first_step > 1
+            || held_call
             || scene
                 .declarations::<BodyForceRamp>()
                 .iter()
@@ -223,28 +269,40 @@ impl Plugin for ArcLengthModule {
         let default = ArcLengthSpec::default();
         scene.spec.set_part(ArcLengthSpec {
             target_iterations: options
-                .whole("target_iterations")
+                .and_then(|o| o.whole("target_iterations"))
                 .unwrap_or(default.target_iterations),
             max_load_factor: options
-                .number("max_load_factor")
+                .and_then(|o| o.number("max_load_factor"))
                 .unwrap_or(default.max_load_factor),
             rebalance: options
-                .text("rebalance")
+                .and_then(|o| o.text("rebalance"))
                 .and_then(Rebalance::from_word)
                 .unwrap_or(default.rebalance),
             fixed_loads,
+            first_step,
         });
         Ok(())
     }
 
     fn describe(&self, spec: &SceneSpec) -> Option<String> {
         spec.part::<ArcLengthSpec>().map(|arc| {
+            let stage = match (spec.part::<Stages>(), arc.first_step) {
+                (Some(stages), first) if first > 1 => {
+                    let index = stages.of_step(first).0;
+                    format!(
+                        "stage '{}' (from step {first}; the stages before it under load control, \
+                         their loads held beside the arc's): ",
+                        stages.name(index)
+                    )
+                }
+                _ => String::new(),
+            };
             format!(
-                "target {} iterations per step, at most {} steps, first arc from the load \
+                "{stage}target {} iterations per step, at most {} steps, first arc from the load \
                  increment {}{}{}{}",
                 arc.target_iterations,
-                spec.load_factors.len(),
-                spec.load_factors.first().copied().unwrap_or(0.0),
+                (spec.load_factors.len() + 1).saturating_sub(arc.first_step),
+                arc.first_factor(&spec.load_factors),
                 if arc.max_load_factor.is_finite() {
                     format!(", ends at load factor {}", arc.max_load_factor)
                 } else {
@@ -271,28 +329,36 @@ impl Plugin for ArcLengthModule {
 
     fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
         let spec = simulation.spec();
-        let first = spec.load_factors.first().copied().unwrap_or(0.0);
-        let rebalance = spec
-            .part::<ArcLengthSpec>()
-            .map_or(Rebalance::Off, |a| a.rebalance);
-        let fixed_loads = spec.part::<ArcLengthSpec>().is_some_and(|a| a.fixed_loads);
+        // (built without the scene's part too: `impm check --explain` lists what it adds)
+        let arc_spec = spec.part::<ArcLengthSpec>().copied().unwrap_or_default();
+        let first = arc_spec.first_factor(&spec.load_factors);
+        let (rebalance, fixed_loads) = (arc_spec.rebalance, arc_spec.fixed_loads);
         let mut arc = ArcLength::<D>::new(first);
         arc.rebalance = rebalance;
         arc.fixed_loads = fixed_loads;
+        arc.first_step = arc_spec.first_step;
         simulation.world().insert_resource(arc);
-        simulation.add_systems(Hook::AfterDofs, unit_load);
+        // nothing of the arc runs in the load-controlled steps before its stage
+        let controls = arc_controls_step::<D>;
+        simulation.add_systems(Hook::AfterDofs, unit_load.run_if(controls));
         if fixed_loads {
-            simulation.add_systems(Hook::BeforeSolve, split_fixed_loads::<D>);
+            simulation.add_systems(Hook::BeforeSolve, split_fixed_loads::<D>.run_if(controls));
         }
         simulation
-            .add_systems(Hook::BeforeSolve, take_reference_load::<D>)
-            .add_systems(Hook::Convergence, record_start_imbalance::<D>);
+            .add_systems(Hook::BeforeSolve, take_reference_load::<D>.run_if(controls))
+            .add_systems(
+                Hook::Convergence,
+                record_start_imbalance::<D>.run_if(controls),
+            );
         if rebalance != Rebalance::Off || fixed_loads {
-            simulation.add_systems(Hook::Convergence, finish_rebalance::<D>);
+            simulation.add_systems(Hook::Convergence, finish_rebalance::<D>.run_if(controls));
         }
         simulation
-            .add_systems(Hook::Convergence, keep_going_forward::<D>)
-            .add_systems(Hook::AfterLinearSolve, correct_load_factor::<D>)
+            .add_systems(Hook::Convergence, keep_going_forward::<D>.run_if(controls))
+            .add_systems(
+                Hook::AfterLinearSolve,
+                correct_load_factor::<D>.run_if(controls),
+            )
             .add_measure("initial_imbalance", |world, _| {
                 world.resource::<ArcLength<D>>().start_imbalance
             })

@@ -75,6 +75,14 @@ pub fn until_stage(
             ),
         ));
     }
+    if stages[index].arc_length {
+        return Err(ScriptError::at(
+            at,
+            format!(
+                "{function}(...): until_stage: '{until}' is arc-controlled (control: \"arc_length\"): a release is ramped down with the stage's load factor, (1 − λ) f_end, and the arc takes λ past 1 to the limit load, where the released force would act the other way; release it in an earlier stage under load control"
+            ),
+        ));
+    }
     Ok(index)
 }
 

@@ -65,16 +65,32 @@
 //! derivative of the residual with respect to λ): the same change is added to the arc's f̂
 //! ([`ArcLength::change_reference`]), and λ is the iterate's.
 //!
+//! # Stages
+//!
+//! A pressure declared in stage k follows that stage's load factor, is held in full (its p;
+//! its force still follows the boundary) in the stages after it, and with `until_stage: "s"`
+//! is ramped down over stage s (`declarations::released_factor`). The parts of the
+//! declarations that share a stage and a release form a group ([`PressureGroup`]) whose force
+//! is kept and scaled by the group's factor; a scene without stages has one group, and its
+//! factor is λ, as before. Under arc-length control in stage k each group's factor is affine in
+//! λ, c = c₀ + λ c₁ ([`PressureGroup::split`]): the change of its force with the iterate goes
+//! to the arc's f_fixed times c₀ and to its f̂ times c₁. [`apply_pressure`] is a load system of
+//! the arc's second evaluation at λ = 0 (`effects::arc_length::add_load_system`).
+//!
 //! Systems, added only when a scene declares a pressure: [`find_pressure_weights`]
-//! (`Hook::Connectivity`), [`apply_pressure`] (`Hook::Loads`), [`follow_pressure`]
+//! (`Hook::Connectivity`), [`apply_pressure`] (`Hook::Loads`; with held loads under the arc also
+//! at λ = 0), [`follow_pressure`]
 //! (`Hook::AfterAssembly`), [`carry_pressure_points`] (`Hook::PointUpdate`).
 
 use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 use rhai::Dynamic;
 
+use super::arc_length::add_load_system;
 use super::carried_points::{carried_point, restore_positions, save_positions};
-use super::declarations::LoadSummary;
+use super::declarations::{
+    LoadSummary, keep_largest_force, released_factor, until_stage_of, until_stage_option,
+};
 use super::tractions::host_weights;
 use crate::basis::{BasisKind, BasisScratch, NodeWeight};
 use crate::checkpoint::CheckpointPart;
@@ -82,7 +98,8 @@ use crate::components::{Position, Support};
 use crate::mechanics::active_weight;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{
-    Grid, GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock,
+    CurrentStage, Grid, GridFields, LoadStep, Newton, Ramp, RunStatus, SolverError, Stage,
+    StageClock,
 };
 use crate::scene::{
     CallSpec, GridSpec, Kind, Located, OptionSpec, Options, Range, Resolver, SceneApi, SceneSpec,
@@ -136,6 +153,10 @@ struct PressureDeclaration {
     arc: ArcShape,
     pressure: f64,
     per_cell: usize,
+    /// The stage it belongs to (λ of that stage, held after it).
+    ramp: Ramp,
+    /// `until_stage`: the stage whose start releases it, by name.
+    until: Option<String>,
 }
 
 /// A carried point of a pressure: its reference position and host (a global point index).
@@ -146,20 +167,48 @@ pub struct CarriedSpec {
 }
 
 /// One part of a pressure arc: its vertices and load point (indices among the scene's pressure
-/// points) and s p, the pressure signed so that s p Q (x_end − x_start) pushes into the body.
+/// points), s p, the pressure signed so that s p Q (x_end − x_start) pushes into the body, and
+/// the group of its load factor ([`Pressures::groups`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Part {
     pub start: usize,
     pub end: usize,
     pub load_point: usize,
     pub pressure: f64,
+    pub group: usize,
 }
 
-/// The scene's pressures: every carried point (vertices and load points) and every part.
+/// How the pressures of a group follow the load factor: the stage they belong to (its λ in
+/// it, held in full after it) and the stage whose start releases them, if any
+/// (`declarations::released_factor`). A scene without stages has one group, λ itself.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct PressureGroup {
+    pub ramp: Ramp,
+    pub until: Option<usize>,
+}
+
+impl PressureGroup {
+    /// The factor of the group's pressures in `step` of stage `stage`.
+    pub fn factor(&self, step: &LoadStep, stage: usize) -> f64 {
+        released_factor(step, self.ramp, self.until, stage)
+    }
+
+    /// Its factor as f_fixed + λ f̂ splits it under arc-length control: (the factor at λ = 0,
+    /// its change from λ = 0 to 1). Every factor is affine in λ.
+    pub fn split(&self, step: &LoadStep, stage: usize) -> (f64, f64) {
+        let at = |factor: f64| self.factor(&LoadStep { factor, ..*step }, stage);
+        let held = at(0.0);
+        (held, at(1.0) - held)
+    }
+}
+
+/// The scene's pressures: every carried point (vertices and load points), every part and the
+/// groups of their load factors.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Pressures {
     pub points: Vec<CarriedSpec>,
     pub parts: Vec<Part>,
+    pub groups: Vec<PressureGroup>,
     pub summaries: Vec<LoadSummary>,
 }
 
@@ -178,14 +227,16 @@ carried_point!(PressurePoint);
 #[derive(Resource, Debug, Default)]
 pub struct PressureLoad<const D: usize> {
     pub parts: Vec<Part>,
+    pub groups: Vec<PressureGroup>,
     /// Start-of-step positions of the carried points, by id.
     pub start: Vec<SVector<f64, D>>,
     /// ŵ_j of every carried point, by id (module docs).
     pub carry: Vec<Vec<(usize, f64)>>,
     /// N_i(m_k) / Σ_active N of every part's load point, over the active nodes.
     pub spread: Vec<Vec<(usize, f64)>>,
-    /// f̂_p by node: the pressure's force at λ = 1 now included in the external force.
-    pub added: Vec<SVector<f64, D>>,
+    /// f̂_p by node, per group: the pressures' forces at factor 1 now included in the external
+    /// force (each group's times its factor).
+    pub added: Vec<Vec<SVector<f64, D>>>,
 }
 
 /// A quarter turn clockwise, Q t (2D; zero in other dimensions, where no pressure is built).
@@ -229,13 +280,33 @@ pub fn add_pressure_forces<const D: usize>(
     }
 }
 
+/// Every part's force at factor 1, spread over its load point's active nodes, summed by group:
+/// one vector by node per group (in part order within a group, as [`add_pressure_forces`]).
+pub fn group_forces<const D: usize>(
+    parts: &[Part],
+    groups: usize,
+    spread: &[Vec<(usize, f64)>],
+    positions: &[SVector<f64, D>],
+    nodes: usize,
+) -> Vec<Vec<SVector<f64, D>>> {
+    let mut forces = vec![vec![SVector::zeros(); nodes]; groups];
+    for (part, spread) in parts.iter().zip(spread) {
+        let force = part_force(part, positions);
+        for &(node, w) in spread {
+            forces[part.group][node] += force * w;
+        }
+    }
+    forces
+}
+
 /// Calls `add(i, a, j, b, value)` for every entry of −λ ∂f_ext/∂Δu (module docs): node i,
-/// component a of the force; node j, component b of the increment.
+/// component a of the force; node j, component b of the increment; `factors` is λ of each
+/// group (the parts' [`Part::group`]).
 pub fn pressure_tangent<const D: usize>(
     parts: &[Part],
     spread: &[Vec<(usize, f64)>],
     carry: &[Vec<(usize, f64)>],
-    factor: f64,
+    factors: &[f64],
     mut add: impl FnMut(usize, usize, usize, usize, f64),
 ) {
     let q = |a: usize, b: usize| match (a, b) {
@@ -244,6 +315,7 @@ pub fn pressure_tangent<const D: usize>(
         _ => 0.0,
     };
     for (part, spread) in parts.iter().zip(spread) {
+        let factor = factors[part.group];
         let ends = [(part.end, 1.0), (part.start, -1.0)];
         for &(i, n_i) in spread {
             for &(vertex, sign) in &ends {
@@ -338,6 +410,7 @@ impl Plugin for PressureModule {
                     },
                     "equal parts of the arc per cell of its length (default 2)",
                 ),
+                until_stage_option(),
             ],
             |builder, options: &Options, at| {
                 let on = options.value("on").cloned().unwrap_or(Dynamic::UNIT);
@@ -352,6 +425,8 @@ impl Plugin for PressureModule {
                         arc,
                         pressure: options.number("pressure").unwrap_or(0.0),
                         per_cell: options.whole("per_cell").unwrap_or(2),
+                        ramp: Ramp::staged(false, builder.stage()),
+                        until: options.text("until_stage").map(str::to_string),
                     },
                     at,
                 ));
@@ -377,15 +452,41 @@ impl Plugin for PressureModule {
                     "not supported under mpirun with more than one process yet".into(),
                 ));
             }
+            let until = until_stage_of(
+                scene.spec,
+                "pressure",
+                declaration.value.until.as_deref(),
+                declaration.stage,
+                declaration.at,
+            )?;
+            let group = PressureGroup {
+                ramp: declaration.value.ramp,
+                until,
+            };
+            let group = match pressures.groups.iter().position(|g| *g == group) {
+                Some(index) => index,
+                None => {
+                    pressures.groups.push(group);
+                    pressures.groups.len() - 1
+                }
+            };
             let material_points = scene.spec.material_point_positions();
             seed_pressure(
                 &scene.spec.grid,
                 &material_points,
                 &declaration.value,
                 declaration.at.line(),
+                group,
                 &mut pressures,
             )
             .map_err(fail)?;
+            if let Some(summary) = pressures.summaries.pop() {
+                pressures.summaries.push(
+                    summary
+                        .in_stage(scene.spec, declaration.value.ramp.stage())
+                        .released(scene.spec, until),
+                );
+            }
         }
         if !pressures.parts.is_empty() {
             scene.spec.set_part(pressures);
@@ -439,10 +540,15 @@ impl Plugin for PressureModule {
         }
         let load = PressureLoad::<D> {
             parts: pressures.parts.clone(),
+            groups: pressures.groups.clone(),
             ..Default::default()
         };
+        let releases = pressures.groups.iter().any(|g| g.until.is_some());
         simulation.world().spawn_batch(batch);
         simulation.world().insert_resource(load);
+        if releases {
+            keep_largest_force(simulation);
+        }
         simulation
             .nonsymmetric_tangent()
             .checkpoint(CheckpointPart {
@@ -450,8 +556,10 @@ impl Plugin for PressureModule {
                 save: save_positions::<D, PressurePoint<D>>,
                 restore: restore_positions::<D, PressurePoint<D>>,
             })
-            .add_systems(Hook::Connectivity, find_pressure_weights::<D>)
-            .add_systems(Hook::Loads, apply_pressure::<D>)
+            .add_systems(Hook::Connectivity, find_pressure_weights::<D>);
+        // under arc-length control with held loads also evaluated at λ = 0 (f_fixed)
+        add_load_system(simulation, apply_pressure::<D>);
+        simulation
             .add_systems(Hook::AfterAssembly, follow_pressure::<D>)
             .add_systems(Hook::PointUpdate, carry_pressure_points::<D>);
     }
@@ -464,6 +572,7 @@ fn seed_pressure(
     material_points: &[&[f64]],
     declaration: &PressureDeclaration,
     line: Option<usize>,
+    group: usize,
     pressures: &mut Pressures,
 ) -> Result<(), String> {
     if grid.dim() != 2 {
@@ -548,6 +657,7 @@ fn seed_pressure(
         end: base + k + 1,
         load_point: base + parts + 1 + k,
         pressure,
+        group,
     }));
     let chord = [
         vertices[parts][0] - vertices[0][0],
@@ -636,29 +746,41 @@ pub fn find_pressure_weights<const D: usize>(
     }
 }
 
-/// Loads: the pressure's force at the start-of-step configuration, λ f̂_p(0).
+/// Loads: the pressure's force at the start-of-step configuration, λ f̂_p(0) (each group's λ:
+/// its stage's, held after it, ramped down over the stage that releases it).
 pub fn apply_pressure<const D: usize>(
     step: Res<LoadStep>,
+    stage: Option<Res<CurrentStage>>,
     mut load: ResMut<PressureLoad<D>>,
     mut fields: ResMut<GridFields<D>>,
     mut clock: ResMut<StageClock>,
 ) {
     let _timer = clock.time(Stage::Loads);
     let load = &mut *load;
-    load.added.clear();
-    load.added
-        .resize(fields.external_force.len(), SVector::zeros());
-    add_pressure_forces(&load.parts, &load.spread, &load.start, &mut load.added);
-    for (f, added) in fields.external_force.iter_mut().zip(&load.added) {
-        *f += added * step.factor;
+    let stage = stage.map_or(0, |s| s.0);
+    load.added = group_forces(
+        &load.parts,
+        load.groups.len(),
+        &load.spread,
+        &load.start,
+        fields.external_force.len(),
+    );
+    for (group, added) in load.groups.iter().zip(&load.added) {
+        let factor = group.factor(&step, stage);
+        for (f, added) in fields.external_force.iter_mut().zip(added) {
+            *f += added * factor;
+        }
     }
 }
 
 /// After the assembly of every Newton iteration: the force at the iterate replaces the one the
-/// external force holds (and the arc-length reference's, under arc-length control), and the
+/// external force holds (and, in a step under arc-length control, the arc's f̂ and f_fixed
+/// follow: each group's change split as its factor splits, `PressureGroup::split`), and the
 /// load stiffness −λ ∂f̂_p/∂Δu joins the tangent (module docs).
+#[allow(clippy::too_many_arguments)] // a system: its parameters are what it reads and writes
 pub fn follow_pressure<const D: usize>(
     step: Res<LoadStep>,
+    stage: Option<Res<CurrentStage>>,
     mut load: ResMut<PressureLoad<D>>,
     mut fields: ResMut<GridFields<D>>,
     mut newton: ResMut<Newton>,
@@ -667,20 +789,43 @@ pub fn follow_pressure<const D: usize>(
 ) {
     let _timer = clock.time(Stage::Assembly);
     let (load, fields) = (&mut *load, &mut *fields);
+    let stage = stage.map_or(0, |s| s.0);
     let positions: Vec<SVector<f64, D>> = load
         .start
         .iter()
         .zip(&load.carry)
         .map(|(x, carry)| carried_position(x, carry, &fields.increment))
         .collect();
-    let mut now = vec![SVector::zeros(); fields.external_force.len()];
-    add_pressure_forces(&load.parts, &load.spread, &positions, &mut now);
-    let change: Vec<SVector<f64, D>> = now.iter().zip(&load.added).map(|(n, a)| n - a).collect();
-    for (f, df) in fields.external_force.iter_mut().zip(&change) {
-        *f += df * step.factor;
+    let now = group_forces(
+        &load.parts,
+        load.groups.len(),
+        &load.spread,
+        &positions,
+        fields.external_force.len(),
+    );
+    let nodes = fields.external_force.len();
+    let (mut reference, mut held) = (vec![SVector::zeros(); nodes], vec![SVector::zeros(); nodes]);
+    let mut any_held = false;
+    let mut factors = Vec::with_capacity(load.groups.len());
+    for ((group, now), added) in load.groups.iter().zip(&now).zip(&load.added) {
+        let factor = group.factor(&step, stage);
+        factors.push(factor);
+        let (at_zero, slope) = group.split(&step, stage);
+        any_held |= at_zero != 0.0;
+        for (node, (n, a)) in now.iter().zip(added).enumerate() {
+            let change = n - a;
+            fields.external_force[node] += change * factor;
+            reference[node] += change * slope;
+            held[node] += change * at_zero;
+        }
     }
-    if let Some(mut arc) = arc {
-        arc.change_reference(&change, &fields.dofs);
+    if let Some(mut arc) = arc
+        && arc.controls(step.number)
+    {
+        arc.change_reference(&reference, &fields.dofs);
+        if any_held {
+            arc.change_fixed(&held);
+        }
     }
     load.added = now;
     let dofs = &fields.dofs;
@@ -688,7 +833,7 @@ pub fn follow_pressure<const D: usize>(
         &load.parts,
         &load.spread,
         &load.carry,
-        step.factor,
+        &factors,
         |i, a, j, b, value| {
             let (row, col) = (dofs[i][a], dofs[j][b]);
             if row != NO_DOF && col != NO_DOF {
@@ -733,12 +878,14 @@ mod tests {
                 end: 1,
                 load_point: 3,
                 pressure: 2.5,
+                group: 0,
             },
             Part {
                 start: 1,
                 end: 2,
                 load_point: 4,
                 pressure: 2.5,
+                group: 0,
             },
         ];
         let spread = vec![vec![(0, 0.2), (1, 0.5), (2, 0.3)], vec![(2, 0.6), (3, 0.4)]];
@@ -783,7 +930,7 @@ mod tests {
             .collect();
         let factor = 1.7;
         let mut k = [[0.0; 10]; 10];
-        pressure_tangent::<2>(&data.0, &data.1, &data.2, factor, |i, a, j, b, v| {
+        pressure_tangent::<2>(&data.0, &data.1, &data.2, &[factor], |i, a, j, b, v| {
             k[2 * i + a][2 * j + b] += v
         });
         let h = 1e-6;
@@ -826,6 +973,7 @@ mod tests {
                     end: k + 1,
                     load_point: 0,
                     pressure: 3.0,
+                    group: 0,
                 })
                 .collect();
             let spread: Vec<Vec<(usize, f64)>> =

@@ -30,18 +30,27 @@
 //! `output`, `stress_recovery`, `initial_stress`) belong to every stage: a scene of two or
 //! more stages refuses them after its second `stage(...)` call (only the calls that follow
 //! stages, `body_force`, `traction`, `point_load_at`, `surface_displace`, `fix`, `displace`,
-//! `point_load`, `point_load_total`, `material_of` (`effects::material_switches`: a body's
-//! material changed at its stage's start), and the observers, `record`, `probe`, `reference`, may
-//! come there), and refuses anywhere the calls that follow the one load factor without
-//! telling stages apart (`pressure`, `analytic_column`, and any call these lists do not know:
-//! a module's new load is refused until it follows stages), naming the line.
+//! `point_load`, `point_load_total`, `pressure`, `material_of` (`effects::material_switches`:
+//! a body's material changed at its stage's start), and the observers, `record`, `probe`,
+//! `reference`, may come there), and refuses anywhere the calls that follow the one load
+//! factor without telling stages apart (`analytic_column`, and any call these lists do not
+//! know: a module's new load is refused until it follows stages), naming the line.
 //! A scene with one stage is the scene without it, with the stage's schedule.
+//!
+//! The last stage may be arc-controlled, `stage(#{ .., control: "arc_length" })`: its load
+//! factor is then an unknown of each of its steps (`stages::arc_length`), the earlier stages'
+//! loads held beside it at their final value (`effects::arc_length`, "Stages"). Only the last:
+//! the arc ends past the limit load at a factor nobody chose, so no stage could follow with
+//! its loads held at a known value. `solver(#{ control: "arc_length" })` in a scene of several
+//! stages is refused (it names no stage), and so is an `until_stage` naming the arc-controlled
+//! stage (`effects::declarations::until_stage`: a release ramped by `1 − λ` would turn into a
+//! load of the other sign once the arc takes λ past 1).
 
 use rhai::{Dynamic, Position};
 
 use super::ScriptError;
 use super::builder::{Located, SceneBuilder};
-use super::options::{Kind, OptionSpec, Options};
+use super::options::{Choice, Kind, OptionSpec, Options};
 use super::registry::CallSpec;
 use super::schedule::{MAX_STEPS, equal_steps};
 
@@ -52,6 +61,8 @@ pub struct StageDeclaration {
     /// The stage's own load factors (from λ = 0).
     pub factors: Vec<f64>,
     pub zero_displacements: bool,
+    /// `control: "arc_length"`: the stage's load factor is found by arc-length control.
+    pub arc_length: bool,
 }
 
 /// A stage of the scene: its name, its number of load steps and the line of its call.
@@ -61,6 +72,9 @@ pub struct StageSpec {
     pub steps: usize,
     /// Displacements are measured from the stage's start (`effects::stages`).
     pub zero_displacements: bool,
+    /// The stage's load factor is found by arc-length control (`control: "arc_length"`; only
+    /// the last stage may ask for it: `effects::arc_length`, "Stages").
+    pub arc_length: bool,
     pub line: Option<usize>,
 }
 
@@ -89,6 +103,14 @@ impl Stages {
             .is_some_and(|stage| stage.zero_displacements)
     }
 
+    /// The arc-length stage (`control: "arc_length"`, the last stage when there is one) and
+    /// the number of its first load step (1-based).
+    pub fn arc_length_stage(&self) -> Option<(usize, usize)> {
+        let index = self.0.iter().position(|stage| stage.arc_length)?;
+        let first = 1 + self.0[..index].iter().map(|s| s.steps).sum::<usize>();
+        Some((index, first))
+    }
+
     /// The name of stage `index` ("" if there is none).
     pub fn name(&self, index: usize) -> &str {
         self.0.get(index).map_or("", |stage| stage.name.as_str())
@@ -106,6 +128,7 @@ const STAGED_CALLS: &[&str] = &[
     "point_load",
     "point_load_total",
     "material_of",
+    "pressure",
 ];
 
 /// The calls that may come after the second `stage(...)` call besides those: the stages
@@ -155,6 +178,24 @@ pub fn stage_call() -> CallSpec {
                 "load_factors",
                 Kind::Numbers,
                 "the stage's load factor at the end of each of its steps (instead of `steps`)",
+            ),
+            OptionSpec::new(
+                "control",
+                Kind::Choice(vec![
+                    Choice {
+                        word: "load",
+                        meaning: Some(
+                            "the stage's load factors (`steps` or `load_factors`), steps cut on failure (the default)",
+                        ),
+                    },
+                    Choice {
+                        word: "arc_length",
+                        meaning: Some(
+                            "arc-length control (docs/plasticity.md, \"Past the limit load\"): the stage's load factor is an unknown of each step, so its loads are traced to and past their limit load; the earlier stages' loads stay at their final value beside them; its first load factor sizes the first arc, its step count is the most steps; the last stage only, tuned by solver(#{ target_iterations, max_load_factor, rebalance })",
+                        ),
+                    },
+                ]),
+                "how the stage's load factor is found (default \"load\")",
             ),
             OptionSpec::new(
                 "zero_displacements",
@@ -211,6 +252,7 @@ fn declare_stage(
             name,
             factors,
             zero_displacements: options.flag("zero_displacements").unwrap_or(false),
+            arc_length: options.text("control") == Some("arc_length"),
         },
         at,
     ));
@@ -263,9 +305,22 @@ pub fn resolve_stages(builder: &SceneBuilder) -> Result<Option<(Stages, Vec<f64>
         }) {
             return Err(ScriptError::at(
                 solver.at,
-                "solver(#{ control: \"arc_length\" }) in a scene of several stages: the arc controls the loads of the whole run from the first step (held loads stay in full beside them), and switching from load control to the arc at a stage's start is not built; run the stages under load control, or one stage with held loads under the arc",
+                "solver(#{ control: \"arc_length\" }) in a scene of several stages: say which stage is arc-controlled with stage(#{ .., control: \"arc_length\" }) on the last stage (the earlier stages run under load control, their loads held beside the arc's); keep target_iterations, max_load_factor and rebalance in solver(...)",
             ));
         }
+    }
+    let last = builder.stages.len() - 1;
+    if let Some(stage) = builder.stages[..last]
+        .iter()
+        .find(|stage| stage.value.arc_length)
+    {
+        return Err(ScriptError::at(
+            stage.at,
+            format!(
+                "stage(...) '{}': control: \"arc_length\" is taken by the last stage only (its load factor ends where the arc ends, past the limit load, so no stage can follow it with its loads held at a known value); stage '{}' comes after it",
+                stage.value.name, builder.stages[last].value.name
+            ),
+        ));
     }
     let mut factors = Vec::new();
     let mut stages = Vec::new();
@@ -275,6 +330,7 @@ pub fn resolve_stages(builder: &SceneBuilder) -> Result<Option<(Stages, Vec<f64>
             name: stage.value.name.clone(),
             steps: stage.value.factors.len(),
             zero_displacements: stage.value.zero_displacements,
+            arc_length: stage.value.arc_length,
             line: stage.at.line(),
         });
     }
@@ -301,12 +357,14 @@ mod tests {
                 name: "a".into(),
                 steps: 2,
                 zero_displacements: false,
+                arc_length: false,
                 line: None,
             },
             StageSpec {
                 name: "b".into(),
                 steps: 3,
                 zero_displacements: true,
+                arc_length: false,
                 line: None,
             },
         ]);

@@ -83,6 +83,20 @@
 //! equilibrium (its start residual is the held loads', not a cell crossing: not warned).
 //! A follower pressure is not held (`effects::pressure` keeps its own f̂ part up to date).
 //!
+//! # Stages
+//!
+//! In a staged scene the last stage may be arc-controlled (`stage(#{ .., control:
+//! "arc_length" })`, `scene::stages`): its steps, from [`ArcLengthSpec::first_step`] on, are
+//! the arc's, the earlier stages' are load-controlled and no system of the arc runs in them
+//! ([`arc_controls_step`]). In the arc's stage k every load is affine in the stage's own λ (the
+//! earlier stages' loads held at their final value, the stage's own following λ), so the split
+//! above is exact with the loads evaluated at the stage's λ = 0 and 1: f_fixed holds the earlier
+//! stages' loads (and the stage's `held` ones), f̂ the stage's own. The scene always has held
+//! loads then (`fixed_loads`), so the arc's first step first balances f_fixed at λ = 0 from
+//! the last load-controlled state, and its first arc is sized by the stage's first load factor.
+//! A release ramped over the arc's stage, (1 − λ) f_end, is refused when the scene is read
+//! (λ goes past 1 under the arc).
+//!
 //! # A step that starts out of balance
 //!
 //! At Δu = 0 the residual is λ_n f̂ − f_int(u_n) on the new grid: the previous step's converged
@@ -169,8 +183,13 @@ pub struct ArcLengthSpec {
     /// (module docs, "Rebalancing before the arc").
     pub rebalance: Rebalance,
     /// Whether the scene has held loads: f_ext = f_fixed + λ f̂, the loads evaluated twice per
-    /// step (module docs, "Held loads").
+    /// step (module docs, "Held loads"); always in a staged scene whose arc starts after the
+    /// first stage (the earlier stages' loads are held).
     pub fixed_loads: bool,
+    /// The first load step the arc controls (1-based): 1, or the first step of the
+    /// arc-controlled stage of a staged scene (module docs, "Stages"); the steps before it are
+    /// load-controlled and nothing of the arc runs in them.
+    pub first_step: usize,
 }
 
 impl Default for ArcLengthSpec {
@@ -180,7 +199,18 @@ impl Default for ArcLengthSpec {
             max_load_factor: f64::INFINITY,
             rebalance: Rebalance::Off,
             fixed_loads: false,
+            first_step: 1,
         }
+    }
+}
+
+impl ArcLengthSpec {
+    /// The load factor that sizes the first arc: the first factor of the arc's steps.
+    pub fn first_factor(&self, load_factors: &[f64]) -> f64 {
+        load_factors
+            .get(self.first_step.saturating_sub(1))
+            .copied()
+            .unwrap_or(0.0)
     }
 }
 
@@ -347,6 +377,8 @@ pub struct ArcLength<const D: usize> {
     rebalancing_step: Option<usize>,
     /// Whether a step that went without its rebalancing was warned about (once per run).
     warned_unbalanced: bool,
+    /// The first load step the arc controls ([`ArcLengthSpec::first_step`]).
+    pub first_step: usize,
 }
 
 impl<const D: usize> ArcLength<D> {
@@ -372,7 +404,14 @@ impl<const D: usize> ArcLength<D> {
             rebalanced: None,
             rebalancing_step: None,
             warned_unbalanced: false,
+            first_step: 1,
         }
+    }
+
+    /// Whether the arc controls load step `step` (the steps before [`ArcLength::first_step`]
+    /// are load-controlled: a staged scene's earlier stages).
+    pub fn controls(&self, step: usize) -> bool {
+        step >= self.first_step
     }
 
     /// Prepares an attempt from λ = `start` with the arc `radius` (0: sized by the predictor).
@@ -399,9 +438,13 @@ impl<const D: usize> ArcLength<D> {
         self.fixed_loads && self.previous.is_empty() && self.start == 0.0
     }
 
-    /// How the current attempt rebalances: the scene's choice, or at a fixed λ when only the
-    /// held loads ask for it.
+    /// How the current attempt rebalances: at a fixed λ when it balances the held loads (the
+    /// first step's, whatever the scene chose for the later steps: with λ free the balance
+    /// of the held loads alone would move the controlled ones too), else the scene's choice.
     fn rebalancing_mode(&self) -> Rebalance {
+        if self.balances_held_loads() {
+            return Rebalance::Fixed;
+        }
         match self.rebalance {
             Rebalance::Off => Rebalance::Fixed,
             mode => mode,
@@ -419,6 +462,18 @@ impl<const D: usize> ArcLength<D> {
             {
                 *f = fixed + reference * factor;
             }
+        }
+    }
+
+    /// A follower load's held force changed by `change` (by node) with the iterate: f_fixed is
+    /// the loads at λ = 0 in the current configuration, so it follows (`effects::pressure`: a
+    /// pressure of an earlier stage under the arc of a later one).
+    pub fn change_fixed(&mut self, change: &[SVector<f64, D>]) {
+        if self.fixed.is_empty() {
+            self.fixed = vec![SVector::zeros(); change.len()];
+        }
+        for (f, df) in self.fixed.iter_mut().zip(change) {
+            *f += df;
         }
     }
 
@@ -452,6 +507,12 @@ impl<const D: usize> ArcLength<D> {
             .sum::<f64>()
             .sqrt()
     }
+}
+
+/// The run condition of every system of the arc: the step is one the arc controls
+/// ([`ArcLength::controls`]; in a staged scene the earlier stages' steps are load-controlled).
+pub fn arc_controls_step<const D: usize>(arc: Res<ArcLength<D>>, step: Res<LoadStep>) -> bool {
+    arc.controls(step.number)
 }
 
 /// `Hook::AfterDofs` (so before `Hook::Loads`): the loads are evaluated at λ = 1
