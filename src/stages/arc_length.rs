@@ -654,11 +654,20 @@ pub fn keep_going_forward<const D: usize>(
         } else {
             format!("Δu·Δu_prev = {along:.3e} < 0")
         };
+        // held loads whose imbalance on each step's grid the arc has to absorb (nodes newly
+        // reached by domains, with slivers of support) make it take its other root:
+        // removing that imbalance first is what has been seen to help (docs/plasticity.md)
+        let hint = if arc.fixed_loads && arc.rebalance == Rebalance::Off {
+            "; with held loads, solver(#{ rebalance: \"fixed\" }) removes the out-of-balance \
+             force they leave on each step's grid before the arc"
+        } else {
+            ""
+        };
         status.fail(SolverError::Module {
             step: step.number,
             what: format!(
                 "arc-length control: the converged increment turns back along the path traced \
-                 ({why}, load factor {:.6e}); the arc is cut",
+                 ({why}, load factor {:.6e}); the arc is cut{hint}",
                 step.factor
             ),
             recoverable: true,
