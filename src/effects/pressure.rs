@@ -145,6 +145,54 @@ impl ArcShape {
             .collect();
         (vertices, midpoints)
     }
+
+    /// The number of equal parts that give `per_cell` parts per `cell` of its length (at least
+    /// one), refused above `limit`.
+    pub fn parts(&self, per_cell: usize, cell: f64, limit: usize) -> Result<usize, String> {
+        let wanted = (per_cell as f64 * self.length() / cell).ceil().max(1.0);
+        if wanted > limit as f64 {
+            return Err(format!(
+                "{wanted} parts of the arc exceed the limit of {limit}; lower per_cell"
+            ));
+        }
+        Ok(wanted as usize)
+    }
+}
+
+/// The hosts of points on an arc: for each of `points` the nearest of `material_points`,
+/// which must lie within `reach`; a point outside the grid is refused first, each refusal
+/// naming the point.
+pub fn arc_hosts(
+    grid: &GridSpec,
+    material_points: &[&[f64]],
+    points: &[Vec<f64>],
+    reach: f64,
+) -> Result<Vec<usize>, String> {
+    if let Some(x) = points
+        .iter()
+        .find(|x| (0..2).any(|a| x[a] < grid.lower[a] || x[a] > grid.upper[a]))
+    {
+        return Err(format!(
+            "the arc's point {x:?} is outside the grid [{:?} .. {:?}]",
+            grid.lower, grid.upper
+        ));
+    }
+    let hosts = nearest_points(grid, material_points, points);
+    points
+        .iter()
+        .zip(hosts)
+        .map(|(x, host)| {
+            let host = host.ok_or("the scene has no material points")?;
+            let p = material_points[host];
+            let distance = (p[0] - x[0]).hypot(p[1] - x[1]);
+            if distance > reach {
+                return Err(format!(
+                    "the arc's point {x:?} is {distance:.3e} from the nearest material point, farther than a cell: put the arc on a body's boundary"
+                ));
+            }
+            Ok(host)
+        })
+        .collect()
 }
 
 /// `pressure(...)` as declared.
@@ -588,40 +636,18 @@ fn seed_pressure(
     let largest_cell = (0..2)
         .map(|a| (grid.upper[a] - grid.lower[a]) / grid.cells[a] as f64)
         .fold(0.0, f64::max);
-    let wanted = (declaration.per_cell as f64 * arc.length() / cell).ceil();
-    if wanted > crate::scene::MAX_SEED_CANDIDATES as f64 {
-        return Err(format!(
-            "{wanted} parts exceed the limit of {}; lower per_cell",
-            crate::scene::MAX_SEED_CANDIDATES
-        ));
-    }
-    let parts = (wanted as usize).max(1);
+    let parts = arc.parts(
+        declaration.per_cell,
+        cell,
+        crate::scene::MAX_SEED_CANDIDATES,
+    )?;
     let (vertices, midpoints) = arc.divide(parts);
-    let outside = |x: &[f64; 2]| (0..2).any(|a| x[a] < grid.lower[a] || x[a] > grid.upper[a]);
-    if let Some(x) = vertices.iter().find(|x| outside(x)) {
-        return Err(format!(
-            "the arc's point {x:?} is outside the grid [{:?} .. {:?}]",
-            grid.lower, grid.upper
-        ));
-    }
     let queries: Vec<Vec<f64>> = vertices
         .iter()
         .chain(&midpoints)
         .map(|x| x.to_vec())
         .collect();
-    let hosts = nearest_points(grid, material_points, &queries);
-    let mut found = Vec::with_capacity(hosts.len());
-    for (query, host) in queries.iter().zip(hosts) {
-        let host = host.ok_or("the scene has no material points")?;
-        let p = material_points[host];
-        let distance = ((p[0] - query[0]).powi(2) + (p[1] - query[1]).powi(2)).sqrt();
-        if distance > largest_cell {
-            return Err(format!(
-                "the arc's point {query:?} is {distance:.3e} from the nearest material point, farther than a cell: put the arc on a body's boundary"
-            ));
-        }
-        found.push(host);
-    }
+    let found = arc_hosts(grid, material_points, &queries, largest_cell)?;
     // the body's side: s Q (V_{k+1} − V_k) must point towards the load points' hosts
     let base = pressures.points.len();
     let (mut towards, mut away) = (0, 0);

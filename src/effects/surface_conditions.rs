@@ -292,7 +292,7 @@ use crate::resources::{
 use crate::scene::{
     CallSpec, Choice, Kind, Located, ModuleNotes, ModuleWarnings, OptionSpec, Options, PartRule,
     Range, Resolver, SceneApi, SceneSpec, ScriptError, SurfacePointSeed, array_of,
-    is_plastic_model, nearest_points, numbers, points_across, seed_surface,
+    is_plastic_model, numbers, points_across, seed_surface,
 };
 
 /// How a condition is imposed.
@@ -1881,14 +1881,8 @@ fn seed_arc(
     per_cell: usize,
     cell: f64,
 ) -> Result<(Vec<SurfacePointSeed>, Vec<Vec<f64>>), String> {
-    let wanted = (per_cell as f64 * arc.length() / cell).ceil().max(1.0);
-    if wanted > crate::scene::MAX_SEED_CANDIDATES as f64 / 2.0 {
-        return Err(format!(
-            "{wanted} parts of the arc exceed the limit of {} boundary points; lower per_cell",
-            crate::scene::MAX_SEED_CANDIDATES
-        ));
-    }
-    let parts = wanted as usize;
+    // two boundary points per part
+    let parts = arc.parts(per_cell, cell, crate::scene::MAX_SEED_CANDIDATES / 2)?;
     let step = (arc.to - arc.from) / parts as f64;
     let gauss = 0.5 / 3f64.sqrt();
     let area = 0.5 * arc.radius * step.abs().to_radians();
@@ -1898,28 +1892,12 @@ fn seed_arc(
             [-gauss, gauss].map(|g| arc.point(middle + g * step).to_vec())
         })
         .collect();
-    if let Some(x) = positions
-        .iter()
-        .find(|x| (0..2).any(|a| x[a] < grid.lower[a] || x[a] > grid.upper[a]))
-    {
-        return Err(format!(
-            "the arc's point {x:?} is outside the grid [{:?} .. {:?}]",
-            grid.lower, grid.upper
-        ));
-    }
-    let hosts = nearest_points(grid, material_points, &positions);
+    let hosts = super::pressure::arc_hosts(grid, material_points, &positions, cell)?;
     let mut seeded = Vec::with_capacity(positions.len());
     let mut normals = Vec::with_capacity(positions.len());
     let (mut outward, mut inward) = (0, 0);
     for (position, host) in positions.into_iter().zip(hosts) {
-        let host = host.ok_or("the scene has no material points")?;
         let h = material_points[host];
-        let distance = (position[0] - h[0]).hypot(position[1] - h[1]);
-        if distance > cell {
-            return Err(format!(
-                "the arc's point {position:?} is {distance:.3e} from the nearest material point, farther than a cell: put the arc on a body's boundary"
-            ));
-        }
         let radial = [
             (position[0] - arc.centre[0]) / arc.radius,
             (position[1] - arc.centre[1]) / arc.radius,
