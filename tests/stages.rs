@@ -416,6 +416,48 @@ fn a_run_resumed_inside_a_releasing_stage_gives_the_results_of_the_run_not_stopp
     );
 }
 
+/// A run resumed across the stage that switches a body's material (`material_of`): the block
+/// of [`switched_block`] (Hencky in stage "elastic", 2 steps; von Mises from stage "plastic",
+/// 5 steps, yielding from its 4th) stopped after step 2 (the end of stage "elastic": the switch
+/// happens in the resumed run), after step 4 (inside stage "plastic", the switch made and
+/// restored from the checkpoint's "which material each body holds") and after step 6 (the
+/// points yielded: their plastic history restored) writes `history.csv` (every step's Newton
+/// iterations and residuals) and the stopped and last particle files (stresses, plastic
+/// strain) of the run not stopped, byte for byte.
+#[test]
+fn a_run_resumed_across_a_material_switch_gives_the_results_of_the_run_not_stopped() {
+    let text = switched_block("");
+    for stop in [2, 4, 6] {
+        resumed_as_not_stopped(&format!("resume-switch-{stop}"), &text, stop, 7);
+        eprintln!(
+            "material_of: resumed after step {stop}: history.csv and particles_{stop:04}/0007.vtu identical"
+        );
+    }
+}
+
+/// A run resumed across a support's release (`fix(.., #{ until_stage })`): the prop example's
+/// column ([`a_support_released_in_a_later_stage_is_ramped_down_to_the_analytic_state`], stage
+/// "gravity" 2 steps, the prop released over stage "release" in 4) stopped after step 2 (the
+/// release starts in the resumed run: the prop's force at the end of the stage before is taken
+/// there) and after step 3 (inside the release: the released forces come from the checkpoint)
+/// writes `history.csv` and the stopped and last particle files of the run not stopped, byte
+/// for byte.
+#[test]
+fn a_run_resumed_across_a_support_release_gives_the_results_of_the_run_not_stopped() {
+    let text = staged_column(
+        "fix(|x| x[1] == 10.0, [1], #{ until_stage: \"release\" });\n\
+         stage(#{ name: \"gravity\", steps: 2 });\n\
+         body_force([0.0, -10.0]);\n\
+         stage(#{ name: \"release\", steps: 4 });",
+    );
+    for stop in [2, 3] {
+        resumed_as_not_stopped(&format!("resume-prop-{stop}"), &text, stop, 6);
+        eprintln!(
+            "support released: resumed after step {stop}: history.csv and particles_{stop:04}/0006.vtu identical"
+        );
+    }
+}
+
 /// Runs scene `text` whole and stopped after step `stop` (its checkpoint) then resumed, and
 /// compares `history.csv` and the last two particle files (`last` is the number of steps).
 fn resumed_as_not_stopped(tag: &str, text: &str, stop: usize, last: usize) {
