@@ -458,6 +458,31 @@ fn a_run_resumed_across_a_support_release_gives_the_results_of_the_run_not_stopp
     }
 }
 
+/// A run resumed inside the stage that releases a footing (`surface_displace(#{ ..,
+/// until_stage })`, `tests/surface_release.rs`): half a rough footing on Tresca soil (von
+/// Mises, s_u = 50), pushed by 0.01 B over stage "push" (4 steps, the soil yielding), released
+/// over stage "release" (2 steps), stopped after step 4 (the release starts in the resumed
+/// run) and after step 5 (inside the release: the boundary points' released forces come from
+/// the checkpoint) writes `history.csv` and the stopped and last particle files of the run not
+/// stopped, byte for byte.
+#[test]
+fn a_run_resumed_inside_a_footing_release_gives_the_results_of_the_run_not_stopped() {
+    let text = "grid(#{ lower: [0.0, 0.0], upper: [3.0, 2.5], cells: [6, 5], basis: \"bspline\", order: 2 });\n\
+         const soil = material(#{ name: \"soil\", model: \"von_mises\", E: 1.0e5, nu: 0.3, sigma_y: 86.60254037844386, density: 1.0 });\n\
+         body(#{ name: \"soil\", material: soil, region: box([0.0, 0.0], [3.0, 2.0]), ppc: 2, placement: \"gauss\" });\n\
+         fix(|x| x[1] == 0.0);\n\
+         fix(|x| x[0] == 0.0 || x[0] == 3.0, [0]);\n\
+         stage(#{ name: \"push\", steps: 4 });\n\
+         surface_displace(#{ on: [[0.0, 2.0], [0.5, 2.0]], displacement: [0.0, -0.01], name: \"footing\", until_stage: \"release\" });\n\
+         stage(#{ name: \"release\", steps: 2 });\n";
+    for stop in [4, 5] {
+        resumed_as_not_stopped(&format!("resume-footing-{stop}"), text, stop, 6);
+        eprintln!(
+            "footing released: resumed after step {stop}: history.csv and particles_{stop:04}/0006.vtu identical"
+        );
+    }
+}
+
 /// Runs scene `text` whole and stopped after step `stop` (its checkpoint) then resumed, and
 /// compares `history.csv` and the last two particle files (`last` is the number of steps).
 fn resumed_as_not_stopped(tag: &str, text: &str, stop: usize, last: usize) {
