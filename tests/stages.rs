@@ -483,6 +483,33 @@ fn a_run_resumed_inside_a_footing_release_gives_the_results_of_the_run_not_stopp
     }
 }
 
+/// A run resumed inside an arc-controlled last stage that switches a material: the column of
+/// [`staged_column`] takes its weight over stage "gravity" (2 steps), then stage "load" (under
+/// arc-length control, 6 steps) switches it to von Mises (σ_y = 200, the same elasticity: it
+/// yields at the base once (1 − 2ν)/(1 − ν) (γH + λ q) = σ_y, λ ≈ 1.5) and adds a top
+/// traction q = 100 per unit λ. Stopped after step 2 (the switch and the arc's first step in
+/// the resumed run) and after step 5 (inside the arc stage), the resumed run writes
+/// `history.csv` (the arc's load factors, iterations, residuals) and the stopped and last
+/// particle files of the run not stopped, byte for byte.
+#[test]
+fn a_run_resumed_inside_an_arc_stage_with_a_switch_gives_the_results_of_the_run_not_stopped() {
+    let text = staged_column(
+        "const plastic = material(#{ name: \"plastic\", model: \"von_mises\", sigma_y: 200.0, E: 1.0e6, nu: 0.3, density: 2.0 });\n\
+         solver(#{ target_iterations: 3 });\n\
+         stage(#{ name: \"gravity\", steps: 2 });\n\
+         body_force([0.0, -10.0]);\n\
+         stage(#{ name: \"load\", load_factors: [0.5, 1.0, 1.5, 2.0, 2.5, 3.0], control: \"arc_length\" });\n\
+         material_of(#{ body: \"column\", material: \"plastic\" });\n\
+         traction(#{ on: [[0.0, 10.0], [1.0, 10.0]], traction: [0.0, -100.0] });",
+    );
+    for stop in [2, 5] {
+        resumed_as_not_stopped(&format!("resume-arc-{stop}"), &text, stop, 8);
+        eprintln!(
+            "arc stage with a switch: resumed after step {stop}: history.csv and particles_{stop:04}/0008.vtu identical"
+        );
+    }
+}
+
 /// Runs scene `text` whole and stopped after step `stop` (its checkpoint) then resumed, and
 /// compares `history.csv` and the last two particle files (`last` is the number of steps).
 fn resumed_as_not_stopped(tag: &str, text: &str, stop: usize, last: usize) {
