@@ -416,6 +416,100 @@ fn a_run_resumed_inside_a_releasing_stage_gives_the_results_of_the_run_not_stopp
     );
 }
 
+/// A run resumed across the stage that switches a body's material (`material_of`): the block
+/// of [`switched_block`] (Hencky in stage "elastic", 2 steps; von Mises from stage "plastic",
+/// 5 steps, yielding from its 4th) stopped after step 2 (the end of stage "elastic": the switch
+/// happens in the resumed run), after step 4 (inside stage "plastic", the switch made and
+/// restored from the checkpoint's "which material each body holds") and after step 6 (the
+/// points yielded: their plastic history restored) writes `history.csv` (every step's Newton
+/// iterations and residuals) and the stopped and last particle files (stresses, plastic
+/// strain) of the run not stopped, byte for byte.
+#[test]
+fn a_run_resumed_across_a_material_switch_gives_the_results_of_the_run_not_stopped() {
+    let text = switched_block("");
+    for stop in [2, 4, 6] {
+        resumed_as_not_stopped(&format!("resume-switch-{stop}"), &text, stop, 7);
+        eprintln!(
+            "material_of: resumed after step {stop}: history.csv and particles_{stop:04}/0007.vtu identical"
+        );
+    }
+}
+
+/// A run resumed across a support's release (`fix(.., #{ until_stage })`): the prop example's
+/// column ([`a_support_released_in_a_later_stage_is_ramped_down_to_the_analytic_state`], stage
+/// "gravity" 2 steps, the prop released over stage "release" in 4) stopped after step 2 (the
+/// release starts in the resumed run: the prop's force at the end of the stage before is taken
+/// there) and after step 3 (inside the release: the released forces come from the checkpoint)
+/// writes `history.csv` and the stopped and last particle files of the run not stopped, byte
+/// for byte.
+#[test]
+fn a_run_resumed_across_a_support_release_gives_the_results_of_the_run_not_stopped() {
+    let text = staged_column(
+        "fix(|x| x[1] == 10.0, [1], #{ until_stage: \"release\" });\n\
+         stage(#{ name: \"gravity\", steps: 2 });\n\
+         body_force([0.0, -10.0]);\n\
+         stage(#{ name: \"release\", steps: 4 });",
+    );
+    for stop in [2, 3] {
+        resumed_as_not_stopped(&format!("resume-prop-{stop}"), &text, stop, 6);
+        eprintln!(
+            "support released: resumed after step {stop}: history.csv and particles_{stop:04}/0006.vtu identical"
+        );
+    }
+}
+
+/// A run resumed inside the stage that releases a footing (`surface_displace(#{ ..,
+/// until_stage })`, `tests/surface_release.rs`): half a rough footing on Tresca soil (von
+/// Mises, s_u = 50), pushed by 0.01 B over stage "push" (4 steps, the soil yielding), released
+/// over stage "release" (2 steps), stopped after step 4 (the release starts in the resumed
+/// run) and after step 5 (inside the release: the boundary points' released forces come from
+/// the checkpoint) writes `history.csv` and the stopped and last particle files of the run not
+/// stopped, byte for byte.
+#[test]
+fn a_run_resumed_inside_a_footing_release_gives_the_results_of_the_run_not_stopped() {
+    let text = "grid(#{ lower: [0.0, 0.0], upper: [3.0, 2.5], cells: [6, 5], basis: \"bspline\", order: 2 });\n\
+         const soil = material(#{ name: \"soil\", model: \"von_mises\", E: 1.0e5, nu: 0.3, sigma_y: 86.60254037844386, density: 1.0 });\n\
+         body(#{ name: \"soil\", material: soil, region: box([0.0, 0.0], [3.0, 2.0]), ppc: 2, placement: \"gauss\" });\n\
+         fix(|x| x[1] == 0.0);\n\
+         fix(|x| x[0] == 0.0 || x[0] == 3.0, [0]);\n\
+         stage(#{ name: \"push\", steps: 4 });\n\
+         surface_displace(#{ on: [[0.0, 2.0], [0.5, 2.0]], displacement: [0.0, -0.01], name: \"footing\", until_stage: \"release\" });\n\
+         stage(#{ name: \"release\", steps: 2 });\n";
+    for stop in [4, 5] {
+        resumed_as_not_stopped(&format!("resume-footing-{stop}"), text, stop, 6);
+        eprintln!(
+            "footing released: resumed after step {stop}: history.csv and particles_{stop:04}/0006.vtu identical"
+        );
+    }
+}
+
+/// A run resumed inside an arc-controlled last stage that switches a material: the column of
+/// [`staged_column`] takes its weight over stage "gravity" (2 steps), then stage "load" (under
+/// arc-length control, 6 steps) switches it to von Mises (σ_y = 200, the same elasticity: it
+/// yields at the base once (1 − 2ν)/(1 − ν) (γH + λ q) = σ_y, λ ≈ 1.5) and adds a top
+/// traction q = 100 per unit λ. Stopped after step 2 (the switch and the arc's first step in
+/// the resumed run) and after step 5 (inside the arc stage), the resumed run writes
+/// `history.csv` (the arc's load factors, iterations, residuals) and the stopped and last
+/// particle files of the run not stopped, byte for byte.
+#[test]
+fn a_run_resumed_inside_an_arc_stage_with_a_switch_gives_the_results_of_the_run_not_stopped() {
+    let text = staged_column(
+        "const plastic = material(#{ name: \"plastic\", model: \"von_mises\", sigma_y: 200.0, E: 1.0e6, nu: 0.3, density: 2.0 });\n\
+         solver(#{ target_iterations: 3 });\n\
+         stage(#{ name: \"gravity\", steps: 2 });\n\
+         body_force([0.0, -10.0]);\n\
+         stage(#{ name: \"load\", load_factors: [0.5, 1.0, 1.5, 2.0, 2.5, 3.0], control: \"arc_length\" });\n\
+         material_of(#{ body: \"column\", material: \"plastic\" });\n\
+         traction(#{ on: [[0.0, 10.0], [1.0, 10.0]], traction: [0.0, -100.0] });",
+    );
+    for stop in [2, 5] {
+        resumed_as_not_stopped(&format!("resume-arc-{stop}"), &text, stop, 8);
+        eprintln!(
+            "arc stage with a switch: resumed after step {stop}: history.csv and particles_{stop:04}/0008.vtu identical"
+        );
+    }
+}
+
 /// Runs scene `text` whole and stopped after step `stop` (its checkpoint) then resumed, and
 /// compares `history.csv` and the last two particle files (`last` is the number of steps).
 fn resumed_as_not_stopped(tag: &str, text: &str, stop: usize, last: usize) {

@@ -69,7 +69,10 @@
 //!
 //! A pressure declared in stage k follows that stage's load factor, is held in full (its p;
 //! its force still follows the boundary) in the stages after it, and with `until_stage: "s"`
-//! is ramped down over stage s (`declarations::released_factor`). The parts of the
+//! is ramped down over stage s (`declarations::released_factor`). With `held: true` it is
+//! applied in full (factor 1) from its stage's first step on while the other loads follow λ
+//! (`resources::Ramp::Held` / `HeldFrom`, as `body_force` and `traction` spell it), e.g. an
+//! inner pressure kept while a second load ramps. The parts of the
 //! declarations that share a stage and a release form a group ([`PressureGroup`]) whose force
 //! is kept and scaled by the group's factor; a scene without stages has one group, and its
 //! factor is λ, as before. Under arc-length control in stage k each group's factor is affine in
@@ -89,7 +92,8 @@ use rhai::Dynamic;
 use super::arc_length::add_load_system;
 use super::carried_points::{carried_point, restore_positions, save_positions};
 use super::declarations::{
-    LoadSummary, keep_largest_force, released_factor, until_stage_of, until_stage_option,
+    LoadSummary, held_option, keep_largest_force, released_factor, until_stage_of,
+    until_stage_option,
 };
 use super::tractions::host_weights;
 use crate::basis::{BasisKind, BasisScratch, NodeWeight};
@@ -458,6 +462,7 @@ impl Plugin for PressureModule {
                     },
                     "equal parts of the arc per cell of its length (default 2)",
                 ),
+                held_option(),
                 until_stage_option(),
             ],
             |builder, options: &Options, at| {
@@ -473,7 +478,7 @@ impl Plugin for PressureModule {
                         arc,
                         pressure: options.number("pressure").unwrap_or(0.0),
                         per_cell: options.whole("per_cell").unwrap_or(2),
-                        ramp: Ramp::staged(false, builder.stage()),
+                        ramp: Ramp::staged(options.flag("held").unwrap_or(false), builder.stage()),
                         until: options.text("until_stage").map(str::to_string),
                     },
                     at,
@@ -529,11 +534,13 @@ impl Plugin for PressureModule {
             )
             .map_err(fail)?;
             if let Some(summary) = pressures.summaries.pop() {
-                pressures.summaries.push(
-                    summary
-                        .in_stage(scene.spec, declaration.value.ramp.stage())
-                        .released(scene.spec, until),
-                );
+                let mut summary = summary.in_stage(scene.spec, declaration.value.ramp.stage());
+                if declaration.value.ramp.is_held() {
+                    summary.factor += ", held in full from the stage's first step";
+                }
+                pressures
+                    .summaries
+                    .push(summary.released(scene.spec, until));
             }
         }
         if !pressures.parts.is_empty() {
