@@ -83,6 +83,18 @@
 //! equilibrium (its start residual is the held loads', not a cell crossing: not warned).
 //! A follower pressure is not held (`effects::pressure` keeps its own f̂ part up to date).
 //!
+//! The later steps rebalance too by default (`rebalance: "auto"`, [`Rebalance::resolve`]:
+//! fixed with held loads, off without). A held load does not scale with λ, so the
+//! out-of-balance force it leaves on a step's new grid does not either, and against the short
+//! arcs of a small controlled load it can be the larger part of the step: an elastic block on
+//! GIMP with its weight held (`tests/arc_length_held.rs`) reaches new nodes with slivers of
+//! support at step 2 (22 DOFs, then 31), where |K⁻¹ r| at the predictor is 4.4e-2 against
+//! Δl = 3.2e-4. Left in the arc (`rebalance: "off"`), that correction is step 2's increment
+//! (the quadratic has no real root; the normal-plane predictor), so Δu_2 is the sliver nodes'
+//! settling, not the path, and Δu_2·δu_f = −4.5e-5 < 0 turns step 3's predictor down: λ falls,
+//! the step is refused as a turn-back until the cuts run out. Rebalanced first, the correction
+//! is not part of the path (`accept` keeps the arc's part) and the block runs.
+//!
 //! # Stages
 //!
 //! In a staged scene the last stage may be arc-controlled (`stage(#{ .., control:
@@ -117,7 +129,8 @@
 //!
 //! # Rebalancing before the arc
 //!
-//! With `solver(#{ control: "arc_length", rebalance: "fixed" })` (or `"free"`) a step first
+//! With `solver(#{ control: "arc_length", rebalance: "fixed" })` (or `"free"`; `"auto"`, the
+//! default, is `"fixed"` in a scene with held loads, "Held loads" above) a step first
 //! removes the residual it starts with, then takes its arc from there. The rebalancing is
 //! Newton without the arc constraint, from the committed state on the step's grid (Δu = 0),
 //! inside the same Newton loop and with the same criterion and tolerance:
@@ -226,11 +239,15 @@ pub enum Rebalance {
     /// Newton with λ free and no arc constraint, each correction the shortest (normal flow):
     /// `δu = δu_r + δλ δu_f`, `δλ = −(δu_f·δu_r)/(δu_f·δu_f)`.
     Free,
+    /// As [`Rebalance::Fixed`], but only on a step whose start correction is at least its arc,
+    /// ‖δu_r‖ ≥ Δl at the predictor (the arc cannot absorb it: module docs, "Held loads"); the
+    /// default of a scene with held loads ([`Rebalance::resolve`]).
+    Auto,
 }
 
 impl Rebalance {
     /// The scene's words, in the order of the variants.
-    pub const WORDS: [&'static str; 3] = ["off", "fixed", "free"];
+    pub const WORDS: [&'static str; 4] = ["off", "fixed", "free", "auto"];
 
     /// The variant of a scene word.
     pub fn from_word(word: &str) -> Option<Self> {
@@ -238,6 +255,7 @@ impl Rebalance {
             "off" => Some(Self::Off),
             "fixed" => Some(Self::Fixed),
             "free" => Some(Self::Free),
+            "auto" => Some(Self::Auto),
             _ => None,
         }
     }
@@ -245,6 +263,18 @@ impl Rebalance {
     /// The scene word.
     pub fn word(self) -> &'static str {
         Self::WORDS[self as usize]
+    }
+
+    /// The rebalancing of a scene's word or none (the default, `"auto"`): [`Rebalance::Auto`]
+    /// with held loads (`held_loads`, [`ArcLengthSpec::fixed_loads`]), [`Rebalance::Off`]
+    /// without them (module docs, "Held loads": a held load's imbalance on a step's new grid
+    /// does not scale with λ; without held loads the runs stay as they were, bit for bit).
+    /// `None` for a word that is none of these.
+    pub fn resolve(word: Option<&str>, held_loads: bool) -> Option<Self> {
+        match word.map_or(Some(Self::Auto), Self::from_word)? {
+            Self::Auto if !held_loads => Some(Self::Off),
+            mode => Some(mode),
+        }
     }
 }
 
@@ -422,9 +452,32 @@ impl<const D: usize> ArcLength<D> {
         self.corrected = 0;
         self.linearised = 0;
         self.current.clear();
-        self.rebalancing = self.rebalance != Rebalance::Off || self.balances_held_loads();
+        self.rebalancing = matches!(self.rebalance, Rebalance::Fixed | Rebalance::Free)
+            || self.balances_held_loads();
         self.origin.clear();
         self.rebalanced = None;
+    }
+
+    /// Whether the current attempt of load step `step` may begin a rebalancing, which it then
+    /// begins: not when an earlier attempt of the step failed while rebalancing, since this one
+    /// would repeat it exactly (it starts from the committed state and ignores the arc); the
+    /// attempt then starts from the committed state, out of balance, warned once per run.
+    fn may_rebalance(&mut self, step: usize, warnings: &mut Warnings) -> bool {
+        if self.rebalancing_step != Some(step) {
+            self.rebalancing_step = Some(step);
+            return true;
+        }
+        if !self.warned_unbalanced {
+            self.warned_unbalanced = true;
+            warnings.0.push(format!(
+                "step {step}: the rebalancing before the arc (rebalance: \"{}\") failed (the \
+                 step's failed attempts in summary.json say why); the step's next attempts \
+                 start from the committed state, out of balance, as without rebalancing \
+                 (warned once per run; summary.json steps without rebalance_iterations)",
+                self.rebalancing_mode().word()
+            ));
+        }
+        false
     }
 
     /// Whether the current attempt is still removing its start residual.
@@ -446,7 +499,7 @@ impl<const D: usize> ArcLength<D> {
             return Rebalance::Fixed;
         }
         match self.rebalance {
-            Rebalance::Off => Rebalance::Fixed,
+            Rebalance::Off | Rebalance::Auto => Rebalance::Fixed,
             mode => mode,
         }
     }
@@ -597,24 +650,7 @@ pub fn take_reference_load<const D: usize>(
     arc.set_external(&mut fields.external_force, arc.start);
     step.factor = arc.start;
     if arc.rebalancing {
-        if arc.rebalancing_step == Some(step.number) {
-            // an earlier attempt of this step failed while rebalancing, and this one would
-            // repeat it exactly (it starts from the committed state and ignores the arc)
-            arc.rebalancing = false;
-            if !arc.warned_unbalanced {
-                arc.warned_unbalanced = true;
-                warnings.0.push(format!(
-                    "step {}: the rebalancing before the arc (rebalance: \"{}\") failed (the \
-                     step's failed attempts in summary.json say why); the step's next attempts \
-                     start from the committed state, out of balance, as without rebalancing \
-                     (warned once per run; summary.json steps without rebalance_iterations)",
-                    step.number,
-                    arc.rebalancing_mode().word()
-                ));
-            }
-        } else {
-            arc.rebalancing_step = Some(step.number);
-        }
+        arc.rebalancing = arc.may_rebalance(step.number, &mut warnings);
     }
 }
 
@@ -658,8 +694,9 @@ pub fn keep_going_forward<const D: usize>(
         // reached by domains, with slivers of support) make it take its other root:
         // removing that imbalance first is what has been seen to help (docs/plasticity.md)
         let hint = if arc.fixed_loads && arc.rebalance == Rebalance::Off {
-            "; with held loads, solver(#{ rebalance: \"fixed\" }) removes the out-of-balance \
-             force they leave on each step's grid before the arc"
+            "; the scene holds loads and asks for rebalance: \"off\": their out-of-balance force \
+             on each step's grid then steers the arc (docs/plasticity.md, \"Past the limit \
+             load\"); the default (rebalance: \"auto\", here \"fixed\") removes it before the arc"
         } else {
             ""
         };
@@ -832,6 +869,7 @@ pub fn correct_load_factor<const D: usize>(
     mut newton: ResMut<Newton>,
     mut step: ResMut<LoadStep>,
     mut status: ResMut<RunStatus>,
+    mut warnings: ResMut<Warnings>,
 ) {
     let (arc, fields, newton) = (&mut *arc, &mut *fields, &mut *newton);
     if newton.iterations == arc.corrected {
@@ -890,6 +928,17 @@ pub fn correct_load_factor<const D: usize>(
     }
     if arc.radius <= 0.0 {
         arc.radius = arc.first_increment.abs() * dot(&load_part, &load_part).sqrt();
+    }
+    if arc.rebalance == Rebalance::Auto
+        && predictor
+        && arc.origin.is_empty()
+        && dot(&residual_part, &residual_part) >= arc.radius * arc.radius
+        && arc.may_rebalance(step.number, &mut warnings)
+    {
+        // the start correction is at least the arc ("Held loads"): the step rebalances at
+        // λ_n first, this iteration its first (Δu += δu_r at λ_n is done)
+        arc.rebalancing = true;
+        return;
     }
     let sign = if arc.previous.is_empty() {
         arc.first_increment.signum()
