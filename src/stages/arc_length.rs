@@ -109,6 +109,19 @@
 //! A release ramped over the arc's stage, (1 − λ) f_end, is refused when the scene is read
 //! (λ goes past 1 under the arc).
 //!
+//! # A plateau
+//!
+//! A perfectly plastic body reaches its limit load on a plateau: λ stays flat while u grows.
+//! There the arc's predictor is elastic (module docs above) and Newton lands on the elastic
+//! unloading branch about the plateau, which is refused; the cuts shrink the arc to nothing
+//! and the step fails. [`keep_going_forward`] then says what happened: when the last
+//! converged step was at the largest λ and the current stiffness parameter (Bergan et al.
+//! 1978), the last step's Δλ/‖Δu‖ over the first's ([`ArcLength::stiffness_parameter`]), is
+//! below [`PLATEAU_STIFFNESS`] in size ([`ArcLength::on_plateau`]), the error states that
+//! the limit load was reached and gives λ_max, instead of calling it a turn-back. (The run
+//! still stops with that error: the plateau is not followed. The two numbers are not in a
+//! checkpoint: after a resume the error is the turn-back one until two steps converged.)
+//!
 //! # A step that starts out of balance
 //!
 //! At Δu = 0 the residual is λ_n f̂ − f_int(u_n) on the new grid: the previous step's converged
@@ -409,6 +422,12 @@ pub struct ArcLength<const D: usize> {
     warned_unbalanced: bool,
     /// The first load step the arc controls ([`ArcLengthSpec::first_step`]).
     pub first_step: usize,
+    /// Δλ / ‖Δu‖ of the arc's part of the first and of the last converged step: their ratio
+    /// is the current stiffness parameter ([`ArcLength::stiffness_parameter`]).
+    first_slope: Option<f64>,
+    last_slope: f64,
+    /// The largest λ of a converged step.
+    peak: f64,
 }
 
 impl<const D: usize> ArcLength<D> {
@@ -435,6 +454,9 @@ impl<const D: usize> ArcLength<D> {
             rebalancing_step: None,
             warned_unbalanced: false,
             first_step: 1,
+            first_slope: None,
+            last_slope: f64::NAN,
+            peak: f64::NEG_INFINITY,
         }
     }
 
@@ -548,6 +570,31 @@ impl<const D: usize> ArcLength<D> {
     /// part Δu − Δu_c after a rebalancing).
     pub fn accept(&mut self) {
         self.previous.clone_from(&self.current);
+        let slope = (self.factor - self.start) / self.increment_norm();
+        if slope.is_finite() {
+            self.last_slope = slope;
+            self.first_slope.get_or_insert(slope);
+        }
+        self.peak = self.peak.max(self.factor);
+    }
+
+    /// The current stiffness parameter (Bergan et al. 1978): the last converged step's
+    /// Δλ / ‖Δu‖ over the first's (1 on a linear path, 0 at a limit load, negative past it);
+    /// `None` before two steps (or after a resume: it is not saved).
+    pub fn stiffness_parameter(&self) -> Option<f64> {
+        self.first_slope
+            .map(|first| self.last_slope / first)
+            .filter(|s| s.is_finite())
+    }
+
+    /// Whether the last converged step was on a plateau at the largest load factor: λ_n at
+    /// the peak and the current stiffness parameter below [`PLATEAU_STIFFNESS`] in size (the
+    /// load no longer changes while the displacement grows: the limit load is reached).
+    pub fn on_plateau(&self) -> bool {
+        self.peak - self.start <= 1e-6 * self.peak.abs()
+            && self
+                .stiffness_parameter()
+                .is_some_and(|s| s.abs() < PLATEAU_STIFFNESS)
     }
 
     /// ‖Δu − Δu_c‖ of the last iterate (over the free DOFs it was taken on; Δu_c = 0 without
@@ -696,21 +743,43 @@ pub fn keep_going_forward<const D: usize>(
         let hint = if arc.fixed_loads && arc.rebalance == Rebalance::Off {
             "; the scene holds loads and asks for rebalance: \"off\": their out-of-balance force \
              on each step's grid then steers the arc (docs/plasticity.md, \"Past the limit \
-             load\"); the default (rebalance: \"auto\", here \"fixed\") removes it before the arc"
+             load\"); the default, rebalance: \"auto\", removes it before the arc where it needs \
+             a correction at least as long as the arc (\"fixed\": on every step)"
         } else {
             ""
         };
-        status.fail(SolverError::Module {
-            step: step.number,
-            what: format!(
+        let what = if arc.on_plateau() {
+            // a perfectly plastic plateau: λ flat while u grows, and Newton lands on the
+            // elastic unloading branch about it (module docs, "A plateau")
+            format!(
+                "arc-length control: the limit load was reached: the load factor stays at its \
+                 largest value, {:.6e}, while the displacement grows (the current stiffness \
+                 parameter, the last step's Δλ/‖Δu‖ over the first's, is {:.1e}: a plateau); \
+                 this attempt did not go on along it ({why}, load factor {:.6e}); the arc is cut",
+                arc.peak,
+                arc.stiffness_parameter().unwrap_or(f64::NAN),
+                step.factor
+            )
+        } else {
+            format!(
                 "arc-length control: the converged increment turns back along the path traced \
                  ({why}, load factor {:.6e}); the arc is cut{hint}",
                 step.factor
-            ),
+            )
+        };
+        status.fail(SolverError::Module {
+            step: step.number,
+            what,
             recoverable: true,
         });
     }
 }
+
+/// Below this in size, the current stiffness parameter ([`ArcLength::stiffness_parameter`]) of
+/// a step at the largest load factor means a plateau: the limit load is reached
+/// ([`ArcLength::on_plateau`]; measured on the staged perfectly plastic block: see the module
+/// docs, "A plateau").
+pub const PLATEAU_STIFFNESS: f64 = 1e-3;
 
 /// Below −this times |a| |b|, a dot product a·b counts as negative in the turn-back test
 /// ([`turns_back`]; the module docs say why round-off is far smaller and a turn-back far larger).
