@@ -1,9 +1,9 @@
 //! Arc-length load control as a scene option: `solver(#{ control: "arc_length",
 //! target_iterations: 5, max_load_factor: 2.0 })`. The method is in `stages::arc_length`; this
 //! module reads the options, refuses what the arc cannot control, adds the arc's five systems
-//! (six with `rebalance`, seven with held loads, whose default rebalancing is `"fixed"`:
-//! [`Rebalance::resolve`]) at their hooks (scenes without the option schedule none of them)
-//! and the measure
+//! (six with `rebalance`, seven with held loads, whose default rebalancing, `"auto"`,
+//! rebalances a step whose start correction is at least its arc: [`Rebalance::resolve`]) at
+//! their hooks (scenes without the option schedule none of them) and the measure
 //! `initial_imbalance` (each step's out-of-balance force at its start, relative to λ_n f̂):
 //!
 //! ```text
