@@ -690,3 +690,28 @@ fn a_resumed_arc_length_run_continues_bit_identically() {
     check::<1>("bar_resumed", BAR, 20);
     check::<2>("layer_resumed", &layer(", rebalance: \"fixed\""), 2);
 }
+
+/// The default rebalancing (`rebalance: "auto"`, or no word): `Auto` (a step rebalanced when
+/// its start correction is at least its arc) with held loads, off without; the other words as
+/// given, whatever the loads; an unknown word none.
+#[test]
+fn the_default_rebalancing_is_automatic_with_held_loads_only() {
+    use impm::stages::arc_length::Rebalance;
+    for word in [None, Some("auto")] {
+        assert_eq!(Rebalance::resolve(word, true), Some(Rebalance::Auto));
+        assert_eq!(Rebalance::resolve(word, false), Some(Rebalance::Off));
+    }
+    for held in [true, false] {
+        for (word, mode) in
+            Rebalance::WORDS[..3]
+                .iter()
+                .zip([Rebalance::Off, Rebalance::Fixed, Rebalance::Free])
+        {
+            assert_eq!(Rebalance::resolve(Some(word), held), Some(mode));
+        }
+        assert_eq!(Rebalance::resolve(Some("always"), held), None);
+    }
+    for word in Rebalance::WORDS {
+        assert_eq!(Rebalance::from_word(word).map(Rebalance::word), Some(word));
+    }
+}

@@ -4,7 +4,8 @@
 //! then a top traction or a pressure under the arc; the base reaction against weight + λ q B at
 //! every arc step, the first stage bit for bit the run without the arc, the arc's points where
 //! load control at the same factors puts the block; a pressure held and released over stages;
-//! the staged footing past its limit against Prandtl; what is refused, with the scene line.
+//! the staged footing past its limit against Prandtl; a perfectly plastic block that stops on
+//! its plateau saying the limit load was reached; what is refused, with the scene line.
 
 use impm::components::Position;
 use impm::effects::pressure::{PressurePoint, Pressures};
@@ -510,5 +511,56 @@ fn what_a_staged_arc_cannot_take_is_refused_with_the_scene_line() {
             options.fixed_loads
         ),
         (3, 3, true)
+    );
+}
+
+/// The new user's block (0.5 × 1 on a smooth base, a symmetry roller, GIMP, its edges on grid
+/// lines), perfectly plastic (von Mises, σ_y = 100, E = 1e6) and without F-bar: its weight
+/// (γ = 10) by load control in stage "gravity", then a top traction of 10 per unit λ under the
+/// arc, the default rebalancing. The limit is 2σ_y/√3 − γH = 105.47, λ = 10.547; the block
+/// reaches a plateau a little above it (no F-bar: observed 10.6456, +0.9 %, flat to 1e-6 from
+/// step 20 to step 33), where the arc cannot go on: every attempt lands on the elastic
+/// unloading branch. The run stops there, and its error says that the limit load was reached,
+/// with λ_max and the current stiffness parameter, not that the path turned back.
+#[test]
+fn a_perfectly_plastic_block_stops_on_its_plateau_saying_the_limit_was_reached() {
+    let text = "\
+grid(#{ lower: [0.0, 0.0], upper: [1.5, 1.25], cells: [6, 5], basis: \"gimp\" });
+const m = material(#{ name: \"m\", model: \"von_mises\", sigma_y: 100.0, E: 1.0e6, nu: 0.3, density: 1.0 });
+body(#{ name: \"block\", material: m, region: box([0.0, 0.0], [0.5, 1.0]), ppc: 2 });
+fix(|x| x[1] == 0.0, [1]);
+fix(|x| x[0] == 0.0, [0]);
+solver(#{ target_iterations: 6 });
+stage(#{ name: \"gravity\", steps: 2 });
+body_force([0.0, -10.0]);
+stage(#{ name: \"load\", steps: 40, control: \"arc_length\" });
+traction(#{ on: [[0.0, 1.0], [0.5, 1.0]], traction: [0.0, -10.0] });
+";
+    let (mut sim, dir) = build("plateau", text);
+    sim.write_initial_state().unwrap();
+    let mut failure = None;
+    let mut factors = Vec::new();
+    while sim.steps_done() < 42 {
+        match sim.step() {
+            Ok(record) => factors.push(record.load_factor),
+            Err(error) => {
+                failure = Some(error.to_string());
+                break;
+            }
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    let limit = 2.0 * 100.0 / 3.0f64.sqrt() / 10.0 - 1.0;
+    let peak = factors.iter().copied().fold(f64::MIN, f64::max);
+    println!(
+        "{} steps, peak λ {peak:.6} ({:+.2} % against {limit:.4}); {failure:?}",
+        factors.len(),
+        100.0 * (peak / limit - 1.0)
+    );
+    assert!((peak / limit - 1.0).abs() < 0.02, "{peak}");
+    let failure = failure.expect("the arc stops on the plateau");
+    assert!(
+        failure.contains("the limit load was reached") && failure.contains("a plateau"),
+        "{failure}"
     );
 }

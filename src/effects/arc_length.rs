@@ -1,7 +1,9 @@
 //! Arc-length load control as a scene option: `solver(#{ control: "arc_length",
 //! target_iterations: 5, max_load_factor: 2.0 })`. The method is in `stages::arc_length`; this
 //! module reads the options, refuses what the arc cannot control, adds the arc's five systems
-//! (six with `rebalance`, seven with held loads) at their hooks (scenes without the option schedule none of them) and the measure
+//! (six with `rebalance`, seven with held loads, whose default rebalancing, `"auto"`,
+//! rebalances a step whose start correction is at least its arc: [`Rebalance::resolve`]) at
+//! their hooks (scenes without the option schedule none of them) and the measure
 //! `initial_imbalance` (each step's out-of-balance force at its start, relative to λ_n f̂):
 //!
 //! ```text
@@ -122,8 +124,19 @@ impl Plugin for ArcLengthModule {
                 "rebalance",
                 Kind::Choice(vec![
                     Choice {
+                        word: "auto",
+                        meaning: Some(
+                            "the default: in a scene with held loads (held: true, or the \
+                             earlier stages' loads under a staged arc), a step whose start \
+                             residual needs a correction at least as long as its arc is \
+                             rebalanced as \"fixed\" (the held loads' out-of-balance force on \
+                             nodes a step newly reaches would otherwise steer the arc); \"off\" \
+                             without held loads",
+                        ),
+                    },
+                    Choice {
                         word: "off",
-                        meaning: Some("the arc starts from the committed state (the default)"),
+                        meaning: Some("the arc starts from the committed state"),
                     },
                     Choice {
                         word: "fixed",
@@ -143,7 +156,8 @@ impl Plugin for ArcLengthModule {
                     },
                 ]),
                 "control: \"arc_length\": remove the start residual of each step (points that \
-                 crossed cell faces leave one) before its arc (default \"off\")",
+                 crossed cell faces leave one, and held loads on nodes a step newly reaches) \
+                 before its arc (default \"auto\")",
             ),
         );
     }
@@ -274,9 +288,8 @@ impl Plugin for ArcLengthModule {
             max_load_factor: options
                 .and_then(|o| o.number("max_load_factor"))
                 .unwrap_or(default.max_load_factor),
-            rebalance: options
-                .and_then(|o| o.text("rebalance"))
-                .and_then(Rebalance::from_word)
+            // (the options table admits only the words of its choices)
+            rebalance: Rebalance::resolve(options.and_then(|o| o.text("rebalance")), fixed_loads)
                 .unwrap_or(default.rebalance),
             fixed_loads,
             first_step,
@@ -368,6 +381,7 @@ impl Plugin for ArcLengthModule {
                 restore: restore_arc_state::<D>,
             });
         if rebalance != Rebalance::Off {
+            // (none on a step that did not rebalance: "auto")
             let rebalanced = |world: &World| world.resource::<ArcLength<D>>().rebalanced;
             simulation
                 .add_measure("rebalance_iterations", move |world, _| {

@@ -83,6 +83,18 @@
 //! equilibrium (its start residual is the held loads', not a cell crossing: not warned).
 //! A follower pressure is not held (`effects::pressure` keeps its own f̂ part up to date).
 //!
+//! The later steps rebalance too by default (`rebalance: "auto"`, [`Rebalance::resolve`]:
+//! fixed with held loads, off without). A held load does not scale with λ, so the
+//! out-of-balance force it leaves on a step's new grid does not either, and against the short
+//! arcs of a small controlled load it can be the larger part of the step: an elastic block on
+//! GIMP with its weight held (`tests/arc_length_held.rs`) reaches new nodes with slivers of
+//! support at step 2 (22 DOFs, then 31), where |K⁻¹ r| at the predictor is 4.4e-2 against
+//! Δl = 3.2e-4. Left in the arc (`rebalance: "off"`), that correction is step 2's increment
+//! (the quadratic has no real root; the normal-plane predictor), so Δu_2 is the sliver nodes'
+//! settling, not the path, and Δu_2·δu_f = −4.5e-5 < 0 turns step 3's predictor down: λ falls,
+//! the step is refused as a turn-back until the cuts run out. Rebalanced first, the correction
+//! is not part of the path (`accept` keeps the arc's part) and the block runs.
+//!
 //! # Stages
 //!
 //! In a staged scene the last stage may be arc-controlled (`stage(#{ .., control:
@@ -96,6 +108,19 @@
 //! the last load-controlled state, and its first arc is sized by the stage's first load factor.
 //! A release ramped over the arc's stage, (1 − λ) f_end, is refused when the scene is read
 //! (λ goes past 1 under the arc).
+//!
+//! # A plateau
+//!
+//! A perfectly plastic body reaches its limit load on a plateau: λ stays flat while u grows.
+//! There the arc's predictor is elastic (module docs above) and Newton lands on the elastic
+//! unloading branch about the plateau, which is refused; the cuts shrink the arc to nothing
+//! and the step fails. [`keep_going_forward`] then says what happened: when the last
+//! converged step was at the largest λ and the current stiffness parameter (Bergan et al.
+//! 1978), the last step's Δλ/‖Δu‖ over the first's ([`ArcLength::stiffness_parameter`]), is
+//! below [`PLATEAU_STIFFNESS`] in size ([`ArcLength::on_plateau`]), the error states that
+//! the limit load was reached and gives λ_max, instead of calling it a turn-back. (The run
+//! still stops with that error: the plateau is not followed. The two numbers are not in a
+//! checkpoint: after a resume the error is the turn-back one until two steps converged.)
 //!
 //! # A step that starts out of balance
 //!
@@ -117,7 +142,8 @@
 //!
 //! # Rebalancing before the arc
 //!
-//! With `solver(#{ control: "arc_length", rebalance: "fixed" })` (or `"free"`) a step first
+//! With `solver(#{ control: "arc_length", rebalance: "fixed" })` (or `"free"`; `"auto"`, the
+//! default, is `"fixed"` in a scene with held loads, "Held loads" above) a step first
 //! removes the residual it starts with, then takes its arc from there. The rebalancing is
 //! Newton without the arc constraint, from the committed state on the step's grid (Δu = 0),
 //! inside the same Newton loop and with the same criterion and tolerance:
@@ -226,11 +252,15 @@ pub enum Rebalance {
     /// Newton with λ free and no arc constraint, each correction the shortest (normal flow):
     /// `δu = δu_r + δλ δu_f`, `δλ = −(δu_f·δu_r)/(δu_f·δu_f)`.
     Free,
+    /// As [`Rebalance::Fixed`], but only on a step whose start correction is at least its arc,
+    /// ‖δu_r‖ ≥ Δl at the predictor (the arc cannot absorb it: module docs, "Held loads"); the
+    /// default of a scene with held loads ([`Rebalance::resolve`]).
+    Auto,
 }
 
 impl Rebalance {
     /// The scene's words, in the order of the variants.
-    pub const WORDS: [&'static str; 3] = ["off", "fixed", "free"];
+    pub const WORDS: [&'static str; 4] = ["off", "fixed", "free", "auto"];
 
     /// The variant of a scene word.
     pub fn from_word(word: &str) -> Option<Self> {
@@ -238,6 +268,7 @@ impl Rebalance {
             "off" => Some(Self::Off),
             "fixed" => Some(Self::Fixed),
             "free" => Some(Self::Free),
+            "auto" => Some(Self::Auto),
             _ => None,
         }
     }
@@ -245,6 +276,18 @@ impl Rebalance {
     /// The scene word.
     pub fn word(self) -> &'static str {
         Self::WORDS[self as usize]
+    }
+
+    /// The rebalancing of a scene's word or none (the default, `"auto"`): [`Rebalance::Auto`]
+    /// with held loads (`held_loads`, [`ArcLengthSpec::fixed_loads`]), [`Rebalance::Off`]
+    /// without them (module docs, "Held loads": a held load's imbalance on a step's new grid
+    /// does not scale with λ; without held loads the runs stay as they were, bit for bit).
+    /// `None` for a word that is none of these.
+    pub fn resolve(word: Option<&str>, held_loads: bool) -> Option<Self> {
+        match word.map_or(Some(Self::Auto), Self::from_word)? {
+            Self::Auto if !held_loads => Some(Self::Off),
+            mode => Some(mode),
+        }
     }
 }
 
@@ -379,6 +422,12 @@ pub struct ArcLength<const D: usize> {
     warned_unbalanced: bool,
     /// The first load step the arc controls ([`ArcLengthSpec::first_step`]).
     pub first_step: usize,
+    /// Δλ / ‖Δu‖ of the arc's part of the first and of the last converged step: their ratio
+    /// is the current stiffness parameter ([`ArcLength::stiffness_parameter`]).
+    first_slope: Option<f64>,
+    last_slope: f64,
+    /// The largest λ of a converged step.
+    peak: f64,
 }
 
 impl<const D: usize> ArcLength<D> {
@@ -405,6 +454,9 @@ impl<const D: usize> ArcLength<D> {
             rebalancing_step: None,
             warned_unbalanced: false,
             first_step: 1,
+            first_slope: None,
+            last_slope: f64::NAN,
+            peak: f64::NEG_INFINITY,
         }
     }
 
@@ -422,9 +474,32 @@ impl<const D: usize> ArcLength<D> {
         self.corrected = 0;
         self.linearised = 0;
         self.current.clear();
-        self.rebalancing = self.rebalance != Rebalance::Off || self.balances_held_loads();
+        self.rebalancing = matches!(self.rebalance, Rebalance::Fixed | Rebalance::Free)
+            || self.balances_held_loads();
         self.origin.clear();
         self.rebalanced = None;
+    }
+
+    /// Whether the current attempt of load step `step` may begin a rebalancing, which it then
+    /// begins: not when an earlier attempt of the step failed while rebalancing, since this one
+    /// would repeat it exactly (it starts from the committed state and ignores the arc); the
+    /// attempt then starts from the committed state, out of balance, warned once per run.
+    fn may_rebalance(&mut self, step: usize, warnings: &mut Warnings) -> bool {
+        if self.rebalancing_step != Some(step) {
+            self.rebalancing_step = Some(step);
+            return true;
+        }
+        if !self.warned_unbalanced {
+            self.warned_unbalanced = true;
+            warnings.0.push(format!(
+                "step {step}: the rebalancing before the arc (rebalance: \"{}\") failed (the \
+                 step's failed attempts in summary.json say why); the step's next attempts \
+                 start from the committed state, out of balance, as without rebalancing \
+                 (warned once per run; summary.json steps without rebalance_iterations)",
+                self.rebalancing_mode().word()
+            ));
+        }
+        false
     }
 
     /// Whether the current attempt is still removing its start residual.
@@ -446,7 +521,7 @@ impl<const D: usize> ArcLength<D> {
             return Rebalance::Fixed;
         }
         match self.rebalance {
-            Rebalance::Off => Rebalance::Fixed,
+            Rebalance::Off | Rebalance::Auto => Rebalance::Fixed,
             mode => mode,
         }
     }
@@ -495,6 +570,31 @@ impl<const D: usize> ArcLength<D> {
     /// part Δu − Δu_c after a rebalancing).
     pub fn accept(&mut self) {
         self.previous.clone_from(&self.current);
+        let slope = (self.factor - self.start) / self.increment_norm();
+        if slope.is_finite() {
+            self.last_slope = slope;
+            self.first_slope.get_or_insert(slope);
+        }
+        self.peak = self.peak.max(self.factor);
+    }
+
+    /// The current stiffness parameter (Bergan et al. 1978): the last converged step's
+    /// Δλ / ‖Δu‖ over the first's (1 on a linear path, 0 at a limit load, negative past it);
+    /// `None` before two steps (or after a resume: it is not saved).
+    pub fn stiffness_parameter(&self) -> Option<f64> {
+        self.first_slope
+            .map(|first| self.last_slope / first)
+            .filter(|s| s.is_finite())
+    }
+
+    /// Whether the last converged step was on a plateau at the largest load factor: λ_n at
+    /// the peak and the current stiffness parameter below [`PLATEAU_STIFFNESS`] in size (the
+    /// load no longer changes while the displacement grows: the limit load is reached).
+    pub fn on_plateau(&self) -> bool {
+        self.peak - self.start <= 1e-6 * self.peak.abs()
+            && self
+                .stiffness_parameter()
+                .is_some_and(|s| s.abs() < PLATEAU_STIFFNESS)
     }
 
     /// ‖Δu − Δu_c‖ of the last iterate (over the free DOFs it was taken on; Δu_c = 0 without
@@ -597,24 +697,7 @@ pub fn take_reference_load<const D: usize>(
     arc.set_external(&mut fields.external_force, arc.start);
     step.factor = arc.start;
     if arc.rebalancing {
-        if arc.rebalancing_step == Some(step.number) {
-            // an earlier attempt of this step failed while rebalancing, and this one would
-            // repeat it exactly (it starts from the committed state and ignores the arc)
-            arc.rebalancing = false;
-            if !arc.warned_unbalanced {
-                arc.warned_unbalanced = true;
-                warnings.0.push(format!(
-                    "step {}: the rebalancing before the arc (rebalance: \"{}\") failed (the \
-                     step's failed attempts in summary.json say why); the step's next attempts \
-                     start from the committed state, out of balance, as without rebalancing \
-                     (warned once per run; summary.json steps without rebalance_iterations)",
-                    step.number,
-                    arc.rebalancing_mode().word()
-                ));
-            }
-        } else {
-            arc.rebalancing_step = Some(step.number);
-        }
+        arc.rebalancing = arc.may_rebalance(step.number, &mut warnings);
     }
 }
 
@@ -658,22 +741,45 @@ pub fn keep_going_forward<const D: usize>(
         // reached by domains, with slivers of support) make it take its other root:
         // removing that imbalance first is what has been seen to help (docs/plasticity.md)
         let hint = if arc.fixed_loads && arc.rebalance == Rebalance::Off {
-            "; with held loads, solver(#{ rebalance: \"fixed\" }) removes the out-of-balance \
-             force they leave on each step's grid before the arc"
+            "; the scene holds loads and asks for rebalance: \"off\": their out-of-balance force \
+             on each step's grid then steers the arc (docs/plasticity.md, \"Past the limit \
+             load\"); the default, rebalance: \"auto\", removes it before the arc where it needs \
+             a correction at least as long as the arc (\"fixed\": on every step)"
         } else {
             ""
         };
-        status.fail(SolverError::Module {
-            step: step.number,
-            what: format!(
+        let what = if arc.on_plateau() {
+            // a perfectly plastic plateau: λ flat while u grows, and Newton lands on the
+            // elastic unloading branch about it (module docs, "A plateau")
+            format!(
+                "arc-length control: the limit load was reached: the load factor stays at its \
+                 largest value, {:.6e}, while the displacement grows (the current stiffness \
+                 parameter, the last step's Δλ/‖Δu‖ over the first's, is {:.1e}: a plateau); \
+                 this attempt did not go on along it ({why}, load factor {:.6e}); the arc is cut",
+                arc.peak,
+                arc.stiffness_parameter().unwrap_or(f64::NAN),
+                step.factor
+            )
+        } else {
+            format!(
                 "arc-length control: the converged increment turns back along the path traced \
                  ({why}, load factor {:.6e}); the arc is cut{hint}",
                 step.factor
-            ),
+            )
+        };
+        status.fail(SolverError::Module {
+            step: step.number,
+            what,
             recoverable: true,
         });
     }
 }
+
+/// Below this in size, the current stiffness parameter ([`ArcLength::stiffness_parameter`]) of
+/// a step at the largest load factor means a plateau: the limit load is reached
+/// ([`ArcLength::on_plateau`]; measured on the staged perfectly plastic block: see the module
+/// docs, "A plateau").
+pub const PLATEAU_STIFFNESS: f64 = 1e-3;
 
 /// Below −this times |a| |b|, a dot product a·b counts as negative in the turn-back test
 /// ([`turns_back`]; the module docs say why round-off is far smaller and a turn-back far larger).
@@ -832,6 +938,7 @@ pub fn correct_load_factor<const D: usize>(
     mut newton: ResMut<Newton>,
     mut step: ResMut<LoadStep>,
     mut status: ResMut<RunStatus>,
+    mut warnings: ResMut<Warnings>,
 ) {
     let (arc, fields, newton) = (&mut *arc, &mut *fields, &mut *newton);
     if newton.iterations == arc.corrected {
@@ -890,6 +997,17 @@ pub fn correct_load_factor<const D: usize>(
     }
     if arc.radius <= 0.0 {
         arc.radius = arc.first_increment.abs() * dot(&load_part, &load_part).sqrt();
+    }
+    if arc.rebalance == Rebalance::Auto
+        && predictor
+        && arc.origin.is_empty()
+        && dot(&residual_part, &residual_part) >= arc.radius * arc.radius
+        && arc.may_rebalance(step.number, &mut warnings)
+    {
+        // the start correction is at least the arc ("Held loads"): the step rebalances at
+        // λ_n first, this iteration its first (Δu += δu_r at λ_n is done)
+        arc.rebalancing = true;
+        return;
     }
     let sign = if arc.previous.is_empty() {
         arc.first_increment.signum()
