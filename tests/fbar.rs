@@ -724,6 +724,39 @@ fn the_mixed_form_runs_the_associated_mohr_coulomb_footing() {
     assert!(fine < coarse, "{fine} {coarse}");
 }
 
+/// A body with the standard F-bar and dilatant plastic flow is warned to use `fbar: "mixed"`:
+/// Mohr–Coulomb with `ψ` given or defaulting to `φ`, and Drucker–Prager; not with
+/// `fbar: "mixed"`, not with `ψ = 0`.
+#[test]
+fn dilatant_flow_with_the_standard_fbar_is_warned() {
+    let text = |model: &str, psi: &str, fbar: &str| {
+        format!(
+            "grid(#{{ lower: [0.0, 0.0], upper: [2.0, 2.0], cells: [2, 2], basis: \"linear\" }});\n\
+             const m = material(#{{ name: \"soil\", model: \"{model}\", E: 1000.0, nu: 0.3, c: 1.0, phi: 20.0{psi}, density: 1.0 }});\n\
+             body(#{{ name: \"b\", material: m, region: box([0.0, 0.0], [2.0, 2.0]), ppc: 2, fbar: {fbar} }});\n\
+             fix(|x| x[1] == 0.0);\n\
+             load_steps(1);\n"
+        )
+    };
+    let warned = |model: &str, psi: &str, fbar: &str| {
+        impm::scene::scene_warnings(&scene("dilatant", &text(model, psi, fbar), &[]))
+            .into_iter()
+            .filter(|w| w.contains("dilatant"))
+            .collect::<Vec<_>>()
+    };
+    for (model, psi) in [
+        ("mohr_coulomb", ""),
+        ("mohr_coulomb", ", psi: 10.0"),
+        ("drucker_prager", ""),
+    ] {
+        let found = warned(model, psi, "true");
+        assert_eq!(found.len(), 1, "{model}{psi}: {found:?}");
+        assert!(found[0].contains("fbar: \"mixed\"") && found[0].contains("'b'"));
+        assert!(warned(model, psi, "\"mixed\"").is_empty(), "{model}{psi}");
+    }
+    assert!(warned("mohr_coulomb", ", psi: 0.0", "true").is_empty());
+}
+
 /// The cells that become less than half full of points (`src/effects/fbar.rs`, "Sparse
 /// cells") are counted and warned about. The Tresca strip footing (linear MPM, F-bar, 10 steps
 /// to δ/B = 0.05): with 8 cells across B (h = B/8) the lower points of the top row under the

@@ -163,7 +163,9 @@ use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{
     Grid, GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock, Warnings,
 };
-use crate::scene::{Kind, LockingTreated, OptionSpec, Resolver, SceneApi, SceneSpec, ScriptError};
+use crate::scene::{
+    Kind, LockingTreated, ModuleWarnings, OptionSpec, Resolver, SceneApi, SceneSpec, ScriptError,
+};
 
 /// Over which points an F-bar body averages the volume change of a cell's points.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -288,6 +290,8 @@ impl Plugin for FbarModule {
                 bodies.push((index, averaging));
             }
         }
+        let dilatant = dilatant_fbar_warnings(scene.spec, &bodies);
+        ModuleWarnings::add(scene.spec, dilatant);
         if !bodies.is_empty() {
             let treated = bodies.iter().map(|&(body, _)| body).collect();
             scene.spec.set_part(LockingTreated(treated));
@@ -849,6 +853,39 @@ fn volumetric_projection<const D: usize>(
         }
         sum / D as f64
     })
+}
+
+/// One warning per body with the standard F-bar (not `"mixed"`) and dilatant plastic flow
+/// (Mohr–Coulomb or Drucker–Prager with `ψ > 0`; `ψ` defaults to `φ`): its points' pressures
+/// differ within a group, the standard internal force is not the gradient of a potential, and
+/// Newton cycles near collapse (module docs, "The mixed form").
+fn dilatant_fbar_warnings(spec: &SceneSpec, bodies: &[(usize, FbarAveraging)]) -> Vec<String> {
+    let mut warnings = Vec::new();
+    for &(index, averaging) in bodies {
+        let body = &spec.bodies[index];
+        let Some(material) = spec.materials.get(body.material) else {
+            continue;
+        };
+        if averaging == FbarAveraging::Mixed
+            || !matches!(material.model.as_str(), "mohr_coulomb" | "drucker_prager")
+        {
+            continue;
+        }
+        let parameters = &material.parameters;
+        let friction = parameters.optional_number("phi").ok().flatten();
+        let dilation = parameters
+            .optional_number("psi")
+            .ok()
+            .flatten()
+            .or(friction);
+        if let Some(psi) = dilation.filter(|&psi| psi > 0.0) {
+            warnings.push(format!(
+                "body '{}' (material '{}', {} with psi = {psi}) uses F-bar with dilatant plastic flow: the points of a cell then carry different pressures, the standard F-bar internal force is not the gradient of a potential, and Newton cycles between active sets near collapse (the associated Mohr-Coulomb strip footing fails before settlement/B = 0.05 on FEM and MPM); use fbar: \"mixed\" (docs/plasticity.md, Benchmark 4)",
+                body.name, material.name, material.model
+            ));
+        }
+    }
+    warnings
 }
 
 /// The averaging of a `fbar` option's value: `true` or `"cell"`, `"patch"`, `"nodal"`; `false`:
