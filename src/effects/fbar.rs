@@ -93,6 +93,38 @@
 //! not symmetric: a scene with an F-bar body declares its tangent non-symmetric (LU).
 //! Checked against finite differences of the assembled internal force (`tests/fbar.rs`).
 //!
+//! # The mixed form (`fbar: "mixed"`)
+//! The internal force above tests each point's own Kirchhoff stress with its own gradients. It
+//! is the derivative of the stored energy `Σ_p V0_p W(F̄_p)` only when the pressure
+//! `p_p = (1/D) Σ_{a<D} τ̄_p,aa` is the same at every point of the group (a hyperelastic or a
+//! von Mises point, whose pressure is a function of `J̄` alone). A dilatant plastic return
+//! (Mohr–Coulomb or Drucker–Prager with `ψ > 0`) changes each point's pressure by its own
+//! plastic volume change, so the pressures of a group differ, and then the system is not the
+//! stationarity of any potential: its tangent is not symmetric even for associated flow, and
+//! Newton loses the convex structure of the associated incremental problem
+//! (docs/plasticity.md, "Benchmark 4"). `fbar: "mixed"` (cell groups and FEM elements) uses the
+//! derivative of the stored energy instead, `δ ln Δf̄ = sym ∇δu + (1/D)(δ ln Δj̄ − δ ln Δj) I`:
+//!
+//! ```text
+//!   f_int,i = Σ_p V0_p (τ̄_p g_i^p + p_p (ḡ_i − g_i^p)) = Σ_p V0_p (τ̄_p − p_p I) g_i^p + Π ḡ_i,
+//!   Π = Σ_p V0_p p_p,
+//! ```
+//!
+//! the deviatoric stress of each point and the group's total pressure tested with the averaged
+//! gradient: the weak form of the mixed element with a constant volume change and a constant
+//! pressure per group (Q1/P0; Simo, Taylor & Pister 1985), of which F-bar is the displacement
+//! form. Its tangent adds to the blocks above, with `∂p_p = Q_p b̄_p g_j + (tr P_p / D)(ḡ_j −
+//! g_j)`, `Q_kd = (1/D) Σ_a c̄_aakd`, `∂g_i = −g_j (g_i)_k` and
+//! `∂ḡ_i = Σ_q α_q (g_i^q ⊗ g_j^q − g_j^q ⊗ g_i^q) − ḡ_i ⊗ ḡ_j`:
+//!
+//! ```text
+//!   K_ij += Σ_p V0_p ((ḡ_i − g_i^p) ⊗ ∂p_p + p_p g_j^p ⊗ g_i^p)
+//!         + Π (Σ_q α_q (g_i^q ⊗ g_j^q − g_j^q ⊗ g_i^q) − ḡ_i ⊗ ḡ_j).
+//! ```
+//!
+//! When the group's pressures are equal and `V0_p ∝ α_p` (a uniform deformation) the added
+//! force is zero and the two forms agree.
+//!
 //! # Sparse cells
 //! A group whose members hold less than half their cell's volume at the step start
 //! (`Σ_{q∈c} V_q^n < h^D / 2`) is *sparse*: its cell is less than half full of points (the
@@ -112,8 +144,8 @@
 //!   of more than one source, the union of its sources' supports as a coupling group
 //!   (`GridFields::couplings`: the sparsity pattern then holds every pair of its nodes);
 //! * [`average_volume_change`] (`Hook::Kinematics`): `Δj̄` and every point's `Δf̄`;
-//! * [`assemble_fbar_tangent`] (`Hook::AfterAssembly`): the rank-one terms above, summed per
-//!   group in a dense buffer and scattered once. In a distributed run a process adds the terms
+//! * [`assemble_fbar_tangent`] (`Hook::AfterAssembly`): the rank-one terms above (and the mixed
+//!   form's force and blocks), summed per group in a dense buffer and scattered once. In a distributed run a process adds the terms
 //!   of the members it assembles only (not those marked `AssembledElsewhere`): the processes'
 //!   shares of `K` are summed.
 
@@ -131,7 +163,9 @@ use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{
     Grid, GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock, Warnings,
 };
-use crate::scene::{Kind, LockingTreated, OptionSpec, Resolver, SceneApi, SceneSpec, ScriptError};
+use crate::scene::{
+    Kind, LockingTreated, ModuleWarnings, OptionSpec, Resolver, SceneApi, SceneSpec, ScriptError,
+};
 
 /// Over which points an F-bar body averages the volume change of a cell's points.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -143,6 +177,16 @@ pub enum FbarAveraging {
     Patch,
     /// The lumped L2 projection onto the grid's linear tent functions (`fbar: "nodal"`).
     Nodal,
+    /// The body's points in the cell, with the group's mean pressure in the internal force
+    /// (`fbar: "mixed"`; module docs, "The mixed form").
+    Mixed,
+}
+
+impl FbarAveraging {
+    /// Whether the group is the cell's own points (`true`, `"cell"`, `"mixed"`).
+    pub fn over_the_cell(self) -> bool {
+        matches!(self, Self::Cell | Self::Mixed)
+    }
 }
 
 /// The bodies (indices into `SceneSpec::bodies`) with F-bar, and how each averages.
@@ -174,6 +218,8 @@ pub struct FbarGroup {
     /// cell's lower corner plus `e_k` along every axis `k` with bit `k` of `a` set), per source,
     /// row-major; empty for cell and patch groups.
     pub tents: Vec<f64>,
+    /// Whether the internal force has the group's mean pressure (`fbar: "mixed"`).
+    pub mixed: bool,
 }
 
 /// The F-bar points and groups of the current load step.
@@ -213,9 +259,9 @@ impl Plugin for FbarModule {
             OptionSpec::new(
                 "fbar",
                 Kind::Value {
-                    what: "true | false | \"cell\" | \"patch\" | \"nodal\"",
+                    what: "true | false | \"cell\" | \"mixed\" | \"patch\" | \"nodal\"",
                 },
-                "F-bar against volumetric locking (Coombs et al. 2018): each point's volume change is the volume-weighted average over the body's points in its background cell (`true` or \"cell\"), or in the 3^D cells around it (\"patch\", for B-splines of order 2; experimental: Newton does not converge on the plastic strip footing, docs/plasticity.md), or projected onto the grid's linear tent functions (\"nodal\": a lumped L2 projection from the points of the 3^D cells around, for B-splines of order 2 the B-bar of the q − 1 space; experimental: on the plastic strip footing no better than \"cell\", docs/plasticity.md); default false; with basis \"fem\" only true (the average over each element's Gauss points); makes the tangent non-symmetric",
+                "F-bar against volumetric locking (Coombs et al. 2018): each point's volume change is the volume-weighted average over the body's points in its background cell (`true` or \"cell\"), or in the 3^D cells around it (\"patch\", for B-splines of order 2; experimental: Newton does not converge on the plastic strip footing, docs/plasticity.md), or over the cell with the cell's mean pressure in the internal force (\"mixed\": the weak form of the constant-pressure mixed element; for dilatant plastic flow, where the points' pressures differ, docs/plasticity.md Benchmark 4), or projected onto the grid's linear tent functions (\"nodal\": a lumped L2 projection from the points of the 3^D cells around, for B-splines of order 2 the B-bar of the q − 1 space; experimental: on the plastic strip footing no better than \"cell\", docs/plasticity.md); default false; with basis \"fem\" only true or \"mixed\" (the average over each element's Gauss points); makes the tangent non-symmetric",
             ),
         );
     }
@@ -233,7 +279,7 @@ impl Plugin for FbarModule {
                     }
                 },
             };
-            if scene.spec.grid.basis == BasisKind::Fem && averaging != FbarAveraging::Cell {
+            if scene.spec.grid.basis == BasisKind::Fem && !averaging.over_the_cell() {
                 return Err(ScriptError::at(
                     options.at,
                     format!("body(...): {ONLY_CELL_WITH_FEM}"),
@@ -244,6 +290,8 @@ impl Plugin for FbarModule {
                 bodies.push((index, averaging));
             }
         }
+        let dilatant = dilatant_fbar_warnings(scene.spec, &bodies);
+        ModuleWarnings::add(scene.spec, dilatant);
         if !bodies.is_empty() {
             let treated = bodies.iter().map(|&(body, _)| body).collect();
             scene.spec.set_part(LockingTreated(treated));
@@ -262,6 +310,7 @@ impl Plugin for FbarModule {
                     FbarAveraging::Cell => spec_bodies[b].name.clone(),
                     FbarAveraging::Patch => format!("{} (patch)", spec_bodies[b].name),
                     FbarAveraging::Nodal => format!("{} (nodal)", spec_bodies[b].name),
+                    FbarAveraging::Mixed => format!("{} (mixed)", spec_bodies[b].name),
                 })
                 .collect();
             format!("bodies {}", names.join(", "))
@@ -396,7 +445,8 @@ pub fn group_points_by_cell<const D: usize>(
             ..FbarGroup::default()
         };
         let averaging = keyed[members.start].4;
-        if averaging != FbarAveraging::Cell {
+        group.mixed = averaging == FbarAveraging::Mixed;
+        if !averaging.over_the_cell() {
             let centre = grid.0.cell_multi_index(*cell);
             for offset in 0..3usize.pow(D as u32) {
                 let mut neighbour = [0; D];
@@ -619,7 +669,7 @@ pub struct FbarScratch<const D: usize> {
 /// Adds the F-bar terms `V0 (P g_i) ⊗ (ḡ_j − g_j)` of every group to the tangent.
 pub fn assemble_fbar_tangent<const D: usize>(
     cells: Res<FbarCells>,
-    fields: Res<GridFields<D>>,
+    mut fields: ResMut<GridFields<D>>,
     mut newton: ResMut<Newton>,
     mut clock: ResMut<StageClock>,
     mut scratch: Local<FbarScratch<D>>,
@@ -684,6 +734,9 @@ pub fn assemble_fbar_tangent<const D: usize>(
                 }
             }
         }
+        if group.mixed {
+            add_mixed_pressure_terms(group, &cells, &points, &mut fields, scratch);
+        }
         for (i, &node_i) in group.nodes.iter().enumerate() {
             for (j, &node_j) in group.nodes.iter().enumerate() {
                 newton.matrix.add_block(
@@ -694,6 +747,95 @@ pub fn assemble_fbar_tangent<const D: usize>(
             }
         }
     }
+}
+
+/// The mixed form's terms of a cell group (module docs, "The mixed form"): adds
+/// `Π ḡ_i − Σ_p V0_p p_p g_i^p` to the internal force and its derivative to the group's blocks
+/// (`scratch.averaged` holds `ḡ`).
+fn add_mixed_pressure_terms<const D: usize>(
+    group: &FbarGroup,
+    cells: &FbarCells,
+    points: &Query<(&Support<D>, &Trial<D>, &ReferenceVolume)>,
+    fields: &mut GridFields<D>,
+    scratch: &mut FbarScratch<D>,
+) {
+    let n = group.nodes.len();
+    let averaged = &scratch.averaged;
+    let blocks = &mut scratch.blocks;
+    let mut total_pressure = 0.0;
+    let mut own = vec![SVector::<f64, D>::zeros(); n];
+    for (&q, local) in group.sources[..group.members].iter().zip(&group.local) {
+        let Ok((support, trial, v0)) = points.get(cells.points[q]) else {
+            continue;
+        };
+        let state = &trial.0;
+        let pressure = (0..D).map(|a| state.kirchhoff[(a, a)]).sum::<f64>() / D as f64;
+        let projection = volumetric_projection(state);
+        let dilation = projection.trace() / D as f64;
+        let trace_response = pressure_response(state);
+        total_pressure += v0.0 * pressure;
+        // the point's own gradients on the group's nodes
+        own.iter_mut().for_each(|g| *g = SVector::zeros());
+        for (w, &l) in support.0.iter().zip(local) {
+            own[l] = state.spatial_gradient(&w.gradient);
+        }
+        // ∂p_p/∂Δu_j = Q_p b̄ g_j + (tr P_p / D)(ḡ_j − g_j)
+        let response: Vec<SVector<f64, D>> = (0..n)
+            .map(|j| {
+                trace_response * state.left_cauchy_green * own[j]
+                    + (averaged[j] - own[j]) * dilation
+            })
+            .collect();
+        for i in 0..n {
+            let d_i = (averaged[i] - own[i]) * v0.0;
+            fields.internal_force[group.nodes[i]] -= own[i] * (v0.0 * pressure);
+            for j in 0..n {
+                blocks[i * n + j] +=
+                    d_i * response[j].transpose() + own[j] * own[i].transpose() * (v0.0 * pressure);
+            }
+        }
+    }
+    // the group-level terms: Π ḡ_i in the force, Π (Σ_q α_q (g_i^q ⊗ g_j^q − g_j^q ⊗ g_i^q)
+    // − ḡ_i ⊗ ḡ_j) in the tangent
+    for (&q, (local, &alpha)) in group.sources[..group.members]
+        .iter()
+        .zip(group.local.iter().zip(&group.weights))
+    {
+        let Ok((support, trial, _)) = points.get(cells.points[q]) else {
+            continue;
+        };
+        let gradients: Vec<SVector<f64, D>> = support
+            .0
+            .iter()
+            .map(|w| trial.0.spatial_gradient(&w.gradient))
+            .collect();
+        for (g_i, &i) in gradients.iter().zip(local) {
+            for (g_j, &j) in gradients.iter().zip(local) {
+                blocks[i * n + j] +=
+                    (g_i * g_j.transpose() - g_j * g_i.transpose()) * (alpha * total_pressure);
+            }
+        }
+    }
+    for i in 0..n {
+        fields.internal_force[group.nodes[i]] += averaged[i] * total_pressure;
+        for j in 0..n {
+            blocks[i * n + j] -= averaged[i] * averaged[j].transpose() * total_pressure;
+        }
+    }
+}
+
+/// `Q_kd = (1/D) Σ_a ½ (c_aakd + c_aadk)`: the response of the pressure `p = (1/D) tr τ` to
+/// `b` (`∂p = Q : ½ ∂b` for a symmetric `∂b`).
+fn pressure_response<const D: usize>(
+    state: &crate::mechanics::TrialState<D>,
+) -> SMatrix<f64, D, D> {
+    let c = &state.tangent;
+    SMatrix::from_fn(|k, d| {
+        (0..D)
+            .map(|a| 0.5 * (c[a][a][k][d] + c[a][a][d][k]))
+            .sum::<f64>()
+            / D as f64
+    })
 }
 
 /// `P_ab = (1/D) Σ_{m,d} c_abmd b_md`: the response of τ to a volumetric scaling of the
@@ -713,6 +855,39 @@ fn volumetric_projection<const D: usize>(
     })
 }
 
+/// One warning per body with the standard F-bar (not `"mixed"`) and dilatant plastic flow
+/// (Mohr–Coulomb or Drucker–Prager with `ψ > 0`; `ψ` defaults to `φ`): its points' pressures
+/// differ within a group, the standard internal force is not the gradient of a potential, and
+/// Newton cycles near collapse (module docs, "The mixed form").
+fn dilatant_fbar_warnings(spec: &SceneSpec, bodies: &[(usize, FbarAveraging)]) -> Vec<String> {
+    let mut warnings = Vec::new();
+    for &(index, averaging) in bodies {
+        let body = &spec.bodies[index];
+        let Some(material) = spec.materials.get(body.material) else {
+            continue;
+        };
+        if averaging == FbarAveraging::Mixed
+            || !matches!(material.model.as_str(), "mohr_coulomb" | "drucker_prager")
+        {
+            continue;
+        }
+        let parameters = &material.parameters;
+        let friction = parameters.optional_number("phi").ok().flatten();
+        let dilation = parameters
+            .optional_number("psi")
+            .ok()
+            .flatten()
+            .or(friction);
+        if let Some(psi) = dilation.filter(|&psi| psi > 0.0) {
+            warnings.push(format!(
+                "body '{}' (material '{}', {} with psi = {psi}) uses F-bar with dilatant plastic flow: the points of a cell then carry different pressures, the standard F-bar internal force is not the gradient of a potential, and Newton cycles between active sets near collapse (the associated Mohr-Coulomb strip footing fails before settlement/B = 0.05 on FEM and MPM); use fbar: \"mixed\" (docs/plasticity.md, Benchmark 4)",
+                body.name, material.name, material.model
+            ));
+        }
+    }
+    warnings
+}
+
 /// The averaging of a `fbar` option's value: `true` or `"cell"`, `"patch"`, `"nodal"`; `false`:
 /// none.
 fn fbar_averaging(value: &rhai::Dynamic) -> Result<Option<FbarAveraging>, String> {
@@ -723,8 +898,9 @@ fn fbar_averaging(value: &rhai::Dynamic) -> Result<Option<FbarAveraging>, String
         Ok("cell") => Ok(Some(FbarAveraging::Cell)),
         Ok("patch") => Ok(Some(FbarAveraging::Patch)),
         Ok("nodal") => Ok(Some(FbarAveraging::Nodal)),
+        Ok("mixed") => Ok(Some(FbarAveraging::Mixed)),
         _ => Err(format!(
-            "option 'fbar' must be true, false, \"cell\", \"patch\" or \"nodal\", got {}",
+            "option 'fbar' must be true, false, \"cell\", \"mixed\", \"patch\" or \"nodal\", got {}",
             crate::scene::describe(value)
         )),
     }
