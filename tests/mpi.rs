@@ -1189,6 +1189,7 @@ fn a_plastic_decomposed_run_resumes_and_a_failed_checkpoint_keeps_the_previous_o
     eprintln!("plastic column, -n 2: {blocked} blocked, the run said: {stderr}");
     assert!(!status.success(), "{stderr}");
     assert!(stderr.contains(&blocked), "{stderr}");
+    assert!(stderr.contains("process 0 of 2 failed"), "{stderr}");
     assert_eq!(done, held, "the previous checkpoint is kept");
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
@@ -1332,7 +1333,8 @@ fn the_ghost_penalty_is_refused_with_decomposed_points() {
 /// at the end of step 1: a folder is in its way; the other process writes into its own
 /// scratch folder) ends every process after that step: the processes agree on the step's
 /// outcome before the next one (`effects::distributed::share_outcome`), so the job ends
-/// together, without an abort, with a non-zero exit status and the cause; summary.json says
+/// together, without an abort, with a non-zero exit status and the cause (named `process 0 of
+/// 2 failed: ...`, like another process's failure); summary.json says
 /// the run failed, with step 1 done, and what was written before stays readable. Before the
 /// agreement the other process went into step 2 and waited there, until process 0 gave up
 /// after 20 s and aborted the job (and before that mend, forever).
@@ -1361,6 +1363,11 @@ fn a_process_failing_alone_outside_newton_ends_every_process_after_that_step() {
     let (status, stderr) = ended.expect("the job ends (it hung before: killed after 300 s)");
     assert!(!status.success(), "{stderr}");
     assert!(stderr.contains("history.csv"), "{stderr}");
+    // process 0's own failure is named like another process's
+    assert!(
+        stderr.contains("load step 1: process 0 of 2 failed: "),
+        "{stderr}"
+    );
     assert!(!stderr.contains("MPI_Abort"), "ended by an abort: {stderr}");
     // step 1's records and particle pieces were written before the failure, and read back
     let summary: serde_json::Value =

@@ -426,6 +426,24 @@ fn share_failure(status: &mut RunStatus, step: usize, iteration: usize) -> bool 
                 recoverable: deciding.severity == Severity::Recoverable,
             });
         }
+        // this process's own failure decides, and some process did not fail: named like the
+        // others' (`process 0 of 2 failed: ...`), so that process 0's report says whose it was;
+        // a failure every process had (a step that cannot be solved) is no one process's
+        (Some(error), Some(note))
+            if processes().is_some_and(|p| p.rank == rank)
+                && note.severity != Severity::TrialState
+                && failures.iter().any(Option::is_none) =>
+        {
+            let own = error.to_string();
+            status.0 = Some(SolverError::Module {
+                step,
+                what: format!(
+                    "process {rank} of {size} failed: {}",
+                    failure::without_step(&own, step)
+                ),
+                recoverable: note.severity == Severity::Recoverable,
+            });
+        }
         _ => {}
     }
     true
