@@ -45,7 +45,12 @@
 //!   column, and the log says the points are decomposed; so does a staged scene with
 //!   `zero_displacements` (its `displacement` field too: each point's origin travels with it);
 //!   a scene with point loads is refused naming them, and `--decompose` without mpirun is
-//!   refused.
+//!   refused;
+//! * checkpoints under mpirun: a run stopped after a checkpoint and resumed gives the
+//!   uninterrupted serial run's results whatever wrote the checkpoint and whatever resumes it
+//!   (decomposed `-n 2` by `-n 2`, `-n 3` serially, serial by `-n 2`; a von Mises column
+//!   `-n 3` by `-n 2`), a decomposed run's checkpoint holds the serial one's numbers, and a
+//!   checkpoint process 0 fails to write stops every process, the previous one kept.
 //!
 //! Skipped, with a message, where `mpirun` is missing (`.ci/run` installs OpenMPI as root).
 
