@@ -53,11 +53,16 @@ pub fn save_series(world: &mut World) -> Vec<(String, Vec<(f64, String)>)> {
 }
 
 /// Gives every registered series of `world` its saved entries (matched by file name) and
-/// rewrites its `.pvd` file; a series with nothing saved is left empty.
+/// rewrites its `.pvd` file; a series with nothing saved is left empty. Nothing on a process
+/// other than 0 of a distributed run: it runs into a scratch folder of its own, which holds
+/// none of the files the series list (process 0's series are the run's).
 pub fn restore_series(
     world: &mut World,
     saved: &[(String, Vec<(f64, String)>)],
 ) -> Result<(), String> {
+    if !crate::distributed::writes_run_files() {
+        return Ok(());
+    }
     let access = world
         .get_resource::<CheckpointSeries>()
         .cloned()

@@ -203,19 +203,19 @@ fn run(cli: Cli) -> Result<(), Failure> {
             use_decomposition(decompose)?;
             // under mpirun: MPI until the end of the run; processes other than 0 silent
             #[cfg(feature = "mpi")]
-            let distributed = cli::distributed::DistributedRun::start_if_launched(
-                resume.is_some(),
-                checkpoint_every.is_some(),
-            )?;
+            let distributed = cli::distributed::DistributedRun::start_if_launched()?;
             #[cfg(feature = "mpi")]
-            let out = match &distributed {
-                Some(run) => run.output_folder(out),
-                None => out,
-            };
+            let scratch = distributed.as_ref().and_then(|run| run.scratch_folder());
+            #[cfg(not(feature = "mpi"))]
+            let scratch = None;
+            if resume.is_some() {
+                impm::distributed::request_resume();
+            }
             let restart = RunRestart {
                 resume,
                 every: checkpoint_every.map(|n| n as usize),
                 limit: limit.clone(),
+                scratch,
             };
             let job = || {
                 limits(&limit)
@@ -380,6 +380,10 @@ struct RunRestart {
     every: Option<usize>,
     /// The `--limit` assignments (repeated in the command that resumes the run).
     limit: Vec<String>,
+    /// Under `mpirun`, the folder of its own a process other than 0 runs into: it reads the
+    /// checkpoint `--resume` names (process 0's folder) but writes, locks and clears nothing
+    /// there.
+    scratch: Option<PathBuf>,
 }
 
 /// `impm run`: solves the scene, with a progress display, and says where the results are
@@ -415,9 +419,14 @@ fn run_command(
         every: restart.every,
         command: resume_command(scene, set, restart, &out_dir),
     };
+    // where this process writes: the output folder, or its scratch folder under mpirun
+    let run_dir = restart.scratch.clone().unwrap_or_else(|| out_dir.clone());
     let (_lock, checkpoint) = match &restart.resume {
         Some(dir) => {
-            let lock = FolderLock::acquire(dir)?;
+            let lock = match &restart.scratch {
+                Some(scratch) => lock_output_folder(scratch)?,
+                None => FolderLock::acquire(dir)?,
+            };
             if let Some(pid) = lock.killed_run() {
                 note(&format!(
                     "the run into {} (process {pid}) was killed before it finished",
@@ -433,7 +442,7 @@ fn run_command(
             ));
             (lock, Some(checkpoint))
         }
-        None => (lock_output_folder(&out_dir)?, None),
+        None => (lock_output_folder(&run_dir)?, None),
     };
     let steps = spec.load_factors.len();
     let mut progress = Progress::new(steps);
@@ -451,13 +460,13 @@ fn run_command(
     for warning in scene_warnings(&spec) {
         note(&format!("warning: {warning}"));
     }
-    let result = run_scene_restartable(spec, &out_dir, modules, &plan, checkpoint, |record| {
+    let result = run_scene_restartable(spec, &run_dir, modules, &plan, checkpoint, |record| {
         progress.step(record)
     });
     progress.finish();
     let summary = match result {
         Ok(summary) => summary,
-        Err(e) => return Err(run_failure(&e, &out_dir, &plan.command).into()),
+        Err(e) => return Err(run_failure(&e, &run_dir, &plan.command).into()),
     };
     let (_, wall) = summary.total_seconds();
     let mut line = format!(

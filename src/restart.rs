@@ -35,6 +35,12 @@
 //! written here in a few lines: it detects a changed file, it is no security measure, and it
 //! must be stable across Rust releases (std's `DefaultHasher` is not promised to be). Files a
 //! scene imports are not hashed.
+//!
+//! Under `mpirun` there is one checkpoint, process 0's, in this format: with decomposed points
+//! every process's points are gathered to process 0 for it
+//! (`effects::distributed::checkpoint`). Every process of a resumed run reads it from process
+//! 0's folder (the others run into scratch folders of their own), so a checkpoint is resumed
+//! by a serial run, a replicated or a decomposed one, over any number of processes.
 
 use std::path::{Path, PathBuf};
 

@@ -178,9 +178,6 @@ impl<const D: usize> Simulation<D> {
     /// Keeps checkpoints as `plan` says (after the initial state and then after every output
     /// step or every N steps); `summary.json` says how to resume.
     pub fn keep_checkpoints(&mut self, plan: RestartPlan) {
-        if crate::distributed::decomposed() {
-            return; // each process holds its own points (effects::distributed says so)
-        }
         self.summary.resume = Some(plan.command.clone());
         self.restart = Some(plan);
     }
@@ -213,10 +210,25 @@ impl<const D: usize> Simulation<D> {
             return Ok(());
         };
         let identity = plan.identity.clone();
+        // with decomposed points every process's points, on process 0 (the others write none)
+        #[cfg(feature = "mpi")]
+        let parts = {
+            self.share_arc_control();
+            effects::distributed::checkpoint::saved_parts_of_every_point::<D>(&mut self.world)
+                .map_err(|why| SolverError::Output {
+                    step: self.steps_done,
+                    why: format!("gathering the checkpoint's points: {why}"),
+                })?
+        };
+        #[cfg(not(feature = "mpi"))]
+        let parts = Some(self.save_state().parts);
+        let Some(parts) = parts else {
+            return Ok(());
+        };
         let checkpoint = Checkpoint {
             identity,
             steps_done: self.steps_done,
-            parts: self.save_state().parts,
+            parts,
             series: checkpoint::save_series(&mut self.world),
             steps: self.summary.steps_json(),
             warnings: self.summary.warnings.clone(),
@@ -236,11 +248,21 @@ impl<const D: usize> Simulation<D> {
             steps_done: checkpoint.steps_done,
             parts: checkpoint.parts,
         })?;
-        let measures: Vec<String> = self
+        // a decomposed run restored every point: each process keeps its slab's
+        #[cfg(feature = "mpi")]
+        effects::distributed::checkpoint::keep_own_points::<D>(&mut self.world)?;
+        let mut measures: Vec<String> = self
             .world
             .get_resource::<StepMeasures>()
             .map(|m| m.0.iter().map(|(name, _)| name.clone()).collect())
             .unwrap_or_default();
+        // the steps of a checkpoint of another kind of run (serial, replicated, decomposed)
+        // keep their measures
+        for name in crate::distributed::run_measures() {
+            if !measures.iter().any(|taken| taken == name) {
+                measures.push(name.to_string());
+            }
+        }
         self.summary.steps = checkpoint
             .steps
             .iter()

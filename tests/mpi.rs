@@ -45,7 +45,12 @@
 //!   column, and the log says the points are decomposed; so does a staged scene with
 //!   `zero_displacements` (its `displacement` field too: each point's origin travels with it);
 //!   a scene with point loads is refused naming them, and `--decompose` without mpirun is
-//!   refused.
+//!   refused;
+//! * checkpoints under mpirun: a run stopped after a checkpoint and resumed gives the
+//!   uninterrupted serial run's results whatever wrote the checkpoint and whatever resumes it
+//!   (decomposed `-n 2` by `-n 2`, `-n 3` serially, serial by `-n 2`; a von Mises column
+//!   `-n 3` by `-n 2`), a decomposed run's checkpoint holds the serial one's numbers, and a
+//!   checkpoint process 0 fails to write stops every process, the previous one kept.
 //!
 //! Skipped, with a message, where `mpirun` is missing (`.ci/run` installs OpenMPI as root).
 
@@ -369,46 +374,8 @@ fn compare_with(scene: &Path, set: &[&str], tag: &str, runs: &Runs<'_>) -> Vec<f
             pieces_are_listed(&dir, n, points, paraview);
         }
         let got = outcome(&dir);
-        let stress = relative_difference(&got.stress, &reference.stress);
-        let positions = relative_difference(&got.positions, &reference.positions);
-        eprintln!(
-            "{script} -n {n}: {:.1} s, Newton {:?} (serial {:?}), eq. 15 {:?} (serial {:?}), \
-             stress difference {stress:.1e}, positions {positions:.1e}",
-            started.elapsed().as_secs_f64(),
-            got.iterations,
-            reference.iterations,
-            got.error,
-            reference.error
-        );
-        assert_eq!(got.iterations, reference.iterations, "{script} -n {n}");
-        // the line search (where the scene has one) shortened and rejected alike
-        for (step, serial) in got.steps.iter().zip(&reference.steps) {
-            assert_eq!(
-                step["line_search"], serial["line_search"],
-                "{script} -n {n}: step {}",
-                serial["step"]
-            );
-        }
-        match (got.error, reference.error) {
-            (Some(a), Some(b)) => assert!((a - b).abs() <= 1e-8 * b.abs(), "{a} {b}"),
-            (a, b) => assert_eq!(a.is_some(), b.is_some()),
-        }
-        assert!(stress <= 1e-8, "{script} -n {n}: stress {stress:e}");
-        if let (Some(got), Some(serial)) = (&got.plastic, &reference.plastic) {
-            // the history travelled with its points
-            assert!(serial.iter().any(|&e| e > 0.0), "the serial run yields");
-            let plastic = relative_difference(got, serial);
-            eprintln!("{script} -n {n}: plastic strain difference {plastic:.1e}");
-            assert!(
-                plastic <= 1e-8,
-                "{script} -n {n}: plastic strain {plastic:e}"
-            );
-        }
-        assert_eq!(got.plastic.is_some(), reference.plastic.is_some());
-        assert!(
-            positions <= 1e-8,
-            "{script} -n {n}: positions {positions:e}"
-        );
+        let label = format!("{script} -n {n}");
+        same_results(&label, &got, &reference, started.elapsed().as_secs_f64());
         for name in runs.fields {
             let field = |o: &Outcome| o.points.point_field(name).unwrap().1.to_vec();
             let (serial, distributed) = (field(&reference), field(&got));
@@ -485,6 +452,44 @@ fn compare_with(scene: &Path, set: &[&str], tag: &str, runs: &Runs<'_>) -> Vec<f
     }
     let _ = std::fs::remove_dir_all(&serial_dir);
     changes
+}
+
+/// `got` against `reference` (the serial run): the same Newton iterations in every step, the
+/// same shortened and rejected trials of the line search, the eq. 15 error to 1e-8 relative,
+/// every point's Cauchy stress (and plastic strain, where the scene has it: the serial run must
+/// yield) to 1e-8 of the largest, and positions to 1e-8; says the figures (`seconds`: how long
+/// the run took).
+fn same_results(label: &str, got: &Outcome, reference: &Outcome, seconds: f64) {
+    let stress = relative_difference(&got.stress, &reference.stress);
+    let positions = relative_difference(&got.positions, &reference.positions);
+    eprintln!(
+        "{label}: {seconds:.1} s, Newton {:?} (serial {:?}), eq. 15 {:?} (serial {:?}), \
+         stress difference {stress:.1e}, positions {positions:.1e}",
+        got.iterations, reference.iterations, got.error, reference.error
+    );
+    assert_eq!(got.iterations, reference.iterations, "{label}");
+    // the line search (where the scene has one) shortened and rejected alike
+    for (step, serial) in got.steps.iter().zip(&reference.steps) {
+        assert_eq!(
+            step["line_search"], serial["line_search"],
+            "{label}: step {}",
+            serial["step"]
+        );
+    }
+    match (got.error, reference.error) {
+        (Some(a), Some(b)) => assert!((a - b).abs() <= 1e-8 * b.abs(), "{label}: {a} {b}"),
+        (a, b) => assert_eq!(a.is_some(), b.is_some(), "{label}"),
+    }
+    assert!(stress <= 1e-8, "{label}: stress {stress:e}");
+    if let (Some(got), Some(serial)) = (&got.plastic, &reference.plastic) {
+        // the history travelled with its points
+        assert!(serial.iter().any(|&e| e > 0.0), "the serial run yields");
+        let plastic = relative_difference(got, serial);
+        eprintln!("{label}: plastic strain difference {plastic:.1e}");
+        assert!(plastic <= 1e-8, "{label}: plastic strain {plastic:e}");
+    }
+    assert_eq!(got.plastic.is_some(), reference.plastic.is_some());
+    assert!(positions <= 1e-8, "{label}: positions {positions:e}");
 }
 
 /// Over `n` processes: every output step's particles are `n` pieces listed by a `.pvtu`,
@@ -854,6 +859,361 @@ fn a_plastic_column_with_decomposed_points_equals_the_serial_run() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// The steps done of the checkpoint in `dir`, if it has one.
+fn checkpoint_steps(dir: &Path) -> Option<u64> {
+    let text = std::fs::read_to_string(dir.join("checkpoint.json")).ok()?;
+    serde_json::from_str::<serde_json::Value>(&text).ok()?["steps_done"].as_u64()
+}
+
+/// The process to signal in a job: process 1 of a run over several processes (it writes
+/// nothing of the run's own), the one process otherwise.
+fn signalled_process(job: &std::process::Child, processes: Option<usize>) -> u32 {
+    let rank = match processes {
+        Some(n) if n > 1 => 1,
+        Some(_) => 0,
+        None => return job.id(),
+    };
+    let started = std::time::Instant::now();
+    loop {
+        if let Some(pid) = process_of_rank(job.id(), rank) {
+            return pid;
+        }
+        assert!(
+            started.elapsed().as_secs() < 60,
+            "no process {rank} in the job"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+}
+
+/// Sends `signal` ("STOP", "INT", "CONT") to the process `pid`.
+fn signal(pid: u32, signal: &str) {
+    let sent = Command::new("kill")
+        .args([format!("-{signal}"), pid.to_string()])
+        .status()
+        .unwrap();
+    assert!(sent.success(), "kill -{signal} {pid}");
+}
+
+/// Waits for `job` at most `limit` (killed and failed after it: it hung); its exit status.
+fn wait_for(job: &mut std::process::Child, limit: std::time::Duration) -> std::process::ExitStatus {
+    let started = std::time::Instant::now();
+    loop {
+        if let Some(status) = job.try_wait().unwrap() {
+            return status;
+        }
+        if started.elapsed() > limit {
+            let _ = job.kill();
+            let _ = job.wait();
+            panic!("the job did not end within {limit:?}: it hung");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+}
+
+/// What [`run_until_checkpoint`] does once the run's checkpoint is after the step it waits
+/// for, while the run is held (SIGSTOP).
+enum Then<'a> {
+    /// SIGINT: the run finishes the step in flight and ends "interrupted" (over several
+    /// processes the stop is agreed between the steps).
+    Interrupt,
+    /// Puts a folder (holding one named `.0`) in the way of the binary file of the next
+    /// checkpoint (2 steps after the one written): process 0 fails to write it.
+    BlockNextCheckpoint(&'a str),
+}
+
+/// Runs the scene (under `mpirun -n N` when `processes` is given, with `extra`) keeping a
+/// checkpoint every 2 steps; once a checkpoint after step `after` or later is written, holds
+/// the run (SIGSTOP to the process, or to process 1 of a job, whose others then wait for it
+/// in their next collective call, so it cannot run to its end meanwhile), does `then`, and
+/// lets it go on (SIGCONT). Returns the run's exit status, standard error, the steps of the
+/// checkpoint it was held after and those of its checkpoint at the end.
+fn run_until_checkpoint(
+    processes: Option<usize>,
+    scene: &Path,
+    set: &[&str],
+    dir: &Path,
+    extra: &[&str],
+    after: u64,
+    then: Then<'_>,
+) -> (std::process::ExitStatus, String, u64, u64) {
+    let logs = dir.with_extension("logs");
+    std::fs::create_dir_all(&logs).unwrap();
+    let mut extra = extra.to_vec();
+    extra.extend(["--checkpoint-every", "2"]);
+    let args = run_arguments(scene, set, dir, &extra);
+    let mut job = impm_command(processes, &args)
+        .stdout(std::fs::File::create(logs.join("stdout.txt")).unwrap())
+        .stderr(std::fs::File::create(logs.join("stderr.txt")).unwrap())
+        .spawn()
+        .expect("the run starts");
+    let pid = signalled_process(&job, processes);
+    let started = std::time::Instant::now();
+    let stderr = || std::fs::read_to_string(logs.join("stderr.txt")).unwrap();
+    // a serial run takes milliseconds per step: it runs in slices of a few milliseconds,
+    // held in between, so that it cannot reach its end between two looks
+    let sliced = processes.is_none();
+    if sliced {
+        signal(pid, "STOP");
+    }
+    while checkpoint_steps(dir).is_none_or(|n| n < after) {
+        if job.try_wait().unwrap().is_some() {
+            panic!(
+                "the run ended before a checkpoint after step {after}: {}",
+                stderr()
+            );
+        }
+        assert!(
+            started.elapsed().as_secs() < 300,
+            "no checkpoint: {}",
+            stderr()
+        );
+        if sliced {
+            signal(pid, "CONT");
+            std::thread::sleep(std::time::Duration::from_millis(2));
+            signal(pid, "STOP");
+        } else {
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+    }
+    if !sliced {
+        signal(pid, "STOP");
+    }
+    let held_after = checkpoint_steps(dir).unwrap();
+    match then {
+        Then::Interrupt => signal(pid, "INT"),
+        Then::BlockNextCheckpoint(name) => {
+            let blocked = dir.join(format!("checkpoint_{:04}.bin", held_after + 2));
+            std::fs::create_dir_all(blocked.join(name)).unwrap();
+        }
+    }
+    signal(pid, "CONT");
+    let status = wait_for(&mut job, std::time::Duration::from_secs(600));
+    let stderr = stderr();
+    assert!(!stderr.contains("MPI_Abort"), "ended by an abort: {stderr}");
+    let _ = std::fs::remove_dir_all(&logs);
+    let done = checkpoint_steps(dir).expect("a checkpoint");
+    (status, stderr, held_after, done)
+}
+
+/// [`run_until_checkpoint`] with an interrupt: the run ends "interrupted" before its last step,
+/// with a checkpoint; returns the checkpoint's steps done.
+fn interrupt_after_checkpoint(
+    processes: Option<usize>,
+    scene: &Path,
+    set: &[&str],
+    dir: &Path,
+    extra: &[&str],
+    after: u64,
+) -> u64 {
+    let (status, stderr, _, done) =
+        run_until_checkpoint(processes, scene, set, dir, extra, after, Then::Interrupt);
+    assert!(
+        !status.success(),
+        "an interrupted run exits non-zero: {stderr}"
+    );
+    assert!(stderr.contains("interrupted after load step"), "{stderr}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["status"], "interrupted", "{summary}");
+    let steps = summary["steps"].as_array().unwrap().len() as u64;
+    assert!(
+        steps < summary["planned_steps"].as_u64().unwrap(),
+        "the run ended before the signal"
+    );
+    assert!(
+        done >= after && done <= steps,
+        "checkpoint after {done} of {steps} steps"
+    );
+    done
+}
+
+/// Resumes the run of `dir` (under `mpirun -n N` when `processes` is given, with `extra`) and
+/// checks it completed: every step listed once in summary.json and in `particles.pvd`; returns
+/// its outcome and how long it took.
+fn resume(
+    processes: Option<usize>,
+    scene: &Path,
+    set: &[&str],
+    dir: &Path,
+    extra: &[&str],
+) -> (Outcome, f64) {
+    let started = std::time::Instant::now();
+    let mut extra = extra.to_vec();
+    let folder = dir.display().to_string();
+    extra.extend(["--resume", &folder]);
+    let output = run(processes, scene, set, dir, &extra);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "{stderr}");
+    assert!(stderr.contains("resuming"), "{stderr}");
+    let seconds = started.elapsed().as_secs_f64();
+    let got = outcome(dir);
+    let pvd = std::fs::read_to_string(dir.join("particles.pvd")).unwrap();
+    for step in 0..=got.iterations.len() {
+        let name = format!("particles_{step:04}.");
+        assert_eq!(pvd.matches(&name).count(), 1, "{name} in {pvd}");
+    }
+    (got, seconds)
+}
+
+/// A run's checkpoint parts: (name, numbers), read back from the header and binary file.
+fn checkpoint_parts(dir: &Path) -> Vec<(String, Vec<f64>)> {
+    let text = std::fs::read_to_string(dir.join("checkpoint.json")).unwrap();
+    let header: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let data = std::fs::read(dir.join(header["data"]["file"].as_str().unwrap())).unwrap();
+    let mut numbers = data
+        .chunks_exact(8)
+        .map(|bytes| f64::from_le_bytes(bytes.try_into().unwrap()));
+    header["parts"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|part| {
+            let count = part["count"].as_u64().unwrap() as usize;
+            let values: Vec<f64> = numbers.by_ref().take(count).collect();
+            assert_eq!(values.len(), count);
+            (part["name"].as_str().unwrap().to_string(), values)
+        })
+        .collect()
+}
+
+/// Checkpoints and resume with decomposed points, on the heavy column (1D; it shortens by a
+/// third, so points cross slabs and change process; eq. 15 error): a run interrupted after a
+/// checkpoint (every 2 steps) and resumed gives the serial run's results (Newton iterations
+/// in every step, the eq. 15 error to 1e-8 relative, stresses and positions to 1e-8) whatever
+/// wrote the checkpoint and whatever resumes it: decomposed `-n 2` resumed by `-n 2`,
+/// decomposed `-n 3` resumed serially, serial resumed by decomposed `-n 2`. A completed
+/// decomposed run's last checkpoint holds the serial one's parts and numbers (one file, the
+/// serial format, every point in `PointId` order: to 1e-12 of each part's largest number).
+#[test]
+fn a_decomposed_run_resumes_from_checkpoints_of_any_process_count() {
+    if !mpirun_available() {
+        return;
+    }
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let scene = shipped_scene("heavy_column.rhai");
+    let set = ["cells=8", "steps=8"];
+    let decomposed = ["--petsc-options", "-ksp_rtol 1e-12", "--decompose"];
+    let serial_dir = temp_dir("mpi", "resume-serial");
+    let output = run(
+        None,
+        &scene,
+        &set,
+        &serial_dir,
+        &["--checkpoint-every", "2"],
+    );
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let reference = outcome(&serial_dir);
+    let cases: [(&str, Option<usize>, Option<usize>); 3] = [
+        ("-n 2 then -n 2", Some(2), Some(2)),
+        ("-n 3 then serial", Some(3), None),
+        ("serial then -n 2", None, Some(2)),
+    ];
+    for (label, first, then) in cases {
+        let dir = temp_dir("mpi", "resume-heavy");
+        let flags = |processes: Option<usize>| {
+            if processes.is_some() {
+                &decomposed[..]
+            } else {
+                &[][..]
+            }
+        };
+        let done = interrupt_after_checkpoint(first, &scene, &set, &dir, flags(first), 2);
+        let (got, seconds) = resume(then, &scene, &set, &dir, flags(then));
+        eprintln!("heavy column, {label}: interrupted, checkpoint after step {done}");
+        same_results(&format!("heavy column, {label}"), &got, &reference, seconds);
+        if then.is_some() {
+            // the resumed decomposed run's last checkpoint, against the serial run's
+            let (serial, decomposed) = (checkpoint_parts(&serial_dir), checkpoint_parts(&dir));
+            assert_eq!(serial.len(), decomposed.len());
+            for ((name, a), (other, b)) in serial.iter().zip(&decomposed) {
+                assert_eq!(name, other);
+                let difference = relative_difference(b, a);
+                eprintln!(
+                    "{label}: checkpoint part {name}: {} numbers, difference {difference:.1e}",
+                    a.len()
+                );
+                assert!(difference <= 1e-12, "{label}: part {name}: {difference:e}");
+            }
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+    let _ = std::fs::remove_dir_all(&serial_dir);
+}
+
+/// A plastic scene (the von Mises column, its history carried in the checkpoint): decomposed
+/// `-n 3` interrupted after a checkpoint and resumed by `-n 2`; and a failure writing a
+/// checkpoint on process 0 (a folder in the way of the binary file of the checkpoint after the
+/// one of step 4 or later) under `-n 2` stops every process after that step, without an abort,
+/// naming the file, with the previous checkpoint kept: resumed by `-n 2` once the folder is
+/// gone, the run gives the serial run's results (iterations, stresses, plastic strain,
+/// positions).
+#[test]
+fn a_plastic_decomposed_run_resumes_and_a_failed_checkpoint_keeps_the_previous_one() {
+    if !mpirun_available() {
+        return;
+    }
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let scenes = temp_dir("mpi", "resume-plastic-scene");
+    std::fs::create_dir_all(&scenes).unwrap();
+    let scene = scenes.join("plastic_column.rhai");
+    std::fs::write(&scene, PLASTIC_COLUMN).unwrap();
+    let set = ["steps=8"];
+    let decomposed = ["--petsc-options", "-ksp_rtol 1e-12", "--decompose"];
+    let serial_dir = temp_dir("mpi", "resume-plastic-serial");
+    let output = run(None, &scene, &set, &serial_dir, &[]);
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let reference = outcome(&serial_dir);
+
+    let dir = temp_dir("mpi", "resume-plastic");
+    let done = interrupt_after_checkpoint(Some(3), &scene, &set, &dir, &decomposed, 2);
+    let (got, seconds) = resume(Some(2), &scene, &set, &dir, &decomposed);
+    eprintln!("plastic column, -n 3 then -n 2: interrupted, checkpoint after step {done}");
+    same_results("plastic column, -n 3 then -n 2", &got, &reference, seconds);
+    let _ = std::fs::remove_dir_all(&dir);
+
+    let dir = temp_dir("mpi", "resume-plastic-blocked");
+    let (status, stderr, held, done) = run_until_checkpoint(
+        Some(2),
+        &scene,
+        &set,
+        &dir,
+        &decomposed,
+        4,
+        Then::BlockNextCheckpoint("in-the-way"),
+    );
+    let blocked = format!("checkpoint_{:04}.bin", held + 2);
+    eprintln!("plastic column, -n 2: {blocked} blocked, the run said: {stderr}");
+    assert!(!status.success(), "{stderr}");
+    assert!(stderr.contains(&blocked), "{stderr}");
+    assert!(stderr.contains("process 0 of 2 failed"), "{stderr}");
+    assert_eq!(done, held, "the previous checkpoint is kept");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["status"], "failed", "{summary}");
+    let steps = summary["steps"].as_array().unwrap().len() as u64;
+    assert_eq!(steps, held + 2, "{summary}");
+    std::fs::remove_dir_all(dir.join(&blocked)).unwrap();
+    let (got, seconds) = resume(Some(2), &scene, &set, &dir, &decomposed);
+    same_results(
+        "plastic column, -n 2 after a failed checkpoint",
+        &got,
+        &reference,
+        seconds,
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+    let _ = std::fs::remove_dir_all(&serial_dir);
+    let _ = std::fs::remove_dir_all(&scenes);
+}
+
 /// A stiff base under a soft top (1D, both under their weight, one load step) with the line
 /// search: the full Newton step compresses the soft top past zero volume (its linear strain
 /// at the base reaches ρ b L / E = 300 × 20 / 2000 = 3, so det F = 1 − 3 < 0), so the line
@@ -978,7 +1338,8 @@ fn the_ghost_penalty_is_refused_with_decomposed_points() {
 /// at the end of step 1: a folder is in its way; the other process writes into its own
 /// scratch folder) ends every process after that step: the processes agree on the step's
 /// outcome before the next one (`effects::distributed::share_outcome`), so the job ends
-/// together, without an abort, with a non-zero exit status and the cause; summary.json says
+/// together, without an abort, with a non-zero exit status and the cause (named `process 0 of
+/// 2 failed: ...`, like another process's failure); summary.json says
 /// the run failed, with step 1 done, and what was written before stays readable. Before the
 /// agreement the other process went into step 2 and waited there, until process 0 gave up
 /// after 20 s and aborted the job (and before that mend, forever).
@@ -1007,6 +1368,11 @@ fn a_process_failing_alone_outside_newton_ends_every_process_after_that_step() {
     let (status, stderr) = ended.expect("the job ends (it hung before: killed after 300 s)");
     assert!(!status.success(), "{stderr}");
     assert!(stderr.contains("history.csv"), "{stderr}");
+    // process 0's own failure is named like another process's
+    assert!(
+        stderr.contains("load step 1: process 0 of 2 failed: "),
+        "{stderr}"
+    );
     assert!(!stderr.contains("MPI_Abort"), "ended by an abort: {stderr}");
     // step 1's records and particle pieces were written before the failure, and read back
     let summary: serde_json::Value =
@@ -1274,17 +1640,7 @@ fn a_signal_to_one_process_stops_them_all_after_the_same_step() {
         .unwrap();
     assert!(sent.success());
     let signalled = std::time::Instant::now();
-    let status = loop {
-        if let Some(status) = job.try_wait().unwrap() {
-            break status;
-        }
-        if started.elapsed() > limit {
-            let _ = job.kill();
-            let _ = job.wait();
-            panic!("the job did not end within {limit:?} of its start: it hung");
-        }
-        std::thread::sleep(std::time::Duration::from_millis(50));
-    };
+    let status = wait_for(&mut job, limit.saturating_sub(started.elapsed()));
     let stderr = std::fs::read_to_string(logs.join("stderr.txt")).unwrap();
     let ended_in = signalled.elapsed().as_secs_f64();
     assert!(

@@ -62,11 +62,12 @@ impl Drop for DistributedRun {
 
 impl DistributedRun {
     /// Starts MPI when this process was launched by `mpirun` (otherwise `None`: an ordinary
-    /// run). A process other than 0 is silenced. `--resume` is refused with more than one
-    /// process (the other processes' checkpoints are not kept), and `--resume` or
-    /// `--checkpoint-every` (`checkpoints`) with decomposed points, whose checkpoints are not
-    /// written yet.
-    pub fn start_if_launched(resume: bool, checkpoints: bool) -> Result<Option<Self>, Failure> {
+    /// run). A process other than 0 is silenced. Checkpoints and `--resume` work over any
+    /// number of processes, with or without `--decompose`: process 0 writes one checkpoint in
+    /// the serial format (with decomposed points, every process's points gathered to it:
+    /// `effects::distributed::checkpoint`), and every process of a resumed run reads it from
+    /// process 0's folder.
+    pub fn start_if_launched() -> Result<Option<Self>, Failure> {
         if launched_by_mpirun().is_none() {
             return Ok(None);
         }
@@ -76,30 +77,6 @@ impl DistributedRun {
                 "MPI started without processes".to_string(),
             ));
         };
-        if (resume || checkpoints) && impm::distributed::decomposed() {
-            let option = if resume {
-                "--resume"
-            } else {
-                "--checkpoint-every"
-            };
-            if processes.rank > 0 {
-                return Err(Failure::Quiet); // process 0 says why
-            }
-            return Err(Failure::Message(format!(
-                "{option} with --decompose is not supported yet: a decomposed run writes no \
-                 checkpoints (each process would have to write the points it holds with their \
-                 whole state, and a resumed run read them back and share them out again); run \
-                 without --decompose (every process holds the whole state and process 0 writes \
-                 the checkpoints; resume with mpirun -n 1 or without mpirun) or without {option}"
-            )));
-        }
-        if resume && processes.size > 1 {
-            return Err(Failure::Message(
-                "--resume under mpirun with more than one process is not supported yet (only \
-                 process 0 keeps checkpoints): resume with mpirun -n 1 or without mpirun"
-                    .to_string(),
-            ));
-        }
         let scratch = (processes.rank > 0).then(|| {
             remove_stale_scratch();
             std::env::temp_dir().join(format!(
@@ -139,13 +116,10 @@ impl DistributedRun {
         }
     }
 
-    /// The folder this process writes into: `out` for process 0, its scratch folder for the
-    /// others.
-    pub fn output_folder(&self, out: Option<PathBuf>) -> Option<PathBuf> {
-        match &self.scratch {
-            Some(scratch) => Some(scratch.clone()),
-            None => out,
-        }
+    /// The scratch folder a process other than 0 writes into instead of the run's folder
+    /// (`None` for process 0).
+    pub fn scratch_folder(&self) -> Option<PathBuf> {
+        self.scratch.clone()
     }
 
     /// Ends this process's run in agreement with the others (see the module docs): returns

@@ -91,7 +91,7 @@ pub fn initial_points<const D: usize>(
     grid: &crate::basis::GridBasis<D>,
     spec: &crate::scene::SceneSpec,
 ) -> Option<Vec<bool>> {
-    if !decomposed() {
+    if !decomposed() || RESUMING.load(std::sync::atomic::Ordering::Relaxed) {
         return None;
     }
     #[cfg(feature = "mpi")]
@@ -120,6 +120,39 @@ pub fn initial_points<const D: usize>(
 }
 
 static DECOMPOSITION: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+static RESUMING: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Says that the run resumes a checkpoint (`impm run --resume`): a decomposed run then spawns
+/// every point at the start ([`initial_points`] is `None`), the checkpoint restores them as in
+/// a serial run, and each process keeps its slab's points
+/// (`effects::distributed::checkpoint::keep_own_points`). Call it before the simulation is
+/// built.
+pub fn request_resume() {
+    RESUMING.store(true, std::sync::atomic::Ordering::Relaxed);
+}
+
+/// The measures a distributed run adds to every step's record (summary.json, history.csv):
+/// what it sends by kind (`traffic`), the points process 0 assembled and the points that
+/// changed process, and with decomposed points the decomposed grid's counts. A run resumed
+/// from another run's checkpoint (serial, replicated or decomposed, over any number of
+/// processes) takes the records of its steps with these measures as they are.
+pub const RUN_MEASURES: [&str; 5] = [
+    "assembled_points",
+    "points_changing_process",
+    "owned_dofs",
+    "ghost_nodes",
+    "local_dofs",
+];
+
+/// [`RUN_MEASURES`] and the traffic counters' names: every measure a distributed run may add.
+pub fn run_measures() -> impl Iterator<Item = &'static str> {
+    RUN_MEASURES.into_iter().chain(
+        traffic::Traffic::ALL
+            .into_iter()
+            .map(traffic::Traffic::name),
+    )
+}
 
 /// Asks for decomposed points (`impm run --decompose` under `mpirun`): every process then holds
 /// only the points of its slab, and they move between the processes as the slabs change
@@ -151,6 +184,21 @@ pub fn sum_over_points(values: &mut [f64]) {
     let _ = values;
 }
 
+/// Whether this process is a serial run's or process 0 of a distributed run.
+fn serial_or_process_0() -> bool {
+    #[cfg(feature = "mpi")]
+    if let Some(processes) = processes() {
+        return processes.rank == 0;
+    }
+    true
+}
+
+/// Whether this process writes the run's own files (summary, series, checkpoints): a serial
+/// run, and process 0 of a distributed one (the others run into scratch folders of their own).
+pub fn writes_run_files() -> bool {
+    serial_or_process_0()
+}
+
 /// Whether this process adds the terms that belong to the grid rather than to a point it
 /// assembles (the ghost penalty's faces): every serial run, and process 0 alone in a
 /// distributed run. The processes' shares of `f_int` and `K` are summed (`Hook::Combine`,
@@ -159,9 +207,5 @@ pub fn sum_over_points(values: &mut [f64]) {
 /// boundary point through its host) are added by the process that assembles that point
 /// instead: `components::AssembledElsewhere` leaves them out elsewhere.
 pub fn adds_grid_terms() -> bool {
-    #[cfg(feature = "mpi")]
-    if let Some(processes) = processes() {
-        return processes.rank == 0;
-    }
-    true
+    serial_or_process_0()
 }

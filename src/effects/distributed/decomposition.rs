@@ -34,9 +34,9 @@
 //! A stage's displacement origins travel with their points ([`carry_displacement_origins`]).
 //! What sums over points elsewhere is summed over the processes too: the eq. 15 error
 //! (`Simulation::analytic_error`, `distributed::sum_over_points`). Each process writes its
-//! own points (`particles_NNNN_pK.vtu`). No checkpoint is written (each process holds its
-//! own points). Modules that keep points' entities or read other points are refused
-//! ([`refusal`]).
+//! own points (`particles_NNNN_pK.vtu`). Checkpoints gather every process's points to process
+//! 0, which writes the serial format (`super::checkpoint`). Modules that keep points' entities
+//! or read other points are refused ([`refusal`]).
 
 use bevy_ecs::prelude::*;
 use nalgebra::SVector;
@@ -156,7 +156,8 @@ fn lines_note(spec: &SceneSpec, module: &str) -> String {
 /// a stage with `zero_displacements`) travel with their points ([`pack_origin`],
 /// [`unpack_origin`]). The decomposed run's output does not read them (the `displacement`
 /// field is the `Displacement` component, zeroed at the stage's start on every process's own
-/// points); probes and checkpoints do, which decomposed runs do not have yet.
+/// points); probes and checkpoints read them (a checkpoint through the point's record,
+/// `super::checkpoint`).
 pub fn carry_displacement_origins<const D: usize>(simulation: &mut Extension<'_, D>) {
     simulation.point_state("displacement origins", pack_origin::<D>, unpack_origin::<D>);
 }

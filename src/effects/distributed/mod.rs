@@ -74,7 +74,7 @@ use crate::distributed::failure::{self, FailureNote, Severity};
 use crate::distributed::partition::{slab_axis, slab_owners};
 use crate::distributed::traffic::{Traffic, counted};
 use crate::distributed::{
-    Processes, decomposed, layer_of, path_of_process_0, processes, share_failures,
+    Processes, RUN_MEASURES, decomposed, layer_of, path_of_process_0, processes, share_failures,
 };
 use crate::method::{BuiltInOutput, OutputSchedule, StepSchedule, StepSystems};
 use crate::output::write_pvtu;
@@ -86,6 +86,7 @@ use crate::scene::{LinearBackend, SceneSpec};
 use crate::solver::{PetscSolver, ProcessSum, SharedBlocks};
 use crate::stages::output::{OutputPlan, ParticlePieces, WrittenPiece};
 
+pub mod checkpoint;
 pub mod decomposition;
 pub mod grid;
 
@@ -176,9 +177,9 @@ impl Plugin for DistributedModule {
             "the points are decomposed (each process holds the points of its slab of cells \
              along axis {axis}, balanced by points, and they move between the processes as \
              they cross slabs; each numbers and assembles only the grid nodes its points \
-             touch; no checkpoints are written): the stages on points, the assembly and the \
-             linear solve (PETSc MPIAIJ, CG or GMRES with GAMG unless petsc_options say \
-             otherwise) are split"
+             touch; a checkpoint gathers every point to process 0): the stages on points, \
+             the assembly and the linear solve (PETSc MPIAIJ, CG or GMRES with GAMG unless \
+             petsc_options say otherwise) are split"
         } else {
             "every process holds the whole state (all points and the grid: replicated, not \
              decomposed); only the assembly (slabs of cells along axis {axis}, balanced by \
@@ -268,6 +269,7 @@ impl Plugin for DistributedModule {
                     .before(Hook::Output),
             );
         }
+        let [assembled, changing, owned, ghosts, local] = RUN_MEASURES;
         if decompose {
             simulation.add_systems(Hook::Loads, decomposition::sum_external_force::<D>);
             let numbered = |world: &mut World| {
@@ -280,9 +282,9 @@ impl Plugin for DistributedModule {
                 ))
             };
             simulation
-                .add_measure("owned_dofs", move |world, _| numbered(world).map(|n| n.0))
-                .add_measure("ghost_nodes", move |world, _| numbered(world).map(|n| n.1))
-                .add_measure("local_dofs", move |world, _| numbered(world).map(|n| n.2));
+                .add_measure(owned, move |world, _| numbered(world).map(|n| n.0))
+                .add_measure(ghosts, move |world, _| numbered(world).map(|n| n.1))
+                .add_measure(local, move |world, _| numbered(world).map(|n| n.2));
         } else {
             simulation.add_systems(Hook::Connectivity, mark_assembly_share::<D>);
         }
@@ -292,10 +294,10 @@ impl Plugin for DistributedModule {
         }
         simulation
             .add_systems(Hook::Combine, combine_assembly::<D>)
-            .add_measure("assembled_points", move |world, _| {
+            .add_measure(assembled, move |world, _| {
                 share(world).map(|(points, _)| points as f64)
             })
-            .add_measure("points_changing_process", move |world, _| {
+            .add_measure(changing, move |world, _| {
                 share(world).map(|(_, moved)| moved as f64)
             });
     }
@@ -422,6 +424,24 @@ fn share_failure(status: &mut RunStatus, step: usize, iteration: usize) -> bool 
                     failure::without_step(&deciding.message, step)
                 ),
                 recoverable: deciding.severity == Severity::Recoverable,
+            });
+        }
+        // this process's own failure decides, and some process did not fail: named like the
+        // others' (`process 0 of 2 failed: ...`), so that process 0's report says whose it was;
+        // a failure every process had (a step that cannot be solved) is no one process's
+        (Some(error), Some(note))
+            if processes().is_some_and(|p| p.rank == rank)
+                && note.severity != Severity::TrialState
+                && failures.iter().any(Option::is_none) =>
+        {
+            let own = error.to_string();
+            status.0 = Some(SolverError::Module {
+                step,
+                what: format!(
+                    "process {rank} of {size} failed: {}",
+                    failure::without_step(&own, step)
+                ),
+                recoverable: note.severity == Severity::Recoverable,
             });
         }
         _ => {}
