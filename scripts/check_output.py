@@ -2,9 +2,11 @@
 
 Usage:
     xvfb-run -a pvpython scripts/check_output.py OUT_DIR [FIELD[:N] ...] [--png FILE]
-        [--nodes FIELD[:N] ...] [--tractions FIELD[:N] ...] [--times T0,T1,...]
+        [--nodes FIELD[:N] ...] [--tractions FIELD[:N] ...] [--pressure FIELD[:N] ...]
+        [--times T0,T1,...]
 
-Opens OUT_DIR/particles.pvd (and OUT_DIR/grid.pvd, nodes.pvd and tractions.pvd when present)
+Opens OUT_DIR/particles.pvd (and OUT_DIR/grid.pvd, nodes.pvd, tractions.pvd and pressure.pvd
+when present)
 with ParaView's readers and checks that:
   * the collection is valid XML whose DataSet entries point at existing files, in time order,
     and ParaView reports the same number of time steps (> 0);
@@ -13,8 +15,8 @@ with ParaView's readers and checks that:
     deformation_gradient (3x3 row-major), 3 for position/displacement/velocity-like vectors,
     otherwise whatever is found is reported;
   * all point coordinates and every point and cell array of every time step are finite;
-  * --nodes / --tractions FIELD[:N]: the same for point arrays of nodes.pvd / tractions.pvd
-    (which must then exist);
+  * --nodes / --tractions / --pressure FIELD[:N]: the same for point arrays of nodes.pvd /
+    tractions.pvd / pressure.pvd (which must then exist);
   * --times: the particle series' time values (the load factors) are these, to 1e-12.
 It prints a short report (time steps, points, cells, arrays with component count and range)
 and exits with status 1 and a message on the first failure (2 for a usage error).
@@ -257,6 +259,13 @@ def main(argv):
         help="point arrays of tractions.pvd",
     )
     parser.add_argument(
+        "--pressure",
+        nargs="+",
+        type=parse_field,
+        default=[],
+        help="point arrays of pressure.pvd (the pressure's load points)",
+    )
+    parser.add_argument(
         "--times",
         type=lambda text: [float(t) for t in text.split(",")],
         help="expected time values (load factors) of particles.pvd, comma-separated",
@@ -283,7 +292,11 @@ def main(argv):
                 raise CheckError(f"particles.pvd times are {list(times)}, expected {args.times}")
         if os.path.isfile(grid_pvd):
             report += check_series(simple, grid_pvd, "grid", [])[2]
-        for series, wanted in (("nodes", args.nodes), ("tractions", args.tractions)):
+        for series, wanted in (
+            ("nodes", args.nodes),
+            ("tractions", args.tractions),
+            ("pressure", args.pressure),
+        ):
             path = os.path.join(args.out_dir, f"{series}.pvd")
             if os.path.isfile(path):
                 report += check_series(simple, path, series, wanted)[2]
@@ -294,6 +307,7 @@ def main(argv):
             ("particles", args.fields),
             ("nodes", args.nodes),
             ("tractions", args.tractions),
+            ("pressure", args.pressure),
         ):
             for name, expected in wanted:
                 note = "" if expected is None else f" (expected {expected})"

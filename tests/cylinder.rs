@@ -10,6 +10,8 @@
 
 mod common;
 
+use std::path::Path;
+
 use impm::analytic::ThickCylinder;
 use impm::components::ReferenceVolume;
 use impm::material::VonMises;
@@ -23,12 +25,17 @@ const NU: f64 = 0.3;
 
 /// The scene with `set` (and the defaults a = 1, b = 2, σ_y = 1, E = 500, ν = 0.3).
 fn cylinder(set: &[(&str, &str)], tag: &str) -> Simulation<2> {
+    cylinder_in(set, &common::temp_dir("cylinder", tag))
+}
+
+/// The scene with `set`, writing its output to `dir`.
+fn cylinder_in(set: &[(&str, &str)], dir: &Path) -> Simulation<2> {
     let spec = impm::run::load_scene(
         &common::shipped_scene("thick_cylinder.rhai"),
         &common::overrides(set),
     )
     .unwrap_or_else(|e| panic!("{e}"));
-    Simulation::<2>::new(&spec, &common::temp_dir("cylinder", tag)).unwrap()
+    Simulation::<2>::new(&spec, dir).unwrap()
 }
 
 /// u_r(a) of the plane-strain Lamé solution under the pressure p.
@@ -133,6 +140,129 @@ fn newton_converges_quadratically_under_the_follower_pressure() {
         (reaction / current - 1.0).abs() < 2e-3,
         "{reaction} {current}"
     );
+}
+
+/// The pressure's load points are written as `pressure_NNNN.vtu` / `pressure.pvd` (one vertex
+/// per part of the arc at its load point, with `normal`, `length`, `pressure` and `force`); read
+/// back after every step of the elastic cylinder under p = 2.5 … 10 (u_r(a) up to 0.04 a):
+/// * 26 points (2 parts per cell of the arc's length π a / 2 at h = 0.125, rounded up);
+/// * every point on the current bore: |x| against a + u_r(a) (the probe at (a, 0)) within
+///   5 % of u_r(a) (measured: 2.8 – 4.5 %, the discrete expansion is not exactly uniform);
+/// * the normals unit (1e-12) and radial, into the wall (1 − n · e_r < 5e-4; measured ≤ 1e-4);
+/// * `pressure` = λ p, and each force = λ p length n (1e-12 relative);
+/// * the forces' magnitudes sum to λ p times the current arc length π (a + u_r(a)) / 2 within
+///   5e-4 (measured ≤ 3.5e-4: the chords of 26 parts against the arc, 1.5e-4, and the radii
+///   above); their x components to the roller reaction |R_x| on x = 0 within 1e-9 relative
+///   (equilibrium: the pressure is the only load in x).
+///
+/// The driven cylinder (no pressure) writes no `pressure.pvd`.
+#[test]
+fn the_pressure_points_are_written_on_the_current_bore() {
+    let set = [
+        ("material", "elastic"),
+        ("control", "load"),
+        ("last", "10"),
+        ("steps", "4"),
+        ("fbar", "false"),
+        ("cells", "8"),
+        ("ppc", "2"),
+    ];
+    let dir = common::temp_dir("cylinder", "pressure-file");
+    let mut sim = cylinder_in(&set, &dir);
+    sim.write_initial_state().unwrap();
+    sim.run(|_| {}).unwrap();
+    let series = std::fs::read_to_string(dir.join("pressure.pvd")).unwrap();
+    let parts = (2.0 * std::f64::consts::FRAC_PI_2 * A / ((B - A) / 8.0)).ceil() as usize;
+    assert_eq!(parts, 26);
+    let mut steps = vec![(0, 0.0, 0.0, None)];
+    steps.extend(sim.summary.steps.iter().map(|step| {
+        (
+            step.step,
+            step.measure("inner_pressure").unwrap(),
+            step.measure("inner_displacement").unwrap(),
+            Some(-step.measure("fix1_reaction_x").unwrap()),
+        )
+    }));
+    assert_eq!(steps.len(), 5);
+    for (number, p, u, reaction) in steps {
+        let name = format!("pressure_{number:04}.vtu");
+        assert!(
+            series.contains(&format!(
+                "timestep=\"{p}\" group=\"\" part=\"0\" file=\"{name}\""
+            )),
+            "{series}"
+        );
+        let file = impm::output::read_vtu(&dir.join(&name)).unwrap();
+        assert_eq!(file.points.len(), parts, "{name}");
+        let field = |name: &str| file.point_field(name).unwrap().1;
+        let (normal, length, pressure, force) = (
+            field("normal"),
+            field("length"),
+            field("pressure"),
+            field("force"),
+        );
+        let radius = A + u;
+        let (mut worst_radius, mut worst_radial, mut worst_unit, mut worst_force) =
+            (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+        let (mut magnitudes, mut fx) = (0.0, 0.0);
+        for (k, x) in file.points.iter().enumerate() {
+            let r = x[0].hypot(x[1]);
+            let n = &normal[3 * k..3 * k + 3];
+            let f = &force[3 * k..3 * k + 3];
+            worst_radius = worst_radius.max((r - radius).abs() / A);
+            worst_unit = worst_unit.max((n[0].hypot(n[1]) - 1.0).abs() + n[2].abs());
+            worst_radial = worst_radial.max(1.0 - (n[0] * x[0] + n[1] * x[1]) / r);
+            assert!(
+                (pressure[k] - p).abs() <= 1e-12 * p.max(1.0),
+                "{name}: {}",
+                pressure[k]
+            );
+            for a in 0..3 {
+                worst_force = worst_force.max((f[a] - p * length[k] * n[a]).abs());
+            }
+            magnitudes += f[0].hypot(f[1]);
+            fx += f[0];
+        }
+        let arc = p * std::f64::consts::FRAC_PI_2 * radius;
+        println!(
+            "{name}: λ p = {p}, a + u = {radius:.6}, worst |r − (a + u)| / a = {worst_radius:.2e}, \
+             worst 1 − n · e_r = {worst_radial:.2e}, worst unit error = {worst_unit:.1e}, \
+             Σ|f| = {magnitudes:.6} against λ p π (a + u) / 2 = {arc:.6}, Σ f_x = {fx:.9}, |R_x| = {reaction:?}"
+        );
+        assert!(
+            worst_radius <= 0.05 * u / A + 1e-15,
+            "{name}: {worst_radius:e}"
+        );
+        assert!(worst_unit < 1e-12, "{name}: {worst_unit:e}");
+        assert!(worst_radial < 5e-4, "{name}: {worst_radial:e}");
+        assert!(worst_force < 1e-12 * p.max(1.0), "{name}: {worst_force:e}");
+        assert!(
+            (magnitudes - arc).abs() <= 1e-3 * arc,
+            "{name}: {magnitudes} {arc}"
+        );
+        if let Some(reaction) = reaction {
+            assert!(
+                (fx - reaction).abs() <= 1e-9 * reaction,
+                "{name}: {fx} {reaction}"
+            );
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+
+    let dir = common::temp_dir("cylinder", "no-pressure-file");
+    let mut driven = cylinder_in(
+        &[
+            ("control", "displacement"),
+            ("steps", "1"),
+            ("material", "elastic"),
+        ],
+        &dir,
+    );
+    driven.write_initial_state().unwrap();
+    driven.run(|_| {}).unwrap();
+    assert!(dir.join("particles.pvd").exists());
+    assert!(!dir.join("pressure.pvd").exists() && !dir.join("pressure_0001.vtu").exists());
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The pressure under which the plastic zone reaches the radius c (plane strain, von Mises with

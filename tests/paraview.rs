@@ -1,6 +1,7 @@
 //! ParaView reads what a run writes: the `.pvd` series with the load factor as time, the
 //! particle fields with full tensors, the nodes with their fixities and forces, the traction
-//! points with their forces, point loads on the particles; and `scripts/show_stress.py` renders
+//! points with their forces, the pressure's load points (`pressure.pvd`), point loads on the
+//! particles; and `scripts/show_stress.py` renders
 //! the points coloured by the vertical stress. Uses `pvpython` (and `xvfb-run` for the
 //! picture); where they are not installed the test prints why it is skipped and passes
 //! (`.ci/run` installs them).
@@ -154,6 +155,31 @@ fn paraview_reads_the_series_fields_loads_and_renders_the_stress() {
     arguments.extend(node_fields);
     arguments.extend(["--times", &times]);
     check_output(&beam, &arguments);
+
+    // the pressure's load points (pressure.pvd) of the thick cylinder
+    let cylinder = run(
+        "thick_cylinder.rhai",
+        &[
+            ("material", "elastic"),
+            ("control", "load"),
+            ("last", "10"),
+            ("steps", "2"),
+            ("fbar", "false"),
+            ("ppc", "2"),
+        ],
+    );
+    check_output(
+        &cylinder,
+        &[
+            "--pressure",
+            "normal:3",
+            "length:1",
+            "pressure:1",
+            "force:3",
+            "--times",
+            "0,5,10",
+        ],
+    );
 
     // --component and --warp: the bending stress XX takes both signs (a diverging map), von
     // Mises is one-signed (sequential), an unknown component is an error

@@ -83,7 +83,11 @@
 //! Systems, added only when a scene declares a pressure: [`find_pressure_weights`]
 //! (`Hook::Connectivity`), [`apply_pressure`] (`Hook::Loads`; with held loads under the arc also
 //! at λ = 0), [`follow_pressure`]
-//! (`Hook::AfterAssembly`), [`carry_pressure_points`] (`Hook::PointUpdate`).
+//! (`Hook::AfterAssembly`), [`carry_pressure_points`] (`Hook::PointUpdate`),
+//! [`write_pressure`] (`Hook::Output`): `pressure_NNNN.vtu` (one vertex per part at its load
+//! point, with the current chord's unit normal into the body, its length, λ p and the part's
+//! force λ s p Q (x_{k+1} − x_k), [`PartOutput`]) and `pressure.pvd`, written as the traction
+//! points' series is (`tractions::LoadPointOutput`).
 
 use bevy_ecs::prelude::*;
 use nalgebra::SVector;
@@ -95,11 +99,12 @@ use super::declarations::{
     LoadSummary, held_option, keep_largest_force, released_factor, until_stage_of,
     until_stage_option,
 };
-use super::tractions::host_weights;
+use super::tractions::{LoadPointOutput, host_weights};
 use crate::basis::{BasisKind, BasisScratch, NodeWeight};
 use crate::checkpoint::CheckpointPart;
 use crate::components::{Position, Support};
 use crate::mechanics::active_weight;
+use crate::output::PvdSeries;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{
     CurrentStage, Grid, GridFields, LoadStep, Newton, Ramp, RunStatus, SolverError, Stage,
@@ -111,6 +116,7 @@ use crate::scene::{
 };
 use crate::solver::NO_DOF;
 use crate::stages::arc_length::ArcLength;
+use crate::stages::output::{OutputPlan, pad};
 
 /// `arc(#{ centre, radius, from, to })`: a circular arc in 2D, angles in degrees
 /// counter-clockwise from the x axis.
@@ -219,14 +225,16 @@ pub struct CarriedSpec {
 }
 
 /// One part of a pressure arc: its vertices and load point (indices among the scene's pressure
-/// points), s p, the pressure signed so that s p Q (x_end − x_start) pushes into the body, and
-/// the group of its load factor ([`Pressures::groups`]).
+/// points), s p, the pressure signed so that s p Q (x_end − x_start) pushes into the body, the
+/// side s = ±1 of the body (s Q (x_end − x_start) points into it) and the group of its load
+/// factor ([`Pressures::groups`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Part {
     pub start: usize,
     pub end: usize,
     pub load_point: usize,
     pub pressure: f64,
+    pub side: f64,
     pub group: usize,
 }
 
@@ -291,6 +299,10 @@ pub struct PressureLoad<const D: usize> {
     pub added: Vec<Vec<SVector<f64, D>>>,
 }
 
+/// The `pressure.pvd` series.
+#[derive(Resource)]
+pub struct PressureSeries(pub PvdSeries);
+
 /// A quarter turn clockwise, Q t (2D; zero in other dimensions, where no pressure is built).
 fn turn<const D: usize>(t: &SVector<f64, D>) -> SVector<f64, D> {
     let mut n = SVector::zeros();
@@ -315,6 +327,35 @@ pub fn carried_position<const D: usize>(
 /// The force of one part at λ = 1: s p Q (x_end − x_start).
 pub fn part_force<const D: usize>(part: &Part, positions: &[SVector<f64, D>]) -> SVector<f64, D> {
     turn(&(positions[part.end] - positions[part.start])) * part.pressure
+}
+
+/// What `pressure_NNNN.vtu` shows of one part at its group's load factor `factor`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PartOutput<const D: usize> {
+    /// n = s Q t / |t| of the current chord t = x_end − x_start: the unit normal into the body.
+    pub normal: SVector<f64, D>,
+    /// |t|, the current chord's length.
+    pub length: f64,
+    /// λ p (positive pushes into the body).
+    pub pressure: f64,
+    /// λ p |t| n = λ s p Q t, the part's force ([`part_force`] times λ).
+    pub force: SVector<f64, D>,
+}
+
+/// The part's [`PartOutput`] at the positions of the carried points.
+pub fn part_output<const D: usize>(
+    part: &Part,
+    positions: &[SVector<f64, D>],
+    factor: f64,
+) -> PartOutput<D> {
+    let chord = positions[part.end] - positions[part.start];
+    let length = chord.norm();
+    PartOutput {
+        normal: turn(&chord) * (part.side / length),
+        length,
+        pressure: factor * part.pressure * part.side,
+        force: part_force(part, positions) * factor,
+    }
 }
 
 /// Adds every part's force at λ = 1, spread over its load point's active nodes, to `nodes`.
@@ -601,6 +642,10 @@ impl Plugin for PressureModule {
         let releases = pressures.groups.iter().any(|g| g.until.is_some());
         simulation.world().spawn_batch(batch);
         simulation.world().insert_resource(load);
+        let dir = simulation.world().resource::<OutputPlan>().dir.clone();
+        simulation
+            .world()
+            .insert_resource(PressureSeries(PvdSeries::new(dir.join("pressure.pvd"))));
         if releases {
             keep_largest_force(simulation);
         }
@@ -611,12 +656,14 @@ impl Plugin for PressureModule {
                 save: save_positions::<D, PressurePoint<D>>,
                 restore: restore_positions::<D, PressurePoint<D>>,
             })
+            .series(|world| vec![&mut world.resource_mut::<PressureSeries>().into_inner().0])
             .add_systems(Hook::Connectivity, find_pressure_weights::<D>);
         // under arc-length control with held loads also evaluated at λ = 0 (f_fixed)
         add_load_system(simulation, apply_pressure::<D>);
         simulation
             .add_systems(Hook::AfterAssembly, follow_pressure::<D>)
-            .add_systems(Hook::PointUpdate, carry_pressure_points::<D>);
+            .add_systems(Hook::PointUpdate, carry_pressure_points::<D>)
+            .add_systems(Hook::Output, write_pressure::<D>);
     }
 }
 
@@ -690,6 +737,7 @@ fn seed_pressure(
         end: base + k + 1,
         load_point: base + parts + 1 + k,
         pressure,
+        side: sign,
         group,
     }));
     let chord = [
@@ -890,6 +938,42 @@ pub fn carry_pressure_points<const D: usize>(
     }
 }
 
+/// `pressure_NNNN.vtu` and its series: one vertex per part at its load point's current
+/// position, with the part's `normal`, `length`, `pressure` and `force` ([`PartOutput`]).
+pub fn write_pressure<const D: usize>(
+    mut output: LoadPointOutput,
+    load: Res<PressureLoad<D>>,
+    mut series: ResMut<PressureSeries>,
+    points: Query<&PressurePoint<D>>,
+) {
+    output.write(&mut series.0, "pressure", |step, stage| {
+        let mut positions = vec![SVector::<f64, D>::zeros(); points.iter().len()];
+        for point in &points {
+            positions[point.id as usize] = point.position;
+        }
+        let n = load.parts.len();
+        let mut at = Vec::with_capacity(n);
+        let (mut normal, mut force) = (Vec::with_capacity(3 * n), Vec::with_capacity(3 * n));
+        let (mut length, mut pressure) = (Vec::with_capacity(n), Vec::with_capacity(n));
+        for part in &load.parts {
+            let factor = load.groups[part.group].factor(step, stage);
+            let row = part_output(part, &positions, factor);
+            at.push(pad(&positions[part.load_point]));
+            normal.extend(pad(&row.normal));
+            length.push(row.length);
+            pressure.push(row.pressure);
+            force.extend(pad(&row.force));
+        }
+        let columns = vec![
+            ("normal", 3, normal),
+            ("length", 1, length),
+            ("pressure", 1, pressure),
+            ("force", 3, force),
+        ];
+        (at, columns)
+    });
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -911,6 +995,7 @@ mod tests {
                 end: 1,
                 load_point: 3,
                 pressure: 2.5,
+                side: 1.0,
                 group: 0,
             },
             Part {
@@ -918,6 +1003,7 @@ mod tests {
                 end: 2,
                 load_point: 4,
                 pressure: 2.5,
+                side: 1.0,
                 group: 0,
             },
         ];
@@ -1006,6 +1092,7 @@ mod tests {
                     end: k + 1,
                     load_point: 0,
                     pressure: 3.0,
+                    side: 1.0,
                     group: 0,
                 })
                 .collect();

@@ -36,7 +36,8 @@
 //!   increment at x_s would not: part of a boundary point's support is grid nodes outside the
 //!   body, whose increments are not unknowns (see below).
 //! * [`write_tractions`] (`Hook::Output`): `tractions_NNNN.vtu` (one vertex per traction point
-//!   with `reference_position`, `area`, `traction` λ h and `force` λ h A) and `tractions.pvd`.
+//!   with `reference_position`, `area`, `traction` λ h and `force` λ h A) and `tractions.pvd`,
+//!   through [`LoadPointOutput`] (which the pressure's points use too).
 //!
 //! A traction point lies on the body's boundary, where part of its support may be grid nodes
 //! that no material point supports (inactive nodes, with no unknown). The force those nodes
@@ -54,6 +55,7 @@
 //! a self-equilibrated nodal pattern whose effect is local (Saint-Venant).
 
 use bevy_ecs::prelude::*;
+use bevy_ecs::system::SystemParam;
 use nalgebra::SVector;
 
 use rhai::Dynamic;
@@ -512,52 +514,86 @@ pub fn update_traction_points<const D: usize>(
 
 /// `tractions_NNNN.vtu` and its series.
 pub fn write_tractions<const D: usize>(
-    step: Res<LoadStep>,
-    stage: Option<Res<CurrentStage>>,
-    plan: Res<OutputPlan>,
+    mut output: LoadPointOutput,
     mut series: ResMut<TractionSeries>,
-    mut status: ResMut<RunStatus>,
-    mut clock: ResMut<StageClock>,
     points: Query<&TractionPoint<D>>,
 ) {
-    if !plan.writes(&step) {
-        return;
-    }
-    let _timer = clock.time(Stage::Output);
-    let mut rows: Vec<&TractionPoint<D>> = points.iter().collect();
-    rows.sort_by_key(|point| point.id);
-    let n = rows.len();
-    let positions: Vec<[f64; 3]> = rows.iter().map(|point| pad(&point.position)).collect();
-    let mut reference = Vec::with_capacity(3 * n);
-    let mut area = Vec::with_capacity(n);
-    let mut traction = Vec::with_capacity(3 * n);
-    let mut force = Vec::with_capacity(3 * n);
-    for point in &rows {
-        reference.extend(pad(&point.reference_position));
-        area.push(point.area);
-        let factor = point.factor(&step, stage.as_ref().map_or(0, |s| s.0));
-        traction.extend(pad(&(point.traction * factor)));
-        force.extend(pad(&(point.traction * (point.area * factor))));
-    }
-    let name = format!("tractions_{:04}.vtu", step.number);
-    let result = write_vtu(
-        &plan.dir.join(&name),
-        &positions,
-        &vertex_cells(n),
-        &[
-            Field::new("reference_position", 3, &reference),
-            Field::scalar("area", &area),
-            Field::new("traction", 3, &traction),
-            Field::new("force", 3, &force),
-        ],
-        &[],
-    )
-    .and_then(|()| series.0.push(step.series_time(stage.as_deref()), &name));
-    if let Err(e) = result {
-        status.fail(SolverError::Output {
-            step: step.number,
-            why: format!("{name}: {e}"),
-        });
+    output.write(&mut series.0, "tractions", |step, stage| {
+        let mut rows: Vec<&TractionPoint<D>> = points.iter().collect();
+        rows.sort_by_key(|point| point.id);
+        let n = rows.len();
+        let positions = rows.iter().map(|point| pad(&point.position)).collect();
+        let mut reference = Vec::with_capacity(3 * n);
+        let mut area = Vec::with_capacity(n);
+        let mut traction = Vec::with_capacity(3 * n);
+        let mut force = Vec::with_capacity(3 * n);
+        for point in &rows {
+            reference.extend(pad(&point.reference_position));
+            area.push(point.area);
+            let factor = point.factor(step, stage);
+            traction.extend(pad(&(point.traction * factor)));
+            force.extend(pad(&(point.traction * (point.area * factor))));
+        }
+        let columns = vec![
+            ("reference_position", 3, reference),
+            ("area", 1, area),
+            ("traction", 3, traction),
+            ("force", 3, force),
+        ];
+        (positions, columns)
+    });
+}
+
+/// One step's point arrays of a load points' file: (name, components, values).
+pub type Columns = Vec<(&'static str, usize, Vec<f64>)>;
+
+/// What a writer of load points (traction points, pressure points) reads and writes besides
+/// its points and its series.
+#[derive(SystemParam)]
+pub struct LoadPointOutput<'w> {
+    step: Res<'w, LoadStep>,
+    stage: Option<Res<'w, CurrentStage>>,
+    plan: Res<'w, OutputPlan>,
+    status: ResMut<'w, RunStatus>,
+    clock: ResMut<'w, StageClock>,
+}
+
+impl LoadPointOutput<'_> {
+    /// At an output step: `STEM_NNNN.vtu` in the output folder, one vertex per point of
+    /// `rows(step, stage)` (their positions and point arrays), listed in `series` (`STEM.pvd`)
+    /// at the step's series time. A file that cannot be written fails the run
+    /// (`SolverError::Output`); the files already written stay valid.
+    pub fn write(
+        &mut self,
+        series: &mut PvdSeries,
+        stem: &str,
+        rows: impl FnOnce(&LoadStep, usize) -> (Vec<[f64; 3]>, Columns),
+    ) {
+        if !self.plan.writes(&self.step) {
+            return;
+        }
+        let _timer = self.clock.time(Stage::Output);
+        let stage = self.stage.as_deref();
+        let (positions, columns) = rows(&self.step, stage.map_or(0, |s| s.0));
+        let fields: Vec<Field> = columns
+            .iter()
+            .map(|(name, components, values)| Field::new(name, *components, values))
+            .collect();
+        let name = format!("{stem}_{:04}.vtu", self.step.number);
+        let result = write_vtu(
+            &self.plan.dir.join(&name),
+            &positions,
+            &vertex_cells(positions.len()),
+            &fields,
+            &[],
+        )
+        .and_then(|()| series.push(self.step.series_time(stage), &name));
+        if let Err(e) = result {
+            self.status.fail(SolverError::Output {
+                step: self.step.number,
+                why: format!("{name}: {e}"),
+            });
+        }
     }
 }
 
