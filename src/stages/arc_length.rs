@@ -95,21 +95,6 @@
 //! the step is refused as a turn-back until the cuts run out. Rebalanced first, the correction
 //! is not part of the path (`accept` keeps the arc's part) and the block runs.
 //!
-//! # Sliver DOFs
-//!
-//! A node that a point's domain barely reaches (CPDI or GIMP, a block that widened under its
-//! weight) gets a DOF with a tiny stiffness, and δu_f = K⁻¹ f̂ can be huge there: on the
-//! block of `tests/arc_length_held.rs` with CPDI, one node above the block's corner carried
-//! δu_f = 2.19 of ‖δu_f‖ = 2.20 (99 %; the block's own nodes 9e-4) from step 2 on, so the arc
-//! Δl = 3.2e-4 was spent on that node and λ rose by Δl/‖δu_f‖ = 1.5e-4 per step. The arc is
-//! therefore measured over the DOFs with enough support ([`supported_dofs`]): a DOF whose
-//! tangent diagonal is below [`SLIVER_STIFFNESS`] = 1e-4 times the mean |K_ii| is left out of
-//! the constraint ‖P Δu‖ = Δl, of the first arc's sizing and of the predictor's sign (P zeroes
-//! it); it still moves with δu = δu_r + δλ δu_f. The block's sliver DOFs sit at 7e-9 to 8e-7 of
-//! the mean, the block's own at 0.59 and above; the 8-cell thick cylinder's lowest are 1.1e-3,
-//! so it (and every run without such a DOF) is unchanged bit for bit. The turn-back tests and
-//! [`ArcLength::increment_norm`] still use the whole Δu.
-//!
 //! # Stages
 //!
 //! In a staged scene the last stage may be arc-controlled (`stage(#{ .., control:
@@ -211,7 +196,7 @@ use nalgebra::SVector;
 use crate::resources::{
     GridFields, LoadStep, Newton, NewtonSettings, RunStatus, SolverError, Warnings,
 };
-use crate::solver::{NO_DOF, SparseMatrix};
+use crate::solver::NO_DOF;
 
 /// The scene's arc-length options (a part of the scene: `solver(#{ control: "arc_length" })`).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -1010,17 +995,8 @@ pub fn correct_load_factor<const D: usize>(
         set_factor(arc, fields, &mut step, arc.factor + delta);
         return;
     }
-    // the arc is measured over the DOFs with enough support ("Sliver DOFs")
-    let supported = supported_dofs(&newton.matrix, load_part.len());
-    let on_arc = |v: &[f64]| on_supported(v, &supported);
-    let (arc_increment, arc_residual, arc_load, arc_previous) = (
-        on_arc(&increment),
-        on_arc(&residual_part),
-        on_arc(&load_part),
-        on_arc(&previous),
-    );
     if arc.radius <= 0.0 {
-        arc.radius = arc.first_increment.abs() * dot(&arc_load, &arc_load).sqrt();
+        arc.radius = arc.first_increment.abs() * dot(&load_part, &load_part).sqrt();
     }
     if arc.rebalance == Rebalance::Auto
         && predictor
@@ -1035,13 +1011,13 @@ pub fn correct_load_factor<const D: usize>(
     }
     let sign = if arc.previous.is_empty() {
         arc.first_increment.signum()
-    } else if dot(&arc_previous, &arc_load) < 0.0 {
+    } else if dot(&previous, &load_part) < 0.0 {
         -1.0
     } else {
         1.0
     };
     let Some((delta, root)) =
-        load_correction(&arc_increment, &arc_residual, &arc_load, arc.radius, sign)
+        load_correction(&increment, &residual_part, &load_part, arc.radius, sign)
     else {
         status.fail(SolverError::Module {
             step: step.number,
@@ -1064,32 +1040,6 @@ pub fn correct_load_factor<const D: usize>(
     for (current, origin) in arc.current.iter_mut().zip(&arc.origin) {
         *current -= origin;
     }
-}
-
-/// A DOF's tangent diagonal below this fraction of the mean diagonal marks a sliver DOF,
-/// left out of the arc's norm ("Sliver DOFs").
-pub const SLIVER_STIFFNESS: f64 = 1e-4;
-
-/// Which DOFs the arc measures: those whose diagonal `K_ii` is at least [`SLIVER_STIFFNESS`]
-/// times the mean of |K_ii| (all of them when the mean is not positive and finite).
-pub fn supported_dofs(matrix: &SparseMatrix, dofs: usize) -> Vec<bool> {
-    let diagonal: Vec<f64> = (0..dofs).map(|i| matrix.get(i, i)).collect();
-    let mean = diagonal.iter().map(|d| d.abs()).sum::<f64>() / dofs.max(1) as f64;
-    if !(mean.is_finite() && mean > 0.0) {
-        return vec![true; dofs];
-    }
-    diagonal
-        .iter()
-        .map(|d| d.abs() >= SLIVER_STIFFNESS * mean)
-        .collect()
-}
-
-/// `v` with the DOFs that are not `supported` set to zero.
-fn on_supported(v: &[f64], supported: &[bool]) -> Vec<f64> {
-    v.iter()
-        .zip(supported)
-        .map(|(&x, &s)| if s { x } else { 0.0 })
-        .collect()
 }
 
 /// δλ of the shortest correction δu_r + δλ δu_f (normal flow: orthogonal to δu_f),
