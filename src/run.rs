@@ -492,7 +492,11 @@ impl<const D: usize> Simulation<D> {
         if let Some(arc) = &self.arc
             && record.step >= arc.spec.first_step
         {
-            self.summary.arc_length = Some(failed_arc_length(arc, record.step, &error));
+            let on_plateau = self
+                .world
+                .get_resource::<ArcLength<D>>()
+                .is_some_and(ArcLength::on_plateau);
+            self.summary.arc_length = Some(failed_arc_length(arc, record.step, &error, on_plateau));
         }
         self.summary.fail(record, &error);
         let _ = self.summary.write();
@@ -683,12 +687,18 @@ fn failed_arc_length(
     arc: &ArcLengthControl,
     step: usize,
     failure: &SolverError,
+    on_plateau: bool,
 ) -> serde_json::Value {
     let mut entry = arc.to_json();
     let report = match arc.peak() {
         None => {
             format!("arc-length control: the run failed at step {step} before any step converged")
         }
+        Some((peak, at)) if on_plateau => format!(
+            "arc-length control: the run failed at step {step} on a plateau: the load factor \
+             stayed at its largest value, {peak:.6e} (step {at}), while the displacement grew, \
+             so that value is the limit load; the plateau was not followed past it"
+        ),
         Some((peak, at)) if arc.passed_peak() => format!(
             "arc-length control: the run failed at step {step} after passing the limit load; \
              the largest load factor of its converged steps was {peak:.6e} at step {at}"
@@ -1107,7 +1117,7 @@ mod tests {
             why: "det F <= 0".to_string(),
         };
         let mut arc = ArcLengthControl::new(spec, 8, 0.1);
-        let entry = failed_arc_length(&arc, 1, &failure);
+        let entry = failed_arc_length(&arc, 1, &failure, false);
         assert_eq!(entry["end"], "failed");
         assert_eq!(entry["failure"], failure.to_string());
         assert!(entry["peak_load_factor"].is_null());
@@ -1121,7 +1131,7 @@ mod tests {
         arc.succeeded(1, 1.0, 5, 0.2, 0);
         arc.succeeded(2, 2.0, 5, 0.2, 0);
         arc.succeeded(3, 3.0, 5, 0.2, 0);
-        let entry = failed_arc_length(&arc, 4, &failure);
+        let entry = failed_arc_length(&arc, 4, &failure, false);
         assert_eq!(entry["peak_load_factor"], 3.0);
         assert_eq!(entry["peak_step"], 3);
         assert_eq!(entry["passed_limit"], false);
@@ -1131,9 +1141,14 @@ mod tests {
             "{report}"
         );
         assert!(report.contains("not the limit load"), "{report}");
+        // the same failure where the load factor had levelled off at its largest value
+        let report = failed_arc_length(&arc, 4, &failure, true)["report"].to_string();
+        assert!(report.contains("failed at step 4 on a plateau"), "{report}");
+        assert!(report.contains("3.000000e0 (step 3)"), "{report}");
+        assert!(!report.contains("not the limit load"), "{report}");
 
         arc.succeeded(4, 2.5, 5, 0.2, 0);
-        let entry = failed_arc_length(&arc, 5, &failure);
+        let entry = failed_arc_length(&arc, 5, &failure, false);
         assert_eq!(entry["peak_load_factor"], 3.0);
         assert_eq!(entry["passed_limit"], true);
         let report = entry["report"].as_str().unwrap();

@@ -549,7 +549,15 @@ traction(#{ on: [[0.0, 1.0], [0.5, 1.0]], traction: [0.0, -10.0] });
             }
         }
     }
+    // summary.json's report of the arc agrees with the error: the peak is the limit load
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
     let _ = std::fs::remove_dir_all(&dir);
+    let report = summary["arc_length"]["report"].as_str().unwrap_or_default();
+    assert!(
+        report.contains("on a plateau") && !report.contains("not the limit load"),
+        "{report}"
+    );
     let limit = 2.0 * 100.0 / 3.0f64.sqrt() / 10.0 - 1.0;
     let peak = factors.iter().copied().fold(f64::MIN, f64::max);
     println!(
