@@ -54,31 +54,7 @@ fn top_load(pressure: bool) -> String {
 /// steps by load control; stage "load" (line 9) adds the top load, under the arc when
 /// `control` is `arc_length` (line 10: the load on line 10), else at `factors`.
 fn block(pressure: bool, control: &str, factors: &[f64]) -> String {
-    let factors: Vec<String> = factors.iter().map(|f| format!("{f:?}")).collect();
-    format!(
-        "grid(#{{ lower: [0.0, 0.0], upper: [1.0, 1.5], cells: [2, 3], basis: \"bspline\", order: 2 }});\n\
-         const m = material(#{{ name: \"m\", E: 1000.0, nu: 0.3, density: 1.0 }});\n\
-         body(#{{ name: \"block\", material: m, region: box([0.0, 0.0], [1.0, 1.0]), ppc: 3 }});\n\
-         fix(|x| x[1] == 0.0, [1]);\n\
-         fix(|x| x[0] == 0.0 || x[0] == 1.0, [0]);\n\
-         solver(#{{ tolerance: 1e-11, linear: \"direct\"{} }});\n\
-         stage(#{{ name: \"gravity\", steps: 2 }});\n\
-         body_force([0.0, -10.0]);\n\
-         stage(#{{ name: \"load\", load_factors: [{}]{} }});\n\
-         {}\n",
-        if control == "arc_length" {
-            ", target_iterations: 3, max_load_factor: 3.0"
-        } else {
-            ""
-        },
-        factors.join(", "),
-        if control == "arc_length" {
-            ", control: \"arc_length\""
-        } else {
-            ""
-        },
-        top_load(pressure)
-    )
+    common::staged_block("", control, factors, &format!("{}\n", top_load(pressure)))
 }
 
 /// Every point's position, in entity order (the same scene spawns the same order).

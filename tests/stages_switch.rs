@@ -229,30 +229,14 @@ fn a_yielded_von_mises_body_switched_to_mohr_coulomb_is_taken_within_the_toleran
 /// `control` is `arc_length` (else at `factors`) and switches the block to von Mises
 /// (σ_y = 12, the same elasticity) at its start when `switch`; the load a top traction q = 10.
 fn switched_arc_block(control: &str, factors: &[f64], switch: bool) -> String {
-    let factors: Vec<String> = factors.iter().map(|f| format!("{f:?}")).collect();
-    let arc = control == "arc_length";
-    format!(
-        "grid(#{{ lower: [0.0, 0.0], upper: [1.0, 1.5], cells: [2, 3], basis: \"bspline\", order: 2 }});\n\
-         const m = material(#{{ name: \"m\", E: 1000.0, nu: 0.3, density: 1.0 }});\n\
-         const plastic = material(#{{ name: \"plastic\", model: \"von_mises\", sigma_y: 12.0, E: 1000.0, nu: 0.3, density: 1.0 }});\n\
-         body(#{{ name: \"block\", material: m, region: box([0.0, 0.0], [1.0, 1.0]), ppc: 3 }});\n\
-         fix(|x| x[1] == 0.0, [1]);\n\
-         fix(|x| x[0] == 0.0 || x[0] == 1.0, [0]);\n\
-         solver(#{{ tolerance: 1e-11, linear: \"direct\"{} }});\n\
-         stage(#{{ name: \"gravity\", steps: 2 }});\n\
-         body_force([0.0, -10.0]);\n\
-         stage(#{{ name: \"load\", load_factors: [{}]{} }});\n\
-         {}material_of(#{{ body: \"block\", material: \"plastic\" }});\n\
+    let plastic = "const plastic = material(#{ name: \"plastic\", model: \"von_mises\", \
+                   sigma_y: 12.0, E: 1000.0, nu: 0.3, density: 1.0 });\n";
+    let load = format!(
+        "{}material_of(#{{ body: \"block\", material: \"plastic\" }});\n\
          traction(#{{ on: [[0.0, 1.0], [1.0, 1.0]], traction: [0.0, -10.0] }});\n",
-        if arc {
-            ", target_iterations: 3, max_load_factor: 3.0"
-        } else {
-            ""
-        },
-        factors.join(", "),
-        if arc { ", control: \"arc_length\"" } else { "" },
-        if switch { "" } else { "// " },
-    )
+        if switch { "" } else { "// " }
+    );
+    common::staged_block(plastic, control, factors, &load)
 }
 
 /// `material_of` in the arc-controlled stage: the switch is made at the arc stage's first

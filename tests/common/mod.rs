@@ -267,3 +267,34 @@ pub fn largest_and_first_peak(
         .expect("the load factor falls after a peak");
     (largest, first_peak)
 }
+
+/// The staged block of `tests/arc_length_staged.rs` and `tests/stages_switch.rs`: an elastic
+/// block 1 × 1 (Hencky `m`, E = 1000, ν = 0.3, density 1; quadratic B-splines, 2 × 2 cells under
+/// a row of empty ones, 3 × 3 points per cell), its base on rollers (fix1: vertical), its sides
+/// on rollers (fix2). Stage "gravity" brings its weight on in 2 steps by load control; stage
+/// "load" (the last) is under the arc when `control` is `arc_length`, else at `factors`.
+/// `materials`: lines declaring more materials after `m`; `load`: the load stage's lines.
+pub fn staged_block(materials: &str, control: &str, factors: &[f64], load: &str) -> String {
+    let factors: Vec<String> = factors.iter().map(|f| format!("{f:?}")).collect();
+    let arc = control == "arc_length";
+    format!(
+        "grid(#{{ lower: [0.0, 0.0], upper: [1.0, 1.5], cells: [2, 3], basis: \"bspline\", order: 2 }});\n\
+         const m = material(#{{ name: \"m\", E: 1000.0, nu: 0.3, density: 1.0 }});\n\
+         {materials}\
+         body(#{{ name: \"block\", material: m, region: box([0.0, 0.0], [1.0, 1.0]), ppc: 3 }});\n\
+         fix(|x| x[1] == 0.0, [1]);\n\
+         fix(|x| x[0] == 0.0 || x[0] == 1.0, [0]);\n\
+         solver(#{{ tolerance: 1e-11, linear: \"direct\"{} }});\n\
+         stage(#{{ name: \"gravity\", steps: 2 }});\n\
+         body_force([0.0, -10.0]);\n\
+         stage(#{{ name: \"load\", load_factors: [{}]{} }});\n\
+         {load}",
+        if arc {
+            ", target_iterations: 3, max_load_factor: 3.0"
+        } else {
+            ""
+        },
+        factors.join(", "),
+        if arc { ", control: \"arc_length\"" } else { "" },
+    )
+}
