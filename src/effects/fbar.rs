@@ -664,6 +664,9 @@ pub struct FbarScratch<const D: usize> {
     gradients: Vec<SVector<f64, D>>,
     /// The group's blocks, `nodes × nodes`, row-major.
     blocks: Vec<SMatrix<f64, D, D>>,
+    /// The mixed form: a member's own `g_j` per node of the group, and `∂p_p/∂Δu_j`.
+    own: Vec<SVector<f64, D>>,
+    response: Vec<SVector<f64, D>>,
 }
 
 /// Adds the F-bar terms `V0 (P g_i) ⊗ (ḡ_j − g_j)` of every group to the tangent.
@@ -760,10 +763,16 @@ fn add_mixed_pressure_terms<const D: usize>(
     scratch: &mut FbarScratch<D>,
 ) {
     let n = group.nodes.len();
-    let averaged = &scratch.averaged;
-    let blocks = &mut scratch.blocks;
+    let FbarScratch {
+        averaged,
+        gradients,
+        blocks,
+        own,
+        response,
+    } = scratch;
     let mut total_pressure = 0.0;
-    let mut own = vec![SVector::<f64, D>::zeros(); n];
+    own.clear();
+    own.resize(n, SVector::zeros());
     for (&q, local) in group.sources[..group.members].iter().zip(&group.local) {
         let Ok((support, trial, v0)) = points.get(cells.points[q]) else {
             continue;
@@ -780,12 +789,10 @@ fn add_mixed_pressure_terms<const D: usize>(
             own[l] = state.spatial_gradient(&w.gradient);
         }
         // ∂p_p/∂Δu_j = Q_p b̄ g_j + (tr P_p / D)(ḡ_j − g_j)
-        let response: Vec<SVector<f64, D>> = (0..n)
-            .map(|j| {
-                trace_response * state.left_cauchy_green * own[j]
-                    + (averaged[j] - own[j]) * dilation
-            })
-            .collect();
+        response.clear();
+        response.extend((0..n).map(|j| {
+            trace_response * state.left_cauchy_green * own[j] + (averaged[j] - own[j]) * dilation
+        }));
         for i in 0..n {
             let d_i = (averaged[i] - own[i]) * v0.0;
             fields.internal_force[group.nodes[i]] -= own[i] * (v0.0 * pressure);
@@ -804,11 +811,13 @@ fn add_mixed_pressure_terms<const D: usize>(
         let Ok((support, trial, _)) = points.get(cells.points[q]) else {
             continue;
         };
-        let gradients: Vec<SVector<f64, D>> = support
-            .0
-            .iter()
-            .map(|w| trial.0.spatial_gradient(&w.gradient))
-            .collect();
+        gradients.clear();
+        gradients.extend(
+            support
+                .0
+                .iter()
+                .map(|w| trial.0.spatial_gradient(&w.gradient)),
+        );
         for (g_i, &i) in gradients.iter().zip(local) {
             for (g_j, &j) in gradients.iter().zip(local) {
                 blocks[i * n + j] +=
