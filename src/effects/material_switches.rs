@@ -2,71 +2,59 @@
 //! declared in stage s (`scene::stages`) gives the body's points the named material from the
 //! start of stage s on ("change materials" of a staged analysis).
 //!
-//! At the start of stage s every point p of the body keeps its position, `F_p` and stress; its
-//! old model's stress at the committed state (the response at `Δf = I`, which is the stress of
-//! the last converged step) becomes the new model's starting point through the new model's
-//! `Material::history_from_stress` (the seam the geostatic initial stresses use):
+//! At the start of stage s every point p of the body keeps its position, `F_p` and mass (the
+//! new material's density is not used); what else it carries is said by the two models through
+//! the `Material` trait (`material` module docs, "Handing a point over to another model"): the
+//! old model's `hand_over` gives its stress at the committed state (the response at `Δf = I`,
+//! the stress of the last converged step) and the internal variables it keeps, the new model's
+//! `take_over` makes its committed history of them, or says why it cannot:
 //!
 //! ```text
-//!   τ_p = τ_old(F_p, h_p)            (Δf = I: the committed state)
-//!   h_p ← h_new(τ_p)                 elasto-plastic models: b_e = exp(2 D_e⁻¹ τ_p) on the
-//!                                    principal axes of τ_p, ε̄_p = 0
+//!   τ_p = τ_old(F_p, h_p)                         (Δf = I: the committed state)
+//!   carried = hand_over_old(h_p, {F_p, τ_p})      + b_e, ε̄_p where the old model keeps them
+//!   h_p ← take_over_new(carried)                  or the run stops at the stage's start
 //! ```
 //!
-//! so that the new model's response at the stage's start is `τ_p` again (to round-off: the
-//! elastic law inverted and applied once more), and the following steps load or unload from
-//! there with the new model's elasticity and yield surface. The points keep their mass (the
-//! new material's density is not used).
+//! This module only moves the [`CarriedState`] from the old model's points to the new one's
+//! (as the component [`CarriedAtSwitch`]) and reports a refusal with the `material_of` line,
+//! the body, the stage and the point. A user's model with its own history type takes part by
+//! implementing the two methods (`tests/stages_switch_custom.rs` switches such a model to and
+//! from von Mises).
 //!
-//! # The plastic strain carried
+//! # The crate's models
 //!
-//! Where both models keep the accumulated equivalent plastic strain (their history is the
-//! elasto-plastic [`PlasticHistory`]: von Mises, Drucker–Prager, Mohr–Coulomb) the new history
-//! takes the old `ε̄_p` (a hardening von Mises model goes on from its hardened yield stress
-//! `σ_y + H ε̄_p`, and the output's `plastic_strain` continues); from a model without it
-//! (Hencky) it starts from zero.
-//!
-//! # A state on the yield surface
-//!
-//! `history_from_stress` checks the stress against the new surface at `ε̄_p = 0` and refuses a
-//! stress its return map finds outside; a point that yielded under the old model lies *on* a
-//! surface, and when the new surface passes through it (the same surface, or one that touches
-//! it there) round-off may put it just outside. When the check refuses, or when a plastic strain
-//! is carried (the surface then is the one at `ε̄_p`), the switch instead builds the elastic
-//! history of `τ_p` without the check ([`elastic_history_unchecked`]: `ln b_e = 2 D_e⁻¹ τ` is
-//! linear in `τ`, so it follows from two stresses the check accepts), and evaluates the new
-//! model at it (`Δf = I`): its return map gives the closest admissible stress `τ_r`. The
-//! switch accepts the projected state when
-//!
-//! ```text
-//!   ‖τ_r − τ_p‖ ≤ 1e-6 q(τ_r)          (q: the von Mises equivalent stress, the yield stress
-//!                                     of the new surface at that pressure)
-//! ```
-//!
-//! ([`ON_SURFACE_TOLERANCE`]: round-off of the exp/log chain is `~1e-16 E/σ_y` relative, so
-//! this holds for `E/σ_y` up to 1e9), and otherwise stops the run at the stage's start with an
-//! error naming the `material_of` line, the body, the stage, the point and the departure.
+//! The elasto-plastic models (von Mises, Drucker–Prager, Mohr–Coulomb) hand over `b_e` and the
+//! accumulated equivalent plastic strain `ε̄_p`, and take over through
+//! `material::elastoplastic::take_over`: the new history is the one of the stress
+//! (`history_from_stress`, the seam the geostatic initial stresses use: `b_e = exp(2 D_e⁻¹ τ_p)`
+//! on the principal axes of `τ_p`), so that the new model's response at the stage's start is
+//! `τ_p` again (to round-off), with the carried `ε̄_p` (a hardening von Mises model goes on from
+//! its hardened yield stress `σ_y + H ε̄_p`, and the output's `plastic_strain` continues); from
+//! a model that keeps none (Hencky) it starts from zero. A yielded point lies *on* the old
+//! surface; where the new surface passes through it, round-off may put it just outside: its
+//! state is projected onto the new surface by the new model's return map when the departure is
+//! within `1e-6` of the yield stress there (`ON_SURFACE_TOLERANCE`) and refused beyond, with the
+//! departure. A model that keeps no plastic strain and keeps the trait's default `take_over`
+//! refuses a carried `ε̄_p > 0` (it would be lost).
 //!
 //! Refused: a switch to a model whose stress is a function of the deformation alone (the
 //! hyperelastic `hencky`): its stress from the current `F` would not be `τ_p` (after plastic
 //! flow, or with other elastic constants the stress would jump), and its history cannot hold
-//! a stress.
+//! a stress (a model without history is refused when the scene is built).
 //!
 //! A point's model is which `PointMaterial<M>` component it carries (one stress-update system
 //! per model kind, `effects::materials`): the old kind's module takes its components away at
-//! `Hook::Connectivity` of the stage's first step (leaving the stress τ_p as a
-//! [`SwitchStress`]), the new kind's module gives its own at `Hook::Constraints`. Those
+//! `Hook::Connectivity` of the stage's first step (leaving what it hands over as a
+//! [`CarriedAtSwitch`]), the new kind's module gives its own at `Hook::Constraints`. Those
 //! systems are scheduled only by the modules of the models a `material_of` involves: a scene
 //! without `material_of` schedules nothing new. Which material each body holds is a part of
 //! the models' checkpoint parts, so that a run resumed after a switch continues with it.
 
-use std::any::Any;
-
 use bevy_ecs::prelude::*;
-use nalgebra::{Matrix3, SMatrix};
+use nalgebra::SMatrix;
 
 use crate::components::{BodyIndex, DeformationGradient, PointId};
-use crate::material::{Material, PlasticHistory};
+use crate::material::{CarriedState, Material, embed};
 use crate::mechanics::trial_state_with_history;
 use crate::plugin::{Extension, Plugin};
 use crate::resources::{CurrentStage, LoadStep, RunStatus, SolverError};
@@ -140,110 +128,11 @@ impl MaterialSwitches {
     }
 }
 
-/// A point's state at the start of the stage that switches its material: left by the old
-/// model's module, taken by the new one's (module docs).
+/// A point's state at the start of the stage that switches its material: handed over by the
+/// old model's module, taken over by the new one's (module docs).
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 #[component(storage = "SparseSet")]
-pub struct SwitchStress {
-    /// The old model's Kirchhoff stress at the committed state.
-    pub stress: Matrix3<f64>,
-    /// Its accumulated equivalent plastic strain, where its history has one.
-    pub plastic_strain: Option<f64>,
-}
-
-/// How far (relative to the yield stress there, module docs) a stress may lie outside the new
-/// model's yield surface and still be taken, projected onto it by the new model's return map.
-pub const ON_SURFACE_TOLERANCE: f64 = 1e-6;
-
-/// The elasto-plastic part of a history, if it is one.
-fn plastic_part<H: Any>(history: &H) -> Option<&PlasticHistory> {
-    (history as &dyn Any).downcast_ref()
-}
-
-/// The elastic history of the stress `tau` under model `model` without the yield check of
-/// `history_from_stress`: `ln b_e = 2 D_e⁻¹ τ = dev τ / G + 2 tr τ / (9K) I` is linear in
-/// `τ`, so with two stresses the check accepts, `σ₁ = p₀ I` and `σ₂ = p₀ I + ε dev τ` (`p₀`
-/// compressive, where every surface is widest; `ε` halved until accepted),
-/// `ln b_e(τ) = (ln b_e(σ₂) − ln b_e(σ₁))/ε + (p/p₀) ln b_e(σ₁)`. `None` when the model keeps
-/// no such history or accepts no such pair.
-pub fn elastic_history_unchecked<M: Material>(model: &M, tau: &Matrix3<f64>) -> Option<M::History> {
-    let log = |sigma: &Matrix3<f64>| -> Option<Matrix3<f64>> {
-        let history = model.history_from_stress(sigma).ok()?;
-        let b = plastic_part(&history)?.elastic_left_cauchy_green;
-        let eigen = b.symmetric_eigen();
-        Some(
-            eigen.eigenvectors
-                * Matrix3::from_diagonal(&eigen.eigenvalues.map(f64::ln))
-                * eigen.eigenvectors.transpose(),
-        )
-    };
-    let mean = tau.trace() / 3.0;
-    let deviator = tau - Matrix3::identity() * mean;
-    let p0 = -4.0 * tau.norm().max(f64::MIN_POSITIVE.sqrt());
-    let first = log(&(Matrix3::identity() * p0))?;
-    let (epsilon, second) = (0..40).find_map(|k| {
-        let epsilon = 0.5f64.powi(k);
-        log(&(Matrix3::identity() * p0 + deviator * epsilon)).map(|l| (epsilon, l))
-    })?;
-    let ln_b = (second - first) / epsilon + first * (mean / p0);
-    let eigen = ln_b.symmetric_eigen();
-    let b = eigen.eigenvectors
-        * Matrix3::from_diagonal(&eigen.eigenvalues.map(f64::exp))
-        * eigen.eigenvectors.transpose();
-    let mut history = model
-        .history_from_stress(&(Matrix3::identity() * p0))
-        .ok()?;
-    let plastic = (&mut history as &mut dyn Any).downcast_mut::<PlasticHistory>()?;
-    plastic.elastic_left_cauchy_green = (b + b.transpose()) * 0.5;
-    Some(history)
-}
-
-/// The new model's history for a point switched with `start` (module docs): the history of its
-/// stress with the plastic strain carried, projected onto the new surface within
-/// [`ON_SURFACE_TOLERANCE`]; an error says why not.
-pub fn history_at_switch<const D: usize, M: Material>(
-    model: &M,
-    start: &SwitchStress,
-    deformation_gradient: &SMatrix<f64, D, D>,
-) -> Result<M::History, String> {
-    let tau = start.stress;
-    let (mut history, refused) = match model.history_from_stress(&tau) {
-        Ok(history) => (history, None),
-        Err(why) => match elastic_history_unchecked(model, &tau) {
-            Some(history) => (history, Some(why)),
-            None => return Err(why),
-        },
-    };
-    let carried = start.plastic_strain.filter(|&e| e > 0.0);
-    if let (Some(strain), Some(plastic)) = (
-        carried,
-        (&mut history as &mut dyn Any).downcast_mut::<PlasticHistory>(),
-    ) {
-        plastic.plastic_strain = strain;
-    }
-    if refused.is_none() && carried.is_none() {
-        return Ok(history);
-    }
-    let (state, projected) =
-        trial_state_with_history(model, &history, deformation_gradient, &SMatrix::identity())
-            .map_err(|why| format!("the new model's response at the switch: {why}"))?;
-    if !plastic_part(&projected).is_some_and(|p| p.yielding) && refused.is_none() {
-        return Ok(history);
-    }
-    let returned = state.kirchhoff;
-    let deviator = returned - Matrix3::identity() * (returned.trace() / 3.0);
-    let yield_stress = (1.5 * deviator.norm_squared()).sqrt();
-    let departure = (returned - tau).norm();
-    if departure <= ON_SURFACE_TOLERANCE * yield_stress {
-        return Ok(projected);
-    }
-    Err(format!(
-        "{}: the stress lies outside the new yield surface by {:.3e} of the yield stress there ({:.6e}), beyond the {ON_SURFACE_TOLERANCE:e} within which a state on the surface is projected onto it",
-        refused.unwrap_or_else(|| "with the plastic strain carried".to_string()),
-        departure / yield_stress.max(f64::MIN_POSITIVE),
-        yield_stress
-    ))
-}
+pub struct CarriedAtSwitch(pub CarriedState);
 
 /// What the module of model `M` needs to switch bodies to and from it.
 #[derive(Resource)]
@@ -313,7 +202,7 @@ impl Plugin for MaterialSwitchesModule {
     fn scene_api(&self, api: &mut SceneApi) {
         api.call(CallSpec::options(
             "material_of",
-            "in a later stage of a staged scene: the body takes the named material from the stage's start on; the new model starts from the current stress (its history from the stress, as for initial stresses; the accumulated plastic strain carried where both models keep it; a state on the new yield surface within 1e-6 of its yield stress projected onto it; positions, F and mass stay). Not to a model whose stress is a function of the deformation alone (hencky) (docs/plasticity.md, \"Staged analysis\")",
+            "in a later stage of a staged scene: the body takes the named material from the stage's start on; positions, F and mass stay; the old model hands over its current stress and the internal variables it keeps, the new one takes them over (Material::hand_over / take_over; the crate's plastic models: the history of the stress, as for initial stresses, with the accumulated plastic strain carried, a state on the new yield surface within 1e-6 of its yield stress projected onto it); what the new model cannot take stops the run with this line. Not to a model whose stress is a function of the deformation alone (hencky) (docs/plasticity.md, \"Staged analysis\")",
             vec![
                 OptionSpec::required("body", Kind::Text, "the body's name"),
                 OptionSpec::required(
@@ -433,7 +322,8 @@ impl Plugin for MaterialSwitchesModule {
 }
 
 /// At `Hook::Connectivity`: the points of the bodies that leave model `M` in the step's stage
-/// keep their stress as a [`SwitchStress`] and lose `M`'s components.
+/// keep what `M` hands over (`Material::hand_over`) as a [`CarriedAtSwitch`] and lose `M`'s
+/// components.
 pub fn switch_out<const D: usize, M: Material>(world: &mut World) {
     let stage = world.resource::<CurrentStage>().0;
     let plan = world.resource::<SwitchPlan<M>>();
@@ -459,13 +349,13 @@ pub fn switch_out<const D: usize, M: Material>(world: &mut World) {
         }
         let committed = history.map_or(&none, |h| &h.committed);
         match trial_state_with_history(&material.0, committed, &f.0, &SMatrix::identity()) {
-            Ok((state, _)) => stresses.push((
-                entity,
-                SwitchStress {
-                    stress: state.kirchhoff,
-                    plastic_strain: plastic_part(committed).map(|p| p.plastic_strain),
-                },
-            )),
+            Ok((state, _)) => {
+                let carried = CarriedState::of_stress(embed(&f.0), state.kirchhoff);
+                stresses.push((
+                    entity,
+                    CarriedAtSwitch(material.0.hand_over(committed, carried)),
+                ));
+            }
             Err(why) => {
                 let what = format!(
                     "{}: material point {}: the stress of model '{}' at the stage's start: {why}",
@@ -490,7 +380,8 @@ pub fn switch_out<const D: usize, M: Material>(world: &mut World) {
 }
 
 /// At `Hook::Constraints`: the points of the bodies that take a material of model `M` in the
-/// step's stage get it, with the history `history_from_stress` of their [`SwitchStress`].
+/// step's stage get it, with the history `Material::take_over` makes of their
+/// [`CarriedAtSwitch`].
 pub fn switch_in<const D: usize, M: Material>(world: &mut World) {
     let stage = world.resource::<CurrentStage>().0;
     let plan = world.resource::<SwitchPlan<M>>();
@@ -505,21 +396,15 @@ pub fn switch_in<const D: usize, M: Material>(world: &mut World) {
     if arriving.is_empty() {
         return;
     }
-    let mut query = world.query::<(
-        Entity,
-        &PointId,
-        &BodyIndex,
-        &DeformationGradient<D>,
-        Option<&SwitchStress>,
-    )>();
+    let mut query = world.query::<(Entity, &PointId, &BodyIndex, Option<&CarriedAtSwitch>)>();
     let mut given = Vec::new();
-    for (entity, id, body, f, start) in query.iter(world) {
+    for (entity, id, body, start) in query.iter(world) {
         let Some((_, _, model, note)) = arriving.iter().find(|a| a.0 == body.0 as usize) else {
             continue;
         };
         let history = match start {
-            Some(start) => history_at_switch(model, start, &f.0),
-            None => Err("the old model left no stress".to_string()),
+            Some(carried) => model.take_over(&carried.0),
+            None => Err("the old model handed over no state".to_string()),
         };
         match history {
             Ok(history) => given.push((entity, model.clone(), history)),
@@ -535,7 +420,9 @@ pub fn switch_in<const D: usize, M: Material>(world: &mut World) {
     }
     for (entity, model, history) in given {
         let mut point = world.entity_mut(entity);
-        point.remove::<SwitchStress>().insert(PointMaterial(model));
+        point
+            .remove::<CarriedAtSwitch>()
+            .insert(PointMaterial(model));
         if M::HAS_HISTORY {
             point.insert(PointHistory::<M> {
                 trial: history.clone(),

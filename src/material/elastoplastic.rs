@@ -43,7 +43,7 @@
 use nalgebra::{Matrix3, SMatrix, Vector3};
 
 use super::spectral::{Spectral, isotropic_tangent};
-use super::{Hencky, HistoryValues, Response, block, embed};
+use super::{CarriedState, Hencky, HistoryValues, Response, block, embed};
 
 /// The history of an elasto-plastic point.
 #[derive(Clone, Debug, PartialEq)]
@@ -131,7 +131,8 @@ pub trait PrincipalReturnMap {
 
 /// The methods of [`Material`](super::Material) shared by every [`PrincipalReturnMap`] model:
 /// output fields, the response through [`respond`], the stiffness scale and initial stresses
-/// through [`history_from_stress`]. Used inside `impl Material for Model { .. }`.
+/// through [`history_from_stress`], a body's change of material through [`hand_over`] and
+/// [`take_over`]. Used inside `impl Material for Model { .. }`.
 macro_rules! elastoplastic_material_methods {
     () => {
         fn output_fields() -> &'static [(&'static str, usize)] {
@@ -164,6 +165,18 @@ macro_rules! elastoplastic_material_methods {
             elastoplastic::history_from_stress(self.elasticity(), stress, |e, t, a| {
                 self.principal_return(e, t, a)
             })
+        }
+
+        fn hand_over(
+            &self,
+            committed: &PlasticHistory,
+            carried: super::CarriedState,
+        ) -> super::CarriedState {
+            elastoplastic::hand_over(committed, carried)
+        }
+
+        fn take_over(&self, carried: &super::CarriedState) -> Result<PlasticHistory, String> {
+            elastoplastic::take_over(self, carried)
         }
     };
 }
@@ -250,6 +263,122 @@ pub fn history_from_stress(
         plastic_strain: 0.0,
         yielding: false,
     })
+}
+
+/// What an elasto-plastic point hands over when its body takes another material: its `b_e`
+/// and `ε̄_p` beside the `F` and stress in `carried`.
+pub fn hand_over(committed: &PlasticHistory, carried: CarriedState) -> CarriedState {
+    CarriedState {
+        elastic_left_cauchy_green: Some(committed.elastic_left_cauchy_green),
+        plastic_strain: Some(committed.plastic_strain),
+        ..carried
+    }
+}
+
+/// How far (relative to the yield stress there) a stress may lie outside the yield surface of a
+/// model a point is switched to and still be taken, projected onto it by the model's return map
+/// ([`take_over`]).
+pub const ON_SURFACE_TOLERANCE: f64 = 1e-6;
+
+/// The history of a point that takes the elasto-plastic `model` with the state `carried`
+/// (`Material::take_over`): the history of its stress, with the plastic strain carried.
+///
+/// The stress `τ_p` gives `b_e = exp(2 D_e⁻¹ τ_p)` on its principal axes ([`history_from_stress`],
+/// which checks `τ_p` against the surface at `ε̄_p = 0`), so the model's response at `Δf = I` is
+/// `τ_p` again (to round-off); a carried `ε̄_p > 0` replaces the zero (a hardening model goes on
+/// from `σ_y + H ε̄_p`). A point that yielded under its old model lies *on* a surface, and when
+/// the new surface passes through it round-off may put it just outside: when the check refuses,
+/// or when a plastic strain is carried (the surface then is the one at `ε̄_p`), the history of
+/// `τ_p` is built without the check ([`elastic_history_unchecked`]) and the model evaluated at it
+/// (`Δf = I`): its return map gives the closest admissible stress `τ_r`, taken when
+///
+/// ```text
+///   ‖τ_r − τ_p‖ ≤ 1e-6 q(τ_r)          (q: the von Mises equivalent stress, the yield stress
+///                                     of the new surface at that pressure)
+/// ```
+///
+/// ([`ON_SURFACE_TOLERANCE`]: round-off of the exp/log chain is `~1e-16 E/σ_y` relative), and
+/// refused otherwise with the departure. The carried `b_e` is not used: the stress, not the
+/// elastic strain, is continuous across a change of elastic constants.
+pub fn take_over<M: PrincipalReturnMap>(
+    model: &M,
+    carried: &CarriedState,
+) -> Result<PlasticHistory, String> {
+    let elastic = model.elasticity();
+    let return_map = |e: &Vector3<f64>, t: &Vector3<f64>, a: f64| model.principal_return(e, t, a);
+    let tau = carried.stress;
+    let (mut history, refused) = match history_from_stress(elastic, &tau, return_map) {
+        Ok(history) => (history, None),
+        Err(why) => match elastic_history_unchecked(elastic, &tau, return_map) {
+            Some(history) => (history, Some(why)),
+            None => return Err(why),
+        },
+    };
+    let strain = carried.plastic_strain.filter(|&e| e > 0.0);
+    if let Some(strain) = strain {
+        history.plastic_strain = strain;
+    }
+    if refused.is_none() && strain.is_none() {
+        return Ok(history);
+    }
+    let response = respond::<3>(elastic, &Matrix3::identity(), &history, return_map)
+        .map_err(|why| format!("the new model's response at the switch: {why}"))?;
+    let projected = response.history;
+    if !projected.yielding && refused.is_none() {
+        return Ok(history);
+    }
+    let returned = response.kirchhoff;
+    let deviator = returned - Matrix3::identity() * (returned.trace() / 3.0);
+    let yield_stress = (1.5 * deviator.norm_squared()).sqrt();
+    let departure = (returned - tau).norm();
+    if departure <= ON_SURFACE_TOLERANCE * yield_stress {
+        return Ok(projected);
+    }
+    Err(format!(
+        "{}: the stress lies outside the new yield surface by {:.3e} of the yield stress there ({:.6e}), beyond the {ON_SURFACE_TOLERANCE:e} within which a state on the surface is projected onto it",
+        refused.unwrap_or_else(|| "with the plastic strain carried".to_string()),
+        departure / yield_stress.max(f64::MIN_POSITIVE),
+        yield_stress
+    ))
+}
+
+/// The elastic history of the stress `tau` without the yield check of [`history_from_stress`]:
+/// `ln b_e = 2 D_e⁻¹ τ = dev τ / G + 2 tr τ / (9K) I` is linear in `τ`, so with two stresses
+/// the check accepts, `σ₁ = p₀ I` and `σ₂ = p₀ I + ε dev τ` (`p₀` compressive, where every
+/// surface is widest; `ε` halved until accepted),
+/// `ln b_e(τ) = (ln b_e(σ₂) − ln b_e(σ₁))/ε + (p/p₀) ln b_e(σ₁)`. `None` when the model accepts
+/// no such pair.
+pub fn elastic_history_unchecked(
+    elastic: &Hencky,
+    tau: &Matrix3<f64>,
+    return_map: impl Fn(&Vector3<f64>, &Vector3<f64>, f64) -> Result<PrincipalReturn, String>,
+) -> Option<PlasticHistory> {
+    let history_of = |sigma: &Matrix3<f64>| history_from_stress(elastic, sigma, &return_map).ok();
+    let log = |sigma: &Matrix3<f64>| -> Option<Matrix3<f64>> {
+        let b = history_of(sigma)?.elastic_left_cauchy_green;
+        let eigen = b.symmetric_eigen();
+        Some(
+            eigen.eigenvectors
+                * Matrix3::from_diagonal(&eigen.eigenvalues.map(f64::ln))
+                * eigen.eigenvectors.transpose(),
+        )
+    };
+    let mean = tau.trace() / 3.0;
+    let deviator = tau - Matrix3::identity() * mean;
+    let p0 = -4.0 * tau.norm().max(f64::MIN_POSITIVE.sqrt());
+    let first = log(&(Matrix3::identity() * p0))?;
+    let (epsilon, second) = (0..40).find_map(|k| {
+        let epsilon = 0.5f64.powi(k);
+        log(&(Matrix3::identity() * p0 + deviator * epsilon)).map(|l| (epsilon, l))
+    })?;
+    let ln_b = (second - first) / epsilon + first * (mean / p0);
+    let eigen = ln_b.symmetric_eigen();
+    let b = eigen.eigenvectors
+        * Matrix3::from_diagonal(&eigen.eigenvalues.map(f64::exp))
+        * eigen.eigenvectors.transpose();
+    let mut history = history_of(&(Matrix3::identity() * p0))?;
+    history.elastic_left_cauchy_green = (b + b.transpose()) * 0.5;
+    Some(history)
 }
 
 /// The elasto-plastic response (module docs) of a model with elastic part `elastic` and

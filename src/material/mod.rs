@@ -25,6 +25,31 @@
 //! model serves 1D, 2D and 3D. The tangent is returned only for the `D` in-plane indices, as a
 //! [`Tangent<D>`]. Kernels take plain `nalgebra` arguments and never panic.
 //!
+//! # Handing a point over to another model (`material_of`)
+//!
+//! A staged scene may give a body another material at a stage's start
+//! (`effects::material_switches`). The old model and the new one need not know each other: the
+//! old one says what a point hands over ([`Material::hand_over`]), the new one what it makes of
+//! it ([`Material::take_over`]), through a [`CarriedState`]:
+//!
+//! ```text
+//!   always        F_p (3x3, padded)   and   τ_p = τ_old(F_p, h_p)   (the response at Δf = I)
+//!   if kept       b_e  (the elastic left Cauchy–Green tensor),   ε̄_p  (accumulated plastic strain)
+//!   h_new = take_over(hand_over(h_p, {F_p, τ_p}))
+//! ```
+//!
+//! Contract of `take_over`: the returned history is committed as it is, so the new model's
+//! response at `Δf = I` from it is the stress the body goes on from; a model that keeps the
+//! stress continuous returns a history whose response is `τ_p` (to round-off), or refuses. What
+//! a model cannot take (no `b_e` where it needs one, a plastic strain it would lose, a stress
+//! outside its yield surface) is an error, never dropped: the switch stops the run with the
+//! `material_of` line. The defaults: `hand_over` gives only `F_p` and `τ_p` (a model without
+//! internal variables); `take_over` refuses a carried `ε̄_p > 0` (it would be lost) and builds
+//! the rest from `τ_p` by [`Material::history_from_stress`]. The crate's elasto-plastic models
+//! hand over `b_e` and `ε̄_p` and take over through `elastoplastic::take_over` (the stress's
+//! history, the plastic strain carried, a state on the new surface projected onto it within
+//! `elastoplastic::ON_SURFACE_TOLERANCE`).
+//!
 //! # Models
 //!
 //! | file | model |
@@ -38,7 +63,7 @@
 //!
 //! Adding a model: implement [`Material`] (and its parameters' scene description, see
 //! `effects::materials`), then register `MaterialModule::<YourModel>` with the other modules;
-//! `examples/custom_material.rs` does it for a compressible neo-Hookean solid outside the crate.
+//! `examples/custom_material/` does it for a compressible neo-Hookean solid outside the crate.
 
 pub mod drucker_prager;
 pub mod elastoplastic;
@@ -48,7 +73,7 @@ pub mod spectral;
 pub mod von_mises;
 
 pub use drucker_prager::DruckerPrager;
-pub use elastoplastic::PlasticHistory;
+pub use elastoplastic::{ON_SURFACE_TOLERANCE, PlasticHistory};
 pub use hencky::{Hencky, Tangent};
 pub use mohr_coulomb::MohrCoulomb;
 pub use von_mises::VonMises;
@@ -88,6 +113,33 @@ pub struct Response<const D: usize, H> {
     pub left_cauchy_green: SMatrix<f64, D, D>,
     /// The history this iterate would commit if the load step converged here.
     pub history: H,
+}
+
+/// What a point hands over from its old model to its new one when its body changes material
+/// (module docs, "Handing a point over to another model").
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CarriedState {
+    /// The point's deformation gradient `F` (3x3, padded with the identity), which it keeps.
+    pub deformation_gradient: Matrix3<f64>,
+    /// The old model's Kirchhoff stress τ at the committed state (the response at `Δf = I`).
+    pub stress: Matrix3<f64>,
+    /// The elastic left Cauchy–Green tensor `b_e` (3x3, symmetric), where the old model keeps
+    /// one.
+    pub elastic_left_cauchy_green: Option<Matrix3<f64>>,
+    /// The accumulated equivalent plastic strain `ε̄_p`, where the old model keeps one.
+    pub plastic_strain: Option<f64>,
+}
+
+impl CarriedState {
+    /// What every point hands over: its `F` and its stress, no internal variables.
+    pub fn of_stress(deformation_gradient: Matrix3<f64>, stress: Matrix3<f64>) -> Self {
+        Self {
+            deformation_gradient,
+            stress,
+            elastic_left_cauchy_green: None,
+            plastic_strain: None,
+        }
+    }
 }
 
 /// A constitutive model (see the module docs).
@@ -149,6 +201,27 @@ pub trait Material: Clone + Debug + PartialEq + Send + Sync + 'static {
             "the '{}' model cannot start from an initial stress (its stress is a function of the deformation alone)",
             Self::MODEL
         ))
+    }
+
+    /// What a point of this model with the committed history `committed` hands over when its
+    /// body takes another material (module docs): `carried` holds its `F` and stress; a model
+    /// adds the internal variables it keeps (`b_e`, `ε̄_p`). By default nothing more.
+    fn hand_over(&self, _committed: &Self::History, carried: CarriedState) -> CarriedState {
+        carried
+    }
+
+    /// The committed history of a point that takes this model with the state `carried` from
+    /// its old one (module docs, for the contract), or an error saying what cannot be carried.
+    /// By default: a plastic strain `ε̄_p > 0` is refused (this model keeps none: it would be
+    /// lost), and the history is [`Material::history_from_stress`] of the stress.
+    fn take_over(&self, carried: &CarriedState) -> Result<Self::History, String> {
+        if let Some(strain) = carried.plastic_strain.filter(|&e| e > 0.0) {
+            return Err(format!(
+                "the '{}' model does not take an accumulated plastic strain (Material::take_over): the point's {strain:.6e} would be lost",
+                Self::MODEL
+            ));
+        }
+        self.history_from_stress(&carried.stress)
     }
 }
 
