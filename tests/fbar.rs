@@ -724,6 +724,40 @@ fn the_mixed_form_runs_the_associated_mohr_coulomb_footing() {
     assert!(fine < coarse, "{fine} {coarse}");
 }
 
+/// The associated Mohr–Coulomb strip footing at φ = ψ = 30° (N_c = 30.140), linear MPM with the
+/// mixed form, `E = 1e5` (`E/c = 10⁴`, where the curve bends over by δ/B = 0.006), to δ/B = 0.01
+/// in 10 steps at 4 and 8 cells across B: every step converges without a cut, `q/c` lies above
+/// N_c and falls with refinement, the 8-cell value within 20 % of N_c (observed 37.484 and
+/// 34.569: +24.4 % and +14.7 %; 16 and 32 cells give +7.6 % and +4.7 %, docs/plasticity.md,
+/// "Benchmark 4", "N_c at 32 cells"). 4 s.
+#[test]
+fn the_mixed_form_approaches_n_c_at_thirty_degrees_on_linear_mpm() {
+    let run = |cells: &str| {
+        let sim = common::run_shipped::<2>(
+            "strip_footing.rhai",
+            &[
+                ("material", "mohr_coulomb"),
+                ("phi", "30.0"),
+                ("basis", "linear"),
+                ("fbar", "mixed"),
+                ("E", "1.0e5"),
+                ("cells", cells),
+                ("settlement", "0.01"),
+                ("steps", "10"),
+            ],
+        );
+        let steps = &sim.summary.steps;
+        assert_eq!(steps.len(), 10);
+        assert!(steps.iter().all(|s| s.converged && s.cuts == 0));
+        steps.last().unwrap().measure("footing_pressure").unwrap() / 10.0
+    };
+    let n_c = 30.140;
+    let (coarse, fine) = (run("4"), run("8"));
+    eprintln!("q/c at δ/B = 0.01, φ = 30°: 4 cells {coarse:.3}, 8 cells {fine:.3}");
+    assert!(coarse > fine && fine > n_c, "{coarse} {fine}");
+    assert!(fine < 1.2 * n_c, "{fine}");
+}
+
 /// A body with the standard F-bar and dilatant plastic flow is warned to use `fbar: "mixed"`:
 /// Mohr–Coulomb with `ψ` given or defaulting to `φ`, and Drucker–Prager; not with
 /// `fbar: "mixed"`, not with `ψ = 0`.

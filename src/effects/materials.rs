@@ -10,7 +10,7 @@
 //! ```text
 //! let modules = impm::effects::built_in().with(MaterialModule::<MyModel>::default());
 //! ```
-//! registers a model of your own (`examples/custom_material.rs`).
+//! registers a model of your own (`examples/custom_material/`).
 
 use std::marker::PhantomData;
 
