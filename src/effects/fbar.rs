@@ -388,7 +388,7 @@ impl Plugin for FbarModule {
 
 /// The groups of the step (points of one body in one cell, with their sources) and their
 /// coupling groups; keeps the volume of each (body, cell)'s points for the sparse cells'
-/// count ([`measure_sparse_cells`]).
+/// count (the measure `fbar_sparse_cells`, [`count_sparse_cells`]).
 #[allow(clippy::type_complexity)] // a system: its parameters are what it reads and writes
 pub fn group_points_by_cell<const D: usize>(
     grid: Res<Grid<D>>,
