@@ -216,6 +216,11 @@ fn run(cli: Cli) -> Result<(), Failure> {
                 every: checkpoint_every.map(|n| n as usize),
                 limit: limit.clone(),
                 scratch,
+                launch: Launch {
+                    processes: impm::distributed::launched_by_mpirun().map(|p| p.size),
+                    decompose,
+                    petsc_options,
+                },
             };
             let job = || {
                 limits(&limit)
@@ -384,6 +389,20 @@ struct RunRestart {
     /// checkpoint `--resume` names (process 0's folder) but writes, locks and clears nothing
     /// there.
     scratch: Option<PathBuf>,
+    /// Under mpirun, its number of processes, `--decompose` and `--petsc-options`, repeated in
+    /// the command that resumes the run (`mpirun -n N impm run .. --decompose`).
+    launch: Launch,
+}
+
+/// How the run was launched, beyond the scene's own options: what the command that resumes it
+/// repeats so that it runs as this run did.
+struct Launch {
+    /// `mpirun -n N` (`None`: not under mpirun).
+    processes: Option<usize>,
+    /// `--decompose`.
+    decompose: bool,
+    /// `--petsc-options`.
+    petsc_options: Option<String>,
 }
 
 /// `impm run`: solves the scene, with a progress display, and says where the results are
@@ -556,13 +575,19 @@ fn run_failure(error: &RunError, out_dir: &Path, resume: &str) -> String {
 }
 
 /// The command that resumes this run: the same scene, `--set`, `--limit` and
-/// `--checkpoint-every`, and `--resume OUT_DIR`.
+/// `--checkpoint-every`, and `--resume OUT_DIR`; under `mpirun` as `mpirun -n N impm run ..`
+/// with the same `--decompose` and `--petsc-options` (a checkpoint resumes over any number of
+/// processes, or serially, but this is the run as it was launched).
 fn resume_command(scene: &Path, set: &[String], restart: &RunRestart, out_dir: &Path) -> String {
-    let mut words = vec![
+    let mut words = Vec::new();
+    if let Some(n) = restart.launch.processes {
+        words.extend(["mpirun".to_string(), "-n".to_string(), n.to_string()]);
+    }
+    words.extend([
         "impm".to_string(),
         "run".to_string(),
         shell_word(&scene.display().to_string()),
-    ];
+    ]);
     for assignment in set {
         words.extend(["--set".to_string(), shell_word(assignment)]);
     }
@@ -571,6 +596,12 @@ fn resume_command(scene: &Path, set: &[String], restart: &RunRestart, out_dir: &
     }
     if let Some(every) = restart.every {
         words.extend(["--checkpoint-every".to_string(), every.to_string()]);
+    }
+    if restart.launch.decompose {
+        words.push("--decompose".to_string());
+    }
+    if let Some(options) = &restart.launch.petsc_options {
+        words.extend(["--petsc-options".to_string(), shell_word(options)]);
     }
     words.extend([
         "--resume".to_string(),

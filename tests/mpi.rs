@@ -46,6 +46,11 @@
 //!   `zero_displacements` (its `displacement` field too: each point's origin travels with it);
 //!   a scene with point loads is refused naming them, and `--decompose` without mpirun is
 //!   refused;
+//! * decomposed runs report as the serial run does: every comparison also compares
+//!   `particles.pvd`'s times (a staged scene's `k + λ_k`), the F-bar column's sparse top cell
+//!   is counted in `fbar_sparse_cells` (summary.json, history.csv) over every process, and an
+//!   interrupted run's resume command (printed and in summary.json) is `mpirun -n N impm run
+//!   .. --decompose` as launched;
 //! * checkpoints under mpirun: a run stopped after a checkpoint and resumed gives the
 //!   uninterrupted serial run's results whatever wrote the checkpoint and whatever resumes it
 //!   (decomposed `-n 2` by `-n 2`, `-n 3` serially, serial by `-n 2`; a von Mises column
@@ -376,6 +381,12 @@ fn compare_with(scene: &Path, set: &[&str], tag: &str, runs: &Runs<'_>) -> Vec<f
         let got = outcome(&dir);
         let label = format!("{script} -n {n}");
         same_results(&label, &got, &reference, started.elapsed().as_secs_f64());
+        // the series' times are the serial run's (`k + λ_k` in stage k of a staged scene)
+        assert_eq!(
+            pvd_times(&dir),
+            pvd_times(&serial_dir),
+            "{label}: particles.pvd's times"
+        );
         for name in runs.fields {
             let field = |o: &Outcome| o.points.point_field(name).unwrap().1.to_vec();
             let (serial, distributed) = (field(&reference), field(&got));
@@ -452,6 +463,15 @@ fn compare_with(scene: &Path, set: &[&str], tag: &str, runs: &Runs<'_>) -> Vec<f
     }
     let _ = std::fs::remove_dir_all(&serial_dir);
     changes
+}
+
+/// The times of `particles.pvd` in `dir`, in the order listed.
+fn pvd_times(dir: &Path) -> Vec<f64> {
+    let pvd = std::fs::read_to_string(dir.join("particles.pvd")).unwrap();
+    pvd.split("timestep=\"")
+        .skip(1)
+        .map(|rest| rest.split('"').next().unwrap().parse().unwrap())
+        .collect()
 }
 
 /// `got` against `reference` (the serial run): the same Newton iterations in every step, the
@@ -643,12 +663,44 @@ fn the_ghost_penalty_over_2_and_3_processes_equals_the_serial_run() {
 
 /// F-bar with decomposed points: a group is the F-bar points of one cell, so one process holds
 /// it; its coupling group is shared with the others for the pattern
-/// (`decomposition::agree_on_grid`). A nearly incompressible 2D column.
+/// (`decomposition::agree_on_grid`). A nearly incompressible 2D column (as
+/// `column_2d_nearly_incompressible.rhai` with 8 cells, `fbar: true`) whose top cell, above the
+/// 8 full ones and on the top slab's process, holds one row of its 4 × 4 points: a sparse F-bar
+/// cell, which `fbar_sparse_cells` (summary.json and history.csv, every step) counts as the
+/// serial run does, over every process (before, process 0's cells only: 0).
+const FBAR_COLUMN: &str = "
+const soil = material(#{ name: \"column\", E: 1.0e6, nu: 0.49, density: 1.0 });
+grid(#{ lower: [0.0, 0.0], upper: [6.25, 56.25], cells: [1, 9], basis: \"bspline\", order: 3 });
+body(#{ name: \"column\", material: soil, region: box([0.0, 0.0], [6.25, 51.5625]), ppc: 4, fbar: true });
+body_force([0.0, -800.0]);
+fix(|x| x[1] == 0.0, [1]);
+fix(|x| x[0] == 0.0 || x[0] == 6.25, [0]);
+load_steps(2);
+analytic_column(#{ axis: 1, height: 51.5625, material: soil, body_force: -800.0 });
+";
+
 #[test]
 fn fbar_with_decomposed_points_equals_the_serial_run() {
-    let scene = shipped_scene("column_2d_nearly_incompressible.rhai");
-    let set = ["cells=8", "steps=2", "fbar=true"];
-    compare_decomposed(&scene, &set, "fbar-dec", &[2, 3]);
+    let runs = Runs {
+        paraview: false,
+        decompose: true,
+        counts: &[2, 3],
+        measures: &["fbar_sparse_cells"],
+        fields: &[],
+        history: &["fbar_sparse_cells"],
+    };
+    compare_scene_text(FBAR_COLUMN, "fbar_column.rhai", "fbar-dec", &runs);
+}
+
+/// [`compare_with`] of the scene `text`, written as `name` into a folder of its own (removed
+/// after).
+fn compare_scene_text(text: &str, name: &str, tag: &str, runs: &Runs<'_>) {
+    let dir = temp_dir("mpi", &format!("{tag}-scene"));
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = dir.join(name);
+    std::fs::write(&scene, text).unwrap();
+    compare_with(&scene, &[], tag, runs);
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A staged scene with `zero_displacements` (a gravity stage, then a stage measuring
@@ -670,10 +722,6 @@ stage(#{ name: \"more\", steps: 1, zero_displacements: true });
 
 #[test]
 fn a_staged_scene_zeroing_displacements_with_decomposed_points_equals_the_serial_run() {
-    let dir = temp_dir("mpi", "staged-scene");
-    std::fs::create_dir_all(&dir).unwrap();
-    let scene = dir.join("staged_block.rhai");
-    std::fs::write(&scene, STAGED_BLOCK).unwrap();
     let runs = Runs {
         paraview: false,
         decompose: true,
@@ -682,8 +730,7 @@ fn a_staged_scene_zeroing_displacements_with_decomposed_points_equals_the_serial
         fields: &["displacement"],
         history: &[],
     };
-    compare_with(&scene, &[], "staged-dec", &runs);
-    let _ = std::fs::remove_dir_all(&dir);
+    compare_scene_text(STAGED_BLOCK, "staged_block.rhai", "staged-dec", &runs);
 }
 
 /// A block on a fixed base between two rollers under its weight (stage "gravity", 2 steps),
@@ -1016,6 +1063,7 @@ fn interrupt_after_checkpoint(
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
     assert_eq!(summary["status"], "interrupted", "{summary}");
+    resume_command_is_the_launch(processes, extra, &stderr, &summary);
     let steps = summary["steps"].as_array().unwrap().len() as u64;
     assert!(
         steps < summary["planned_steps"].as_u64().unwrap(),
@@ -1026,6 +1074,36 @@ fn interrupt_after_checkpoint(
         "checkpoint after {done} of {steps} steps"
     );
     done
+}
+
+/// The command an interrupted run prints and records (summary.json's `resume`) to continue it
+/// is the one it was launched with: `mpirun -n N impm run ..` under `mpirun -n N` (`impm run
+/// ..` serially), with `--decompose` if it was given, and `--resume`.
+fn resume_command_is_the_launch(
+    processes: Option<usize>,
+    extra: &[&str],
+    stderr: &str,
+    summary: &serde_json::Value,
+) {
+    let said = "to continue from the last checkpoint: ";
+    let printed = stderr
+        .lines()
+        .find_map(|line| line.split_once(said).map(|(_, command)| command.trim()))
+        .unwrap_or_else(|| panic!("no resume command: {stderr}"));
+    assert_eq!(summary["resume"].as_str(), Some(printed), "{summary}");
+    let launcher = match processes {
+        Some(n) => format!("mpirun -n {n} impm run "),
+        None => "impm run ".to_string(),
+    };
+    assert!(
+        printed.starts_with(&launcher),
+        "{printed}: not {launcher}.."
+    );
+    let decompose = extra.contains(&"--decompose");
+    let words: Vec<&str> = printed.split_whitespace().collect();
+    assert_eq!(words.contains(&"--decompose"), decompose, "{printed}");
+    assert!(words.contains(&"--resume"), "{printed}");
+    eprintln!("resume command: {printed}");
 }
 
 /// Resumes the run of `dir` (under `mpirun -n N` when `processes` is given, with `extra`) and

@@ -24,8 +24,9 @@
 //! (a point's whole state as numbers, who sends which points where), [`respawn`] (a point
 //! taken out of a world as a record and spawned back from it, with every module's part),
 //! [`launched_by_mpirun`], which reads the environment so that any build can refuse what it
-//! cannot run under `mpirun`, and [`decomposed`] / [`sum_over_points`] for the sums over
-//! points outside the module (the eq. 15 error). The process bookkeeping (`start`,
+//! cannot run under `mpirun`, and [`decomposed`] / [`sum_over_points`] /
+//! [`gather_over_points`] for the sums over points outside the module (the eq. 15 error,
+//! F-bar's sparse cells). The process bookkeeping (`start`,
 //! `processes`, `any`, `abort`) and the messages (`exchange`, `gather_all`, `sum_all`) exist
 //! with the feature `mpi` only.
 
@@ -182,6 +183,18 @@ pub fn sum_over_points(values: &mut [f64]) {
     }
     #[cfg(not(feature = "mpi"))]
     let _ = values;
+}
+
+/// Every process's `local` numbers, one after another in rank order, when the points are
+/// decomposed (collective then: an all-gather, counted as reductions); otherwise (a serial
+/// run, or every process holding every point) `local` as it is. For records that need a few
+/// numbers of every process's points, such as F-bar's sparse cells (`effects::fbar`).
+pub fn gather_over_points(local: &[u64]) -> Result<Vec<u64>, String> {
+    #[cfg(feature = "mpi")]
+    if decomposed() {
+        return gather_all_counted(local, traffic::Traffic::Reductions).map(|all| all.concat());
+    }
+    Ok(local.to_vec())
 }
 
 /// Whether this process is a serial run's or process 0 of a distributed run.

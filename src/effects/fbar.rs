@@ -137,7 +137,9 @@
 //! face-neighbour's (tried, not kept) moved the end of the curve by −20 % to +1.4 % at 8 to 16
 //! cells: past that step the curve depends on this averaging, not only on the soil. The count
 //! is the measure `fbar_sparse_cells` (history.csv, summary.json) of every F-bar scene, and
-//! the first step in which it exceeds the first step's count gives the run a warning.
+//! the first step in which it exceeds the first step's count gives the run a warning. With
+//! decomposed points (`mpirun --decompose`) it is counted over every process, each cell once
+//! by the volume of its points on all of them ([`count_sparse_cells`]).
 //!
 //! # Systems and seams
 //! * [`group_points_by_cell`] (`Hook::Connectivity`): the groups of the step and, for each group
@@ -228,8 +230,13 @@ pub struct FbarCells {
     /// Every F-bar point, ordered by body, cell and point id.
     pub points: Vec<Entity>,
     pub groups: Vec<FbarGroup>,
+    /// The volume at the step start of this process's F-bar points in each (body, cell) it
+    /// holds some of, ordered by body and cell (with decomposed points, another process may
+    /// hold more of a cell's points: [`count_sparse_cells`]).
+    pub fills: Vec<((u32, usize), f64)>,
     /// The groups whose members hold less than [`SPARSE_CELL_FRACTION`] of their cell's
-    /// volume at the step start (module docs, "Sparse cells").
+    /// volume at the step start (module docs, "Sparse cells"), over every process: the
+    /// measure of the last recorded step.
     pub sparse: usize,
     /// `sparse` of the run's first step (of the resumed step after `--resume`).
     pub sparse_at_start: Option<usize>,
@@ -374,14 +381,15 @@ impl Plugin for FbarModule {
             .add_systems(Hook::Kinematics, average_volume_change::<D>)
             .add_systems(Hook::AfterAssembly, assemble_fbar_tangent::<D>)
             .add_measure("fbar_sparse_cells", |world, _| {
-                world.get_resource::<FbarCells>().map(|c| c.sparse as f64)
+                measure_sparse_cells::<D>(world).map(|n| n as f64)
             });
     }
 }
 
 /// The groups of the step (points of one body in one cell, with their sources) and their
-/// coupling groups; counts the sparse ones and warns once when more appear than at the start.
-#[allow(clippy::type_complexity, clippy::too_many_arguments)] // a system: its parameters are what it reads and writes
+/// coupling groups; keeps the volume of each (body, cell)'s points for the sparse cells'
+/// count (the measure `fbar_sparse_cells`, [`count_sparse_cells`]).
+#[allow(clippy::type_complexity)] // a system: its parameters are what it reads and writes
 pub fn group_points_by_cell<const D: usize>(
     grid: Res<Grid<D>>,
     step: Res<LoadStep>,
@@ -402,7 +410,6 @@ pub fn group_points_by_cell<const D: usize>(
         ),
         With<FbarPoint>,
     >,
-    mut warnings: ResMut<Warnings>,
 ) {
     let _timer = clock.time(Stage::Connectivity);
     let mut keyed = Vec::with_capacity(points.iter().len());
@@ -510,24 +517,104 @@ pub fn group_points_by_cell<const D: usize>(
         }
         cells.groups.push(group);
     }
-    let cell_volume: f64 = grid.0.axes.iter().map(|a| a.spacing()).product();
-    cells.sparse = runs
+    cells.fills.clear();
+    cells.fills.extend(runs.iter().map(|(key, members)| {
+        let volume: f64 = keyed[members.clone()]
+            .iter()
+            .map(|k| points.get(k.3).map_or(0.0, |p| p.6.0))
+            .sum();
+        (*key, volume)
+    }));
+}
+
+/// The measure `fbar_sparse_cells` of a converged step: its sparse groups over every process
+/// ([`count_sparse_cells`]; collective with decomposed points: every process records every
+/// converged step, in the same order); warns once when more are sparse than at the run's
+/// first recorded step. `None` (and a warning) if the processes could not count them.
+fn measure_sparse_cells<const D: usize>(world: &mut World) -> Option<usize> {
+    let cell_volume: f64 = world
+        .resource::<Grid<D>>()
+        .0
+        .axes
         .iter()
-        .filter(|(_, members)| {
-            let volume: f64 = keyed[members.clone()]
+        .map(|a| a.spacing())
+        .product();
+    let step = world.resource::<LoadStep>().number;
+    let cells = world.get_resource::<FbarCells>()?;
+    let counted = count_sparse_cells(
+        &cells.fills,
+        SPARSE_CELL_FRACTION * cell_volume,
+        |candidates| {
+            let numbers: Vec<u64> = candidates
                 .iter()
-                .map(|k| points.get(k.3).map_or(0.0, |p| p.6.0))
-                .sum();
-            volume < SPARSE_CELL_FRACTION * cell_volume
-        })
-        .count();
-    let at_start = *cells.sparse_at_start.get_or_insert(cells.sparse);
-    if cells.sparse > at_start && !cells.warned {
+                .flat_map(|&(body, cell)| [u64::from(body), cell as u64])
+                .collect();
+            let all = crate::distributed::gather_over_points(&numbers)?;
+            Ok(all
+                .chunks_exact(2)
+                .map(|pair| (pair[0] as u32, pair[1] as usize))
+                .collect())
+        },
+        crate::distributed::sum_over_points,
+    );
+    let sparse = match counted {
+        Ok(sparse) => sparse,
+        Err(why) => {
+            world.resource_mut::<Warnings>().0.push(format!(
+                "F-bar: load step {step}: the sparse cells could not be counted over the processes ({why}); fbar_sparse_cells is left out of this step's record"
+            ));
+            return None;
+        }
+    };
+    let mut cells = world.resource_mut::<FbarCells>();
+    cells.sparse = sparse;
+    let at_start = *cells.sparse_at_start.get_or_insert(sparse);
+    let appeared = (sparse > at_start && !cells.warned).then(|| sparse - at_start);
+    if let Some(appeared) = appeared {
         cells.warned = true;
-        warnings
+        world
+            .resource_mut::<Warnings>()
             .0
-            .push(sparse_cells_warning(step.number, cells.sparse - at_start));
+            .push(sparse_cells_warning(step, appeared));
     }
+    Some(sparse)
+}
+
+/// The number of sparse (body, cell)s: those whose points hold less than `limit` of volume,
+/// over every process. `fills` is this process's volume in each (body, cell) it holds points
+/// of, ordered by (body, cell). A cell's points may be on several processes (with decomposed
+/// points each process holds the points of its slab of cells at the step start, so a cell's
+/// points are normally on one; the count does not rely on it): a cell is below `limit` only
+/// if every process's part of it is, so each process offers its parts below `limit` as
+/// candidates, `union` gathers every process's candidates (in any order, repeated), and
+/// `sum` adds the candidates' volumes over the processes, entry by entry (each process's
+/// part, 0 where it holds none of the cell); a candidate whose sum is below `limit` is
+/// counted, once. Serially `union` returns the candidates and `sum` does nothing: the count
+/// of `fills` below `limit`.
+pub fn count_sparse_cells(
+    fills: &[((u32, usize), f64)],
+    limit: f64,
+    union: impl FnOnce(&[(u32, usize)]) -> Result<Vec<(u32, usize)>, String>,
+    sum: impl FnOnce(&mut [f64]),
+) -> Result<usize, String> {
+    let candidates: Vec<(u32, usize)> = fills
+        .iter()
+        .filter(|(_, volume)| *volume < limit)
+        .map(|(key, _)| *key)
+        .collect();
+    let mut all = union(&candidates)?;
+    all.sort_unstable();
+    all.dedup();
+    let mut volumes: Vec<f64> = all
+        .iter()
+        .map(|key| {
+            fills
+                .binary_search_by_key(key, |(k, _)| *k)
+                .map_or(0.0, |found| fills[found].1)
+        })
+        .collect();
+    sum(&mut volumes);
+    Ok(volumes.iter().filter(|&&volume| volume < limit).count())
 }
 
 /// The run's warning when `appeared` more F-bar groups than at the first step are sparse.
@@ -912,5 +999,79 @@ fn fbar_averaging(value: &rhai::Dynamic) -> Result<Option<FbarAveraging>, String
             "option 'fbar' must be true, false, \"cell\", \"mixed\", \"patch\" or \"nodal\", got {}",
             crate::scene::describe(value)
         )),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Three processes' fills of the same cells (limit 0.5 of a unit cell): cell 1 is split
+    /// 0.3 + 0.3 (each part below the limit, the whole above: not sparse), cell 2 0.2 + 0.1
+    /// (sparse, counted once), cell 3 0.3 on one process and 0.6 on another (the full part
+    /// is no candidate: not sparse), cell 4 0.4 on one process only (sparse), cell 5 full on
+    /// one process; body 1's cell 2 (0.9) is another group than body 0's.
+    #[test]
+    fn a_cell_split_over_processes_is_counted_once_by_its_whole_volume() {
+        let fills: [Vec<((u32, usize), f64)>; 3] = [
+            vec![((0, 1), 0.3), ((0, 2), 0.2), ((0, 3), 0.3), ((0, 5), 1.0)],
+            vec![((0, 1), 0.3), ((0, 2), 0.1), ((0, 4), 0.4), ((1, 2), 0.9)],
+            vec![((0, 3), 0.6)],
+        ];
+        let limit = 0.5;
+        // what every process offers, gathered as the all-gather would
+        let mut gathered = Vec::new();
+        for mine in &fills {
+            count_sparse_cells(
+                mine,
+                limit,
+                |candidates| {
+                    gathered.extend_from_slice(candidates);
+                    Ok(candidates.to_vec())
+                },
+                |_| {},
+            )
+            .unwrap();
+        }
+        // each process's parts of the gathered candidates, summed as the reduction would
+        let mut parts = Vec::new();
+        for mine in &fills {
+            count_sparse_cells(
+                mine,
+                limit,
+                |_| Ok(gathered.clone()),
+                |volumes| parts.push(volumes.to_vec()),
+            )
+            .unwrap();
+        }
+        let sums: Vec<f64> = (0..parts[0].len())
+            .map(|k| parts.iter().map(|p| p[k]).sum())
+            .collect();
+        for mine in &fills {
+            let sparse = count_sparse_cells(
+                mine,
+                limit,
+                |_| Ok(gathered.clone()),
+                |volumes| volumes.copy_from_slice(&sums),
+            )
+            .unwrap();
+            assert_eq!(sparse, 2, "cells 2 and 4 of body 0");
+        }
+        // serially (every point on one process) the count of the fills below the limit
+        let whole = [
+            ((0, 1), 0.6),
+            ((0, 2), 0.3),
+            ((0, 3), 0.9),
+            ((0, 4), 0.4),
+            ((0, 5), 1.0),
+        ];
+        let serial = count_sparse_cells(&whole, limit, |c| Ok(c.to_vec()), |_| {}).unwrap();
+        assert_eq!(serial, 2);
+        // a sum of the processes' own counts would count the split cells' parts: 6
+        let per_process: usize = fills
+            .iter()
+            .map(|mine| mine.iter().filter(|(_, v)| *v < limit).count())
+            .sum();
+        assert_eq!(per_process, 6);
     }
 }

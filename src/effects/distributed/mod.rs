@@ -80,7 +80,8 @@ use crate::method::{BuiltInOutput, OutputSchedule, StepSchedule, StepSystems};
 use crate::output::write_pvtu;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{
-    Grid, GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock, Warnings,
+    CurrentStage, Grid, GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock,
+    Warnings,
 };
 use crate::scene::{LinearBackend, SceneSpec};
 use crate::solver::{PetscSolver, ProcessSum, SharedBlocks};
@@ -612,13 +613,16 @@ pub fn combine_assembly<const D: usize>(
 /// After the processes wrote their pieces of the particle file (`ParticlePieces`), in an
 /// output step: whether any process failed, in the output stages before or writing its piece
 /// (collective; runs after a failure too: then every process fails the step, and alike); then
-/// process 0 lists the pieces in `particles_NNNN.pvtu` and adds that to `particles.pvd`.
+/// process 0 lists the pieces in `particles_NNNN.pvtu` and adds that to `particles.pvd`, at
+/// the serial run's time (`k + λ_k` in stage `k`: `LoadStep::series_time`).
+#[allow(clippy::too_many_arguments)] // a system: its parameters are what it reads and writes
 pub fn list_particle_pieces(
     mut pieces: ResMut<ParticlePieces>,
     mut plan: ResMut<OutputPlan>,
     share: Res<AssemblyShare>,
     mut status: ResMut<RunStatus>,
     step: Res<LoadStep>,
+    stage: Option<Res<CurrentStage>>,
     newton: Res<Newton>,
 ) {
     let written = pieces.written.take();
@@ -649,8 +653,10 @@ pub fn list_particle_pieces(
         .map(|k| format!("particles_{:04}_p{k}.vtu", step.number))
         .collect();
     let name = format!("particles_{:04}.pvtu", step.number);
-    let result = write_pvtu(&pieces.dir.join(&name), &names, &arrays, &[])
-        .and_then(|()| plan.particles.push(step.factor, &name));
+    let result = write_pvtu(&pieces.dir.join(&name), &names, &arrays, &[]).and_then(|()| {
+        plan.particles
+            .push(step.series_time(stage.as_deref()), &name)
+    });
     if let Err(e) = result {
         status.fail(SolverError::Output {
             step: step.number,
