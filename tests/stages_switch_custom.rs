@@ -11,7 +11,7 @@ use impm::components::{PointId, Trial};
 use impm::effects::{self, materials::MaterialModule};
 use impm::material::{
     CarriedState, Hencky, HistoryValues, Material, MaterialParameters, ParameterSpec,
-    PlasticHistory, Response, VonMises, block, embed,
+    PlasticHistory, Response, VonMises, block, embed, symmetric_from_values, symmetric_values,
 };
 use impm::plugin::ModuleSet;
 use impm::run::Simulation;
@@ -35,24 +35,15 @@ impl HistoryValues for ElasticStrainHistory {
     const LEN: usize = 7;
 
     fn write(&self, out: &mut Vec<f64>) {
-        let e = &self.elastic_strain;
-        out.extend_from_slice(&[
-            e[(0, 0)],
-            e[(1, 1)],
-            e[(2, 2)],
-            e[(0, 1)],
-            e[(1, 2)],
-            e[(0, 2)],
-            self.plastic_strain,
-        ]);
+        out.extend_from_slice(&symmetric_values(&self.elastic_strain));
+        out.push(self.plastic_strain);
     }
 
     fn read(values: &[f64]) -> Option<Self> {
-        let &[xx, yy, zz, xy, yz, xz, plastic_strain] = values else {
-            return None;
-        };
-        values.iter().all(|v| v.is_finite()).then(|| Self {
-            elastic_strain: Matrix3::new(xx, xy, xz, xy, yy, yz, xz, yz, zz),
+        let (&plastic_strain, strain) = values.split_last()?;
+        let elastic_strain = symmetric_from_values(strain)?;
+        values.iter().all(|v| v.is_finite()).then_some(Self {
+            elastic_strain,
             plastic_strain,
         })
     }

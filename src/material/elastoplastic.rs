@@ -43,7 +43,10 @@
 use nalgebra::{Matrix3, SMatrix, Vector3};
 
 use super::spectral::{Spectral, isotropic_tangent};
-use super::{CarriedState, Hencky, HistoryValues, Response, block, embed};
+use super::{
+    CarriedState, Hencky, HistoryValues, Response, block, embed, symmetric_from_values,
+    symmetric_values,
+};
 
 /// The history of an elasto-plastic point.
 #[derive(Clone, Debug, PartialEq)]
@@ -72,27 +75,21 @@ impl HistoryValues for PlasticHistory {
     const LEN: usize = 8;
 
     fn write(&self, out: &mut Vec<f64>) {
-        let b = &self.elastic_left_cauchy_green;
-        out.extend_from_slice(&[
-            b[(0, 0)],
-            b[(1, 1)],
-            b[(2, 2)],
-            b[(0, 1)],
-            b[(1, 2)],
-            b[(0, 2)],
-            self.plastic_strain,
-            if self.yielding { 1.0 } else { 0.0 },
-        ]);
+        out.extend_from_slice(&symmetric_values(&self.elastic_left_cauchy_green));
+        out.extend_from_slice(&[self.plastic_strain, if self.yielding { 1.0 } else { 0.0 }]);
     }
 
     fn read(values: &[f64]) -> Option<Self> {
-        let &[xx, yy, zz, xy, yz, xz, plastic_strain, yielding] = values else {
+        let &[.., plastic_strain, yielding] = values else {
             return None;
         };
-        if values.iter().any(|v| !v.is_finite()) || plastic_strain < 0.0 {
+        if values.len() != Self::LEN
+            || values.iter().any(|v| !v.is_finite())
+            || plastic_strain < 0.0
+        {
             return None;
         }
-        let b = Matrix3::new(xx, xy, xz, xy, yy, yz, xz, yz, zz);
+        let b = symmetric_from_values(&values[..6])?;
         Spectral::try_new(&b).ok()?;
         Some(Self {
             elastic_left_cauchy_green: b,

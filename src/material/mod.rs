@@ -235,6 +235,27 @@ pub trait HistoryValues: Sized {
     fn read(values: &[f64]) -> Option<Self>;
 }
 
+/// The six independent values of a symmetric 3×3 tensor in the order histories store them:
+/// xx, yy, zz, xy, yz, xz (what [`symmetric_from_values`] reads back).
+pub fn symmetric_values(m: &Matrix3<f64>) -> [f64; 6] {
+    [
+        m[(0, 0)],
+        m[(1, 1)],
+        m[(2, 2)],
+        m[(0, 1)],
+        m[(1, 2)],
+        m[(0, 2)],
+    ]
+}
+
+/// The symmetric 3×3 tensor of six values in [`symmetric_values`]' order, if there are six.
+pub fn symmetric_from_values(values: &[f64]) -> Option<Matrix3<f64>> {
+    let &[xx, yy, zz, xy, yz, xz] = values else {
+        return None;
+    };
+    Some(Matrix3::new(xx, xy, xz, xy, yy, yz, xz, yz, zz))
+}
+
 /// No history.
 impl HistoryValues for () {
     const LEN: usize = 0;
