@@ -64,7 +64,9 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::{Child, Command, ExitStatus, Output};
+use std::sync::MutexGuard;
+use std::time::Duration;
 
 use common::{shipped_scene, temp_dir};
 use impm::output::read_vtu;
@@ -82,6 +84,17 @@ fn mpirun_available() -> bool {
         eprintln!("skipped: mpirun not found (apt-get install openmpi-bin libopenmpi-dev)");
     }
     ok
+}
+
+/// The right to launch a job where `mpirun` runs here (`None` otherwise, said why): the
+/// runs of this file go one at a time.
+fn mpi_job_slot() -> Option<MutexGuard<'static, ()>> {
+    mpirun_available().then(one_job_at_a_time)
+}
+
+/// Waits for the job of another test to end (also one that failed holding the lock).
+fn one_job_at_a_time() -> MutexGuard<'static, ()> {
+    ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// `impm run SCENE --out OUT --set ...` (plus `extra`), under `mpirun -n N` when `processes`
@@ -132,20 +145,37 @@ fn impm_command(processes: Option<usize>, args: &[String]) -> Command {
     command
 }
 
+/// Starts `command` with its standard output and error in the files `stdout.txt` and
+/// `stderr.txt` of `logs` (created).
+fn spawn_logged(mut command: Command, logs: &Path) -> Child {
+    std::fs::create_dir_all(logs).unwrap();
+    command
+        .stdout(std::fs::File::create(logs.join("stdout.txt")).unwrap())
+        .stderr(std::fs::File::create(logs.join("stderr.txt")).unwrap())
+        .spawn()
+        .expect("the job starts")
+}
+
+/// `impm run SCENE --out OUT --set ...` (plus `extra`) under `mpirun -n N`, with its standard
+/// output and error in files of `logs`, within `limit` ([`run_within`]).
+fn launch_within(
+    n: usize,
+    scene: &Path,
+    set: &[&str],
+    out: &Path,
+    extra: &[&str],
+    logs: &Path,
+    limit: Duration,
+) -> Option<(ExitStatus, String)> {
+    let args = run_arguments(scene, set, out, extra);
+    run_within(impm_command(Some(n), &args), logs, limit)
+}
+
 /// Runs `command` with its standard output and error in files of `dir`; kills it if it has not
 /// ended after `limit` (a hung job: `None`). Returns its exit status and standard error.
-fn run_within(
-    mut command: Command,
-    dir: &Path,
-    limit: std::time::Duration,
-) -> Option<(std::process::ExitStatus, String)> {
-    std::fs::create_dir_all(dir).unwrap();
+fn run_within(command: Command, dir: &Path, limit: Duration) -> Option<(ExitStatus, String)> {
+    let mut child = spawn_logged(command, dir);
     let stderr = dir.join("stderr.txt");
-    let mut child = command
-        .stdout(std::fs::File::create(dir.join("stdout.txt")).unwrap())
-        .stderr(std::fs::File::create(&stderr).unwrap())
-        .spawn()
-        .expect("the command starts");
     let started = std::time::Instant::now();
     loop {
         if let Some(status) = child.try_wait().unwrap() {
@@ -156,7 +186,7 @@ fn run_within(
             let _ = child.wait();
             return None;
         }
-        std::thread::sleep(std::time::Duration::from_millis(100));
+        std::thread::sleep(Duration::from_millis(100));
     }
 }
 
@@ -227,6 +257,51 @@ fn outcome(out: &Path) -> Outcome {
         steps: steps.clone(),
         points,
     }
+}
+
+/// The serial run of the scene into `dir` (with `extra`), which must complete: what it left.
+fn serial_reference(scene: &Path, set: &[&str], dir: &Path, extra: &[&str]) -> Outcome {
+    let output = run(None, scene, set, dir, extra);
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    outcome(dir)
+}
+
+/// The summary.json of the run in `dir`.
+fn read_summary(dir: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap()
+}
+
+/// The scene under `mpirun -n N` (with `extra`), which must refuse to run: it fails, without
+/// an abort. Returns its standard error.
+fn refused(n: usize, scene: &Path, set: &[&str], out: &Path, extra: &[&str]) -> String {
+    let output = run(Some(n), scene, set, out, extra);
+    let stderr = String::from_utf8_lossy(&output.stderr).to_string();
+    assert!(!output.status.success(), "{stderr}");
+    assert!(!stderr.contains("MPI_Abort"), "{stderr}");
+    stderr
+}
+
+/// The points of the pieces the `.pvtu` file `pvtu` lists, in all.
+fn points_in_pieces(pvtu: &Path) -> usize {
+    impm::output::pvtu_pieces(pvtu)
+        .unwrap()
+        .iter()
+        .map(|piece| read_vtu(piece).unwrap().points.len())
+        .sum()
+}
+
+/// The scene `text` written as `name` into a fresh folder of its own (named after `tag`):
+/// the folder and the scene's path.
+fn scene_file(tag: &str, name: &str, text: &str) -> (PathBuf, PathBuf) {
+    let dir = temp_dir("mpi", tag);
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = dir.join(name);
+    std::fs::write(&scene, text).unwrap();
+    (dir, scene)
 }
 
 /// The decomposed grid's numbering in every step of a run over `n` processes (the run itself
@@ -301,13 +376,12 @@ fn compare_runs(
     paraview: bool,
     decomposed: Option<&[usize]>,
 ) -> Vec<f64> {
-    let runs = Runs {
-        paraview,
-        decompose: decomposed.is_some(),
-        counts: decomposed.unwrap_or(&[1, 2, 3]),
-        measures: &[],
-        fields: &[],
-        history: &[],
+    let runs = match decomposed {
+        Some(counts) => Runs::decomposed(counts),
+        None => Runs {
+            paraview,
+            ..Runs::replicated(&[1, 2, 3])
+        },
     };
     compare_with(scene, set, tag, &runs)
 }
@@ -331,6 +405,28 @@ struct Runs<'a> {
     history: &'a [&'a str],
 }
 
+impl<'a> Runs<'a> {
+    /// Over each of `counts` processes, replicated, comparing what every run compares only.
+    const fn replicated(counts: &'a [usize]) -> Self {
+        Runs {
+            paraview: false,
+            decompose: false,
+            counts,
+            measures: &[],
+            fields: &[],
+            history: &[],
+        }
+    }
+
+    /// As [`Runs::replicated`] with decomposed points.
+    const fn decomposed(counts: &'a [usize]) -> Self {
+        Runs {
+            decompose: true,
+            ..Runs::replicated(counts)
+        }
+    }
+}
+
 /// The column `name` of the history.csv in `dir`, by row.
 fn history_column(dir: &Path, name: &str) -> Vec<f64> {
     let text = std::fs::read_to_string(dir.join("history.csv")).expect("history.csv");
@@ -349,11 +445,9 @@ fn history_column(dir: &Path, name: &str) -> Vec<f64> {
 /// solver); the number of points that changed process at a step start, summed over the steps,
 /// for each.
 fn compare_with(scene: &Path, set: &[&str], tag: &str, runs: &Runs<'_>) -> Vec<f64> {
-    let mut changes = Vec::new();
-    if !mpirun_available() {
-        return changes;
-    }
-    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(_one) = mpi_job_slot() else {
+        return Vec::new();
+    };
     let script = scene.file_name().unwrap().to_string_lossy().to_string();
     let (counts, paraview) = (runs.counts, runs.paraview);
     let mut extra = vec!["--petsc-options", "-ksp_rtol 1e-12"];
@@ -361,13 +455,8 @@ fn compare_with(scene: &Path, set: &[&str], tag: &str, runs: &Runs<'_>) -> Vec<f
         extra.push("--decompose");
     }
     let serial_dir = temp_dir("mpi", &format!("{tag}-serial"));
-    let serial = run(None, scene, set, &serial_dir, &[]);
-    assert!(
-        serial.status.success(),
-        "{}",
-        String::from_utf8_lossy(&serial.stderr)
-    );
-    let reference = outcome(&serial_dir);
+    let reference = serial_reference(scene, set, &serial_dir, &[]);
+    let mut changes = Vec::new();
     for &n in counts {
         let dir = temp_dir("mpi", &format!("{tag}-{n}"));
         let started = std::time::Instant::now();
@@ -521,13 +610,8 @@ fn pieces_are_listed(dir: &Path, n: usize, points: usize, paraview: bool) {
     assert!(pvd.contains("particles_0000.pvtu"), "{pvd}");
     assert!(!pvd.contains(".vtu\""), "{pvd}");
     let pvtu = dir.join("particles_0000.pvtu");
-    let pieces = impm::output::pvtu_pieces(&pvtu).unwrap();
-    assert_eq!(pieces.len(), n);
-    let counted: usize = pieces
-        .iter()
-        .map(|piece| read_vtu(piece).unwrap().points.len())
-        .sum();
-    assert_eq!(counted, points);
+    assert_eq!(impm::output::pvtu_pieces(&pvtu).unwrap().len(), n);
+    assert_eq!(points_in_pieces(&pvtu), points);
     if !paraview {
         return;
     }
@@ -610,12 +694,8 @@ fn the_2d_column_with_decomposed_points_equals_the_serial_run() {
 #[test]
 fn the_strip_footing_over_2_and_3_processes_equals_the_serial_run() {
     let runs = Runs {
-        paraview: false,
-        decompose: false,
-        counts: &[2, 3],
         measures: &["footing_pressure", "footing_reaction_x"],
-        fields: &[],
-        history: &[],
+        ..Runs::replicated(&[2, 3])
     };
     let scene = shipped_scene("strip_footing.rhai");
     compare_with(&scene, &["cells=4", "steps=2"], "footing", &runs);
@@ -626,12 +706,8 @@ fn the_strip_footing_over_2_and_3_processes_equals_the_serial_run() {
 #[test]
 fn a_tresca_footing_with_fbar_over_2_and_3_processes_equals_the_serial_run() {
     let runs = Runs {
-        paraview: false,
-        decompose: false,
-        counts: &[2, 3],
         measures: &["footing_pressure"],
-        fields: &[],
-        history: &[],
+        ..Runs::replicated(&[2, 3])
     };
     let scene = shipped_scene("strip_footing.rhai");
     let set = [
@@ -649,14 +725,7 @@ fn a_tresca_footing_with_fbar_over_2_and_3_processes_equals_the_serial_run() {
 /// column (1D, B-splines q = 3, a sliver of material in the top cell), replicated.
 #[test]
 fn the_ghost_penalty_over_2_and_3_processes_equals_the_serial_run() {
-    let runs = Runs {
-        paraview: false,
-        decompose: false,
-        counts: &[2, 3],
-        measures: &[],
-        fields: &[],
-        history: &[],
-    };
+    let runs = Runs::replicated(&[2, 3]);
     let scene = shipped_scene("sliver_column.rhai");
     compare_with(&scene, &["steps=2"], "sliver", &runs);
 }
@@ -682,12 +751,9 @@ analytic_column(#{ axis: 1, height: 51.5625, material: soil, body_force: -800.0 
 #[test]
 fn fbar_with_decomposed_points_equals_the_serial_run() {
     let runs = Runs {
-        paraview: false,
-        decompose: true,
-        counts: &[2, 3],
         measures: &["fbar_sparse_cells"],
-        fields: &[],
         history: &["fbar_sparse_cells"],
+        ..Runs::decomposed(&[2, 3])
     };
     compare_scene_text(FBAR_COLUMN, "fbar_column.rhai", "fbar-dec", &runs);
 }
@@ -695,10 +761,7 @@ fn fbar_with_decomposed_points_equals_the_serial_run() {
 /// [`compare_with`] of the scene `text`, written as `name` into a folder of its own (removed
 /// after).
 fn compare_scene_text(text: &str, name: &str, tag: &str, runs: &Runs<'_>) {
-    let dir = temp_dir("mpi", &format!("{tag}-scene"));
-    std::fs::create_dir_all(&dir).unwrap();
-    let scene = dir.join(name);
-    std::fs::write(&scene, text).unwrap();
+    let (dir, scene) = scene_file(&format!("{tag}-scene"), name, text);
     compare_with(&scene, &[], tag, runs);
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -723,12 +786,8 @@ stage(#{ name: \"more\", steps: 1, zero_displacements: true });
 #[test]
 fn a_staged_scene_zeroing_displacements_with_decomposed_points_equals_the_serial_run() {
     let runs = Runs {
-        paraview: false,
-        decompose: true,
-        counts: &[2, 3],
-        measures: &[],
         fields: &["displacement"],
-        history: &[],
+        ..Runs::decomposed(&[2, 3])
     };
     compare_scene_text(STAGED_BLOCK, "staged_block.rhai", "staged-dec", &runs);
 }
@@ -757,17 +816,11 @@ record(#{ name: \"left\", quantity: \"fix2_reaction_x\" });
 
 #[test]
 fn reactions_with_decomposed_points_and_grid_equal_the_serial_run() {
-    let dir = temp_dir("mpi", "released-scene");
-    std::fs::create_dir_all(&dir).unwrap();
-    let scene = dir.join("released_block.rhai");
-    std::fs::write(&scene, RELEASED_BLOCK).unwrap();
+    let (dir, scene) = scene_file("released-scene", "released_block.rhai", RELEASED_BLOCK);
     let runs = Runs {
-        paraview: false,
-        decompose: true,
-        counts: &[2, 3],
         measures: &["fix1_reaction_y", "fix2_reaction_x", "external_force_y"],
-        fields: &[],
         history: &["base", "left"],
+        ..Runs::decomposed(&[2, 3])
     };
     compare_with(&scene, &[], "released-dec", &runs);
     // the serial run (compared with above): the base carries the weight
@@ -816,17 +869,17 @@ fn a_process_holding_no_points_takes_part_and_the_run_equals_the_serial_run() {
     if !mpirun_available() {
         return;
     }
-    let dir = temp_dir("mpi", "empty-slab-scene");
-    std::fs::create_dir_all(&dir).unwrap();
-    let scene = dir.join("half_filled_block.rhai");
-    std::fs::write(&scene, HALF_FILLED_BLOCK).unwrap();
+    let (dir, scene) = scene_file(
+        "empty-slab-scene",
+        "half_filled_block.rhai",
+        HALF_FILLED_BLOCK,
+    );
     {
-        let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+        let _one = one_job_at_a_time();
         let out = temp_dir("mpi", "empty-slab-3");
-        let args = run_arguments(&scene, &[], &out, &["--decompose"]);
         let logs = temp_dir("mpi", "empty-slab-logs");
-        let limit = std::time::Duration::from_secs(120);
-        let (status, stderr) = run_within(impm_command(Some(3), &args), &logs, limit)
+        let limit = Duration::from_secs(120);
+        let (status, stderr) = launch_within(3, &scene, &[], &out, &["--decompose"], &logs, limit)
             .expect("the run over 3 processes, one without points, ends (no hang)");
         assert!(status.success(), "{stderr}");
         let pieces: Vec<usize> = (0..3)
@@ -842,12 +895,8 @@ fn a_process_holding_no_points_takes_part_and_the_run_equals_the_serial_run() {
         let _ = std::fs::remove_dir_all(&logs);
     }
     let runs = Runs {
-        paraview: false,
-        decompose: true,
-        counts: &[3],
         measures: &["fix1_reaction_y"],
-        fields: &[],
-        history: &[],
+        ..Runs::decomposed(&[3])
     };
     compare_with(&scene, &[], "empty-slab-dec", &runs);
     let _ = std::fs::remove_dir_all(&dir);
@@ -895,10 +944,7 @@ load_steps(steps);
 
 #[test]
 fn a_plastic_column_with_decomposed_points_equals_the_serial_run() {
-    let dir = temp_dir("mpi", "plastic-scene");
-    std::fs::create_dir_all(&dir).unwrap();
-    let scene = dir.join("plastic_column.rhai");
-    std::fs::write(&scene, PLASTIC_COLUMN).unwrap();
+    let (dir, scene) = scene_file("plastic-scene", "plastic_column.rhai", PLASTIC_COLUMN);
     let changes = compare_decomposed(&scene, &[], "plastic-dec", &[2, 3]);
     if let [two, three] = changes[..] {
         assert!(two > 0.0 && three > 0.0, "{changes:?}");
@@ -914,7 +960,7 @@ fn checkpoint_steps(dir: &Path) -> Option<u64> {
 
 /// The process to signal in a job: process 1 of a run over several processes (it writes
 /// nothing of the run's own), the one process otherwise.
-fn signalled_process(job: &std::process::Child, processes: Option<usize>) -> u32 {
+fn signalled_process(job: &Child, processes: Option<usize>) -> u32 {
     let rank = match processes {
         Some(n) if n > 1 => 1,
         Some(_) => 0,
@@ -929,7 +975,7 @@ fn signalled_process(job: &std::process::Child, processes: Option<usize>) -> u32
             started.elapsed().as_secs() < 60,
             "no process {rank} in the job"
         );
-        std::thread::sleep(std::time::Duration::from_millis(20));
+        std::thread::sleep(Duration::from_millis(20));
     }
 }
 
@@ -943,7 +989,7 @@ fn signal(pid: u32, signal: &str) {
 }
 
 /// Waits for `job` at most `limit` (killed and failed after it: it hung); its exit status.
-fn wait_for(job: &mut std::process::Child, limit: std::time::Duration) -> std::process::ExitStatus {
+fn wait_for(job: &mut Child, limit: Duration) -> ExitStatus {
     let started = std::time::Instant::now();
     loop {
         if let Some(status) = job.try_wait().unwrap() {
@@ -954,7 +1000,7 @@ fn wait_for(job: &mut std::process::Child, limit: std::time::Duration) -> std::p
             let _ = job.wait();
             panic!("the job did not end within {limit:?}: it hung");
         }
-        std::thread::sleep(std::time::Duration::from_millis(50));
+        std::thread::sleep(Duration::from_millis(50));
     }
 }
 
@@ -983,17 +1029,12 @@ fn run_until_checkpoint(
     extra: &[&str],
     after: u64,
     then: Then<'_>,
-) -> (std::process::ExitStatus, String, u64, u64) {
+) -> (ExitStatus, String, u64, u64) {
     let logs = dir.with_extension("logs");
-    std::fs::create_dir_all(&logs).unwrap();
     let mut extra = extra.to_vec();
     extra.extend(["--checkpoint-every", "2"]);
     let args = run_arguments(scene, set, dir, &extra);
-    let mut job = impm_command(processes, &args)
-        .stdout(std::fs::File::create(logs.join("stdout.txt")).unwrap())
-        .stderr(std::fs::File::create(logs.join("stderr.txt")).unwrap())
-        .spawn()
-        .expect("the run starts");
+    let mut job = spawn_logged(impm_command(processes, &args), &logs);
     let pid = signalled_process(&job, processes);
     let started = std::time::Instant::now();
     let stderr = || std::fs::read_to_string(logs.join("stderr.txt")).unwrap();
@@ -1017,10 +1058,10 @@ fn run_until_checkpoint(
         );
         if sliced {
             signal(pid, "CONT");
-            std::thread::sleep(std::time::Duration::from_millis(2));
+            std::thread::sleep(Duration::from_millis(2));
             signal(pid, "STOP");
         } else {
-            std::thread::sleep(std::time::Duration::from_millis(5));
+            std::thread::sleep(Duration::from_millis(5));
         }
     }
     if !sliced {
@@ -1035,7 +1076,7 @@ fn run_until_checkpoint(
         }
     }
     signal(pid, "CONT");
-    let status = wait_for(&mut job, std::time::Duration::from_secs(600));
+    let status = wait_for(&mut job, Duration::from_secs(600));
     let stderr = stderr();
     assert!(!stderr.contains("MPI_Abort"), "ended by an abort: {stderr}");
     let _ = std::fs::remove_dir_all(&logs);
@@ -1060,8 +1101,7 @@ fn interrupt_after_checkpoint(
         "an interrupted run exits non-zero: {stderr}"
     );
     assert!(stderr.contains("interrupted after load step"), "{stderr}");
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let summary = read_summary(dir);
     assert_eq!(summary["status"], "interrupted", "{summary}");
     resume_command_is_the_launch(processes, extra, &stderr, &summary);
     let steps = summary["steps"].as_array().unwrap().len() as u64;
@@ -1165,27 +1205,14 @@ fn checkpoint_parts(dir: &Path) -> Vec<(String, Vec<f64>)> {
 /// serial format, every point in `PointId` order: to 1e-12 of each part's largest number).
 #[test]
 fn a_decomposed_run_resumes_from_checkpoints_of_any_process_count() {
-    if !mpirun_available() {
+    let Some(_one) = mpi_job_slot() else {
         return;
-    }
-    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    };
     let scene = shipped_scene("heavy_column.rhai");
     let set = ["cells=8", "steps=8"];
     let decomposed = ["--petsc-options", "-ksp_rtol 1e-12", "--decompose"];
     let serial_dir = temp_dir("mpi", "resume-serial");
-    let output = run(
-        None,
-        &scene,
-        &set,
-        &serial_dir,
-        &["--checkpoint-every", "2"],
-    );
-    assert!(
-        output.status.success(),
-        "{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
-    let reference = outcome(&serial_dir);
+    let reference = serial_reference(&scene, &set, &serial_dir, &["--checkpoint-every", "2"]);
     let cases: [(&str, Option<usize>, Option<usize>); 3] = [
         ("-n 2 then -n 2", Some(2), Some(2)),
         ("-n 3 then serial", Some(3), None),
@@ -1232,24 +1259,18 @@ fn a_decomposed_run_resumes_from_checkpoints_of_any_process_count() {
 /// positions).
 #[test]
 fn a_plastic_decomposed_run_resumes_and_a_failed_checkpoint_keeps_the_previous_one() {
-    if !mpirun_available() {
+    let Some(_one) = mpi_job_slot() else {
         return;
-    }
-    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    let scenes = temp_dir("mpi", "resume-plastic-scene");
-    std::fs::create_dir_all(&scenes).unwrap();
-    let scene = scenes.join("plastic_column.rhai");
-    std::fs::write(&scene, PLASTIC_COLUMN).unwrap();
+    };
+    let (scenes, scene) = scene_file(
+        "resume-plastic-scene",
+        "plastic_column.rhai",
+        PLASTIC_COLUMN,
+    );
     let set = ["steps=8"];
     let decomposed = ["--petsc-options", "-ksp_rtol 1e-12", "--decompose"];
     let serial_dir = temp_dir("mpi", "resume-plastic-serial");
-    let output = run(None, &scene, &set, &serial_dir, &[]);
-    assert!(
-        output.status.success(),
-        "{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
-    let reference = outcome(&serial_dir);
+    let reference = serial_reference(&scene, &set, &serial_dir, &[]);
 
     let dir = temp_dir("mpi", "resume-plastic");
     let done = interrupt_after_checkpoint(Some(3), &scene, &set, &dir, &decomposed, 2);
@@ -1274,8 +1295,7 @@ fn a_plastic_decomposed_run_resumes_and_a_failed_checkpoint_keeps_the_previous_o
     assert!(stderr.contains(&blocked), "{stderr}");
     assert!(stderr.contains("process 0 of 2 failed"), "{stderr}");
     assert_eq!(done, held, "the previous checkpoint is kept");
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let summary = read_summary(&dir);
     assert_eq!(summary["status"], "failed", "{summary}");
     let steps = summary["steps"].as_array().unwrap().len() as u64;
     assert_eq!(steps, held + 2, "{summary}");
@@ -1318,17 +1338,12 @@ solver(#{ line_search: true });
 
 #[test]
 fn the_line_search_with_decomposed_points_equals_the_serial_run() {
-    let dir = temp_dir("mpi", "soft-top-scene");
-    std::fs::create_dir_all(&dir).unwrap();
-    let scene = dir.join("soft_top.rhai");
-    std::fs::write(&scene, SOFT_TOP).unwrap();
+    let (dir, scene) = scene_file("soft-top-scene", "soft_top.rhai", SOFT_TOP);
     // the serial run shortens steps (the comparison then checks the distributed runs do alike)
     let serial = dir.join("serial");
     let output = run(None, &scene, &[], &serial, &[]);
     assert!(output.status.success());
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(serial.join("summary.json")).unwrap())
-            .unwrap();
+    let summary = read_summary(&serial);
     let search = &summary["steps"][0]["line_search"];
     assert!(
         search["shortened"].as_u64().unwrap() > 0 && search["rejected"].as_u64().unwrap() > 0,
@@ -1343,15 +1358,12 @@ fn the_line_search_with_decomposed_points_equals_the_serial_run() {
 /// abort; `--decompose` outside mpirun is refused.
 #[test]
 fn decomposition_refuses_what_cannot_follow_its_points() {
-    if !mpirun_available() {
+    let Some(_one) = mpi_job_slot() else {
         return;
-    }
-    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    };
     let scene = shipped_scene("beam_point_load.rhai");
     let dir: PathBuf = temp_dir("mpi", "decompose-refused");
-    let output = run(Some(2), &scene, &[], &dir, &["--decompose"]);
-    let stderr = String::from_utf8_lossy(&output.stderr);
-    assert!(!output.status.success());
+    let stderr = refused(2, &scene, &[], &dir, &["--decompose"]);
     assert_eq!(
         stderr
             .matches("point loads (line 35: keeps the entities")
@@ -1360,7 +1372,6 @@ fn decomposition_refuses_what_cannot_follow_its_points() {
         "{stderr}"
     );
     assert!(stderr.contains("without --decompose"), "{stderr}");
-    assert!(!stderr.contains("MPI_Abort"), "{stderr}");
     // probes read the nearest points, which may be on another process: refused, naming
     // the line of each probe call
     let probed = dir.join("probed_block.rhai");
@@ -1368,15 +1379,12 @@ fn decomposition_refuses_what_cannot_follow_its_points() {
     let probes =
         "probe(#{ name: \"a\", at: [0.5, 0.5] });\nprobe(#{ name: \"b\", at: [0.5, 0.25] });\n";
     std::fs::write(&probed, format!("{HALF_FILLED_BLOCK}{probes}")).unwrap();
-    let output = run(Some(2), &probed, &[], &dir.join("out"), &["--decompose"]);
-    let stderr = String::from_utf8_lossy(&output.stderr);
-    assert!(!output.status.success());
+    let stderr = refused(2, &probed, &[], &dir.join("out"), &["--decompose"]);
     assert_eq!(
         stderr.matches("probes (lines 8, 9: interpolates").count(),
         1,
         "{stderr}"
     );
-    assert!(!stderr.contains("MPI_Abort"), "{stderr}");
     let output = run(None, &scene, &[], &dir, &["--decompose"]);
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(!output.status.success());
@@ -1392,15 +1400,12 @@ fn decomposition_refuses_what_cannot_follow_its_points() {
 /// than one process itself, when the scene is read.)
 #[test]
 fn the_ghost_penalty_is_refused_with_decomposed_points() {
-    if !mpirun_available() {
+    let Some(_one) = mpi_job_slot() else {
         return;
-    }
-    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    };
     let dir: PathBuf = temp_dir("mpi", "ghost-decomposed");
     let sliver = shipped_scene("sliver_column.rhai");
-    let output = run(Some(2), &sliver, &["steps=1"], &dir, &["--decompose"]);
-    let stderr = String::from_utf8_lossy(&output.stderr);
-    assert!(!output.status.success());
+    let stderr = refused(2, &sliver, &["steps=1"], &dir, &["--decompose"]);
     assert_eq!(
         stderr
             .matches("ghost penalty (needs every cell's fill fraction")
@@ -1408,7 +1413,6 @@ fn the_ghost_penalty_is_refused_with_decomposed_points() {
         1,
         "{stderr}"
     );
-    assert!(!stderr.contains("MPI_Abort"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -1423,14 +1427,12 @@ fn the_ghost_penalty_is_refused_with_decomposed_points() {
 /// after 20 s and aborted the job (and before that mend, forever).
 #[test]
 fn a_process_failing_alone_outside_newton_ends_every_process_after_that_step() {
-    if !mpirun_available() {
+    let Some(_one) = mpi_job_slot() else {
         return;
-    }
-    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    };
     let scene = shipped_scene("column_2d.rhai");
     let dir = temp_dir("mpi", "fails-alone");
     std::fs::create_dir_all(dir.join("history.csv")).unwrap();
-    let args = run_arguments(&scene, &["cells=4", "steps=3"], &dir, &[]);
     let logs = temp_dir("mpi", "fails-alone-logs");
     // the scratch folder a process killed by an earlier abort left (its process is gone): a
     // process other than 0 removes it when it starts
@@ -1438,11 +1440,8 @@ fn a_process_failing_alone_outside_newton_ends_every_process_after_that_step() {
     gone.wait().unwrap();
     let stale = std::env::temp_dir().join(format!("impm-process1-{}", gone.id()));
     std::fs::create_dir_all(&stale).unwrap();
-    let ended = run_within(
-        impm_command(Some(2), &args),
-        &logs,
-        std::time::Duration::from_secs(300),
-    );
+    let set = ["cells=4", "steps=3"];
+    let ended = launch_within(2, &scene, &set, &dir, &[], &logs, Duration::from_secs(300));
     let (status, stderr) = ended.expect("the job ends (it hung before: killed after 300 s)");
     assert!(!status.success(), "{stderr}");
     assert!(stderr.contains("history.csv"), "{stderr}");
@@ -1453,8 +1452,7 @@ fn a_process_failing_alone_outside_newton_ends_every_process_after_that_step() {
     );
     assert!(!stderr.contains("MPI_Abort"), "ended by an abort: {stderr}");
     // step 1's records and particle pieces were written before the failure, and read back
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let summary = read_summary(&dir);
     assert_eq!(summary["status"], "failed", "{summary}");
     assert!(
         summary["failure"].as_str().unwrap().contains("history.csv"),
@@ -1475,23 +1473,18 @@ fn a_process_failing_alone_outside_newton_ends_every_process_after_that_step() {
 /// lock of the other run is left as it was.
 #[test]
 fn a_process_failing_before_the_first_step_ends_the_job_by_an_abort() {
-    if !mpirun_available() {
+    let Some(_one) = mpi_job_slot() else {
         return;
-    }
-    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    };
     let scene = shipped_scene("column_2d.rhai");
     let dir = temp_dir("mpi", "locked");
     std::fs::create_dir_all(&dir).unwrap();
     let lock = dir.join(".impm.lock");
     let holder = std::process::id().to_string();
     std::fs::write(&lock, &holder).unwrap();
-    let args = run_arguments(&scene, &["cells=4", "steps=2"], &dir, &[]);
     let logs = temp_dir("mpi", "locked-logs");
-    let ended = run_within(
-        impm_command(Some(2), &args),
-        &logs,
-        std::time::Duration::from_secs(300),
-    );
+    let set = ["cells=4", "steps=2"];
+    let ended = launch_within(2, &scene, &set, &dir, &[], &logs, Duration::from_secs(300));
     let (status, stderr) = ended.expect("the job ends (killed after 300 s: it hung)");
     assert!(!status.success(), "{stderr}");
     assert!(
@@ -1525,11 +1518,7 @@ fn series_is_readable(dir: &Path, last: usize, points: usize) -> Vec<String> {
         );
         let file = dir.join(name);
         let read = if name.ends_with(".pvtu") {
-            impm::output::pvtu_pieces(&file)
-                .unwrap()
-                .iter()
-                .map(|piece| read_vtu(piece).unwrap().points.len())
-                .sum()
+            points_in_pieces(&file)
         } else {
             read_vtu(&file).unwrap().points.len()
         };
@@ -1563,22 +1552,16 @@ load_steps(4);
 /// the last converged one, and each lists every point.
 #[test]
 fn a_point_leaving_the_grid_on_one_process_stops_every_process_naming_it() {
-    if !mpirun_available() {
+    let Some(_one) = mpi_job_slot() else {
         return;
-    }
-    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    let dir = temp_dir("mpi", "leaves-grid");
-    std::fs::create_dir_all(&dir).unwrap();
-    let scene = dir.join("stretched_column.rhai");
-    std::fs::write(&scene, STRETCHED_COLUMN).unwrap();
+    };
+    let (dir, scene) = scene_file("leaves-grid", "stretched_column.rhai", STRETCHED_COLUMN);
     let points = 10 * 2;
     // the serial run: which step fails, and why
     let serial = dir.join("serial");
     let output = run(None, &scene, &[], &serial, &[]);
     assert!(!output.status.success());
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(serial.join("summary.json")).unwrap())
-            .unwrap();
+    let summary = read_summary(&serial);
     assert_eq!(summary["status"], "failed", "{summary}");
     let converged = summary["steps"].as_array().unwrap().len();
     assert_eq!(converged, 3, "{summary}");
@@ -1592,12 +1575,8 @@ fn a_point_leaving_the_grid_on_one_process_stops_every_process_naming_it() {
     for n in [2, 3] {
         let out = dir.join(format!("n{n}"));
         let logs = dir.join(format!("n{n}-logs"));
-        let args = run_arguments(&scene, &[], &out, &["--decompose"]);
-        let ended = run_within(
-            impm_command(Some(n), &args),
-            &logs,
-            std::time::Duration::from_secs(300),
-        );
+        let limit = Duration::from_secs(300);
+        let ended = launch_within(n, &scene, &[], &out, &["--decompose"], &logs, limit);
         let (status, stderr) = ended.expect("the job ends (killed after 300 s: it hung)");
         assert!(!status.success(), "{stderr}");
         assert!(!stderr.contains("MPI_Abort"), "ended by an abort: {stderr}");
@@ -1606,9 +1585,7 @@ fn a_point_leaving_the_grid_on_one_process_stops_every_process_naming_it() {
             stderr.contains(&named) && stderr.contains("left the background grid"),
             "{stderr}"
         );
-        let summary: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap())
-                .unwrap();
+        let summary = read_summary(&out);
         assert_eq!(summary["status"], "failed", "{summary}");
         assert_eq!(
             summary["steps"].as_array().unwrap().len(),
@@ -1631,20 +1608,16 @@ fn a_point_leaving_the_grid_on_one_process_stops_every_process_naming_it() {
 /// 2 processes at the scene's line, once, without an abort.
 #[test]
 fn arc_length_control_is_refused_over_several_processes() {
-    if !mpirun_available() {
+    let Some(_one) = mpi_job_slot() else {
         return;
-    }
-    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    };
     let scene = shipped_scene("footing_pressure_arc.rhai");
     let dir: PathBuf = temp_dir("mpi", "arc");
-    let output = run(Some(2), &scene, &["cells=2"], &dir, &[]);
-    let stderr = String::from_utf8_lossy(&output.stderr);
-    assert!(!output.status.success());
+    let stderr = refused(2, &scene, &["cells=2"], &dir, &[]);
     assert!(
         stderr.contains("arc_length") && stderr.contains("mpirun -n 1"),
         "{stderr}"
     );
-    assert!(!stderr.contains("MPI_Abort"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -1689,27 +1662,21 @@ fn process_of_rank(launcher: u32, rank: usize) -> Option<u32> {
 /// step and waited there until process 1 ended the job with MPI_Abort (after 20 s).
 #[test]
 fn a_signal_to_one_process_stops_them_all_after_the_same_step() {
-    if !mpirun_available() {
+    let Some(_one) = mpi_job_slot() else {
         return;
-    }
-    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    };
     let scene = shipped_scene("column_2d.rhai");
     let dir = temp_dir("mpi", "signal-one");
     let logs = temp_dir("mpi", "signal-one-logs");
-    std::fs::create_dir_all(&logs).unwrap();
     let args = run_arguments(&scene, &["cells=4", "steps=20000"], &dir, &[]);
-    let mut job = impm_command(Some(2), &args)
-        .stdout(std::fs::File::create(logs.join("stdout.txt")).unwrap())
-        .stderr(std::fs::File::create(logs.join("stderr.txt")).unwrap())
-        .spawn()
-        .expect("the job starts");
+    let mut job = spawn_logged(impm_command(Some(2), &args), &logs);
     let started = std::time::Instant::now();
-    let limit = std::time::Duration::from_secs(120);
+    let limit = Duration::from_secs(120);
     // a few steps done, then SIGINT to process 1 alone
     while !dir.join("particles_0003.pvtu").exists() {
         assert!(job.try_wait().unwrap().is_none(), "the job ended early");
         assert!(started.elapsed() < limit, "no third step within {limit:?}");
-        std::thread::sleep(std::time::Duration::from_millis(20));
+        std::thread::sleep(Duration::from_millis(20));
     }
     let process_1 = process_of_rank(job.id(), 1).expect("process 1 of the job");
     let sent = Command::new("kill")
@@ -1729,18 +1696,16 @@ fn a_signal_to_one_process_stops_them_all_after_the_same_step() {
     assert!(stderr.contains("interrupted after load step"), "{stderr}");
     // the abort path waits 20 s first; the agreed stop ends at the next step
     assert!(ended_in < 15.0, "ended {ended_in:.1} s after the signal");
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let summary = read_summary(&dir);
     assert_eq!(summary["status"], "interrupted", "{summary}");
     let steps = summary["steps"].as_array().unwrap().len();
     assert!((3..20000).contains(&steps), "{steps} steps");
     let last = dir.join(format!("particles_{steps:04}.pvtu"));
-    let points: usize = impm::output::pvtu_pieces(&last)
-        .unwrap()
-        .iter()
-        .map(|piece| read_vtu(piece).unwrap().points.len())
-        .sum();
-    assert_eq!(points, 4 * 4 * 4, "the last step's pieces hold every point");
+    assert_eq!(
+        points_in_pieces(&last),
+        4 * 4 * 4,
+        "the last step's pieces hold every point"
+    );
     let _ = std::fs::remove_dir_all(&dir);
     let _ = std::fs::remove_dir_all(&logs);
 }
@@ -1749,10 +1714,9 @@ fn a_signal_to_one_process_stops_them_all_after_the_same_step() {
 /// process, said once (by process 0), before anything is written.
 #[test]
 fn a_study_under_mpirun_is_refused() {
-    if !mpirun_available() {
+    let Some(_one) = mpi_job_slot() else {
         return;
-    }
-    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    };
     let scene = shipped_scene("column_1d.rhai");
     let dir = temp_dir("mpi", "study");
     let args = vec![
