@@ -8,10 +8,9 @@
 //! arc-controlled stage runs, each arc point where load control at the arc's load factors
 //! puts the block.
 
-use impm::components::{PointId, Position, Trial};
+use impm::components::Position;
 use impm::material::PlasticHistory;
 use impm::run::Simulation;
-use impm::stages::PointHistory;
 use nalgebra::Matrix3;
 
 mod common;
@@ -53,25 +52,11 @@ fn yielded_block(hardening: f64, second: &str) -> String {
 /// history), in `PointId` order.
 fn states(sim: &mut Simulation<2>) -> Vec<(Matrix3<f64>, f64)> {
     use impm::material::{MohrCoulomb, VonMises};
-    let mut query = sim.world.query::<(
-        &PointId,
-        &Trial<2>,
-        Option<&PointHistory<VonMises>>,
-        Option<&PointHistory<MohrCoulomb>>,
-    )>();
     let strain = |h: &PlasticHistory| h.plastic_strain;
-    let mut rows: Vec<_> = query
-        .iter(&sim.world)
-        .map(|(id, t, vm, mc)| {
-            let e = vm
-                .map(|h| strain(&h.committed))
-                .or(mc.map(|h| strain(&h.committed)))
-                .unwrap_or(0.0);
-            (id.0, (t.0.kirchhoff, e))
-        })
-        .collect();
-    rows.sort_by_key(|r| r.0);
-    rows.into_iter().map(|r| r.1).collect()
+    common::point_states::<VonMises, MohrCoulomb>(sim, strain, strain)
+        .into_iter()
+        .map(|(stress, e)| (stress, e.unwrap_or(0.0)))
+        .collect()
 }
 
 /// The largest stress difference and the largest plastic-strain difference of two states.

@@ -7,7 +7,7 @@
 //! strain) is refused with the `material_of` line; the trait's default refuses a plastic
 //! strain it would lose.
 
-use impm::components::{PointId, Trial};
+use impm::components::Trial;
 use impm::effects::{self, materials::MaterialModule};
 use impm::material::{
     CarriedState, Hencky, HistoryValues, Material, MaterialParameters, ParameterSpec,
@@ -223,25 +223,14 @@ fn confined(q: f64, held: Option<f64>) -> (f64, f64) {
 /// Every point's Kirchhoff stress and plastic strain (from the von Mises or the held model's
 /// history), in `PointId` order.
 fn states(sim: &mut Simulation<2>) -> Vec<(Matrix3<f64>, f64)> {
-    let mut query = sim.world.query::<(
-        &PointId,
-        &Trial<2>,
-        Option<&PointHistory<VonMises>>,
-        Option<&PointHistory<ElasticStrain>>,
-    )>();
-    let plastic = |h: &PlasticHistory| h.plastic_strain;
-    let mut rows: Vec<_> = query
-        .iter(&sim.world)
-        .map(|(id, t, vm, held)| {
-            let e = vm
-                .map(|h| plastic(&h.committed))
-                .or(held.map(|h| h.committed.plastic_strain))
-                .expect("every point has a history");
-            (id.0, (t.0.kirchhoff, e))
-        })
-        .collect();
-    rows.sort_by_key(|r| r.0);
-    rows.into_iter().map(|r| r.1).collect()
+    common::point_states::<VonMises, ElasticStrain>(
+        sim,
+        |h: &PlasticHistory| h.plastic_strain,
+        |h: &ElasticStrainHistory| h.plastic_strain,
+    )
+    .into_iter()
+    .map(|(stress, e)| (stress, e.expect("every point has a history")))
+    .collect()
 }
 
 /// The largest departure of every point from the closed form (ε, a) under q: of τ_yy and τ_xx

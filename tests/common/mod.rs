@@ -298,3 +298,32 @@ pub fn staged_block(materials: &str, control: &str, factors: &[f64], load: &str)
         if arc { ", control: \"arc_length\"" } else { "" },
     )
 }
+
+/// Every point's Kirchhoff stress and plastic strain, in `PointId` order, for bodies of the
+/// models `A` and `B` (tests of `material_of`): the plastic strain is `strain_a` of an `A`
+/// point's committed history, `strain_b` of a `B` point's, `None` for a point of neither.
+pub fn point_states<A: Material, B: Material>(
+    sim: &mut Simulation<2>,
+    strain_a: impl Fn(&A::History) -> f64,
+    strain_b: impl Fn(&B::History) -> f64,
+) -> Vec<(nalgebra::Matrix3<f64>, Option<f64>)> {
+    use impm::components::{PointId, Trial};
+    use impm::stages::PointHistory;
+    let mut query = sim.world.query::<(
+        &PointId,
+        &Trial<2>,
+        Option<&PointHistory<A>>,
+        Option<&PointHistory<B>>,
+    )>();
+    let mut rows: Vec<_> = query
+        .iter(&sim.world)
+        .map(|(id, trial, a, b)| {
+            let strain = a
+                .map(|h| strain_a(&h.committed))
+                .or(b.map(|h| strain_b(&h.committed)));
+            (id.0, (trial.0.kirchhoff, strain))
+        })
+        .collect();
+    rows.sort_by_key(|row| row.0);
+    rows.into_iter().map(|row| row.1).collect()
+}
