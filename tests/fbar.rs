@@ -778,7 +778,7 @@ fn c_phi_footing_on_linear_mpm(set: &[(&str, &str)]) -> f64 {
 /// the tensile meridians) is, in plane strain with associated flow, Mohr–Coulomb with
 /// tan φ' = 3η/√(9 − 12η²) and c' = ξ c / ξ_ps(φ') (φ' = 21.23°, c' = 1.068 c): its collapse
 /// load is 1.156 c N_c; at 4 cells the ratio of the two cones' runs is within 2 % of that
-/// (observed 1.148). 13 s.
+/// (observed 1.148). 8 s.
 #[test]
 fn the_plane_strain_drucker_prager_footing_matches_mohr_coulomb() {
     let n_c = 14.835;
