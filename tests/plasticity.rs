@@ -1367,6 +1367,92 @@ fn tresca_soil_is_warned_about_volumetric_locking() {
     assert!(sim.summary.warnings.iter().any(|w| w.contains("F-bar")));
 }
 
+/// In plane strain (associated flow) a Drucker–Prager cone fails as a Mohr–Coulomb soil of the
+/// angle and cohesion that the plane-strain matching maps to its `(η, ξ)`
+/// (`DruckerPrager::plane_strain_mohr_coulomb`): the plane-strain matching gives back φ and c,
+/// the outer cone at φ = 20° is φ' = 27.47°, c' = 1.428 c, at 30° 49.11°, 2.000 c (worked by
+/// hand from the matchings' table), the inner cone at 20° 21.23°, 1.068 c, and the outer cone
+/// from φ = 36.87° (η = √3/2) has no plane-strain limit. A 2D scene with the outer or inner
+/// cone is warned with those values; the plane-strain cone and a 3D scene are not.
+#[test]
+fn a_plane_strain_scene_is_warned_of_the_outer_and_inner_cones() {
+    let cone = |phi: f64, matching: Matching| {
+        DruckerPrager::new(elastic(), 10.0, phi, phi, matching).unwrap()
+    };
+    let equivalent = |phi: f64, matching: Matching| {
+        cone(phi, matching)
+            .plane_strain_mohr_coulomb()
+            .map(|(angle, c)| (angle.to_degrees(), c / 10.0))
+    };
+    for phi in [0.0, 20.0, 30.0, 45.0] {
+        let (angle, c) = equivalent(phi, Matching::PlaneStrain).unwrap();
+        assert!(
+            (angle - phi).abs() < 1e-10 && (c - 1.0).abs() < 1e-12,
+            "{phi}: {angle} {c}"
+        );
+    }
+    let close = |got: Option<(f64, f64)>, want: (f64, f64)| {
+        let (angle, c) = got.unwrap();
+        (angle - want.0).abs() < 0.01 && (c - want.1).abs() < 0.001
+    };
+    assert!(close(equivalent(20.0, Matching::Outer), (27.47, 1.428)));
+    assert!(close(equivalent(30.0, Matching::Outer), (49.11, 2.000)));
+    assert!(close(equivalent(20.0, Matching::Inner), (21.23, 1.068)));
+    assert!(equivalent(36.8, Matching::Outer).is_some());
+    assert!(equivalent(37.0, Matching::Outer).is_none());
+
+    let cone_warnings = |set: &[(&str, &str)]| -> Vec<String> {
+        let mut set = set.to_vec();
+        set.push(("material", "drucker_prager"));
+        let spec = impm::run::load_scene(
+            &common::shipped_scene("strip_footing.rhai"),
+            &common::overrides(&set),
+        )
+        .unwrap();
+        impm::scene::scene_warnings(&spec)
+            .into_iter()
+            .filter(|w| w.contains("drucker_prager"))
+            .collect()
+    };
+    let outer = cone_warnings(&[("matching", "outer")]);
+    assert_eq!(outer.len(), 1, "{outer:?}");
+    assert!(
+        outer[0].contains("phi' = 27.5 deg") && outer[0].contains("c' = 14.284"),
+        "{}",
+        outer[0]
+    );
+    let steep = cone_warnings(&[("matching", "outer"), ("phi", "40.0"), ("psi", "40.0")]);
+    assert!(
+        steep[0].contains("no plane-strain collapse load"),
+        "{steep:?}"
+    );
+    assert!(cone_warnings(&[("matching", "inner")])[0].contains("phi' = 21.2 deg"));
+    assert!(
+        cone_warnings(&[]).is_empty(),
+        "the plane-strain cone is not warned"
+    );
+
+    let block = |dims: &str| {
+        let (lower, upper, cells) = if dims == "3d" {
+            ("[0.0, 0.0, 0.0]", "[1.0, 1.0, 1.0]", "[1, 1, 1]")
+        } else {
+            ("[0.0, 0.0]", "[1.0, 1.0]", "[1, 1]")
+        };
+        let text = format!(
+            "grid(#{{ lower: {lower}, upper: {upper}, cells: {cells}, basis: \"linear\" }});\n\
+             const m = material(#{{ name: \"m\", model: \"drucker_prager\", E: 1000.0, nu: 0.3, density: 1.0, c: 1.0, phi: 30.0 }});\n\
+             body(#{{ name: \"b\", material: m, region: box({lower}, {upper}), ppc: 1 }});\n\
+             load_steps(1);\n"
+        );
+        let spec = scene(dims, &text, &[]).unwrap();
+        impm::scene::scene_warnings(&spec)
+            .iter()
+            .any(|w| w.contains("matching outer"))
+    };
+    assert!(block("2d"), "the default (outer) cone in 2D is warned");
+    assert!(!block("3d"), "a 3D scene is not warned");
+}
+
 // ---------------------------------------------------------------------------------------------
 // Newton line search (`solver(#{ line_search: true })`, src/stages/line_search.rs)
 

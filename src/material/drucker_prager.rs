@@ -28,6 +28,21 @@
 //! (`β = 1 − Δγ/(√2 ‖e‖)`, `I_d = I − ⅓ 1⊗1`). `D` is symmetric only for associated flow
 //! (`ψ = φ`).
 //!
+//! **In plane strain** (associated flow) the cone carries the in-plane loads of a Mohr–Coulomb
+//! soil: with `ε_zz = 0` the flow rule fixes `τ_zz`, and the in-plane stresses at yield obey
+//! Mohr–Coulomb with the angle and cohesion that the `plane_strain` row maps to `(η, ξ)`:
+//!
+//! ```text
+//! tan φ' = 3η / √(9 − 12η²),      c' = ξ c √(9 + 12 tan² φ') / 3      (η < √3/2)
+//! ```
+//!
+//! So `plane_strain` gives back φ and c, while the `outer` cone at φ = 20° (30°) is Mohr–Coulomb
+//! with φ' = 27.5° (49.1°) and c' = 1.43 c (2.00 c) there: collapse loads several times too high
+//! (the strip footing, docs/plasticity.md: 2.4 N_c at φ = 20°). For `η ≥ √3/2` (the outer cone
+//! from φ = 36.9°) the cone has no plane-strain limit at all. [`DruckerPrager::plane_strain_mohr_coulomb`]
+//! computes `(φ', c')`; a 2D scene that uses another matching is warned
+//! (`scene::cone_matching_warnings`).
+//!
 //! The option was first called `match`, a reserved word in Rhai: `match: ".."` is a syntax
 //! error, only the quoted key `"match": ".."` parses. `matching` replaces it; `"match"` stays
 //! accepted as its alias so scenes written with it keep running (giving both is an error).
@@ -118,6 +133,19 @@ impl DruckerPrager {
             xi,
             eta_bar,
         })
+    }
+
+    /// The Mohr–Coulomb angle φ' (radians) and cohesion c' whose plane-strain, associated
+    /// collapse loads this cone has (module docs, "In plane strain"), or `None` if it has no
+    /// plane-strain limit (`η ≥ √3/2`).
+    pub fn plane_strain_mohr_coulomb(&self) -> Option<(f64, f64)> {
+        let room = 9.0 - 12.0 * self.eta * self.eta;
+        if room <= 0.0 {
+            return None;
+        }
+        let tan = 3.0 * self.eta / room.sqrt();
+        let cohesion = self.xi * self.cohesion * (9.0 + 12.0 * tan * tan).sqrt() / 3.0;
+        Some((tan.atan(), cohesion))
     }
 
     /// The principal-space return (module docs).

@@ -31,6 +31,7 @@
 
 mod builder;
 mod calls;
+mod cone_matching;
 mod engine;
 mod error;
 mod fem_seeding;
@@ -55,6 +56,7 @@ pub use builder::{
     BodyDeclaration, LoadSchedule, Located, MAX_NODES, MAX_SEED_CANDIDATES, MaterialHandle,
     PointsPerCell, Region, Resolver, SceneBuilder, ensure_unset,
 };
+pub use cone_matching::cone_matching_warnings;
 pub use engine::{SceneModule, load_scene_with, load_scene_within, scene_api, scene_parameters};
 pub use error::{SceneError, ScriptError};
 pub use fem_seeding::{PartialCell, seed_element_points};
