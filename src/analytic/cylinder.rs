@@ -61,6 +61,46 @@
 //! r = a (every stress difference grows as 1/r² towards the bore): p_e = σ_y / q(p = 1, r = a).
 //! The limit pressure, σ_θ − σ_r = 2σ_y/√3 through the wall once σ_z has become the in-plane
 //! mean: p_lim = (2/√3) σ_y ln(b/a), approached as the plastic flow grows.
+//!
+//! # Past the limit: the fully plastic wall at finite strain
+//!
+//! The model above is small-strain: its pressure tends to p_lim and stays there. A wall that
+//! expands thins, and the pressure it carries falls ([`ThickCylinder::fully_plastic_pressure`]).
+//! Once the whole wall yields, take the elastic strains as negligible (rigid-perfectly
+//! plastic, von Mises, plane strain) and write equilibrium in the *current* configuration,
+//! with the current radii a ≤ r ≤ b and the Cauchy stresses:
+//!
+//! ```text
+//! dσ_r/dr + (σ_r − σ_θ)/r = 0,   σ_r(a) = −p,   σ_r(b) = 0.
+//! ```
+//!
+//! Plastic flow is isochoric and ε̇_z = 0, so the associated flow rule makes the deviatoric
+//! s_z = 0: σ_z = (σ_r + σ_θ)/2, and von Mises' q = (√3/2) |σ_θ − σ_r| = σ_y gives
+//! σ_θ − σ_r = (2/√3) σ_y at every radius. Integrating from a to b:
+//!
+//! ```text
+//! p = (2/√3) σ_y ln(b/a).
+//! ```
+//!
+//! This is p_lim's formula, but with the current radii. The material is incompressible, so
+//! the area of the annulus is kept, b² − a² = b₀² − a₀², and with a = a₀ + u(a)
+//!
+//! ```text
+//! p(u) = (1/√3) σ_y ln((b₀² − a₀² + a²) / a²),
+//! dp/du at u = 0: (2/√3) σ_y (a₀/b₀² − 1/a₀)
+//! ```
+//!
+//! (for a₀ = 1, b₀ = 2: p/p_lim − 1 = −1.07 % at u(a) = 0.01 a₀, −5.2 % at 0.05 a₀,
+//! −10.1 % at 0.1 a₀; the slope is −0.75/ln 2 = −1.08 p_lim per a₀).
+//!
+//! What it neglects. (1) The elastic strains, of order σ_y/E: the wall must have yielded
+//! through (u(a) ≳ 0.007 a for E = 500 σ_y, b = 2a), and with ν < 1/2 σ_z reaches the
+//! in-plane mean only as the plastic flow grows (the small-strain model above has the pressure
+//! still 1.55e-3 below p_lim at u(a) = 0.01 a, 6.4e-5 at 0.02 a, at ν = 0.3). (2) The elastic
+//! change of volume, a relative change of the annulus' area of order (1 − 2ν) σ_y/E (8e-4 at
+//! ν = 0.3, E = 500 σ_y; 4e-5 at ν = 0.49), which moves b and the pressure by less than 1e-3
+//! relative. Both are below the MPM's errors here; the formula is an asymptote, not the curve
+//! before the wall has yielded through.
 
 /// The tube and its material (plane strain, small strain, von Mises, perfect plasticity).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -119,6 +159,18 @@ impl ThickCylinder {
     /// The limit pressure (2/√3) σ_y ln(b/a).
     pub fn limit_pressure(&self) -> f64 {
         2.0 / 3f64.sqrt() * self.yield_stress * (self.outer / self.inner).ln()
+    }
+
+    /// The pressure on the bore of the fully plastic, incompressible wall at finite strain
+    /// after the bore has moved out by `inner_displacement` (module docs, "Past the limit"):
+    /// (2/√3) σ_y ln(b/a) with the current radii a = a₀ + u(a), b = √(b₀² − a₀² + a²). It
+    /// equals [`ThickCylinder::limit_pressure`] at u(a) = 0 and falls as the wall thins. Valid
+    /// once the whole wall has yielded; it ignores E and ν (elastic strains of order σ_y/E).
+    pub fn fully_plastic_pressure(&self, inner_displacement: f64) -> f64 {
+        let (a0, b0) = (self.inner, self.outer);
+        let a = a0 + inner_displacement;
+        let b_squared = b0 * b0 - a0 * a0 + a * a;
+        self.yield_stress / 3f64.sqrt() * (b_squared / (a * a)).ln()
     }
 
     /// The tube's response at each of `expansions` (values of u(a), reached in this order from
@@ -451,6 +503,44 @@ mod tests {
         }
         println!("largest difference {largest:e}");
         assert!(largest < 1e-5, "{largest:e}");
+    }
+
+    /// The finite-strain fully plastic pressure (a₀ = 1, b₀ = 2): p_lim at u(a) = 0 (to
+    /// round-off), and below it by the figures worked by hand from b² = 3 + a²: −1.0740 % at
+    /// u(a) = 0.01 a₀ (a = 1.01, b = 2.00502), −5.2138 % at 0.05 a₀ (1.05, 2.02546),
+    /// −10.0593 % at 0.1 a₀ (1.1, 2.05183), each to 1e-6; the slope at u = 0 against
+    /// (2/√3) σ_y (a₀/b₀² − 1/a₀) by central differences (1e-6 relative); the pressure
+    /// falls monotonically, proportional to σ_y and independent of E and ν.
+    #[test]
+    fn the_fully_plastic_pressure_falls_as_the_wall_thins() {
+        let tube = tube(0.3);
+        let limit = tube.limit_pressure();
+        assert!((tube.fully_plastic_pressure(0.0) / limit - 1.0).abs() < 1e-14);
+        for (u, expected) in [(0.01, -0.010740), (0.05, -0.052138), (0.1, -0.100593)] {
+            let fall = tube.fully_plastic_pressure(u) / limit - 1.0;
+            println!("u(a) = {u}: p/p_lim − 1 = {fall:+.7}");
+            assert!((fall - expected).abs() < 1e-6, "u(a) = {u}: {fall}");
+        }
+        let step = 1e-6;
+        let slope =
+            (tube.fully_plastic_pressure(step) - tube.fully_plastic_pressure(-step)) / (2.0 * step);
+        let exact = 2.0 / 3f64.sqrt() * (1.0 / 4.0 - 1.0);
+        assert!(
+            (slope / exact - 1.0).abs() < 1e-6,
+            "{slope} against {exact}"
+        );
+        let curve: Vec<f64> = (0..=100)
+            .map(|k| tube.fully_plastic_pressure(0.002 * k as f64))
+            .collect();
+        assert!(curve.windows(2).all(|w| w[1] < w[0]));
+        let other = ThickCylinder {
+            youngs_modulus: 1e4,
+            poisson_ratio: 0.49,
+            yield_stress: 2.5,
+            ..tube
+        };
+        let ratio = other.fully_plastic_pressure(0.05) / tube.fully_plastic_pressure(0.05);
+        assert!((ratio - 2.5).abs() < 1e-13, "{ratio}");
     }
 
     /// The limit pressure: past the full yield of the wall (u(a) ≈ 0.0075 a) the pressure
