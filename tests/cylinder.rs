@@ -616,12 +616,12 @@ fn the_bore_pressure_of_a_prescribed_expansion_converges_to_lame() {
 /// * past it, from u_r(a) = 0.01 a to 0.015 a, the pressure follows the finite-strain
 ///   reference of the fully plastic wall, (2/√3) σ_y ln(b/a) with the current radii
 ///   (`ThickCylinder::fully_plastic_pressure`, 1.1 to 1.6 % below p_lim there), within 2 %
-///   (measured with one boundary point per cell, the scene's `bore_per_cell` default: linear
-///   −0.3 % .. +0.0 %, GIMP −0.7 % .. 0.0 %).
+///   (measured with the bore cut into one part per cell, two boundary points, the scene's
+///   `bore_per_cell` default: linear −0.3 % .. +0.0 %, GIMP −0.7 % .. 0.0 %).
 ///
 /// Linear MPM and GIMP. Tolerances 2 %; the figures measured are in docs/plasticity.md
-/// ("Benchmark 3"). With two boundary points per cell the bore was over-constrained and the
-/// 8-cell pressure rose again past u_r(a) = 0.01 a by 3 to 4 % (docs).
+/// ("Benchmark 3"). With two parts (four boundary points) per cell the bore was
+/// over-constrained and the 8-cell pressure rose again past u_r(a) = 0.01 a by 3 to 4 % (docs).
 #[test]
 fn a_von_mises_wall_driven_by_its_bore_reaches_the_elastic_limit_and_the_limit_pressure() {
     let elastic_limit = (1.0 - A * A / (B * B)) / 3f64.sqrt();
@@ -973,15 +973,15 @@ fn a_compressible_wall_driven_by_its_bore_follows_the_compressible_reference() {
 /// falls as the wall thins: −1.07 % of p_lim at u_r(a) = 0.01 a, −5.2 % at 0.05 a. A von Mises
 /// wall (ν = 0.49 with F-bar, 4 × 4 points per cell, linear MPM) driven by its bore to
 /// u_r(a) = 0.05 a in 50 steps, past its peak with no arc-length control: at 16 cells across
-/// the wall with the bore condition's penalty γ = 1e4 and two boundary points per cell
-/// (`bore_per_cell = 2`), and at 8 cells with γ = 100 (`bore_penalty`) and two points, or with
-/// one boundary point per cell (`bore_per_cell = 1`, the scene's default). With γ = 1e4 and two
-/// points the 8-cell bore is over-constrained and its curve a saw-tooth, +14 % at 0.05 a (docs);
+/// the wall with the bore condition's penalty γ = 1e4 and two parts (four boundary points) per
+/// cell (`bore_per_cell = 2`), and at 8 cells with γ = 100 (`bore_penalty`) and two parts, or
+/// with one part per cell (`bore_per_cell = 1`, the scene's default). With γ = 1e4 and two
+/// parts the 8-cell bore is over-constrained and its curve a saw-tooth, +14 % at 0.05 a (docs);
 ///
 /// * every step from u_r(a) = 0.01 a on (the wall yielded through at about 0.007 a) against
 ///   the reference at the probe's u_r(a) within 2.5 % (measured −1.86 % .. +0.94 % at 16
 ///   cells, the pressure wavering as points cross cell faces; −0.31 % .. +1.03 % at 8 cells
-///   with γ = 100, −0.60 % .. +0.32 % with one point per cell; p_lim is 5.5 % above the
+///   with γ = 100, −0.60 % .. +0.32 % with one part per cell; p_lim is 5.5 % above the
 ///   reference at 0.05 a);
 /// * the fall: the mean pressure over 0.04 a ≤ u_r(a) ≤ 0.05 a below the mean over
 ///   0.01 a ≤ u_r(a) ≤ 0.02 a by between 0.5 and 1.5 times the reference's fall between the
