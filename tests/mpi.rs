@@ -1110,7 +1110,8 @@ body_force([0.0, -100.0]);
 traction(#{ on: [[0.0, 0.0], [0.0, 4.0]], traction: [0.0, -25.0] });
 fix(|x| x[1] == 0.0);
 fix(|x| x[0] == 0.0 || x[0] == 1.0, [0]);
-load_steps(4);
+let steps = 4;
+load_steps(steps);
 "#;
 
 #[test]
@@ -1404,22 +1405,55 @@ fn a_decomposed_run_resumes_from_checkpoints_of_any_process_count() {
         eprintln!("heavy column, {label}: interrupted, checkpoint after step {done}");
         same_results(&format!("heavy column, {label}"), &got, &reference, seconds);
         if then.is_some() {
-            // the resumed decomposed run's last checkpoint, against the serial run's
-            let (serial, decomposed) = (checkpoint_parts(&serial_dir), checkpoint_parts(&dir));
-            assert_eq!(serial.len(), decomposed.len());
-            for ((name, a), (other, b)) in serial.iter().zip(&decomposed) {
-                assert_eq!(name, other);
-                let difference = relative_difference(b, a);
-                eprintln!(
-                    "{label}: checkpoint part {name}: {} numbers, difference {difference:.1e}",
-                    a.len()
-                );
-                assert!(difference <= 1e-12, "{label}: part {name}: {difference:e}");
-            }
+            same_checkpoint(label, &dir, &serial_dir);
         }
         let _ = std::fs::remove_dir_all(&dir);
     }
     let _ = std::fs::remove_dir_all(&serial_dir);
+}
+
+/// The last checkpoint in `dir` (of a resumed decomposed run) against the serial run's in
+/// `serial_dir`: the same parts, each to 1e-12 of its largest number.
+fn same_checkpoint(label: &str, dir: &Path, serial_dir: &Path) {
+    let (serial, decomposed) = (checkpoint_parts(serial_dir), checkpoint_parts(dir));
+    assert_eq!(serial.len(), decomposed.len());
+    for ((name, a), (other, b)) in serial.iter().zip(&decomposed) {
+        assert_eq!(name, other);
+        let difference = relative_difference(b, a);
+        eprintln!(
+            "{label}: checkpoint part {name}: {} numbers, difference {difference:.1e}",
+            a.len()
+        );
+        assert!(difference <= 1e-12, "{label}: part {name}: {difference:e}");
+    }
+}
+
+/// Load points in checkpoints of decomposed runs: the traction column (8 steps) decomposed
+/// over 3 processes, interrupted after a checkpoint and resumed over 2, gives the serial
+/// run's results (iterations, stresses, positions, the last tractions file), and its last
+/// checkpoint holds the serial run's numbers, the load points' positions included (process 0
+/// places the load points it does not hold from their hosts).
+#[test]
+fn a_decomposed_run_with_tractions_resumes_from_its_checkpoint() {
+    let Some(_one) = mpi_job_slot() else {
+        return;
+    };
+    let name = "traction_column.rhai";
+    let (scene_dir, scene) = scene_file("traction-resume-scene", name, TRACTION_COLUMN);
+    let set = ["steps=8"];
+    let decomposed = ["--petsc-options", "-ksp_rtol 1e-12", "--decompose"];
+    let serial_dir = temp_dir("mpi", "traction-resume-serial");
+    let reference = serial_reference(&scene, &set, &serial_dir, &["--checkpoint-every", "2"]);
+    let dir = temp_dir("mpi", "traction-resume");
+    let done = interrupt_after_checkpoint(Some(3), &scene, &set, &dir, &decomposed, 2);
+    let (got, seconds) = resume(Some(2), &scene, &set, &dir, &decomposed);
+    let label = format!("traction column, -n 3 interrupted after step {done}, then -n 2");
+    same_results(&label, &got, &reference, seconds);
+    same_load_points(&label, &dir, &serial_dir, got.iterations.len());
+    same_checkpoint(&label, &dir, &serial_dir);
+    for dir in [dir, serial_dir, scene_dir] {
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }
 
 /// A plastic scene (the von Mises column, its history carried in the checkpoint): decomposed
