@@ -59,7 +59,7 @@
 //! (it lies in another slab than its host): serially such a node is active and takes its
 //! share, so here too — [`active_elsewhere`] finds these nodes over the processes (a gather
 //! of the candidates and a sum of where they are active, every step) and the forces at them
-//! are sent to their owners ([`send_to_owners`]), which add them before `f_ext` is summed
+//! are sent to their owners (`send_to_owners`), which add them before `f_ext` is summed
 //! over the processes. The tractions file gathers every process's load points (rows of exact
 //! bits) and process 0 writes it; a checkpoint saves every load point's position (process 0
 //! holds every host while it saves, so a load point it does not hold is placed from its
@@ -606,7 +606,7 @@ pub fn host_weights<const D: usize>(
 /// of the step (its half-edges deformed by the host's F). With decomposed points a node of a
 /// support that no point of this process touches may be active on another process: such
 /// nodes count as active, and their forces go to their owners ([`active_elsewhere`],
-/// [`send_to_owners`]; module docs).
+/// `send_to_owners`; module docs).
 #[allow(clippy::too_many_arguments)] // a system: its parameters are what it reads and writes
 pub fn apply_tractions<const D: usize>(
     grid: Res<Grid<D>>,
@@ -821,7 +821,7 @@ pub fn update_traction_points<const D: usize>(
 }
 
 /// `tractions_NNNN.vtu` and its series. With decomposed points every process's load points
-/// are gathered first ([`gather_rows`]; collective: every process writes at the same steps).
+/// are gathered first (`gather_rows`; collective: every process writes at the same steps).
 pub fn write_tractions<const D: usize>(
     mut output: LoadPointOutput,
     mut series: ResMut<TractionSeries>,
