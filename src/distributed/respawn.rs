@@ -7,9 +7,11 @@
 //! (`components::core_point`) and lets every module give the point its own
 //! (`checkpoint::unpack_point_state`). A point moved this way continues exactly: a world whose
 //! every point is taken out and spawned back gives the same results, bit for bit, as one left
-//! alone (`tests/migration.rs`). Modules that keep a point's `Entity` elsewhere (the host
-//! points of traction and boundary points, point loads on a point number) do not follow it;
-//! a decomposed run refuses them until they do (`decomposition::refusal`).
+//! alone (`tests/migration.rs`). Point loads are point-state parts, so they travel in the
+//! record; traction and load points find their host again by its `PointId` after every
+//! exchange (`effects::tractions::follow_hosts`). Modules that keep a point's `Entity`
+//! elsewhere (the host points of boundary and pressure points) do not follow it; a decomposed
+//! run refuses them until they do (`decomposition::refusal`).
 
 use bevy_ecs::prelude::*;
 

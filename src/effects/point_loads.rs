@@ -17,6 +17,14 @@
 //! the first stage that follow the schedule are the [`PointLoad`]s (as in a scene without
 //! stages); the others (later stages, held, released) the points' [`LaterPointLoads`] (a point
 //! state of their own, only in a scene that has them).
+//!
+//! **Decomposed points** (`mpirun -n N impm run SCENE --decompose`): a load is a component of
+//! its point, given when the simulation is built by the process that holds the point (found
+//! by `PointId`; the other processes leave it), and both components are point-state parts, so
+//! the load travels in the point's record when the point moves to another process
+//! (`distributed::respawn`). Each process spreads the loads of its own points; `f_ext` is
+//! summed over the processes after the loads. The `point_load` field is indexed by `PointId`
+//! (each process's piece of the particle file writes its own points').
 
 use bevy_ecs::prelude::*;
 use nalgebra::SVector;
@@ -217,15 +225,25 @@ impl Plugin for PointLoadsModule {
 
     fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
         let entities = simulation.point_entities();
+        let points = simulation.spec().point_count();
         let loads = simulation.spec().part::<PointLoads>();
         for load in loads.iter().flat_map(|loads| &loads.0) {
-            let Some(&entity) = entities.get(load.point) else {
+            if load.point >= points {
                 simulation.fail(format!(
                     "point load on point {} which does not exist",
                     load.point
                 ));
                 return;
-            };
+            }
+            // a point another process holds (decomposed points): its load is that process's,
+            // and travels with the point (the point-state parts below)
+            let entity = entities
+                .get(load.point)
+                .copied()
+                .unwrap_or(Entity::PLACEHOLDER);
+            if entity == Entity::PLACEHOLDER {
+                continue;
+            }
             if load.force.len() != D {
                 simulation.fail(format!(
                     "point load with {} components in {D}D",
@@ -371,9 +389,10 @@ fn point_load_field<const D: usize>(
 ) {
     let stage = stage.map_or(0, |s| s.0);
     let factor = step.factor_in(Ramp::Schedule, stage);
+    // indexed by PointId: a process of a decomposed run holds some of the ids only
     out.add(
         "point_load",
-        all.iter().count(),
+        all.iter().map(|id| id.0 as usize + 1).max().unwrap_or(0),
         loaded.iter().filter_map(|(id, load, later)| {
             let force = match (load, later) {
                 (None, None) => return None,

@@ -27,9 +27,11 @@
 //!    groups (F-bar's, whose members lie in one cell, so on one process); then the decomposed
 //!    grid's owners and global numbers (`super::grid`, which first shares failures: a point
 //!    outside the grid fails the basis on its own process only).
-//! 3. [`sum_external_force`] (`Hook::Loads`, after the modules' loads): the body force is
-//!    spread from the points a process holds, so `f_ext` is a sum over the processes, as
-//!    `f_int` is at `Hook::Combine`.
+//! 3. [`sum_external_force`] (after the loads, outside their stage: it runs after a failure
+//!    too, and shares it first): the body force, point loads and tractions are spread from the
+//!    points (and load points) a process holds, so `f_ext` is a sum over the processes, as
+//!    `f_int` is at `Hook::Combine`. Point loads travel as point-state parts of their points;
+//!    traction and load points follow their hosts by `PointId` (`effects::tractions`).
 //!
 //! A stage's displacement origins travel with their points ([`carry_displacement_origins`]).
 //! What sums over points elsewhere is summed over the processes too: the eq. 15 error
@@ -41,7 +43,7 @@
 use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 
-use super::{AssemblyShare, point_slices, sum_grid_vectors};
+use super::{AssemblyShare, point_slices, share_failure, sum_grid_vectors};
 use crate::components::PointId;
 use crate::distributed::migration::{PointRecord, pack_points, plan_departures, unpack_points};
 use crate::distributed::partition::slab_owners;
@@ -50,17 +52,15 @@ use crate::distributed::{exchange, sum_counts};
 use crate::effects::fbar::{FbarAveraging, FbarSpec};
 use crate::effects::stages::DisplacementOrigin;
 use crate::plugin::Extension;
-use crate::resources::{GridFields, LoadStep, RunStatus, SolverError, Stage, StageClock};
+use crate::resources::{GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock};
 use crate::scene::SceneSpec;
 
 /// The modules a decomposed run refuses, and why.
 const REFUSED: &[(&str, &str)] = &[
-    ("point loads", "keeps the entities of its points"),
     (
         "prescribed displacements",
         "watches the points nearest its nodes by their entities",
     ),
-    ("tractions", "keeps its points' host points"),
     ("pressure", "keeps its points' host points"),
     (
         "surface conditions",
@@ -287,15 +287,21 @@ fn settle<const D: usize>(world: &mut World) -> Result<(), String> {
     Ok(())
 }
 
-/// Step 3 of the module docs: `f_ext` summed over the processes (`Hook::Loads`).
+/// Step 3 of the module docs: `f_ext` summed over the processes, after the loads (collective:
+/// it runs after a failure too, and shares it first: a load can fail on one process alone,
+/// e.g. a traction point leaving the grid).
 pub fn sum_external_force<const D: usize>(
     mut fields: ResMut<GridFields<D>>,
     mut share: ResMut<AssemblyShare>,
     mut status: ResMut<RunStatus>,
     mut clock: ResMut<StageClock>,
     step: Res<LoadStep>,
+    newton: Res<Newton>,
     grid: Res<super::grid::DecomposedGrid>,
 ) {
+    if share_failure(&mut status, step.number, newton.iterations) {
+        return;
+    }
     let _timer = clock.time(Stage::Loads);
     if let Err(why) = sum_grid_vectors(&mut share, Some(&grid), &mut fields.external_force) {
         status.fail(SolverError::Module {

@@ -270,9 +270,15 @@ impl Plugin for DistributedModule {
                     .before(Hook::Output),
             );
         }
-        let [assembled, changing, owned, ghosts, local] = RUN_MEASURES;
+        let [assembled, changing, owned, ghosts, local, _] = RUN_MEASURES;
         if decompose {
-            simulation.add_systems(Hook::Loads, decomposition::sum_external_force::<D>);
+            // not in a stage's set: it runs after a failure too, and shares it
+            let mut schedules = simulation.world().resource_mut::<Schedules>();
+            schedules.entry(StepSchedule).add_systems(
+                decomposition::sum_external_force::<D>
+                    .after(StepSystems::Loads)
+                    .before(StepSystems::Solve),
+            );
             let numbered = |world: &mut World| {
                 let grid = world.get_resource::<grid::DecomposedGrid>()?;
                 grid.ownership.as_ref()?;
