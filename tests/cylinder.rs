@@ -1072,3 +1072,27 @@ fn assert_the_curve_falls_as_the_finite_strain_reference(curve: &[(f64, f64)], r
     );
     assert!((peak / limit - 1.0).abs() < 0.02, "{run}: peak {peak}");
 }
+
+/// A radial condition held by the stiff default penalty with two or more parts per cell is
+/// warned before it runs, with its line (the over-constraint that made the 8-cell driven bore a
+/// saw-tooth: "the_driven_wall_past_its_peak_falls_as_the_finite_strain_reference_says"); one
+/// part per cell, the default, and a penalty of 100 are not.
+#[test]
+fn an_over_constrained_radial_condition_is_warned() {
+    let warned = |set: &[(&str, &str)]| -> Vec<String> {
+        let mut all = vec![("control", "displacement")];
+        all.extend_from_slice(set);
+        common::shipped_scene_warnings("thick_cylinder.rhai", &all, "over-constrain")
+    };
+    let two = warned(&[("bore_per_cell", "2")]);
+    assert_eq!(two.len(), 1, "{two:?}");
+    assert!(
+        two[0].starts_with("line ")
+            && two[0].contains("'bore'")
+            && two[0].contains("per_cell: 2 (4 boundary points"),
+        "{}",
+        two[0]
+    );
+    assert!(warned(&[]).is_empty());
+    assert!(warned(&[("bore_per_cell", "2"), ("bore_penalty", "100")]).is_empty());
+}

@@ -1404,15 +1404,7 @@ fn a_plane_strain_scene_is_warned_of_the_outer_and_inner_cones() {
     let cone_warnings = |set: &[(&str, &str)]| -> Vec<String> {
         let mut set = set.to_vec();
         set.push(("material", "drucker_prager"));
-        let spec = impm::run::load_scene(
-            &common::shipped_scene("strip_footing.rhai"),
-            &common::overrides(&set),
-        )
-        .unwrap();
-        impm::scene::scene_warnings(&spec)
-            .into_iter()
-            .filter(|w| w.contains("drucker_prager"))
-            .collect()
+        common::shipped_scene_warnings("strip_footing.rhai", &set, "drucker_prager")
     };
     let outer = cone_warnings(&[("matching", "outer")]);
     assert_eq!(outer.len(), 1, "{outer:?}");

@@ -90,6 +90,17 @@ pub fn overrides(pairs: &[(&str, &str)]) -> Vec<(String, String)> {
         .collect()
 }
 
+/// The warnings a shipped scene with overrides gets before it runs (`scene::scene_warnings`)
+/// that contain `needle`.
+pub fn shipped_scene_warnings(name: &str, pairs: &[(&str, &str)], needle: &str) -> Vec<String> {
+    let spec = impm::run::load_scene(&shipped_scene(name), &overrides(pairs))
+        .unwrap_or_else(|e| panic!("{name}: {e}"));
+    impm::scene::scene_warnings(&spec)
+        .into_iter()
+        .filter(|w| w.contains(needle))
+        .collect()
+}
+
 /// Runs a shipped scene with overrides to its last step (panicking with the solver's message
 /// if it fails) and removes its output; returns the finished simulation.
 pub fn run_shipped<const D: usize>(script: &str, set: &[(&str, &str)]) -> Simulation<D> {
