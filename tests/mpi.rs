@@ -1188,14 +1188,15 @@ enum Then<'a> {
     BlockNextCheckpoint(&'a str),
 }
 
-/// Runs the scene (under `mpirun -n N` when `processes` is given, with `extra`) keeping a
-/// checkpoint every 2 steps; once a checkpoint after step `after` or later is written, holds
-/// the run (SIGSTOP to the process, or to process 1 of a job, whose others then wait for it
-/// in their next collective call, so it cannot run to its end meanwhile), does `then`, and
-/// lets it go on (SIGCONT). Returns the run's exit status, standard error, the steps of the
-/// checkpoint it was held after and those of its checkpoint at the end.
+/// Runs the scene under `mpirun -n N` (with `extra`) keeping a checkpoint every 2 steps; once
+/// a checkpoint after step `after` or later is written, holds the run (SIGSTOP to process 1 of
+/// the job, or to the one process, whose others then wait for it in their next collective
+/// call, so it cannot run to its end meanwhile), does `then`, and lets it go on (SIGCONT).
+/// Returns the run's exit status, standard error, the steps of the checkpoint it was held
+/// after and those of its checkpoint at the end. (A run can still end between two looks at
+/// its checkpoint on a loaded machine: [`stopped_after`] stops one at an exact step.)
 fn run_until_checkpoint(
-    processes: Option<usize>,
+    processes: usize,
     scene: &Path,
     set: &[&str],
     dir: &Path,
@@ -1207,16 +1208,10 @@ fn run_until_checkpoint(
     let mut extra = extra.to_vec();
     extra.extend(["--checkpoint-every", "2"]);
     let args = run_arguments(scene, set, dir, &extra);
-    let mut job = spawn_logged(impm_command(processes, &args), &logs);
-    let pid = signalled_process(&job, processes);
+    let mut job = spawn_logged(impm_command(Some(processes), &args), &logs);
+    let pid = signalled_process(&job, Some(processes));
     let started = std::time::Instant::now();
     let stderr = || std::fs::read_to_string(logs.join("stderr.txt")).unwrap();
-    // a serial run takes milliseconds per step: it runs in slices of a few milliseconds,
-    // held in between, so that it cannot reach its end between two looks
-    let sliced = processes.is_none();
-    if sliced {
-        signal(pid, "STOP");
-    }
     while checkpoint_steps(dir).is_none_or(|n| n < after) {
         if job.try_wait().unwrap().is_some() {
             panic!(
@@ -1229,17 +1224,9 @@ fn run_until_checkpoint(
             "no checkpoint: {}",
             stderr()
         );
-        if sliced {
-            signal(pid, "CONT");
-            std::thread::sleep(Duration::from_millis(2));
-            signal(pid, "STOP");
-        } else {
-            std::thread::sleep(Duration::from_millis(5));
-        }
+        std::thread::sleep(Duration::from_millis(5));
     }
-    if !sliced {
-        signal(pid, "STOP");
-    }
+    signal(pid, "STOP");
     let held_after = checkpoint_steps(dir).unwrap();
     match then {
         Then::Interrupt => signal(pid, "INT"),
@@ -1260,7 +1247,7 @@ fn run_until_checkpoint(
 /// [`run_until_checkpoint`] with an interrupt: the run ends "interrupted" before its last step,
 /// with a checkpoint; returns the checkpoint's steps done.
 fn interrupt_after_checkpoint(
-    processes: Option<usize>,
+    processes: usize,
     scene: &Path,
     set: &[&str],
     dir: &Path,
@@ -1276,7 +1263,7 @@ fn interrupt_after_checkpoint(
     assert!(stderr.contains("interrupted after load step"), "{stderr}");
     let summary = read_summary(dir);
     assert_eq!(summary["status"], "interrupted", "{summary}");
-    resume_command_is_the_launch(processes, extra, &stderr, &summary);
+    resume_command_is_the_launch(Some(processes), extra, &stderr, &summary);
     let steps = summary["steps"].as_array().unwrap().len() as u64;
     assert!(
         steps < summary["planned_steps"].as_u64().unwrap(),
@@ -1286,6 +1273,44 @@ fn interrupt_after_checkpoint(
         done >= after && done <= steps,
         "checkpoint after {done} of {steps} steps"
     );
+    done
+}
+
+/// Runs the scene (under `mpirun -n N` when `processes` is given, with `extra`) keeping a
+/// checkpoint every 2 steps and stopping after step `steps` (`--stop-after`: the step is
+/// exact, whatever the machine's load): the run ends "interrupted" after exactly `steps`
+/// steps, exits non-zero, and prints and records the command that resumes it (the launch,
+/// without `--stop-after`); returns the checkpoint's steps done (the last even step).
+fn stopped_after(
+    processes: Option<usize>,
+    scene: &Path,
+    set: &[&str],
+    dir: &Path,
+    extra: &[&str],
+    steps: u64,
+) -> u64 {
+    let limit = steps.to_string();
+    let mut arguments = extra.to_vec();
+    arguments.extend(["--checkpoint-every", "2", "--stop-after", &limit]);
+    let output = run(processes, scene, set, dir, &arguments);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        !output.status.success(),
+        "a stopped run exits non-zero: {stderr}"
+    );
+    assert!(!stderr.contains("MPI_Abort"), "ended by an abort: {stderr}");
+    let said = format!("interrupted after load step {steps}");
+    assert!(stderr.contains(&said), "{stderr}");
+    let summary = read_summary(dir);
+    assert_eq!(summary["status"], "interrupted", "{summary}");
+    assert_eq!(summary["steps"].as_array().unwrap().len() as u64, steps);
+    resume_command_is_the_launch(processes, extra, &stderr, &summary);
+    assert!(
+        !summary["resume"].as_str().unwrap().contains("--stop-after"),
+        "{summary}"
+    );
+    let done = checkpoint_steps(dir).expect("a checkpoint");
+    assert_eq!(done, steps - steps % 2, "checkpoints every 2 steps");
     done
 }
 
@@ -1369,8 +1394,10 @@ fn checkpoint_parts(dir: &Path) -> Vec<(String, Vec<f64>)> {
 }
 
 /// Checkpoints and resume with decomposed points, on the heavy column (1D; it shortens by a
-/// third, so points cross slabs and change process; eq. 15 error): a run interrupted after a
-/// checkpoint (every 2 steps) and resumed gives the serial run's results (Newton iterations
+/// third, so points cross slabs and change process; eq. 15 error): a run interrupted after
+/// step 3 (`--stop-after 3`: at that step whatever the machine's load; until 2026-11-26 a
+/// signal, which a loaded machine could deliver after the run's end) with the checkpoint of
+/// step 2 (one every 2 steps) and resumed gives the serial run's results (Newton iterations
 /// in every step, the eq. 15 error to 1e-8 relative, stresses and positions to 1e-8) whatever
 /// wrote the checkpoint and whatever resumes it: decomposed `-n 2` resumed by `-n 2`,
 /// decomposed `-n 3` resumed serially, serial resumed by decomposed `-n 2`. A completed
@@ -1400,9 +1427,9 @@ fn a_decomposed_run_resumes_from_checkpoints_of_any_process_count() {
                 &[][..]
             }
         };
-        let done = interrupt_after_checkpoint(first, &scene, &set, &dir, flags(first), 2);
+        let done = stopped_after(first, &scene, &set, &dir, flags(first), 3);
         let (got, seconds) = resume(then, &scene, &set, &dir, flags(then));
-        eprintln!("heavy column, {label}: interrupted, checkpoint after step {done}");
+        eprintln!("heavy column, {label}: stopped after step 3, checkpoint after step {done}");
         same_results(&format!("heavy column, {label}"), &got, &reference, seconds);
         if then.is_some() {
             same_checkpoint(label, &dir, &serial_dir);
@@ -1445,7 +1472,7 @@ fn a_decomposed_run_with_tractions_resumes_from_its_checkpoint() {
     let serial_dir = temp_dir("mpi", "traction-resume-serial");
     let reference = serial_reference(&scene, &set, &serial_dir, &["--checkpoint-every", "2"]);
     let dir = temp_dir("mpi", "traction-resume");
-    let done = interrupt_after_checkpoint(Some(3), &scene, &set, &dir, &decomposed, 2);
+    let done = interrupt_after_checkpoint(3, &scene, &set, &dir, &decomposed, 2);
     let (got, seconds) = resume(Some(2), &scene, &set, &dir, &decomposed);
     let label = format!("traction column, -n 3 interrupted after step {done}, then -n 2");
     same_results(&label, &got, &reference, seconds);
@@ -1479,7 +1506,7 @@ fn a_plastic_decomposed_run_resumes_and_a_failed_checkpoint_keeps_the_previous_o
     let reference = serial_reference(&scene, &set, &serial_dir, &[]);
 
     let dir = temp_dir("mpi", "resume-plastic");
-    let done = interrupt_after_checkpoint(Some(3), &scene, &set, &dir, &decomposed, 2);
+    let done = interrupt_after_checkpoint(3, &scene, &set, &dir, &decomposed, 2);
     let (got, seconds) = resume(Some(2), &scene, &set, &dir, &decomposed);
     eprintln!("plastic column, -n 3 then -n 2: interrupted, checkpoint after step {done}");
     same_results("plastic column, -n 3 then -n 2", &got, &reference, seconds);
@@ -1487,7 +1514,7 @@ fn a_plastic_decomposed_run_resumes_and_a_failed_checkpoint_keeps_the_previous_o
 
     let dir = temp_dir("mpi", "resume-plastic-blocked");
     let (status, stderr, held, done) = run_until_checkpoint(
-        Some(2),
+        2,
         &scene,
         &set,
         &dir,
