@@ -714,6 +714,14 @@ fn watched_nodes<const D: usize>(simulation: &mut Extension<'_, D>) -> Prescribe
     motion
 }
 
+/// What [`check_prescribed_motion`] reads of a held point: its id, `x_p`, `X_p` and `F_p`.
+type WatchedPoint<'a, const D: usize> = (
+    &'a crate::components::PointId,
+    &'a crate::components::Position<D>,
+    &'a crate::components::ReferencePosition<D>,
+    &'a crate::components::DeformationGradient<D>,
+);
+
 /// After a converged step: does the material still carry the motion prescribed at the grid
 /// nodes? The material that started at a watched node X_i is at x_p + F_p (X_i − X_p), with p
 /// the material point that started nearest to it; its displacement along each prescribed axis
@@ -727,12 +735,7 @@ pub fn check_prescribed_motion<const D: usize>(
     fields: Res<GridFields<D>>,
     mut motion: ResMut<PrescribedMotion<D>>,
     mut warnings: ResMut<Warnings>,
-    points: Query<(
-        &crate::components::PointId,
-        &crate::components::Position<D>,
-        &crate::components::ReferencePosition<D>,
-        &crate::components::DeformationGradient<D>,
-    )>,
+    points: Query<WatchedPoint<D>>,
 ) {
     let stage = stage_of(&stage);
     let (displacements, active) = material_at_watched_nodes(&motion.nodes, &fields, &points);
@@ -807,12 +810,7 @@ pub fn check_prescribed_motion<const D: usize>(
 fn material_at_watched_nodes<const D: usize>(
     nodes: &[WatchedNode<D>],
     fields: &GridFields<D>,
-    points: &Query<(
-        &crate::components::PointId,
-        &crate::components::Position<D>,
-        &crate::components::ReferencePosition<D>,
-        &crate::components::DeformationGradient<D>,
-    )>,
+    points: &Query<WatchedPoint<D>>,
 ) -> (Vec<Option<SVector<f64, D>>>, Vec<bool>) {
     let mut hosts: BTreeMap<u32, Vec<usize>> = BTreeMap::new();
     for (k, watched) in nodes.iter().enumerate() {

@@ -248,7 +248,7 @@ impl ReadingLayout {
 
 /// Every probe's neighbours (by `PointId`, probe after probe) and their numbers at the last
 /// converged step ([`read_probes`]); a probe's value is `Σ_k w_k f_k` over its neighbours in
-/// the resolved order ([`probe_value`]), the serial run's sum.
+/// the resolved order (`probe_value`), the serial run's sum.
 #[derive(Resource, Clone, Debug)]
 pub struct ProbeReadings<const D: usize> {
     pub layout: ReadingLayout,
@@ -289,20 +289,23 @@ impl<const D: usize> ProbeReadings<D> {
     }
 }
 
+/// What [`read_probes`] reads of a held point.
+type ProbedPoint<'a, const D: usize> = (
+    &'a PointId,
+    &'a Position<D>,
+    &'a ReferencePosition<D>,
+    Option<&'a DisplacementOrigin<D>>,
+    &'a Trial<D>,
+    &'a DeformationGradient<D>,
+);
+
 /// After a converged step: every probe neighbour's displacement (less its stage's origin),
 /// stress and F, from the process that holds it (`distributed::numbers_of_points`: with
 /// decomposed points a neighbour may be on another process; the numbers arrive exactly, so
 /// every process records the serial run's values).
 pub fn read_probes<const D: usize>(
     mut readings: ResMut<ProbeReadings<D>>,
-    points: Query<(
-        &PointId,
-        &Position<D>,
-        &ReferencePosition<D>,
-        Option<&DisplacementOrigin<D>>,
-        &Trial<D>,
-        &DeformationGradient<D>,
-    )>,
+    points: Query<ProbedPoint<D>>,
 ) {
     let readings = &mut *readings;
     let layout = readings.layout;
