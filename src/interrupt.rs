@@ -9,11 +9,17 @@
 //! reach the processes at different steps; the command line then sets an agreement
 //! ([`set_agreement`]) through which every process learns, at the same point between steps,
 //! whether any of them is asked to stop, so that they stop together.
+//!
+//! `impm run --stop-after N` stops the run the same way ("interrupted") once N load steps are
+//! done ([`stop_after_steps`], [`step_limit_reached`]): a stop at a step known in advance, the
+//! same on every process of a distributed run (they count the same steps), so it needs no
+//! agreement. It splits a long run into jobs of N steps (each resumed with `--resume`), and
+//! lets tests interrupt a run at an exact step whatever the machine's load.
 
 use std::sync::Arc;
 use std::sync::Mutex;
 use std::sync::OnceLock;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::Instant;
 
 /// Why a run is asked to stop.
@@ -104,6 +110,24 @@ pub fn install() -> Result<(), String> {
 /// Asks the run to stop as a first signal would (for tests and embedding programs).
 pub fn request_stop() {
     flag().store(true, Ordering::SeqCst);
+}
+
+/// No step limit ([`stop_after_steps`]).
+const NO_STEP_LIMIT: usize = usize::MAX;
+
+static STEP_LIMIT: AtomicUsize = AtomicUsize::new(NO_STEP_LIMIT);
+
+/// Stops the run once `steps` load steps are done, counted from the run's start (a resumed
+/// run's steps before its checkpoint included), as an interrupt would (`None`: no limit).
+pub fn stop_after_steps(steps: Option<usize>) {
+    STEP_LIMIT.store(steps.unwrap_or(NO_STEP_LIMIT), Ordering::SeqCst);
+}
+
+/// Whether the run, `steps_done` load steps in, has reached its step limit
+/// ([`stop_after_steps`]).
+pub fn step_limit_reached(steps_done: usize) -> bool {
+    let limit = STEP_LIMIT.load(Ordering::SeqCst);
+    limit != NO_STEP_LIMIT && steps_done >= limit
 }
 
 /// Sets (or clears) the deadline of the current run.

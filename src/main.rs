@@ -72,6 +72,12 @@ enum Command {
         /// Builds with the feature `mpi` only.
         #[arg(long)]
         decompose: bool,
+        /// Stop once N load steps are done (counted from the run's start, a resumed run's
+        /// earlier steps included), as an interrupt does: status "interrupted", resumed with
+        /// --resume. Splits a long run into jobs; keep checkpoints (--checkpoint-every) so that
+        /// the last one is near step N.
+        #[arg(long, value_name = "N")]
+        stop_after: Option<u64>,
     },
     /// Run a scene over the cross product of parameter values; write study.csv, study.md and
     /// charts of error against cells and against wall time.
@@ -197,7 +203,9 @@ fn run(cli: Cli) -> Result<(), Failure> {
             threads,
             petsc_options,
             decompose,
+            stop_after,
         } => {
+            impm::interrupt::stop_after_steps(stop_after.map(|n| n as usize));
             use_threads(threads)?;
             use_petsc_options(petsc_options.as_deref())?;
             use_decomposition(decompose)?;

@@ -544,11 +544,15 @@ impl<const D: usize> Simulation<D> {
     }
 
     /// Runs all remaining load steps, calling `on_step` after each. A stop asked between steps
-    /// (a signal or the deadline, see [`crate::interrupt`]) ends the run after the step in
-    /// flight, with the summary's status saying why.
+    /// (a signal, the deadline or the step limit, see [`crate::interrupt`]) ends the run after
+    /// the step in flight, with the summary's status saying why.
     pub fn run(&mut self, mut on_step: impl FnMut(&StepRecord)) -> Result<(), SolverError> {
         while self.steps_done < self.spec.load_factors.len() {
-            if let Some(reason) = crate::interrupt::agreed_stop_reason() {
+            // a signal or the deadline (agreed between the processes), or the step limit
+            // (`--stop-after`: the same step on every process)
+            let limit = crate::interrupt::step_limit_reached(self.steps_done)
+                .then_some(crate::interrupt::StopReason::Interrupted);
+            if let Some(reason) = crate::interrupt::agreed_stop_reason().or(limit) {
                 self.summary.stop(reason.status());
                 break;
             }

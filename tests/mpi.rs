@@ -48,8 +48,10 @@
 //!   points that change process; the `point_load` field, the reaction and the external
 //!   resultant too), tractions and loads at positions (their points follow their hosts to
 //!   other processes; a load point's support reaching nodes only another process's points
-//!   touch; the tractions file, reactions and resultant too); a scene with probes is refused
-//!   naming them, and `--decompose` without mpirun is refused;
+//!   touch; the tractions file, reactions and resultant too); so do a column compressed by a
+//!   grid-node `displace` (its reactions and its prescribed-motion warning) and probes whose
+//!   neighbours are on two processes (their values in summary.json and history.csv); a scene
+//!   with stress recovery is refused naming it, and `--decompose` without mpirun is refused;
 //! * decomposed runs report as the serial run does: every comparison also compares
 //!   `particles.pvd`'s times (a staged scene's `k + λ_k`), the F-bar column's sparse top cell
 //!   is counted in `fbar_sparse_cells` (summary.json, history.csv) over every process, and an
@@ -416,6 +418,10 @@ struct Runs<'a> {
     /// The last tractions file (`tractions_NNNN.vtu`): every load point's position and force
     /// compared to 1e-8 of the largest.
     tractions: bool,
+    /// Texts of warnings the serial run says: the distributed run says the same warnings
+    /// containing each (as many, the same words up to ` moved by `, after which the numbers
+    /// may differ in their last digits).
+    warned: &'a [&'a str],
 }
 
 impl<'a> Runs<'a> {
@@ -429,6 +435,7 @@ impl<'a> Runs<'a> {
             fields: &[],
             history: &[],
             tractions: false,
+            warned: &[],
         }
     }
 
@@ -567,6 +574,18 @@ fn compare_with(
         }
         if runs.tractions {
             same_load_points(&label, &dir, &serial_dir, got.steps.len());
+        }
+        for text in runs.warned {
+            let said = |outcome: &Outcome| -> Vec<String> {
+                (outcome.warnings.iter())
+                    .filter(|w| w.contains(text))
+                    .map(|w| w.split(" moved by ").next().unwrap().to_string())
+                    .collect()
+            };
+            let serial = said(&reference);
+            assert!(!serial.is_empty(), "{script}: no serial warning {text:?}");
+            eprintln!("{label}: warned as serially: {serial:?}");
+            assert_eq!(said(&got), serial, "{label}: warnings");
         }
         measured.push(got.steps);
         let _ = std::fs::remove_dir_all(&dir);
@@ -1188,14 +1207,15 @@ enum Then<'a> {
     BlockNextCheckpoint(&'a str),
 }
 
-/// Runs the scene (under `mpirun -n N` when `processes` is given, with `extra`) keeping a
-/// checkpoint every 2 steps; once a checkpoint after step `after` or later is written, holds
-/// the run (SIGSTOP to the process, or to process 1 of a job, whose others then wait for it
-/// in their next collective call, so it cannot run to its end meanwhile), does `then`, and
-/// lets it go on (SIGCONT). Returns the run's exit status, standard error, the steps of the
-/// checkpoint it was held after and those of its checkpoint at the end.
+/// Runs the scene under `mpirun -n N` (with `extra`) keeping a checkpoint every 2 steps; once
+/// a checkpoint after step `after` or later is written, holds the run (SIGSTOP to process 1 of
+/// the job, or to the one process, whose others then wait for it in their next collective
+/// call, so it cannot run to its end meanwhile), does `then`, and lets it go on (SIGCONT).
+/// Returns the run's exit status, standard error, the steps of the checkpoint it was held
+/// after and those of its checkpoint at the end. (A run can still end between two looks at
+/// its checkpoint on a loaded machine: [`stopped_after`] stops one at an exact step.)
 fn run_until_checkpoint(
-    processes: Option<usize>,
+    processes: usize,
     scene: &Path,
     set: &[&str],
     dir: &Path,
@@ -1207,16 +1227,10 @@ fn run_until_checkpoint(
     let mut extra = extra.to_vec();
     extra.extend(["--checkpoint-every", "2"]);
     let args = run_arguments(scene, set, dir, &extra);
-    let mut job = spawn_logged(impm_command(processes, &args), &logs);
-    let pid = signalled_process(&job, processes);
+    let mut job = spawn_logged(impm_command(Some(processes), &args), &logs);
+    let pid = signalled_process(&job, Some(processes));
     let started = std::time::Instant::now();
     let stderr = || std::fs::read_to_string(logs.join("stderr.txt")).unwrap();
-    // a serial run takes milliseconds per step: it runs in slices of a few milliseconds,
-    // held in between, so that it cannot reach its end between two looks
-    let sliced = processes.is_none();
-    if sliced {
-        signal(pid, "STOP");
-    }
     while checkpoint_steps(dir).is_none_or(|n| n < after) {
         if job.try_wait().unwrap().is_some() {
             panic!(
@@ -1229,17 +1243,9 @@ fn run_until_checkpoint(
             "no checkpoint: {}",
             stderr()
         );
-        if sliced {
-            signal(pid, "CONT");
-            std::thread::sleep(Duration::from_millis(2));
-            signal(pid, "STOP");
-        } else {
-            std::thread::sleep(Duration::from_millis(5));
-        }
+        std::thread::sleep(Duration::from_millis(5));
     }
-    if !sliced {
-        signal(pid, "STOP");
-    }
+    signal(pid, "STOP");
     let held_after = checkpoint_steps(dir).unwrap();
     match then {
         Then::Interrupt => signal(pid, "INT"),
@@ -1260,7 +1266,7 @@ fn run_until_checkpoint(
 /// [`run_until_checkpoint`] with an interrupt: the run ends "interrupted" before its last step,
 /// with a checkpoint; returns the checkpoint's steps done.
 fn interrupt_after_checkpoint(
-    processes: Option<usize>,
+    processes: usize,
     scene: &Path,
     set: &[&str],
     dir: &Path,
@@ -1276,7 +1282,7 @@ fn interrupt_after_checkpoint(
     assert!(stderr.contains("interrupted after load step"), "{stderr}");
     let summary = read_summary(dir);
     assert_eq!(summary["status"], "interrupted", "{summary}");
-    resume_command_is_the_launch(processes, extra, &stderr, &summary);
+    resume_command_is_the_launch(Some(processes), extra, &stderr, &summary);
     let steps = summary["steps"].as_array().unwrap().len() as u64;
     assert!(
         steps < summary["planned_steps"].as_u64().unwrap(),
@@ -1286,6 +1292,44 @@ fn interrupt_after_checkpoint(
         done >= after && done <= steps,
         "checkpoint after {done} of {steps} steps"
     );
+    done
+}
+
+/// Runs the scene (under `mpirun -n N` when `processes` is given, with `extra`) keeping a
+/// checkpoint every 2 steps and stopping after step `steps` (`--stop-after`: the step is
+/// exact, whatever the machine's load): the run ends "interrupted" after exactly `steps`
+/// steps, exits non-zero, and prints and records the command that resumes it (the launch,
+/// without `--stop-after`); returns the checkpoint's steps done (the last even step).
+fn stopped_after(
+    processes: Option<usize>,
+    scene: &Path,
+    set: &[&str],
+    dir: &Path,
+    extra: &[&str],
+    steps: u64,
+) -> u64 {
+    let limit = steps.to_string();
+    let mut arguments = extra.to_vec();
+    arguments.extend(["--checkpoint-every", "2", "--stop-after", &limit]);
+    let output = run(processes, scene, set, dir, &arguments);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        !output.status.success(),
+        "a stopped run exits non-zero: {stderr}"
+    );
+    assert!(!stderr.contains("MPI_Abort"), "ended by an abort: {stderr}");
+    let said = format!("interrupted after load step {steps}");
+    assert!(stderr.contains(&said), "{stderr}");
+    let summary = read_summary(dir);
+    assert_eq!(summary["status"], "interrupted", "{summary}");
+    assert_eq!(summary["steps"].as_array().unwrap().len() as u64, steps);
+    resume_command_is_the_launch(processes, extra, &stderr, &summary);
+    assert!(
+        !summary["resume"].as_str().unwrap().contains("--stop-after"),
+        "{summary}"
+    );
+    let done = checkpoint_steps(dir).expect("a checkpoint");
+    assert_eq!(done, steps - steps % 2, "checkpoints every 2 steps");
     done
 }
 
@@ -1369,8 +1413,10 @@ fn checkpoint_parts(dir: &Path) -> Vec<(String, Vec<f64>)> {
 }
 
 /// Checkpoints and resume with decomposed points, on the heavy column (1D; it shortens by a
-/// third, so points cross slabs and change process; eq. 15 error): a run interrupted after a
-/// checkpoint (every 2 steps) and resumed gives the serial run's results (Newton iterations
+/// third, so points cross slabs and change process; eq. 15 error): a run interrupted after
+/// step 3 (`--stop-after 3`: at that step whatever the machine's load; until 2026-11-26 a
+/// signal, which a loaded machine could deliver after the run's end) with the checkpoint of
+/// step 2 (one every 2 steps) and resumed gives the serial run's results (Newton iterations
 /// in every step, the eq. 15 error to 1e-8 relative, stresses and positions to 1e-8) whatever
 /// wrote the checkpoint and whatever resumes it: decomposed `-n 2` resumed by `-n 2`,
 /// decomposed `-n 3` resumed serially, serial resumed by decomposed `-n 2`. A completed
@@ -1400,9 +1446,9 @@ fn a_decomposed_run_resumes_from_checkpoints_of_any_process_count() {
                 &[][..]
             }
         };
-        let done = interrupt_after_checkpoint(first, &scene, &set, &dir, flags(first), 2);
+        let done = stopped_after(first, &scene, &set, &dir, flags(first), 3);
         let (got, seconds) = resume(then, &scene, &set, &dir, flags(then));
-        eprintln!("heavy column, {label}: interrupted, checkpoint after step {done}");
+        eprintln!("heavy column, {label}: stopped after step 3, checkpoint after step {done}");
         same_results(&format!("heavy column, {label}"), &got, &reference, seconds);
         if then.is_some() {
             same_checkpoint(label, &dir, &serial_dir);
@@ -1445,7 +1491,7 @@ fn a_decomposed_run_with_tractions_resumes_from_its_checkpoint() {
     let serial_dir = temp_dir("mpi", "traction-resume-serial");
     let reference = serial_reference(&scene, &set, &serial_dir, &["--checkpoint-every", "2"]);
     let dir = temp_dir("mpi", "traction-resume");
-    let done = interrupt_after_checkpoint(Some(3), &scene, &set, &dir, &decomposed, 2);
+    let done = interrupt_after_checkpoint(3, &scene, &set, &dir, &decomposed, 2);
     let (got, seconds) = resume(Some(2), &scene, &set, &dir, &decomposed);
     let label = format!("traction column, -n 3 interrupted after step {done}, then -n 2");
     same_results(&label, &got, &reference, seconds);
@@ -1479,7 +1525,7 @@ fn a_plastic_decomposed_run_resumes_and_a_failed_checkpoint_keeps_the_previous_o
     let reference = serial_reference(&scene, &set, &serial_dir, &[]);
 
     let dir = temp_dir("mpi", "resume-plastic");
-    let done = interrupt_after_checkpoint(Some(3), &scene, &set, &dir, &decomposed, 2);
+    let done = interrupt_after_checkpoint(3, &scene, &set, &dir, &decomposed, 2);
     let (got, seconds) = resume(Some(2), &scene, &set, &dir, &decomposed);
     eprintln!("plastic column, -n 3 then -n 2: interrupted, checkpoint after step {done}");
     same_results("plastic column, -n 3 then -n 2", &got, &reference, seconds);
@@ -1487,7 +1533,7 @@ fn a_plastic_decomposed_run_resumes_and_a_failed_checkpoint_keeps_the_previous_o
 
     let dir = temp_dir("mpi", "resume-plastic-blocked");
     let (status, stderr, held, done) = run_until_checkpoint(
-        Some(2),
+        2,
         &scene,
         &set,
         &dir,
@@ -1559,10 +1605,10 @@ fn the_line_search_with_decomposed_points_equals_the_serial_run() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// Modules that read other points (probes) are refused with decomposed points, naming them
-/// and the lines of their calls, once, without an abort; `--decompose` outside mpirun is
-/// refused. (Point loads and tractions follow their points since 2026-11-26: the tests
-/// above.)
+/// Modules that read other points (stress recovery) are refused with decomposed points,
+/// naming them, once, without an abort; `--decompose` outside mpirun is refused. (Point loads
+/// and tractions follow their points since 2026-11-26, and so do prescribed displacements'
+/// checks and probes: the tests above and below.)
 #[test]
 fn decomposition_refuses_what_cannot_follow_its_points() {
     let Some(_one) = mpi_job_slot() else {
@@ -1570,16 +1616,14 @@ fn decomposition_refuses_what_cannot_follow_its_points() {
     };
     let scene = shipped_scene("beam_point_load.rhai");
     let dir: PathBuf = temp_dir("mpi", "decompose-refused");
-    // probes read the nearest points, which may be on another process: refused, naming
-    // the line of each probe call
-    let probed = dir.join("probed_block.rhai");
+    // stress recovery fits over the neighbouring points, which may be on another process
+    let recovered = dir.join("recovered_block.rhai");
     std::fs::create_dir_all(&dir).unwrap();
-    let probes =
-        "probe(#{ name: \"a\", at: [0.5, 0.5] });\nprobe(#{ name: \"b\", at: [0.5, 0.25] });\n";
-    std::fs::write(&probed, format!("{HALF_FILLED_BLOCK}{probes}")).unwrap();
-    let stderr = refused(2, &probed, &[], &dir.join("out"), &["--decompose"]);
+    let recovery = "stress_recovery(#{ order: 1, radius: 2.5 });\n";
+    std::fs::write(&recovered, format!("{HALF_FILLED_BLOCK}{recovery}")).unwrap();
+    let stderr = refused(2, &recovered, &[], &dir.join("out"), &["--decompose"]);
     assert_eq!(
-        stderr.matches("probes (lines 8, 9: interpolates").count(),
+        stderr.matches("stress recovery (fits over").count(),
         1,
         "{stderr}"
     );
@@ -1947,4 +1991,77 @@ fn a_study_under_mpirun_is_refused() {
     );
     assert!(dir.join("study.csv").is_file());
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A column compressed by a grid-node `displace` on its top (2D, 2 × 8 cells, B-splines q = 2,
+/// rollers, 10 % in 4 steps): its points cross the slabs. The prescribed-motion check reads
+/// the points that started nearest the top nodes, which may be on another process, and the
+/// top nodes may be active on another process only; the reactions are summed at each node's
+/// owner. In compression the material leaves the top nodes, so the serial run warns.
+const DISPLACED_COLUMN: &str = r#"
+grid(#{ lower: [0.0, 0.0], upper: [1.0, 2.0], cells: [2, 8], basis: "bspline", order: 2 });
+const m = material(#{ name: "m", E: 1000.0, nu: 0.0, density: 1.0 });
+body(#{ name: "column", material: m, region: box([0.0, 0.0], [1.0, 2.0]), ppc: 2 });
+fix(|x| x[1] == 0.0, [1]);
+fix(|x| x[0] == 0.0 || x[0] == 1.0, [0]);
+displace(|x| x[1] == 2.0, [1], [-0.2]);
+load_steps(4);
+"#;
+
+/// Prescribed displacements with decomposed points (`-n 2`, `-n 3`) equal the serial run:
+/// iterations, stresses and positions, the reactions of the `displace` and of the base in
+/// every step to 1e-8 relative, and the prescribed-motion warning (the same step and node).
+#[test]
+fn prescribed_displacements_with_decomposed_points_equal_the_serial_run() {
+    let runs = Runs {
+        measures: &["displace1_reaction_y", "fix1_reaction_y"],
+        history: &["displace1_reaction_y"],
+        warned: &["displace1: at step"],
+        ..Runs::decomposed(&[2, 3])
+    };
+    let name = "displaced_column.rhai";
+    let runs = compare_scene_text(DISPLACED_COLUMN, name, "displaced-column-dec", &runs);
+    counted_in_every_run("displaced column", &runs, "points_changing_process");
+}
+
+/// A 2D column under its weight between rollers (3 × 8 cells) with probes: `mid` at the
+/// height where the points are split between two processes at `-n 2` (its 8 neighbours on both
+/// sides), `upper` at a third of the height from the top, which splits them at `-n 3`, with
+/// the stress and F.
+const PROBED_COLUMN: &str = r#"
+grid(#{ lower: [0.0, 0.0], upper: [1.5, 4.0], cells: [3, 8], basis: "bspline", order: 2 });
+const soil = material(#{ name: "soil", E: 1000.0, nu: 0.3, density: 1.0 });
+body(#{ name: "column", material: soil, region: box([0.0, 0.0], [1.5, 4.0]), ppc: 2 });
+body_force([0.0, -100.0]);
+fix(|x| x[1] == 0.0, [1]);
+fix(|x| x[0] == 0.0 || x[0] == 1.5, [0]);
+probe(#{ name: "mid", at: [0.75, 2.0] });
+probe(#{ name: "upper", at: [0.6, 2.7], stress: true, F: true });
+load_steps(3);
+"#;
+
+/// Probes with decomposed points (`-n 2`, `-n 3`) equal the serial run: every probe column in
+/// every step of summary.json and history.csv to 1e-8 relative (the neighbours' numbers come
+/// from the processes that hold them), with iterations, stresses and positions as above.
+#[test]
+fn probes_with_decomposed_points_equal_the_serial_run() {
+    let columns = [
+        "mid_displacement_y",
+        "upper_displacement_y",
+        "upper_stress_yy",
+        "upper_stress_xx",
+        "upper_stress_zz",
+        "upper_F_yy",
+    ];
+    let runs = Runs {
+        measures: &columns,
+        history: &columns,
+        ..Runs::decomposed(&[2, 3])
+    };
+    compare_scene_text(
+        PROBED_COLUMN,
+        "probed_column.rhai",
+        "probed-column-dec",
+        &runs,
+    );
 }

@@ -25,8 +25,8 @@
 //! taken out of a world as a record and spawned back from it, with every module's part),
 //! [`launched_by_mpirun`], which reads the environment so that any build can refuse what it
 //! cannot run under `mpirun`, and [`decomposed`] / [`sum_over_points`] /
-//! [`gather_over_points`] for the sums over points outside the module (the eq. 15 error,
-//! F-bar's sparse cells). The process bookkeeping (`start`,
+//! [`gather_over_points`] / [`numbers_of_points`] for the sums over points outside the module
+//! (the eq. 15 error, F-bar's sparse cells, probes, the prescribed-motion check). The process bookkeeping (`start`,
 //! `processes`, `any`, `abort`) and the messages (`exchange`, `gather_all`, `sum_all`) exist
 //! with the feature `mpi` only.
 
@@ -185,6 +185,35 @@ pub fn sum_over_points(values: &mut [f64]) {
     }
     #[cfg(not(feature = "mpi"))]
     let _ = values;
+}
+
+/// `width` numbers of each of `count` points wherever they are held (a probe's neighbours, the
+/// points nearest a prescribed node): `fill(k, numbers)` writes point `k`'s numbers (zeros
+/// given) and says whether this process holds it. With decomposed points the processes'
+/// numbers are summed (collective then: every process calls it with the same `count` and
+/// `width`); each point is held by one process and the others add zeros, so every process
+/// gets the holder's numbers exactly, as the serial run reads them. Otherwise (a serial run,
+/// or every process holding every point) this process's own. `None` for a point no process
+/// holds (or, on a broken decomposition, several).
+pub fn numbers_of_points(
+    count: usize,
+    width: usize,
+    mut fill: impl FnMut(usize, &mut [f64]) -> bool,
+) -> Vec<Option<Vec<f64>>> {
+    let stride = width + 1;
+    let mut all = vec![0.0; count * stride];
+    for (k, slot) in all.chunks_mut(stride).enumerate() {
+        let (held, numbers) = slot.split_at_mut(1);
+        if fill(k, numbers) {
+            held[0] = 1.0;
+        } else {
+            numbers.fill(0.0);
+        }
+    }
+    sum_over_points(&mut all);
+    all.chunks(stride)
+        .map(|slot| (slot[0] == 1.0).then(|| slot[1..].to_vec()))
+        .collect()
 }
 
 /// Every process's `local` numbers, one after another in rank order, when the points are

@@ -632,7 +632,8 @@ pub struct WatchedNode<const D: usize> {
     pub declaration: usize,
     pub node: usize,
     pub position: SVector<f64, D>,
-    pub host: Entity,
+    /// The material point's `PointId` (its place among the scene's points).
+    pub host: u32,
     pub prescribed: SVector<f64, D>,
     pub fixed: [bool; D],
     /// The stages the declaration acts in.
@@ -653,7 +654,6 @@ pub struct PrescribedMotion<const D: usize> {
 
 fn watched_nodes<const D: usize>(simulation: &mut Extension<'_, D>) -> PrescribedMotion<D> {
     let spec = simulation.spec();
-    let entities = simulation.point_entities();
     let declared = spec
         .part::<ConstraintDeclarations>()
         .map_or(&[][..], |d| &d.0);
@@ -695,7 +695,7 @@ fn watched_nodes<const D: usize>(simulation: &mut Extension<'_, D>) -> Prescribe
                 declaration: index,
                 node,
                 position: SVector::from_column_slice(query),
-                host: entities[host],
+                host: host as u32,
                 prescribed: SVector::zeros(),
                 fixed: [false; D],
                 window: declaration.window,
@@ -714,6 +714,14 @@ fn watched_nodes<const D: usize>(simulation: &mut Extension<'_, D>) -> Prescribe
     motion
 }
 
+/// What [`check_prescribed_motion`] reads of a held point: its id, `x_p`, `X_p` and `F_p`.
+type WatchedPoint<'a, const D: usize> = (
+    &'a crate::components::PointId,
+    &'a crate::components::Position<D>,
+    &'a crate::components::ReferencePosition<D>,
+    &'a crate::components::DeformationGradient<D>,
+);
+
 /// After a converged step: does the material still carry the motion prescribed at the grid
 /// nodes? The material that started at a watched node X_i is at x_p + F_p (X_i − X_p), with p
 /// the material point that started nearest to it; its displacement along each prescribed axis
@@ -727,31 +735,25 @@ pub fn check_prescribed_motion<const D: usize>(
     fields: Res<GridFields<D>>,
     mut motion: ResMut<PrescribedMotion<D>>,
     mut warnings: ResMut<Warnings>,
-    points: Query<(
-        &crate::components::Position<D>,
-        &crate::components::ReferencePosition<D>,
-        &crate::components::DeformationGradient<D>,
-    )>,
+    points: Query<WatchedPoint<D>>,
 ) {
     let stage = stage_of(&stage);
+    let (displacements, active) = material_at_watched_nodes(&motion.nodes, &fields, &points);
     let PrescribedMotion {
         nodes,
         names,
         warned,
     } = &mut *motion;
-    for watched in nodes.iter_mut() {
+    for ((watched, material_displacement), active) in
+        nodes.iter_mut().zip(displacements).zip(active)
+    {
         if warned[watched.declaration] {
             continue;
         }
-        let material_displacement = |watched: &WatchedNode<D>| {
-            points.get(watched.host).ok().map(|(x, reference, f)| {
-                x.0 + f.0 * (watched.position - reference.0) - watched.position
-            })
-        };
         if !watched.window.covers(stage) {
             // before its stage: where its stage will start it from
             if stage < watched.window.from {
-                watched.origin = material_displacement(watched);
+                watched.origin = material_displacement;
             }
             continue;
         }
@@ -767,7 +769,7 @@ pub fn check_prescribed_motion<const D: usize>(
         let (name, line) = &names[watched.declaration];
         let line = line.map(|l| format!("line {l}: ")).unwrap_or_default();
         let advice = "the grid is reset every step, so a grid-node displace moves the material that is at the node at the start of each step; use surface_displace(...) on the body's surface (docs/boundaries.md)";
-        if !fields.active[watched.node] {
+        if !active {
             warned[watched.declaration] = true;
             warnings.0.push(format!(
                 "{line}{name}: at step {} the prescribed node at {:?} has no material next to it any more: the material does not follow the prescribed displacement; {advice}",
@@ -776,7 +778,7 @@ pub fn check_prescribed_motion<const D: usize>(
             ));
             continue;
         }
-        let Some(achieved) = material_displacement(watched) else {
+        let Some(achieved) = material_displacement else {
             continue;
         };
         let achieved = achieved - origin;
@@ -797,6 +799,46 @@ pub fn check_prescribed_motion<const D: usize>(
             ));
         }
     }
+}
+
+/// For each watched node: the displacement of the material that started at it, `x_p + F_p
+/// (X_i − X_p) − X_i` of its host point p (`None` if no process holds p), and whether the
+/// node is active (touched by material). With decomposed points the host may be on another
+/// process and a node may be active on another process only: the host's numbers come from
+/// the process that holds it and the activity is summed over the processes
+/// (`distributed::numbers_of_points`, collective), so every process sees the serial run's.
+fn material_at_watched_nodes<const D: usize>(
+    nodes: &[WatchedNode<D>],
+    fields: &GridFields<D>,
+    points: &Query<WatchedPoint<D>>,
+) -> (Vec<Option<SVector<f64, D>>>, Vec<bool>) {
+    let mut hosts: BTreeMap<u32, Vec<usize>> = BTreeMap::new();
+    for (k, watched) in nodes.iter().enumerate() {
+        hosts.entry(watched.host).or_default().push(k);
+    }
+    let mut held = vec![None; nodes.len()];
+    for (id, x, reference, f) in points.iter() {
+        for &k in hosts.get(&id.0).map_or(&[][..], Vec::as_slice) {
+            let at = nodes[k].position;
+            held[k] = Some(x.0 + f.0 * (at - reference.0) - at);
+        }
+    }
+    let displacements = crate::distributed::numbers_of_points(nodes.len(), D, |k, out| {
+        held[k].is_some_and(|displacement| {
+            out.copy_from_slice(displacement.as_slice());
+            true
+        })
+    });
+    let mut active: Vec<f64> = (nodes.iter())
+        .map(|watched| f64::from(u8::from(fields.active[watched.node])))
+        .collect();
+    crate::distributed::sum_over_points(&mut active);
+    (
+        (displacements.into_iter())
+            .map(|numbers| numbers.map(|n| SVector::from_column_slice(&n)))
+            .collect(),
+        active.into_iter().map(|count| count > 0.0).collect(),
+    )
 }
 
 /// `displace`: the step's increment of every prescribed component, `(λ_n+1 − λ_n) ū`; in a

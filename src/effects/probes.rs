@@ -24,12 +24,23 @@
 //!
 //! A probe farther than one cell (the largest cell size) from every material point is an error:
 //! it names no material position.
+//!
+//! The neighbours are named by `PointId`. After every converged step ([`read_probes`],
+//! `Hook::AfterStep`) each neighbour's numbers (`u_p`, and σ_p, F_p where asked) are read
+//! from the process that holds it: with decomposed points (`impm run --decompose`) a
+//! neighbour may be on another process, and `distributed::numbers_of_points` sums every
+//! process's numbers, each neighbour's coming from its one holder and zeros from the others.
+//! The numbers arrive exactly and every process adds `Σ_k w_k f_k` in the serial order, so a
+//! decomposed run records the serial run's values bit for bit (`tests/mpi.rs`).
 
+use bevy_ecs::prelude::*;
+use nalgebra::SVector;
 use rhai::Dynamic;
 
-use crate::components::{DeformationGradient, Position, ReferencePosition, Trial};
+use crate::components::{DeformationGradient, PointId, Position, ReferencePosition, Trial};
+use crate::effects::stages::DisplacementOrigin;
 use crate::interpolation::{linear_fit_weights, nearest_points};
-use crate::plugin::{Extension, Plugin};
+use crate::plugin::{Extension, Hook, Plugin};
 use crate::scene::{
     CallSpec, Kind, Located, OptionSpec, Options, Resolver, SceneApi, SceneSpec, ScriptError,
 };
@@ -164,68 +175,180 @@ impl Plugin for ProbesModule {
     }
 
     fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
-        let entities = simulation.point_entities();
-        let probes = simulation
-            .spec()
-            .part::<Probes>()
-            .map_or(Vec::new(), |p| p.0.clone());
-        for probe in probes {
-            let mut weights = Vec::with_capacity(probe.weights.len());
-            for &(point, w) in &probe.weights {
-                let Some(&entity) = entities.get(point) else {
-                    simulation.fail(format!(
-                        "probe '{}': point {point} does not exist",
-                        probe.name
-                    ));
-                    return;
-                };
-                weights.push((entity, w));
+        let spec = simulation.spec();
+        let points: usize = spec.bodies.iter().map(|body| body.points.len()).sum();
+        let probes = spec.part::<Probes>().map_or(Vec::new(), |p| p.0.clone());
+        for probe in &probes {
+            if let Some(&(point, _)) = probe.weights.iter().find(|&&(point, _)| point >= points) {
+                simulation.fail(format!(
+                    "probe '{}': point {point} does not exist",
+                    probe.name
+                ));
+                return;
             }
-            let weights = std::sync::Arc::new(weights);
+        }
+        let readings = ProbeReadings::<D>::new(&probes);
+        let layout = readings.layout;
+        simulation.world().insert_resource(readings);
+        simulation.add_systems(Hook::AfterStep, read_probes::<D>);
+        for (index, probe) in probes.iter().enumerate() {
             for (axis, axis_name) in AXES.iter().enumerate().take(D) {
-                let weights = weights.clone();
                 let key = format!("{}_displacement_{axis_name}", probe.name);
-                simulation.add_measure(key, move |world, _| {
-                    let mut value = 0.0;
-                    for &(entity, w) in weights.iter() {
-                        let x = world.get::<Position<D>>(entity)?.0;
-                        let reference = world.get::<ReferencePosition<D>>(entity)?.0;
-                        let origin = super::stages::origin_of::<D>(world, entity);
-                        value += w * (x - reference - origin)[axis];
-                    }
-                    Some(value)
-                });
+                simulation.add_measure(key, move |world, _| probe_value::<D>(world, index, axis));
             }
             if probe.stress {
                 for (a, b) in stress_components(D) {
-                    let weights = weights.clone();
                     let key = format!("{}_stress_{}{}", probe.name, AXES[a], AXES[b]);
-                    simulation.add_measure(key, move |world, _| {
-                        let mut value = 0.0;
-                        for &(entity, w) in weights.iter() {
-                            value += w * world.get::<Trial<D>>(entity)?.0.cauchy()[(a, b)];
-                        }
-                        Some(value)
-                    });
+                    let at = layout.stress(a, b);
+                    simulation.add_measure(key, move |world, _| probe_value::<D>(world, index, at));
                 }
             }
             if probe.deformation_gradient {
                 for (a, row) in AXES.iter().enumerate().take(D) {
                     for (b, column) in AXES.iter().enumerate().take(D) {
-                        let weights = weights.clone();
                         let key = format!("{}_F_{row}{column}", probe.name);
-                        simulation.add_measure(key, move |world, _| {
-                            let mut value = 0.0;
-                            for &(entity, w) in weights.iter() {
-                                value += w * world.get::<DeformationGradient<D>>(entity)?.0[(a, b)];
-                            }
-                            Some(value)
-                        });
+                        let at = layout.deformation_gradient(a, b);
+                        simulation
+                            .add_measure(key, move |world, _| probe_value::<D>(world, index, at));
                     }
                 }
             }
         }
     }
+}
+
+/// Where a neighbour's numbers are in [`ProbeReadings::values`]: its displacement (`D`
+/// numbers), then, when some probe records them, its Cauchy stress (9, row by row) and its
+/// deformation gradient (`D²`, row by row).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ReadingLayout {
+    pub dim: usize,
+    pub stress: bool,
+    pub deformation_gradient: bool,
+}
+
+impl ReadingLayout {
+    /// Numbers per neighbour.
+    pub fn width(self) -> usize {
+        self.dim
+            + 9 * usize::from(self.stress)
+            + self.dim * self.dim * usize::from(self.deformation_gradient)
+    }
+
+    /// The stress component σ_ab.
+    pub fn stress(self, a: usize, b: usize) -> usize {
+        self.dim + 3 * a + b
+    }
+
+    /// The component F_ab.
+    pub fn deformation_gradient(self, a: usize, b: usize) -> usize {
+        self.dim + 9 * usize::from(self.stress) + self.dim * a + b
+    }
+}
+
+/// Every probe's neighbours (by `PointId`, probe after probe) and their numbers at the last
+/// converged step ([`read_probes`]); a probe's value is `Σ_k w_k f_k` over its neighbours in
+/// the resolved order (`probe_value`), the serial run's sum.
+#[derive(Resource, Clone, Debug)]
+pub struct ProbeReadings<const D: usize> {
+    pub layout: ReadingLayout,
+    /// Per probe: its first neighbour's place in `values`, and the weights.
+    pub probes: Vec<(usize, Vec<f64>)>,
+    /// The neighbours' places in `values`, by `PointId` (a point may neighbour several probes).
+    pub places: std::collections::HashMap<u32, Vec<usize>>,
+    /// Per neighbour: its numbers (`layout`), `None` where no process holds it.
+    pub values: Vec<Option<Vec<f64>>>,
+}
+
+impl<const D: usize> ProbeReadings<D> {
+    fn new(probes: &[ProbeSpec]) -> Self {
+        let layout = ReadingLayout {
+            dim: D,
+            stress: probes.iter().any(|p| p.stress),
+            deformation_gradient: probes.iter().any(|p| p.deformation_gradient),
+        };
+        let mut places: std::collections::HashMap<u32, Vec<usize>> = Default::default();
+        let mut first = 0;
+        let probes = probes
+            .iter()
+            .map(|probe| {
+                for (k, &(point, _)) in probe.weights.iter().enumerate() {
+                    places.entry(point as u32).or_default().push(first + k);
+                }
+                let weights = probe.weights.iter().map(|&(_, w)| w).collect::<Vec<f64>>();
+                first += weights.len();
+                (first - weights.len(), weights)
+            })
+            .collect();
+        Self {
+            layout,
+            probes,
+            places,
+            values: Vec::new(),
+        }
+    }
+}
+
+/// What [`read_probes`] reads of a held point.
+type ProbedPoint<'a, const D: usize> = (
+    &'a PointId,
+    &'a Position<D>,
+    &'a ReferencePosition<D>,
+    Option<&'a DisplacementOrigin<D>>,
+    &'a Trial<D>,
+    &'a DeformationGradient<D>,
+);
+
+/// After a converged step: every probe neighbour's displacement (less its stage's origin),
+/// stress and F, from the process that holds it (`distributed::numbers_of_points`: with
+/// decomposed points a neighbour may be on another process; the numbers arrive exactly, so
+/// every process records the serial run's values).
+pub fn read_probes<const D: usize>(
+    mut readings: ResMut<ProbeReadings<D>>,
+    points: Query<ProbedPoint<D>>,
+) {
+    let readings = &mut *readings;
+    let layout = readings.layout;
+    let count: usize = readings.probes.iter().map(|(_, w)| w.len()).sum();
+    let mut held: Vec<Option<Vec<f64>>> = vec![None; count];
+    for (id, x, reference, origin, trial, f) in points.iter() {
+        let Some(places) = readings.places.get(&id.0) else {
+            continue;
+        };
+        let origin = origin.map_or_else(SVector::zeros, |o| o.0);
+        let mut numbers: Vec<f64> = (x.0 - reference.0 - origin).iter().copied().collect();
+        if layout.stress {
+            let cauchy = trial.0.cauchy();
+            numbers.extend((0..3).flat_map(|a| (0..3).map(move |b| cauchy[(a, b)])));
+        }
+        if layout.deformation_gradient {
+            numbers.extend((0..D).flat_map(|a| (0..D).map(move |b| f.0[(a, b)])));
+        }
+        for &place in places {
+            held[place] = Some(numbers.clone());
+        }
+    }
+    readings.values =
+        crate::distributed::numbers_of_points(count, layout.width(), |k, out| match &held[k] {
+            Some(numbers) => {
+                out.copy_from_slice(numbers);
+                true
+            }
+            None => false,
+        });
+}
+
+/// Probe `index`'s value of the number `at` of its neighbours' ([`ReadingLayout`]): `Σ_k w_k
+/// f_k` in the neighbours' order; `None` before the first reading or where a neighbour is
+/// held by no process.
+fn probe_value<const D: usize>(world: &mut World, index: usize, at: usize) -> Option<f64> {
+    let readings = world.get_resource::<ProbeReadings<D>>()?;
+    let (first, weights) = readings.probes.get(index)?;
+    let mut value = 0.0;
+    for (k, w) in weights.iter().enumerate() {
+        value += w * readings.values.get(first + k)?.as_ref()?[at];
+    }
+    Some(value)
 }
 
 /// The recorded stress components: the three normal ones (the out-of-plane σ_zz of plane strain

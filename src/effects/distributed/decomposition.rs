@@ -57,10 +57,6 @@ use crate::scene::SceneSpec;
 
 /// The modules a decomposed run refuses, and why.
 const REFUSED: &[(&str, &str)] = &[
-    (
-        "prescribed displacements",
-        "watches the points nearest its nodes by their entities",
-    ),
     ("pressure", "keeps its points' host points"),
     (
         "surface conditions",
@@ -70,10 +66,6 @@ const REFUSED: &[(&str, &str)] = &[
     (
         "stress recovery",
         "fits over neighbouring points, which may be on another process",
-    ),
-    (
-        "probes",
-        "interpolates from the nearest points, which may be on another process",
     ),
     (
         "arc-length control",
@@ -127,9 +119,9 @@ pub fn refusal(spec: &SceneSpec) -> Option<String> {
 
 /// "line 12: ", "lines 12, 14: " — the scene lines of a refused module's calls, for the
 /// modules whose declarations keep them (point loads, tractions and loads at positions,
-/// surface conditions, probes); empty for the others.
+/// surface conditions); empty for the others.
 fn lines_note(spec: &SceneSpec, module: &str) -> String {
-    use crate::effects::{point_loads, probes, surface_conditions, tractions};
+    use crate::effects::{point_loads, surface_conditions, tractions};
     let lines: Vec<Option<usize>> = match module {
         "point loads" => (spec.part::<point_loads::PointLoadDeclarations>())
             .map_or(Vec::new(), |d| d.0.iter().map(|l| l.line).collect()),
@@ -137,8 +129,6 @@ fn lines_note(spec: &SceneSpec, module: &str) -> String {
             .map_or(Vec::new(), |d| d.0.iter().map(|l| l.line).collect()),
         "surface conditions" => (spec.part::<surface_conditions::SurfaceConditions>())
             .map_or(Vec::new(), |c| c.0.iter().map(|c| c.line).collect()),
-        "probes" => (spec.part::<probes::Probes>())
-            .map_or(Vec::new(), |p| p.0.iter().map(|p| p.line).collect()),
         _ => Vec::new(),
     };
     let mut lines: Vec<usize> = lines.into_iter().flatten().collect();
