@@ -31,7 +31,9 @@
 //!    too, and shares it first): the body force, point loads and tractions are spread from the
 //!    points (and load points) a process holds, so `f_ext` is a sum over the processes, as
 //!    `f_int` is at `Hook::Combine`. Point loads travel as point-state parts of their points;
-//!    traction and load points follow their hosts by `PointId` (`effects::tractions`).
+//!    traction and load points follow their hosts by `PointId` (`effects::tractions`), and so
+//!    do the surface conditions' boundary points, whose terms after the assembly the host's
+//!    process adds (`effects::surface_conditions`, "Decomposed points").
 //!
 //! A stage's displacement origins travel with their points ([`carry_displacement_origins`]).
 //! What sums over points elsewhere is summed over the processes too: the eq. 15 error
@@ -62,10 +64,6 @@ const REFUSED: &[(&str, &str)] = &[
         "watches the points nearest its nodes by their entities",
     ),
     ("pressure", "keeps its points' host points"),
-    (
-        "surface conditions",
-        "keeps its boundary points' host points",
-    ),
     ("finite-element mesh", "its elements refer to their points"),
     (
         "stress recovery",
@@ -127,16 +125,14 @@ pub fn refusal(spec: &SceneSpec) -> Option<String> {
 
 /// "line 12: ", "lines 12, 14: " — the scene lines of a refused module's calls, for the
 /// modules whose declarations keep them (point loads, tractions and loads at positions,
-/// surface conditions, probes); empty for the others.
+/// probes); empty for the others.
 fn lines_note(spec: &SceneSpec, module: &str) -> String {
-    use crate::effects::{point_loads, probes, surface_conditions, tractions};
+    use crate::effects::{point_loads, probes, tractions};
     let lines: Vec<Option<usize>> = match module {
         "point loads" => (spec.part::<point_loads::PointLoadDeclarations>())
             .map_or(Vec::new(), |d| d.0.iter().map(|l| l.line).collect()),
         "tractions" => (spec.part::<tractions::LoadPointDeclarations>())
             .map_or(Vec::new(), |d| d.0.iter().map(|l| l.line).collect()),
-        "surface conditions" => (spec.part::<surface_conditions::SurfaceConditions>())
-            .map_or(Vec::new(), |c| c.0.iter().map(|c| c.line).collect()),
         "probes" => (spec.part::<probes::Probes>())
             .map_or(Vec::new(), |p| p.0.iter().map(|p| p.line).collect()),
         _ => Vec::new(),
