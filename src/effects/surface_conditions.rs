@@ -282,9 +282,11 @@
 //! but a point of another process does would have made the serial run take the basis at the
 //! point where this process takes the host's extrapolation; [`refuse_boundary_nodes_elsewhere`]
 //! (`Hook::Loads`, collective) finds such nodes (`tractions::active_elsewhere`) and fails the
-//! step naming them. Nitsche's round-off slivers are found among the points of each process:
-//! a node that is a sliver for this process's points but not for another's is made inactive
-//! here only, which changes its points' weights by at most the sliver's 1e-10.
+//! step naming them. Nitsche's round-off slivers are found among the points of each process;
+//! a sliver made inactive is still a node of its points' supports, which the decomposed grid
+//! numbers (`effects::distributed::grid`), so its check fails the step on every process
+//! (loudly: the DOF stage's count against the grid's): Nitsche conditions with round-off
+//! slivers do not run decomposed yet.
 //!
 //! Systems: [`find_boundary_supports`] (`Hook::Connectivity`), [`apply_released_conditions`]
 //! (`Hook::Loads`, only with `until_stage`), [`assemble_surface_conditions`]
