@@ -2032,3 +2032,49 @@ fn boundary_points_whose_hosts_change_process_equal_the_serial_run() {
     let runs = compare_scene_text(SUPPORTED_COLUMN, "supported_column.rhai", "side-dec", &runs);
     counted_in_every_run("supported column", &runs, "boundary_hosts_changing_process");
 }
+
+/// A boundary point whose support holds a grid node that only another process's material
+/// points touch is refused at the step, naming the nodes, rather than given another answer
+/// than the serial run's (serially the node is active and the point takes the basis at its
+/// position; the host's process would take the host's extrapolation): a quarter ring driven
+/// by a radial `surface_displace` on its bore (linear basis), whose bore's boundary points
+/// and their hosts lie in different slabs over 2 processes. The job ends together, without an
+/// abort, and the serial run of the same scene completes.
+const DRIVEN_BORE: &str = r#"
+const wall = material(#{ name: "wall", model: "von_mises", E: 500.0, nu: 0.3, sigma_y: 1.0, density: 1.0 });
+grid(#{ lower: [0.0, 0.0], upper: [2.5, 2.5], cells: [10, 10], basis: "linear" });
+body(#{
+    name: "wall",
+    material: wall,
+    region: |x| {
+        let r2 = x[0] * x[0] + x[1] * x[1];
+        x[0] >= 0.0 && x[1] >= 0.0 && r2 >= 1.0 && r2 <= 4.0
+    },
+    ppc: 4,
+});
+fix(|x| x[0] == 0.0, [0]);
+fix(|x| x[1] == 0.0, [1]);
+surface_displace(#{ on: arc(#{ centre: [0.0, 0.0], radius: 1.0, from: 0.0, to: 90.0 }), radial: 0.02, name: "bore" });
+load_steps(2);
+"#;
+
+#[test]
+fn a_boundary_point_reaching_another_process_s_nodes_is_refused_at_the_step() {
+    let Some(_one) = mpi_job_slot() else {
+        return;
+    };
+    let (scene_dir, scene) = scene_file("bore-scene", "driven_bore.rhai", DRIVEN_BORE);
+    let serial_dir = temp_dir("mpi", "bore-serial");
+    serial_reference(&scene, &[], &serial_dir, &[]);
+    let dir = temp_dir("mpi", "bore-decomposed");
+    let stderr = refused(2, &scene, &[], &dir, &["--decompose"]);
+    assert!(
+        stderr.contains(
+            "load step 1: the support of a surface condition's boundary point holds grid nodes"
+        ) && stderr.contains("that only another process's material points touch"),
+        "{stderr}"
+    );
+    for dir in [scene_dir, serial_dir, dir] {
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}

@@ -281,7 +281,7 @@
 //! point's support node (weight above [`SLIVER`]) that no point of the host's process touches
 //! but a point of another process does would have made the serial run take the basis at the
 //! point where this process takes the host's extrapolation; [`refuse_boundary_nodes_elsewhere`]
-//! (`Hook::Loads`, collective) finds such nodes (`tractions::active_elsewhere`) and fails the
+//! (after the loads, collective, run after a failure too) finds such nodes (`tractions::active_elsewhere`) and fails the
 //! step naming them. Nitsche's round-off slivers are found among the points of each process;
 //! a sliver made inactive is still a node of its points' supports, which the decomposed grid
 //! numbers (`effects::distributed::grid`), so its check fails the step on every process
@@ -875,9 +875,20 @@ impl Plugin for SurfaceConditionsModule {
             .add_systems(Hook::AfterAssembly, assemble_surface_conditions::<D>)
             .add_systems(Hook::PointUpdate, update_boundary_points::<D>);
         if decomposed {
-            simulation
-                .add_systems(Hook::Loads, refuse_boundary_nodes_elsewhere::<D>)
-                .add_systems(Hook::AfterStep, share_boundary_points::<D>);
+            #[cfg(feature = "mpi")]
+            {
+                // not in the loads' stage: it runs after a failure too (every process takes
+                // part), before the decomposed `f_ext` sum, which shares the failures
+                use crate::effects::distributed::decomposition::sum_external_force;
+                use crate::method::{StepSchedule, StepSystems};
+                let mut schedules = simulation.world().resource_mut::<Schedules>();
+                schedules.entry(StepSchedule).add_systems(
+                    refuse_boundary_nodes_elsewhere::<D>
+                        .after(StepSystems::Loads)
+                        .before(sum_external_force::<D>),
+                );
+            }
+            simulation.add_systems(Hook::AfterStep, share_boundary_points::<D>);
         }
         simulation
             .add_systems(Hook::AfterStep, measure_material_at_conditions::<D>)
@@ -1228,7 +1239,9 @@ pub struct BoundaryHostsArrived(pub usize);
 #[derive(Resource, Default)]
 pub struct BoundaryNodesElsewhere(pub BTreeSet<usize>);
 
-/// Decomposed points (module docs; `Hook::Loads`, collective): a boundary point whose support
+/// Decomposed points (module docs; after the loads' stage, collective: it runs after a
+/// failure too, every process taking part, before the `f_ext` sum shares the failures): a
+/// boundary point whose support
 /// holds a node that no point of its host's process touches but a point of another process
 /// does (`tractions::active_elsewhere`) would have had the basis at its position serially
 /// (every node of its support active) and the host's extrapolation here; such a step fails,
