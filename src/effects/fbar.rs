@@ -151,6 +151,8 @@
 //!   of the members it assembles only (not those marked `AssembledElsewhere`): the processes'
 //!   shares of `K` are summed.
 
+use std::collections::HashMap;
+
 use bevy_ecs::prelude::*;
 use nalgebra::{SMatrix, SVector};
 
@@ -160,7 +162,7 @@ use crate::components::{
     Trial, Volume,
 };
 use crate::effects::fem_mesh::ElementPoint;
-use crate::mechanics::{embed, increment_gradient};
+use crate::mechanics::{TrialState, embed, increment_gradient};
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{
     Grid, GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock, Warnings,
@@ -230,6 +232,8 @@ pub struct FbarCells {
     /// Every F-bar point, ordered by body, cell and point id.
     pub points: Vec<Entity>,
     pub groups: Vec<FbarGroup>,
+    /// The group and the member index of each point that is a member of a group.
+    pub membership: HashMap<Entity, (usize, usize)>,
     /// The volume at the step start of this process's F-bar points in each (body, cell) it
     /// holds some of, ordered by body and cell (with decomposed points, another process may
     /// hold more of a cell's points: [`count_sparse_cells`]).
@@ -436,6 +440,7 @@ pub fn group_points_by_cell<const D: usize>(
     let cells = &mut *cells;
     cells.points.clear();
     cells.points.extend(keyed.iter().map(|k| k.3));
+    cells.membership.clear();
     // the range of `keyed` of each (body, cell)
     let mut runs: Vec<((u32, usize), std::ops::Range<usize>)> = Vec::new();
     let mut start = 0;
@@ -514,6 +519,12 @@ pub fn group_points_by_cell<const D: usize>(
         }
         if group.sources.len() > 1 {
             fields.couplings.push(group.nodes.clone());
+        }
+        for (member, &source) in group.sources[..group.members].iter().enumerate() {
+            let index = cells.groups.len();
+            cells
+                .membership
+                .insert(cells.points[source], (index, member));
         }
         cells.groups.push(group);
     }
@@ -777,20 +788,15 @@ pub fn assemble_fbar_tangent<const D: usize>(
         }
         let n = group.nodes.len();
         let nodal = !group.tents.is_empty();
-        let average = |averaged: &mut Vec<SVector<f64, D>>, weights: &[f64]| {
-            averaged.clear();
-            averaged.resize(n, SVector::zeros());
-            for ((&q, local), alpha) in group.sources.iter().zip(&group.local).zip(weights) {
-                let Ok((support, trial, _)) = points.get(cells.points[q]) else {
-                    continue;
-                };
-                for (w, &l) in support.0.iter().zip(local) {
-                    averaged[l] += trial.0.spatial_gradient(&w.gradient) * *alpha;
-                }
-            }
-        };
+        let state_of = |e: Entity| points.get(e).ok().map(|(s, t, _)| (s, &t.0));
         if !nodal {
-            average(&mut scratch.averaged, &group.weights);
+            average_gradients(
+                group,
+                &cells,
+                &group.weights,
+                state_of,
+                &mut scratch.averaged,
+            );
         }
         scratch.blocks.clear();
         scratch.blocks.resize(n * n, SMatrix::zeros());
@@ -802,7 +808,7 @@ pub fn assemble_fbar_tangent<const D: usize>(
             };
             if nodal {
                 let row = &group.weights[member * sources..(member + 1) * sources];
-                average(&mut scratch.averaged, row);
+                average_gradients(group, &cells, row, state_of, &mut scratch.averaged);
             }
             let state = &trial.0;
             let projection = volumetric_projection(state);
@@ -837,6 +843,63 @@ pub fn assemble_fbar_tangent<const D: usize>(
             }
         }
     }
+}
+
+/// `ḡ_j = Σ_q α_q g_j^q` on every node of a group (module docs, "Internal force and consistent
+/// tangent"), with `weights` the group's `α_q` (for a nodal group a member's row `α_q^p`) and
+/// `state_of` a source's support and trial state.
+fn average_gradients<'a, const D: usize>(
+    group: &FbarGroup,
+    cells: &FbarCells,
+    weights: &[f64],
+    state_of: impl Fn(Entity) -> Option<(&'a Support<D>, &'a TrialState<D>)>,
+    averaged: &mut Vec<SVector<f64, D>>,
+) {
+    averaged.clear();
+    averaged.resize(group.nodes.len(), SVector::zeros());
+    for ((&q, local), alpha) in group.sources.iter().zip(&group.local).zip(weights) {
+        let Some((support, state)) = state_of(cells.points[q]) else {
+            continue;
+        };
+        for (w, &l) in support.0.iter().zip(local) {
+            averaged[l] += state.spatial_gradient(&w.gradient) * *alpha;
+        }
+    }
+}
+
+/// The volume-change coupling of an F-bar point: the derivative of `ln Δj̄_p − ln Δj_p` with
+/// respect to the increment of every node `j` of its group, `ḡ_j − g_j^p` (into `coupling`,
+/// as `(node, ḡ_j − g_j^p)`), and its `P_p` (module docs, "Internal force and consistent
+/// tangent"). A force `τ̄_p v` linear in the point's stress then has, beyond the standard
+/// block of `mechanics`, the derivative `(P_p v) ⊗ (ḡ_j − g_j^p)`: the rank-one term of the
+/// internal force with `v = V0 g_i`, of Nitsche's consistency term with `v = Δf⁻ᵀ m_s`
+/// (`effects::surface_conditions`). `None` when the point's volume change is its own (not an
+/// F-bar point, or the only source of its group).
+pub fn volume_change_coupling<'a, const D: usize>(
+    cells: &FbarCells,
+    point: Entity,
+    state_of: impl Fn(Entity) -> Option<(&'a Support<D>, &'a TrialState<D>)>,
+    coupling: &mut Vec<(usize, SVector<f64, D>)>,
+) -> Option<SMatrix<f64, D, D>> {
+    let &(index, member) = cells.membership.get(&point)?;
+    let group = &cells.groups[index];
+    let sources = group.sources.len();
+    if sources < 2 {
+        return None;
+    }
+    let (support, state) = state_of(point)?;
+    let weights = match group.tents.is_empty() {
+        true => &group.weights[..],
+        false => &group.weights[member * sources..(member + 1) * sources],
+    };
+    let mut averaged = Vec::new();
+    average_gradients(group, cells, weights, &state_of, &mut averaged);
+    for (w, &l) in support.0.iter().zip(&group.local[member]) {
+        averaged[l] -= state.spatial_gradient(&w.gradient);
+    }
+    coupling.clear();
+    coupling.extend(group.nodes.iter().copied().zip(averaged));
+    Some(volumetric_projection(state))
 }
 
 /// The mixed form's terms of a cell group (module docs, "The mixed form"): adds

@@ -91,6 +91,24 @@
 //! [`imposition_notes`]) name the variant, and the run records it as `NAME_symmetric` (1 or 0)
 //! in `summary.json` and `history.csv`.
 //!
+//! # Nitsche with F-bar
+//! When the host is an F-bar point (`body(#{ .., fbar: .. })`, `effects::fbar`) its stress τ̄_h
+//! is taken at F̄_h, whose volume change is its group's (the points of its cell, or the patch
+//! or projection they average over). T_s then depends on the increments of every node of the
+//! group, not only the host's support; with ∂τ̄_h = P_h ∂ln(Δj̄_h/Δj_h) for the volumetric part
+//! (`fbar::volume_change_coupling`),
+//!
+//! ```text
+//!   K_ij −= N̂_i P (P_h Δf_h⁻ᵀ m_s) ⊗ (ḡ_j − g_j^h)      (j in the host's group),
+//! ```
+//!
+//! the rank-one term of the F-bar internal force with Δf⁻ᵀ m_s in place of V0 g_i. Without it
+//! Newton stalls on nearly incompressible bodies (ν = 0.49: the driven thick cylinder failed
+//! its first step). [`couple_nitsche_to_fbar_groups`] puts the pairs into the sparsity
+//! pattern. The symmetric variant's adjoint keeps the host's standard block only (it is frozen
+//! and consistent either way); with F-bar its tangent is therefore not symmetric at the first
+//! iterate either.
+//!
 //! # Penalty factor
 //! α = γ E / h, with E the largest stiffness scale of the scene's materials
 //! (`MaterialSpec::stiffness`) and h the smallest cell size: a spring per unit area as stiff as
@@ -310,6 +328,7 @@ use crate::checkpoint::CheckpointPart;
 use crate::components::{
     AssembledElsewhere, DeformationGradient, PointId, Position, ReferencePosition, Support, Trial,
 };
+use crate::effects::fbar::{FbarCells, FbarSpec, volume_change_coupling};
 use crate::mechanics::embed;
 
 use super::declarations::{
@@ -818,6 +837,10 @@ impl Plugin for SurfaceConditionsModule {
         }
         if specs.iter().any(|c| c.imposition.is_nitsche()) {
             simulation.nonsymmetric_tangent();
+            if simulation.spec().part::<FbarSpec>().is_some() {
+                // after the F-bar groups are formed (Hook::Connectivity), before the DOFs
+                simulation.add_systems(Hook::Constraints, couple_nitsche_to_fbar_groups::<D>);
+            }
         }
         simulation.world().insert_resource(set);
         simulation.world().insert_resource(SurfaceConditionNames(
@@ -1276,6 +1299,32 @@ pub fn refuse_boundary_nodes_elsewhere<const D: usize>(
     });
 }
 
+/// With F-bar bodies: the nodes of a Nitsche boundary point couple with every node of its
+/// host's F-bar group, whose volume change its traction depends on (module docs, "Nitsche with
+/// F-bar"), so the sparsity pattern holds those pairs.
+pub fn couple_nitsche_to_fbar_groups<const D: usize>(
+    set: Res<SurfaceConditionSet<D>>,
+    cells: Option<Res<FbarCells>>,
+    mut fields: ResMut<GridFields<D>>,
+    points: Query<&BoundaryPoint<D>>,
+) {
+    let Some(cells) = cells else {
+        return;
+    };
+    for point in points.iter() {
+        if !set.0[point.condition].imposition.is_nitsche() {
+            continue;
+        }
+        let Some(&(group, _)) = cells.membership.get(&point.host) else {
+            continue;
+        };
+        let nodes = &cells.groups[group].nodes;
+        let mut coupled: Vec<usize> = point.weights.iter().map(|(node, _)| *node).collect();
+        coupled.extend(nodes);
+        fields.couplings.push(coupled);
+    }
+}
+
 /// The gap g_s = P_s (u_s^n + Σ N̂_i Δu_i − λ ū_s) of a boundary point.
 fn gap<const D: usize>(
     point: &BoundaryPoint<D>,
@@ -1325,6 +1374,8 @@ pub fn assemble_surface_conditions<const D: usize>(
     hosts: Query<(&Support<D>, &Trial<D>, &DeformationGradient<D>)>,
     elsewhere: Query<(), With<AssembledElsewhere>>,
     mut points: Query<&mut BoundaryPoint<D>>,
+    fbar: Option<Res<FbarCells>>,
+    mut coupling: Local<Vec<(usize, SVector<f64, D>)>>,
 ) {
     let _timer = clock.time(Stage::Assembly);
     let fields = &mut *fields;
@@ -1370,6 +1421,21 @@ pub fn assemble_surface_conditions<const D: usize>(
             let block = p * trial.0.stiffness(1.0, &g_m, &g_j);
             for &(i, n_i) in &point.weights {
                 matrix.add_block(&fields.dofs[i], &fields.dofs[w.node], &(block * -n_i));
+            }
+        }
+        // an F-bar host: τ̄_h depends on its group's volume change (module docs, "Nitsche
+        // with F-bar")
+        let state_of = |e: Entity| hosts.get(e).ok().map(|(s, t, _)| (s, &t.0));
+        let coupled = fbar
+            .as_deref()
+            .and_then(|cells| volume_change_coupling(cells, point.host, state_of, &mut coupling));
+        if let Some(projection) = coupled {
+            let v = p * projection * g_m;
+            for &(j, d_j) in coupling.iter() {
+                let block = v * d_j.transpose();
+                for &(i, n_i) in &point.weights {
+                    matrix.add_block(&fields.dofs[i], &fields.dofs[j], &(block * -n_i));
+                }
             }
         }
         if condition.imposition != Imposition::SymmetricNitsche {
