@@ -2065,3 +2065,133 @@ fn probes_with_decomposed_points_equal_the_serial_run() {
         &runs,
     );
 }
+
+/// Material-surface conditions with decomposed points (`surface_displace`): each boundary
+/// point is handled by the process holding its host (found by `PointId`), which adds its
+/// terms after the assembly once over the processes; the boundary points are shared after
+/// every step, so that a process a host arrives at holds its boundary point as the host's old
+/// process left it, and the conditions' records (reactions, mean tractions, the material
+/// check's fit over points of several processes) are the whole run's on every process. The
+/// elastic strip footing (penalty, rough; `cells=4`, 2 steps) over 2 and 3 processes: the same
+/// Newton iterations, stresses and positions as the serial run, the footing pressure and the
+/// horizontal reaction in every step, and history.csv's `footing_pressure`, to 1e-8.
+#[test]
+fn the_strip_footing_with_decomposed_points_equals_the_serial_run() {
+    let runs = Runs {
+        measures: &[
+            "footing_pressure",
+            "footing_reaction_x",
+            "footing_material_force_y",
+        ],
+        history: &["footing_pressure"],
+        ..Runs::decomposed(&[2, 3])
+    };
+    let scene = shipped_scene("strip_footing.rhai");
+    compare_with(&scene, &["cells=4", "steps=2"], "footing-dec", &runs);
+}
+
+/// As above with non-symmetric Nitsche on a plastic soil: the Tresca footing (`cells=2`,
+/// 3 steps, settlement 0.03 B), which yields under the footing (the plastic strain equal to the
+/// serial run's), the consistency term from the host's stress on the host's process.
+#[test]
+fn a_tresca_footing_by_nitsche_with_decomposed_points_equals_the_serial_run() {
+    let runs = Runs {
+        measures: &["footing_pressure", "footing_reaction_x"],
+        history: &["footing_pressure"],
+        ..Runs::decomposed(&[2, 3])
+    };
+    let scene = shipped_scene("strip_footing.rhai");
+    let set = [
+        "material=tresca",
+        "method=nitsche",
+        "cells=2",
+        "steps=3",
+        "settlement=0.03",
+    ];
+    compare_with(&scene, &set, "tresca-nitsche-dec", &runs);
+}
+
+/// Boundary points whose hosts change process: a 2D column (slabs across its height) held on
+/// its left side by a smooth support (`surface_displace` of the x component, symmetric
+/// Nitsche) and pushed down on its top by a rough one (penalty), under its weight. The side's
+/// hosts move down across the slabs, so at the last step's start a host arrives at another
+/// process (`boundary_hosts_changing_process` more than zero over 2 and over 3 processes).
+/// The same Newton iterations, stresses and positions as the serial run; the side's reaction,
+/// mean displacement and material force, the top's pressure, and the base's reaction in every
+/// step, to 1e-8. (With the boundary points left where their hosts' old processes had them,
+/// the side's mean displacement differed by 48 % at `-n 2` and the last step failed.)
+const SUPPORTED_COLUMN: &str = r#"
+grid(#{ lower: [-0.5, 0.0], upper: [1.0, 4.5], cells: [3, 9], basis: "bspline", order: 2 });
+const soil = material(#{ name: "column", E: 1000.0, nu: 0.2, density: 1.0 });
+body(#{ name: "column", material: soil, region: box([0.0, 0.0], [1.0, 4.0]), ppc: 2 });
+body_force([0.0, -25.0]);
+fix(|x| x[1] == 0.0);
+fix(|x| x[0] == 1.0, [0]);
+surface_displace(#{ on: [[0.0, 0.0], [0.0, 4.0]], components: [0], method: "nitsche", name: "side" });
+surface_displace(#{ on: [[0.0, 4.0], [1.0, 4.0]], displacement: [0.0, -0.3], name: "top" });
+record(#{ name: "top_pressure", quantity: "top_traction_y", scale: -1.0 });
+load_steps(3);
+"#;
+
+#[test]
+fn boundary_points_whose_hosts_change_process_equal_the_serial_run() {
+    let runs = Runs {
+        measures: &[
+            "side_reaction_x",
+            "side_displacement_y",
+            "side_material_force_x",
+            "top_reaction_y",
+            "fix1_reaction_y",
+        ],
+        history: &["top_pressure", "side_reaction_x"],
+        ..Runs::decomposed(&[2, 3])
+    };
+    let runs = compare_scene_text(SUPPORTED_COLUMN, "supported_column.rhai", "side-dec", &runs);
+    counted_in_every_run("supported column", &runs, "boundary_hosts_changing_process");
+}
+
+/// A boundary point whose support holds a grid node that only another process's material
+/// points touch is refused at the step, naming the nodes, rather than given another answer
+/// than the serial run's (serially the node is active and the point takes the basis at its
+/// position; the host's process would take the host's extrapolation): a quarter ring driven
+/// by a radial `surface_displace` on its bore (linear basis), whose bore's boundary points
+/// and their hosts lie in different slabs over 2 processes. The job ends together, without an
+/// abort, and the serial run of the same scene completes.
+const DRIVEN_BORE: &str = r#"
+const wall = material(#{ name: "wall", model: "von_mises", E: 500.0, nu: 0.3, sigma_y: 1.0, density: 1.0 });
+grid(#{ lower: [0.0, 0.0], upper: [2.5, 2.5], cells: [10, 10], basis: "linear" });
+body(#{
+    name: "wall",
+    material: wall,
+    region: |x| {
+        let r2 = x[0] * x[0] + x[1] * x[1];
+        x[0] >= 0.0 && x[1] >= 0.0 && r2 >= 1.0 && r2 <= 4.0
+    },
+    ppc: 4,
+});
+fix(|x| x[0] == 0.0, [0]);
+fix(|x| x[1] == 0.0, [1]);
+surface_displace(#{ on: arc(#{ centre: [0.0, 0.0], radius: 1.0, from: 0.0, to: 90.0 }), radial: 0.02, name: "bore" });
+load_steps(2);
+"#;
+
+#[test]
+fn a_boundary_point_reaching_another_process_s_nodes_is_refused_at_the_step() {
+    let Some(_one) = mpi_job_slot() else {
+        return;
+    };
+    let (scene_dir, scene) = scene_file("bore-scene", "driven_bore.rhai", DRIVEN_BORE);
+    let serial_dir = temp_dir("mpi", "bore-serial");
+    serial_reference(&scene, &[], &serial_dir, &[]);
+    let dir = temp_dir("mpi", "bore-decomposed");
+    let stderr = refused(2, &scene, &[], &dir, &["--decompose"]);
+    assert!(
+        stderr.contains(
+            "load step 1: the support of a surface condition's boundary point holds grid nodes"
+        ) && stderr.contains("that only another process's material points touch"),
+        "{stderr}"
+    );
+    for dir in [scene_dir, serial_dir, dir] {
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}

@@ -135,17 +135,19 @@ pub fn request_resume() {
 
 /// The measures a distributed run adds to every step's record (summary.json, history.csv):
 /// what it sends by kind (`traffic`), the points process 0 assembled and the points that
-/// changed process, and with decomposed points the decomposed grid's counts and the load
-/// points (tractions, loads at positions) that changed process. A run resumed
+/// changed process, and with decomposed points the decomposed grid's counts, the load
+/// points (tractions, loads at positions) that changed process and the surface conditions'
+/// boundary points whose host changed process. A run resumed
 /// from another run's checkpoint (serial, replicated or decomposed, over any number of
 /// processes) takes the records of its steps with these measures as they are.
-pub const RUN_MEASURES: [&str; 6] = [
+pub const RUN_MEASURES: [&str; 7] = [
     "assembled_points",
     "points_changing_process",
     "owned_dofs",
     "ghost_nodes",
     "local_dofs",
     "load_points_changing_process",
+    "boundary_hosts_changing_process",
 ];
 
 /// [`RUN_MEASURES`] and the traffic counters' names: every measure a distributed run may add.

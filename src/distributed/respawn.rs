@@ -9,9 +9,10 @@
 //! every point is taken out and spawned back gives the same results, bit for bit, as one left
 //! alone (`tests/migration.rs`). Point loads are point-state parts, so they travel in the
 //! record; traction and load points find their host again by its `PointId` after every
-//! exchange (`effects::tractions::follow_hosts`). Modules that keep a point's `Entity`
-//! elsewhere (the host points of boundary and pressure points) do not follow it; a decomposed
-//! run refuses them until they do (`decomposition::refusal`).
+//! exchange (`effects::tractions::follow_hosts`), and so do the surface conditions' boundary
+//! points (`effects::surface_conditions::follow_boundary_hosts`). Modules that keep a point's
+//! `Entity` elsewhere (the host points of pressure points) do not follow it; a decomposed run
+//! refuses them until they do (`decomposition::refusal`).
 
 use bevy_ecs::prelude::*;
 

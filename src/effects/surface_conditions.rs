@@ -275,6 +275,37 @@
 //! The forces R_s are a checkpoint part ("released surface conditions"), and the convergence
 //! criterion keeps its force floor (`declarations::keep_largest_force`).
 //!
+//! # Decomposed points
+//!
+//! Under `mpirun --decompose` (`docs/distributed.md`) a material point lives on one process,
+//! which moves as the point crosses slabs. Every process holds every boundary point (a few
+//! per cell of surface), each keeping its host's and its fit's `PointId`s
+//! ([`BoundaryPoint::host_id`]); at every step start, after the exchange of material points,
+//! [`follow_boundary_hosts`] links them to the entities this process holds
+//! (`Entity::PLACEHOLDER` for another process's). Only the process holding the host finds the
+//! point's weights, adds its terms after the assembly (into its shares of `f_int` and `K`,
+//! which are summed: once over the processes), adds a released condition's load and moves the
+//! point after the step. [`share_boundary_points`] (`Hook::AfterStep`, first; collective, after
+//! the failures of the point update are shared) then gathers every held point's position,
+//! starts, released force and record ([`BoundaryRecord`], as exact bits) to all processes, so
+//! that whichever process holds a host at the next step's start has its boundary point as the
+//! host's old process left it, and the conditions' records are taken from all of them in id
+//! order ([`record_conditions`], as serially). The material check's fit sums its points'
+//! terms on every process over the points it holds and adds them over the processes.
+//! `boundary_hosts_changing_process` in summary.json counts the boundary points whose host
+//! arrived at another process at a step's start.
+//!
+//! Two differences from a serial run are handled by refusing, not approximated: a boundary
+//! point's support node (weight above [`SLIVER`]) that no point of the host's process touches
+//! but a point of another process does would have made the serial run take the basis at the
+//! point where this process takes the host's extrapolation; [`refuse_boundary_nodes_elsewhere`]
+//! (after the loads, collective, run after a failure too) finds such nodes (`tractions::active_elsewhere`) and fails the
+//! step naming them. Nitsche's round-off slivers are found among the points of each process;
+//! a sliver made inactive is still a node of its points' supports, which the decomposed grid
+//! numbers (`effects::distributed::grid`), so its check fails the step on every process
+//! (loudly: the DOF stage's count against the grid's): Nitsche conditions with round-off
+//! slivers do not run decomposed yet.
+//!
 //! Systems: [`find_boundary_supports`] (`Hook::Connectivity`), [`apply_released_conditions`]
 //! (`Hook::Loads`, only with `until_stage`), [`assemble_surface_conditions`]
 //! (`Hook::AfterAssembly`; in a distributed run a boundary point's terms are added by the
@@ -285,6 +316,8 @@
 //! and the largest prescribed displacement so far). Symmetric Nitsche's frozen host state is
 //! not saved: it is taken again at the first iterate of every step.
 
+use std::collections::{BTreeSet, HashMap};
+
 use bevy_ecs::prelude::*;
 use nalgebra::{SMatrix, SVector};
 use rhai::Dynamic;
@@ -293,7 +326,7 @@ use super::carried_points::{carried_point, restore_positions, save_positions};
 use crate::basis::{BasisKind, BasisScratch, GimpDomain, NodeWeight};
 use crate::checkpoint::CheckpointPart;
 use crate::components::{
-    AssembledElsewhere, DeformationGradient, Position, ReferencePosition, Support, Trial,
+    AssembledElsewhere, DeformationGradient, PointId, Position, ReferencePosition, Support, Trial,
 };
 use crate::effects::fbar::{FbarCells, FbarSpec, volume_change_coupling};
 use crate::mechanics::embed;
@@ -446,9 +479,17 @@ pub struct BoundaryPoint<const D: usize> {
     /// Current position (converged, start of the load step).
     pub position: SVector<f64, D>,
     pub area: f64,
+    /// The host material point's entity on this process (`Entity::PLACEHOLDER` where another
+    /// process holds it: decomposed points, module docs).
     pub host: Entity,
-    /// The material points of the fit at the reference position, with their weights.
+    /// The host's `PointId`: how it is found again after the points are spawned anew or move
+    /// between the processes.
+    pub host_id: u32,
+    /// The material points of the fit at the reference position, with their weights (the
+    /// entity `Entity::PLACEHOLDER` for a point another process holds).
     pub fit: Vec<(Entity, f64)>,
+    /// The fit's points' `PointId`s, in the order of `fit`.
+    pub fit_ids: Vec<u32>,
     /// The active nodes of the basis at `position` with the weights N̂_i (module docs).
     pub weights: Vec<(usize, f64)>,
     /// Symmetric Nitsche: the host's trial state at the step's first iterate, whose tangent
@@ -468,6 +509,34 @@ pub struct BoundaryPoint<const D: usize> {
     /// in: in the stage that releases the condition (`until_stage`) the load that replaces it,
     /// ramped down (module docs, "Stages").
     pub released: SVector<f64, D>,
+    /// What the point adds to its condition's records at the last converged step
+    /// ([`update_boundary_points`], [`record_conditions`]).
+    pub record: BoundaryRecord<D>,
+}
+
+/// One boundary point's part of its condition's records at a converged step (module docs,
+/// "Reactions", "Separation", "Curved surfaces").
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BoundaryRecord<const D: usize> {
+    /// R_s: the force the point exerts on the body (in the releasing stage, the ramped load).
+    pub reaction: SVector<f64, D>,
+    /// |g_s|.
+    pub gap: f64,
+    /// |P (x̃_s − x_s)|.
+    pub separation: f64,
+    /// a_s = J_h |F_h⁻ᵀ N_s| A_s, if the host was found.
+    pub current_area: Option<f64>,
+}
+
+impl<const D: usize> Default for BoundaryRecord<D> {
+    fn default() -> Self {
+        Self {
+            reaction: SVector::zeros(),
+            gap: 0.0,
+            separation: 0.0,
+            current_area: None,
+        }
+    }
 }
 
 /// One condition in the world: what the systems need, and its last reaction.
@@ -807,10 +876,44 @@ impl Plugin for SurfaceConditionsModule {
                 name: "surface conditions",
                 save: save_condition_state::<D>,
                 restore: restore_condition_state::<D>,
-            })
+            });
+        // decomposed points (module docs): every process holds every boundary point; the
+        // host's process handles it, and they are shared after every step
+        let decomposed = crate::distributed::decomposed();
+        if decomposed {
+            simulation.world().init_resource::<BoundaryNodesElsewhere>();
+            simulation.world().init_resource::<BoundaryHostsArrived>();
+            // the boundary points whose host arrived at the step's start, summed over the
+            // processes (collective: every process records the same steps, in the same order)
+            let moved = crate::distributed::RUN_MEASURES[6];
+            simulation.add_measure(moved, |world, _| {
+                let mut arrived = [world.resource::<BoundaryHostsArrived>().0 as f64];
+                crate::distributed::sum_over_points(&mut arrived);
+                Some(arrived[0])
+            });
+            simulation.add_systems(Hook::Connectivity, follow_boundary_hosts::<D>);
+        }
+        simulation
             .add_systems(Hook::Connectivity, find_boundary_supports::<D>)
             .add_systems(Hook::AfterAssembly, assemble_surface_conditions::<D>)
-            .add_systems(Hook::PointUpdate, update_boundary_points::<D>)
+            .add_systems(Hook::PointUpdate, update_boundary_points::<D>);
+        if decomposed {
+            #[cfg(feature = "mpi")]
+            {
+                // not in the loads' stage: it runs after a failure too (every process takes
+                // part), before the decomposed `f_ext` sum, which shares the failures
+                use crate::effects::distributed::decomposition::sum_external_force;
+                use crate::method::{StepSchedule, StepSystems};
+                let mut schedules = simulation.world().resource_mut::<Schedules>();
+                schedules.entry(StepSchedule).add_systems(
+                    refuse_boundary_nodes_elsewhere::<D>
+                        .after(StepSystems::Loads)
+                        .before(sum_external_force::<D>),
+                );
+            }
+            simulation.add_systems(Hook::AfterStep, share_boundary_points::<D>);
+        }
+        simulation
             .add_systems(Hook::AfterStep, measure_material_at_conditions::<D>)
             .add_systems(Hook::AfterStep, check_surface_conditions::<D>);
     }
@@ -930,6 +1033,13 @@ fn spawn_boundary_points<const D: usize>(
     specs: &[SurfaceConditionSpec],
 ) -> Result<(), String> {
     let entities = simulation.point_entities();
+    let decomposed = crate::distributed::decomposed();
+    // a material point's entity; with decomposed points `PLACEHOLDER` for another process's
+    let entity = |index: usize, what: &str| match entities.get(index) {
+        Some(&entity) if entity != Entity::PLACEHOLDER => Ok(entity),
+        _ if decomposed => Ok(Entity::PLACEHOLDER),
+        _ => Err(format!("{what} {index} does not exist")),
+    };
     let world = simulation.world();
     let mut batch = Vec::new();
     for (condition, spec) in specs.iter().enumerate() {
@@ -937,42 +1047,37 @@ fn spawn_boundary_points<const D: usize>(
             if point.position.len() != D {
                 return Err(format!("boundary point of '{}' not in {D}D", spec.name));
             }
-            let host = *entities
-                .get(point.host)
-                .ok_or_else(|| format!("boundary point host {} does not exist", point.host))?;
+            let host = entity(point.host, "boundary point host")?;
             let position = SVector::from_column_slice(&point.position);
             let fit = point
                 .fit
                 .iter()
-                .map(|&(k, w)| {
-                    entities
-                        .get(k)
-                        .map(|&e| (e, w))
-                        .ok_or_else(|| format!("material point {k} of a fit does not exist"))
-                })
+                .map(|&(k, w)| Ok((entity(k, "material point of a fit")?, w)))
                 .collect::<Result<Vec<_>, String>>()?;
             batch.push(BoundaryPoint::<D> {
                 fit,
+                fit_ids: point.fit.iter().map(|&(k, _)| k as u32).collect(),
                 normal: SVector::from_column_slice(&point.normal),
                 projection: SMatrix::from_row_slice(&point.projection),
                 prescribed: SVector::from_column_slice(&point.displacement),
                 released: SVector::zeros(),
+                record: BoundaryRecord::default(),
                 condition,
                 id: batch.len() as u32,
                 reference_position: position,
                 position,
                 area: point.area,
                 host,
+                host_id: point.host as u32,
                 weights: Vec::new(),
                 adjoint_state: None,
                 start: [SVector::zeros(); 2],
             });
         }
     }
-    if let Some(point) = batch
-        .iter()
-        .find(|p| world.get::<ReferencePosition<D>>(p.host).is_none())
-    {
+    if let Some(point) = batch.iter().find(|p| {
+        p.host != Entity::PLACEHOLDER && world.get::<ReferencePosition<D>>(p.host).is_none()
+    }) {
         return Err(format!(
             "boundary point {} has no material point as host",
             point.id
@@ -980,6 +1085,33 @@ fn spawn_boundary_points<const D: usize>(
     }
     world.spawn_batch(batch);
     Ok(())
+}
+
+/// Decomposed points (module docs): every process holds every boundary point, and after the
+/// step start's exchange of material points (`Hook::Connectivity`, before
+/// [`find_boundary_supports`]) links each to its host's and its fit's entities on this process
+/// by their `PointId`s (`Entity::PLACEHOLDER` for the points another process holds; a point
+/// the exchange moved, or spawned anew, has a new entity).
+/// Counts the boundary points whose host arrived at this process ([`BoundaryHostsArrived`]).
+pub fn follow_boundary_hosts<const D: usize>(
+    material: Query<(Entity, &PointId)>,
+    mut points: Query<&mut BoundaryPoint<D>>,
+    mut arrived: ResMut<BoundaryHostsArrived>,
+) {
+    let held: HashMap<u32, Entity> = material.iter().map(|(e, id)| (id.0, e)).collect();
+    let entity = |id: &u32| held.get(id).copied().unwrap_or(Entity::PLACEHOLDER);
+    arrived.0 = 0;
+    for mut point in points.iter_mut() {
+        let point = &mut *point;
+        let before = point.host;
+        point.host = entity(&point.host_id);
+        if before == Entity::PLACEHOLDER && point.host != Entity::PLACEHOLDER {
+            arrived.0 += 1;
+        }
+        for ((fitted, _), id) in point.fit.iter_mut().zip(&point.fit_ids) {
+            *fitted = entity(id);
+        }
+    }
 }
 
 carried_point!(BoundaryPoint);
@@ -1049,10 +1181,14 @@ pub fn find_boundary_supports<const D: usize>(
     mut scratch: Local<(BasisScratch, Vec<NodeWeight<D>>)>,
     hosts: Query<(&Support<D>, &Position<D>)>,
     mut points: Query<&mut BoundaryPoint<D>>,
+    mut elsewhere: Option<ResMut<BoundaryNodesElsewhere>>,
 ) {
     let _timer = clock.time(Stage::Connectivity);
     let (scratch, support) = &mut *scratch;
     let fields = &mut *fields;
+    if let Some(elsewhere) = elsewhere.as_deref_mut() {
+        elsewhere.0.clear();
+    }
     if let Some(nitsche) = set.0.iter().find(|c| c.imposition.is_nitsche()) {
         // round-off slivers get no DOF (module docs, "Round-off slivers")
         let slivers = sliver_nodes(
@@ -1065,6 +1201,11 @@ pub fn find_boundary_supports<const D: usize>(
         }
     }
     for mut point in points.iter_mut() {
+        if point.host == Entity::PLACEHOLDER {
+            // decomposed points: the host's process handles it
+            point.weights.clear();
+            continue;
+        }
         let fail = |why: &str| SolverError::Module {
             step: step.number,
             what: format!(
@@ -1083,6 +1224,15 @@ pub fn find_boundary_supports<const D: usize>(
             status.fail(fail("left the background grid"));
             return;
         }
+        if let Some(elsewhere) = elsewhere.as_deref_mut() {
+            // the nodes that would decide the weights were they active on another process
+            let active = &fields.active;
+            elsewhere.0.extend(
+                (support.iter())
+                    .filter(|w| w.value.abs() > SLIVER && !active[w.node])
+                    .map(|w| w.node),
+            );
+        }
         let offset = point.position - host_position.0;
         let weights = boundary_weights(support, &host.0, &offset, &fields.active);
         if weights.is_empty() || weights.iter().any(|(node, _)| !fields.active[*node]) {
@@ -1098,6 +1248,55 @@ pub fn find_boundary_supports<const D: usize>(
         fields.couplings.push(group);
         point.weights = weights;
     }
+}
+
+/// Decomposed points: the boundary points whose host arrived at this process at the current
+/// step's start ([`follow_boundary_hosts`]; `boundary_hosts_changing_process` in summary.json
+/// sums them over the processes).
+#[derive(Resource, Default)]
+pub struct BoundaryHostsArrived(pub usize);
+
+/// Decomposed points: the support nodes of this process's boundary points that no point of
+/// this process touches (with a weight above [`SLIVER`]), found at the step start
+/// ([`find_boundary_supports`]).
+#[derive(Resource, Default)]
+pub struct BoundaryNodesElsewhere(pub BTreeSet<usize>);
+
+/// Decomposed points (module docs; after the loads' stage, collective: it runs after a
+/// failure too, every process taking part, before the `f_ext` sum shares the failures): a
+/// boundary point whose support
+/// holds a node that no point of its host's process touches but a point of another process
+/// does (`tractions::active_elsewhere`) would have had the basis at its position serially
+/// (every node of its support active) and the host's extrapolation here; such a step fails,
+/// naming the nodes, rather than give another answer than the serial run.
+pub fn refuse_boundary_nodes_elsewhere<const D: usize>(
+    step: Res<LoadStep>,
+    nodes: Res<BoundaryNodesElsewhere>,
+    fields: Res<GridFields<D>>,
+    mut status: ResMut<RunStatus>,
+) {
+    let active = &fields.active;
+    let found = super::tractions::active_elsewhere(
+        &nodes.0,
+        |node| active.get(node).copied().unwrap_or(false),
+        crate::distributed::gather_over_points,
+        crate::distributed::sum_over_points,
+    );
+    let what = match found {
+        Ok(found) if found.is_empty() => return,
+        Ok(found) => format!(
+            "the support of a surface condition's boundary point holds grid nodes {:?} that only \
+             another process's material points touch: with decomposed points the condition \
+             cannot use them (not supported yet); run without --decompose",
+            found.iter().take(8).collect::<Vec<_>>()
+        ),
+        Err(why) => format!("finding the boundary points' nodes on other processes: {why}"),
+    };
+    status.fail(SolverError::Module {
+        step: step.number,
+        what,
+        recoverable: false,
+    });
 }
 
 /// With F-bar bodies: the nodes of a Nitsche boundary point couple with every node of its
@@ -1185,8 +1384,10 @@ pub fn assemble_surface_conditions<const D: usize>(
     let stage = stage_of(&stage);
     for mut point in points.iter_mut() {
         let condition = &set.0[point.condition];
-        // distributed runs: added by the process that assembles the host (shares are summed)
-        if !condition.acts_in(stage) || elsewhere.contains(point.host) {
+        // distributed runs: added by the process that assembles the host (shares are summed);
+        // with decomposed points by the process holding it (`PLACEHOLDER` elsewhere)
+        let held = point.host != Entity::PLACEHOLDER;
+        if !condition.acts_in(stage) || !held || elsewhere.contains(point.host) {
             continue;
         }
         let p = point.projection;
@@ -1262,11 +1463,14 @@ pub fn assemble_surface_conditions<const D: usize>(
     }
 }
 
-/// After a converged step: each condition's reaction, mean displacement and largest gap (and
-/// for `radial` its pressure), then the boundary points move with the increment they were held
-/// to, and how far the material's surface is from them ([`SurfaceCondition::separation`]). In
-/// the stage that releases a condition its reaction is the ramped load that replaces it
-/// (module docs, "Stages").
+/// After a converged step: each boundary point's part of its condition's records (its
+/// reaction, gap, and for `radial` its current area: [`BoundaryRecord`]), then the point moves
+/// with the increment it was held to, and how far the material's surface is from it
+/// ([`SurfaceCondition::separation`]); then each condition's reaction, mean displacement,
+/// largest gap and separation (and for `radial` its pressure) from its points
+/// ([`record_conditions`]; with decomposed points after the points of every process are
+/// shared, [`share_boundary_points`]). In the stage that releases a condition its reaction is
+/// the ramped load that replaces it (module docs, "Stages").
 pub fn update_boundary_points<const D: usize>(
     step: Res<LoadStep>,
     stage: Option<Res<CurrentStage>>,
@@ -1280,17 +1484,11 @@ pub fn update_boundary_points<const D: usize>(
     )>,
     mut points: Query<&mut BoundaryPoint<D>>,
 ) {
-    for condition in set.0.iter_mut() {
-        condition.reaction = SVector::zeros();
-        condition.mean_displacement = SVector::zeros();
-        condition.largest_gap = 0.0;
-        condition.separation = 0.0;
-        condition.mean_pressure = 0.0;
-    }
-    // per condition: Σ_s a_s (the current length or area) and Σ_s −R_s · N_s
-    let mut normal_force = vec![(0.0, 0.0); set.0.len()];
     let stage = stage_of(&stage);
     for mut point in points.iter_mut() {
+        if point.host == Entity::PLACEHOLDER {
+            continue; // decomposed points: another process's (shared after the step)
+        }
         let condition = &set.0[point.condition];
         let acts = condition.acts_in(stage);
         let g = gap(&point, &fields.increment, condition.factor(&step, stage));
@@ -1319,28 +1517,68 @@ pub fn update_boundary_points<const D: usize>(
         if condition.waits_in(stage) {
             // its stage has not started: it will prescribe the displacement from here
             point.start[0] = point.position - point.reference_position;
-            continue;
         }
-        let mut separation = 0.0;
+        let mut record = BoundaryRecord {
+            reaction,
+            gap: g.norm(),
+            ..BoundaryRecord::default()
+        };
         if let Some((_, f, x, reference)) = host {
             if acts {
                 let surface = x.0 + f.0 * (point.reference_position - reference.0);
-                separation = (point.projection * (surface - point.position)).amax();
+                record.separation = (point.projection * (surface - point.position)).amax();
             }
             if condition.pressure {
-                let sums = &mut normal_force[point.condition];
-                sums.0 += current_area(&f.0, &point.normal, point.area);
-                sums.1 -= reaction.dot(&point.normal);
+                record.current_area = Some(current_area(&f.0, &point.normal, point.area));
             }
         }
+        point.record = record;
+    }
+    if !crate::distributed::decomposed() {
+        record_conditions(&mut set, stage, points.iter());
+    }
+}
+
+/// Each condition's reaction, mean displacement, largest gap and separation, and for `radial`
+/// its pressure, from its boundary points' records ([`BoundaryRecord`]), taken in id order
+/// (module docs, "Reactions", "Separation", "Curved surfaces"). A condition whose stage has
+/// not started records nothing.
+pub fn record_conditions<'a, const D: usize>(
+    set: &mut SurfaceConditionSet<D>,
+    stage: usize,
+    points: impl Iterator<Item = &'a BoundaryPoint<D>>,
+) {
+    for condition in set.0.iter_mut() {
+        condition.reaction = SVector::zeros();
+        condition.mean_displacement = SVector::zeros();
+        condition.largest_gap = 0.0;
+        condition.separation = 0.0;
+        condition.mean_pressure = 0.0;
+    }
+    let mut points: Vec<&BoundaryPoint<D>> = points.collect();
+    points.sort_by_key(|point| point.id);
+    // per condition: Σ_s a_s (the current length or area) and Σ_s −R_s · N_s
+    let mut normal_force = vec![(0.0, 0.0); set.0.len()];
+    for point in points {
         let condition = &mut set.0[point.condition];
-        condition.reaction += reaction;
+        if condition.waits_in(stage) {
+            continue;
+        }
+        let record = &point.record;
+        if condition.pressure
+            && let Some(area) = record.current_area
+        {
+            let sums = &mut normal_force[point.condition];
+            sums.0 += area;
+            sums.1 -= record.reaction.dot(&point.normal);
+        }
+        condition.reaction += record.reaction;
         condition.mean_displacement +=
             (point.position - point.reference_position - point.start[0]) * point.area;
-        if acts {
-            condition.largest_gap = condition.largest_gap.max(g.norm());
+        if condition.acts_in(stage) {
+            condition.largest_gap = condition.largest_gap.max(record.gap);
         }
-        condition.separation = condition.separation.max(separation);
+        condition.separation = condition.separation.max(record.separation);
     }
     for (condition, (area, force)) in set.0.iter_mut().zip(normal_force) {
         condition.mean_displacement /= condition.area;
@@ -1348,6 +1586,92 @@ pub fn update_boundary_points<const D: usize>(
             condition.mean_pressure = force / area;
         }
     }
+}
+
+/// Numbers per boundary point shared by [`share_boundary_points`]: id; position, start, the
+/// released force, the reaction; gap, separation, whether the current area is known, the area.
+const fn shared_length(d: usize) -> usize {
+    1 + 4 * d + 4
+}
+
+/// Decomposed points (module docs; `Hook::AfterStep`, first, collective): the boundary points
+/// of every process after the point update (their positions, starts, released forces and
+/// records, as exact bits) gathered to all, so that every process holds every boundary point
+/// as its host's process left it (a host may be on another process at the next step's start),
+/// then the conditions' records from all of them ([`record_conditions`]), the same on every
+/// process.
+pub fn share_boundary_points<const D: usize>(
+    step: Res<LoadStep>,
+    stage: Option<Res<CurrentStage>>,
+    mut set: ResMut<SurfaceConditionSet<D>>,
+    mut status: ResMut<RunStatus>,
+    mut points: Query<&mut BoundaryPoint<D>>,
+) {
+    let mut rows = Vec::new();
+    for point in points.iter().filter(|p| p.host != Entity::PLACEHOLDER) {
+        let r = &point.record;
+        rows.push(u64::from(point.id));
+        for vector in [
+            &point.position,
+            &point.start[0],
+            &point.released,
+            &r.reaction,
+        ] {
+            rows.extend(vector.iter().map(|c| c.to_bits()));
+        }
+        rows.extend([r.gap, r.separation].map(f64::to_bits));
+        rows.push(u64::from(r.current_area.is_some()));
+        rows.push(r.current_area.unwrap_or(0.0).to_bits());
+    }
+    let length = shared_length(D);
+    let count = points.iter().len();
+    let all = crate::distributed::gather_over_points(&rows).and_then(|all| {
+        if all.len() == count * length {
+            Ok(all)
+        } else {
+            Err(format!(
+                "{} numbers for {count} boundary points of {length} numbers",
+                all.len()
+            ))
+        }
+    });
+    let all = match all {
+        Ok(all) => all,
+        Err(why) => {
+            status.fail(SolverError::Module {
+                step: step.number,
+                what: format!("sharing the boundary points between the processes: {why}"),
+                recoverable: false,
+            });
+            return;
+        }
+    };
+    let by_id: HashMap<u32, &[u64]> = all
+        .chunks_exact(length)
+        .map(|row| (row[0] as u32, &row[1..]))
+        .collect();
+    let vector = |bits: &[u64]| SVector::<f64, D>::from_fn(|a, _| f64::from_bits(bits[a]));
+    for mut point in points.iter_mut() {
+        let Some(row) = by_id.get(&point.id) else {
+            status.fail(SolverError::Module {
+                step: step.number,
+                what: format!("boundary point {} is held by no process", point.id),
+                recoverable: false,
+            });
+            return;
+        };
+        point.position = vector(row);
+        point.start[0] = vector(&row[D..]);
+        point.released = vector(&row[2 * D..]);
+        point.record = BoundaryRecord {
+            reaction: vector(&row[3 * D..]),
+            gap: f64::from_bits(row[4 * D]),
+            separation: f64::from_bits(row[4 * D + 1]),
+            current_area: (row[4 * D + 2] != 0).then(|| f64::from_bits(row[4 * D + 3])),
+        };
+    }
+    let stage = stage_of(&stage);
+    record_conditions(&mut set, stage, points.iter());
 }
 
 /// The current area (length in 2D) a_s = J |F⁻ᵀ N| A of a boundary point's piece of surface
@@ -1382,7 +1706,9 @@ pub fn apply_released_conditions<const D: usize>(
     let ramp = 1.0 - step.factor;
     for point in points.iter() {
         // distributed runs: added by the process that assembles the host, as its terms were
-        if !set.0[point.condition].released_in(stage) || elsewhere.contains(point.host) {
+        // (with decomposed points, that holds it)
+        let held = point.host != Entity::PLACEHOLDER;
+        if !set.0[point.condition].released_in(stage) || !held || elsewhere.contains(point.host) {
             continue;
         }
         for &(node, n) in &point.weights {
@@ -1511,7 +1837,11 @@ pub fn measure_material_at_conditions<const D: usize>(
         condition.largest_material_offset = 0.0;
         condition.material_force = SVector::zeros();
     }
-    for mut point in points.iter_mut() {
+    // per boundary point (in the query's order, the same on every process: each holds every
+    // boundary point) ũ_s and P̃_s over the fit's points this process holds, summed over the
+    // processes with decomposed points (a fit's points may be on several)
+    let mut fitted: Vec<f64> = Vec::with_capacity(points.iter().len() * (D + D * D));
+    for point in points.iter() {
         let mut u = SVector::<f64, D>::zeros();
         let mut piola = SMatrix::<f64, D, D>::zeros();
         for &(entity, w) in &point.fit {
@@ -1526,6 +1856,12 @@ pub fn measure_material_at_conditions<const D: usize>(
                 .unwrap_or_else(SMatrix::identity);
             piola += crate::mechanics::block::<D>(&trial.0.kirchhoff) * inverse.transpose() * w;
         }
+        fitted.extend(u.iter().chain(piola.iter()));
+    }
+    crate::distributed::sum_over_points(&mut fitted);
+    for (mut point, values) in points.iter_mut().zip(fitted.chunks_exact(D + D * D)) {
+        let u = SVector::<f64, D>::from_column_slice(&values[..D]);
+        let piola = SMatrix::<f64, D, D>::from_column_slice(&values[D..]);
         let condition = &mut set.0[point.condition];
         if condition.waits_in(stage) {
             point.start[1] = u;

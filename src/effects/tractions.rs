@@ -366,7 +366,7 @@ impl Plugin for TractionsModule {
         if crate::distributed::decomposed() {
             // the load points that arrived at the step's start, summed over the processes
             // (collective: every process records the same steps, in the same order)
-            let [.., moved] = crate::distributed::RUN_MEASURES;
+            let moved = crate::distributed::RUN_MEASURES[5];
             simulation.world().init_resource::<LoadPointsArrived>();
             simulation
                 .add_systems(Hook::Connectivity, follow_hosts::<D>)

@@ -31,7 +31,9 @@
 //!    too, and shares it first): the body force, point loads and tractions are spread from the
 //!    points (and load points) a process holds, so `f_ext` is a sum over the processes, as
 //!    `f_int` is at `Hook::Combine`. Point loads travel as point-state parts of their points;
-//!    traction and load points follow their hosts by `PointId` (`effects::tractions`).
+//!    traction and load points follow their hosts by `PointId` (`effects::tractions`), and so
+//!    do the surface conditions' boundary points, whose terms after the assembly the host's
+//!    process adds (`effects::surface_conditions`, "Decomposed points").
 //!
 //! A stage's displacement origins travel with their points ([`carry_displacement_origins`]).
 //! What sums over points elsewhere is summed over the processes too: the eq. 15 error
@@ -58,10 +60,6 @@ use crate::scene::SceneSpec;
 /// The modules a decomposed run refuses, and why.
 const REFUSED: &[(&str, &str)] = &[
     ("pressure", "keeps its points' host points"),
-    (
-        "surface conditions",
-        "keeps its boundary points' host points",
-    ),
     ("finite-element mesh", "its elements refer to their points"),
     (
         "stress recovery",
@@ -93,7 +91,7 @@ pub fn refusal(spec: &SceneSpec) -> Option<String> {
             REFUSED
                 .iter()
                 .find(|(name, _)| *name == module.name())
-                .map(|(name, why)| format!("{name} ({}{why})", lines_note(spec, name)))
+                .map(|(name, why)| format!("{name} ({why})"))
         })
         .collect();
     let patch = spec.part::<FbarSpec>().is_some_and(|fbar| {
@@ -115,31 +113,6 @@ pub fn refusal(spec: &SceneSpec) -> Option<String> {
             refused.join(", ")
         )
     })
-}
-
-/// "line 12: ", "lines 12, 14: " — the scene lines of a refused module's calls, for the
-/// modules whose declarations keep them (point loads, tractions and loads at positions,
-/// surface conditions); empty for the others.
-fn lines_note(spec: &SceneSpec, module: &str) -> String {
-    use crate::effects::{point_loads, surface_conditions, tractions};
-    let lines: Vec<Option<usize>> = match module {
-        "point loads" => (spec.part::<point_loads::PointLoadDeclarations>())
-            .map_or(Vec::new(), |d| d.0.iter().map(|l| l.line).collect()),
-        "tractions" => (spec.part::<tractions::LoadPointDeclarations>())
-            .map_or(Vec::new(), |d| d.0.iter().map(|l| l.line).collect()),
-        "surface conditions" => (spec.part::<surface_conditions::SurfaceConditions>())
-            .map_or(Vec::new(), |c| c.0.iter().map(|c| c.line).collect()),
-        _ => Vec::new(),
-    };
-    let mut lines: Vec<usize> = lines.into_iter().flatten().collect();
-    lines.sort_unstable();
-    lines.dedup();
-    let list: Vec<String> = lines.iter().map(usize::to_string).collect();
-    match list.len() {
-        0 => String::new(),
-        1 => format!("line {}: ", list[0]),
-        _ => format!("lines {}: ", list.join(", ")),
-    }
 }
 
 /// A stage's displacement origins (`effects::stages::DisplacementOrigin`, set at the start of

@@ -54,9 +54,12 @@
 //! * **Terms added after the assembly** (`Hook::AfterAssembly`) are added once over the
 //!   processes: F-bar's rank-one terms by the process that assembles the group's members (a
 //!   group is the F-bar points of one cell, so one slab), a surface condition's boundary point
-//!   by the process that assembles its host, the ghost penalty's faces by process 0
+//!   by the process that assembles its host (with decomposed points, that holds it), the ghost
+//!   penalty's faces by process 0
 //!   (`distributed::adds_grid_terms`). Their records (reactions) are computed from the whole
-//!   state, which every process holds.
+//!   state, which every process holds; with decomposed points a surface condition's boundary
+//!   points are shared after every step and its records taken from all of them
+//!   (`effects::surface_conditions`, "Decomposed points").
 //!
 //! Not supported with more than one process (refused when the simulation is built): other
 //! modules that add to the forces or `K` after the assembly (the follower pressure), which
@@ -270,7 +273,7 @@ impl Plugin for DistributedModule {
                     .before(Hook::Output),
             );
         }
-        let [assembled, changing, owned, ghosts, local, _] = RUN_MEASURES;
+        let [assembled, changing, owned, ghosts, local, ..] = RUN_MEASURES;
         if decompose {
             // not in a stage's set: it runs after a failure too, and shares it
             let mut schedules = simulation.world().resource_mut::<Schedules>();
