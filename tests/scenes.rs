@@ -361,6 +361,7 @@ fn schedules_hold_only_the_effects_a_scene_uses() {
         "ghost_penalty::assemble_ghost_penalty",
         "stress_recovery::recover_stress",
         "grid_constraints::check_prescribed_motion",
+        "probes::read_probes",
         "fbar::group_points_by_cell",
         "fbar::average_volume_change",
         "fbar::assemble_fbar_tangent",
@@ -388,10 +389,11 @@ fn schedules_hold_only_the_effects_a_scene_uses() {
         }
     }
     // the optional systems above, the recovered-stress output field, F-bar, the line search,
-    // arc-length control and the plastic systems (+ 1: the arc's record_start_imbalance)
+    // arc-length control and the plastic systems (+ 1: the arc's record_start_imbalance;
+    // + 1: the probes' read after each step)
     assert_eq!(
         left_out.len(),
-        OPTIONAL.len() + 6 + 3 + 5 + 9 + 1,
+        OPTIONAL.len() + 6 + 3 + 5 + 9 + 1 + 1,
         "{left_out:?}"
     );
 }
