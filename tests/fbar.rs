@@ -484,7 +484,8 @@ fn mohr_coulomb_fbar_tangent_matches_finite_differences() {
 /// with a Nitsche condition on the top of a nearly incompressible F-bar block (ν = 0.49, the
 /// boundary inside a cell row) against central differences of the assembled force, to 1e-6 of
 /// its largest entry: Hencky (symmetric Nitsche, its adjoint frozen at the state) and von
-/// Mises (non-symmetric), cell and mixed averages, linear MPM and quadratic B-splines. Without
+/// Mises (non-symmetric), every average (cell, mixed, patch, nodal), linear MPM and quadratic
+/// B-splines. Without
 /// the coupling term the check fails (4.4e-2 of the largest entry for Hencky on linear MPM).
 #[test]
 fn nitsche_with_fbar_tangent_matches_finite_differences() {
@@ -493,7 +494,7 @@ fn nitsche_with_fbar_tangent_matches_finite_differences() {
         ("model: \"von_mises\", sigma_y: 2.0", "von_mises"),
     ];
     for basis in ["linear", "bspline2"] {
-        for fbar in ["true", "\"mixed\""] {
+        for fbar in ["true", "\"mixed\"", "\"patch\"", "\"nodal\""] {
             for (material, model) in materials {
                 let basis_options = match basis {
                     "bspline2" => "basis: \"bspline\", order: 2",
