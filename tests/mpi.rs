@@ -792,6 +792,46 @@ fn a_tresca_footing_with_fbar_over_2_and_3_processes_equals_the_serial_run() {
     compare_with(&scene, &set, "tresca-fbar", &runs);
 }
 
+/// The follower pressure over several processes, replicated (issue 14): its force is part of
+/// the replicated `f_ext` (every process adds and follows it in full), its load stiffness is
+/// added by process 0 alone (the shares of `K` are summed). The thick cylinder under pressure
+/// control (`control=load`, 4 cells, 6 steps to p = 0.6 σ_y, past the elastic limit 0.433 σ_y:
+/// the wall yields): the same Newton iterations, stresses, plastic strain and positions as the
+/// serial run, history.csv's `inner_pressure` and `inner_displacement` to 1e-8.
+#[test]
+fn the_follower_pressure_over_2_and_3_processes_equals_the_serial_run() {
+    let runs = Runs {
+        history: &["inner_pressure", "inner_displacement"],
+        ..Runs::replicated(&[2, 3])
+    };
+    let scene = shipped_scene("thick_cylinder.rhai");
+    let set = ["control=load", "cells=4", "steps=6", "last=0.6"];
+    compare_with(&scene, &set, "pressure", &runs);
+}
+
+/// With decomposed points the follower pressure is still refused (a part ties its load point
+/// to its vertices' hosts, which may be on other processes), naming it, once, without an
+/// abort.
+#[test]
+fn the_follower_pressure_is_refused_with_decomposed_points() {
+    let Some(_one) = mpi_job_slot() else {
+        return;
+    };
+    let dir: PathBuf = temp_dir("mpi", "pressure-decomposed");
+    let scene = shipped_scene("thick_cylinder.rhai");
+    let set = ["control=load", "cells=4", "steps=1"];
+    let stderr = refused(2, &scene, &set, &dir, &["--decompose"]);
+    assert_eq!(
+        stderr
+            .matches("pressure (keeps its points' host points)")
+            .count(),
+        1,
+        "{stderr}"
+    );
+    assert!(stderr.contains("without --decompose"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// The ghost penalty's faces by process 0 (every process finds the same faces): the sliver
 /// column (1D, B-splines q = 3, a sliver of material in the top cell), replicated.
 #[test]
@@ -1639,8 +1679,7 @@ fn decomposition_refuses_what_cannot_follow_its_points() {
 }
 
 /// The ghost penalty is refused with decomposed points (the cells' fill fractions need every
-/// process's points), naming it, once, without an abort. (The follower pressure refuses more
-/// than one process itself, when the scene is read.)
+/// process's points), naming it, once, without an abort.
 #[test]
 fn the_ghost_penalty_is_refused_with_decomposed_points() {
     let Some(_one) = mpi_job_slot() else {

@@ -80,6 +80,18 @@
 //! to the arc's f_fixed times c₀ and to its f̂ times c₁. [`apply_pressure`] is a load system of
 //! the arc's second evaluation at λ = 0 (`effects::arc_length::add_load_system`).
 //!
+//! # Over several processes
+//!
+//! In a distributed run with replicated state (`mpirun`, without `--decompose`;
+//! `effects::distributed`) every process holds every point, so every carried point and its
+//! host, and `f_ext` is not summed over the processes: each process forms all of it, and the
+//! right-hand side is the same on every process. So every process adds the pressure's force
+//! and replaces it by the force at the iterate in full, as a serial run does. The tangent is a
+//! sum of the processes' shares (each assembles its own points): the load stiffness is added
+//! by process 0 alone (`distributed::adds_grid_terms`), once. With `--decompose` the pressure
+//! is refused (`distributed::decomposition`): a part ties its load point to its vertices'
+//! hosts, which may be on other processes.
+//!
 //! Systems, added only when a scene declares a pressure: [`find_pressure_weights`]
 //! (`Hook::Connectivity`), [`apply_pressure`] (`Hook::Loads`; with held loads under the arc also
 //! at λ = 0), [`follow_pressure`]
@@ -541,11 +553,6 @@ impl Plugin for PressureModule {
                         .into(),
                 ));
             }
-            if crate::distributed::launched_by_mpirun().is_some_and(|p| p.size > 1) {
-                return Err(fail(
-                    "not supported under mpirun with more than one process yet".into(),
-                ));
-            }
             let until = until_stage_of(
                 scene.spec,
                 "pressure",
@@ -909,6 +916,9 @@ pub fn follow_pressure<const D: usize>(
         }
     }
     load.added = now;
+    if !crate::distributed::adds_grid_terms() {
+        return; // process 0 adds the load stiffness for all (the shares of K are summed)
+    }
     let dofs = &fields.dofs;
     pressure_tangent::<D>(
         &load.parts,

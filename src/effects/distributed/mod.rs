@@ -55,14 +55,19 @@
 //!   processes: F-bar's rank-one terms by the process that assembles the group's members (a
 //!   group is the F-bar points of one cell, so one slab), a surface condition's boundary point
 //!   by the process that assembles its host (with decomposed points, that holds it), the ghost
-//!   penalty's faces by process 0
-//!   (`distributed::adds_grid_terms`). Their records (reactions) are computed from the whole
+//!   penalty's faces and the follower pressure's load stiffness by process 0
+//!   (`distributed::adds_grid_terms`). The follower pressure's force is part of `f_ext`, which
+//!   the replicated path does not sum (every process forms all of it, and the right-hand side
+//!   is the same on every process): every process adds it, and replaces it by the force at the
+//!   iterate, in full (`effects::pressure`, "Over several processes"); with `--decompose` the
+//!   pressure is refused (its parts tie load points to vertices whose hosts may be on other
+//!   processes). Their records (reactions) are computed from the whole
 //!   state, which every process holds; with decomposed points a surface condition's boundary
 //!   points are shared after every step and its records taken from all of them
 //!   (`effects::surface_conditions`, "Decomposed points").
 //!
 //! Not supported with more than one process (refused when the simulation is built): other
-//! modules that add to the forces or `K` after the assembly (the follower pressure), which
+//! modules that add to the forces or `K` after the assembly (a module outside the crate), which
 //! every process would add in full. The check for
 //! a body that nothing holds needs all of `K` and is skipped over several processes
 //! (`Newton::whole_tangent`): such a body shows as a failed linear solve.
@@ -315,14 +320,17 @@ impl Plugin for DistributedModule {
 
 /// The modules of `Hook::AfterAssembly` that add each of their terms once over the processes,
 /// one system each: the ghost penalty (process 0 adds the faces: `distributed::adds_grid_terms`),
-/// F-bar (a group's rank-one terms by the process assembling its members) and
-/// material-surface conditions (a boundary point's terms by the process assembling its host).
+/// F-bar (a group's rank-one terms by the process assembling its members),
+/// material-surface conditions (a boundary point's terms by the process assembling its host)
+/// and the follower pressure (its change of the replicated `f_ext` on every process, its load
+/// stiffness by process 0).
 fn adds_once_after_assembly(spec: &SceneSpec) -> usize {
-    use crate::effects::{fbar, ghost_penalty, surface_conditions};
+    use crate::effects::{fbar, ghost_penalty, pressure, surface_conditions};
     [
         ghost_penalty::GhostPenaltyModule.used_by(spec),
         fbar::FbarModule.used_by(spec),
         surface_conditions::SurfaceConditionsModule.used_by(spec),
+        pressure::PressureModule.used_by(spec),
     ]
     .into_iter()
     .filter(|&used| used)
@@ -331,7 +339,7 @@ fn adds_once_after_assembly(spec: &SceneSpec) -> usize {
 
 /// Why a scene cannot run over several processes, if it adds after the assembly (`systems`
 /// at `Hook::AfterAssembly`) with a module that does not divide its terms among the processes
-/// (a module outside the crate; the follower pressure refuses more than one process itself).
+/// (a module outside the crate).
 fn refused_after_assembly(spec: &SceneSpec, systems: usize) -> Option<String> {
     (systems > adds_once_after_assembly(spec)).then(|| {
         "the scene uses a module that adds to the forces or the tangent after the assembly \
