@@ -5,7 +5,10 @@
 //! block — the same eq. 15 error, every point's stress to 1e-8 of the largest, the same Newton
 //! iterations — with a tight linear tolerance (`-ksp_rtol 1e-12`); a non-symmetric tangent
 //! (Nitsche) goes to GMRES and gives the LU run; a KSP that stops short (`-ksp_max_it 1`, from
-//! the scene or from `--petsc-options`) is a failed solve with PETSc's reason, never an answer;
+//! the scene or from `--petsc-options`, with the method chosen) is a failed solve with PETSc's
+//! reason, never an answer; a default that fails (GMRES + GAMG on a stiff, non-symmetric ring)
+//! falls back to GMRES + ASM with LU, says so once and gives the direct run, while a chosen
+//! method that fails stays a failure;
 //! a PETSc error (an unknown KSP type) names the PETSc function and PETSc's message; an option
 //! PETSc did not use (misspelled) is refused by name.
 //!
@@ -79,6 +82,7 @@ mod with_petsc {
         error: Option<f64>,
         stress: Vec<(f64, f64)>,
         kind: SolverKind,
+        warnings: Vec<String>,
     }
 
     /// Runs the scene at `path`, with its own solver or with `solver`.
@@ -104,6 +108,7 @@ mod with_petsc {
             error: sim.summary.final_error(),
             stress: sim.stress_profile(D - 1),
             kind: sim.world.resource::<Newton>().last_solver,
+            warnings: sim.summary.warnings.clone(),
         })
     }
 
@@ -176,9 +181,121 @@ mod with_petsc {
         );
     }
 
+    /// A stiff, non-symmetric system (docs/distributed.md, "A stiff, non-symmetric ring"): a
+    /// quarter ring (1 ≤ r ≤ 2, linear MPM, 10 × 10 cells, 4 × 4 points per cell), von Mises
+    /// with F-bar, driven radially on its bore by a penalty surface condition (γ = 1e4) to
+    /// u_r = 0.02 in 3 steps; `solver_call` ends it.
+    fn ring(solver_call: &str) -> String {
+        format!(
+            r#"const wall = material(#{{ name: "wall", model: "von_mises", E: 500.0, nu: 0.3, sigma_y: 1.0, density: 1.0 }});
+grid(#{{ lower: [0.0, 0.0], upper: [2.5, 2.5], cells: [10, 10], basis: "linear" }});
+body(#{{
+    name: "wall",
+    material: wall,
+    region: |x| {{
+        let r2 = x[0] * x[0] + x[1] * x[1];
+        x[0] >= 0.0 && x[1] >= 0.0 && r2 >= 1.0 && r2 <= 4.0
+    }},
+    ppc: 4,
+    fbar: true,
+}});
+fix(|x| x[0] == 0.0, [0]);
+fix(|x| x[1] == 0.0, [1]);
+surface_displace(#{{ on: arc(#{{ centre: [0.0, 0.0], radius: 1.0, from: 0.0, to: 90.0 }}), radial: 0.02, name: "bore" }});
+{solver_call}
+load_steps(3);
+"#
+        )
+    }
+
+    /// The ring's scene with `solver_call`, written to a fresh folder.
+    fn ring_scene(solver_call: &str, tag: &str) -> PathBuf {
+        let dir = temp_dir("petsc", tag);
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("ring.rhai");
+        std::fs::write(&path, ring(solver_call)).unwrap();
+        path
+    }
+
+    /// PETSc's default (GMRES + GAMG) does not converge on the ring's system (DIVERGED_ITS in
+    /// step 1); the backend then solves it again with its fallback (GMRES + ASM, LU on the
+    /// block), keeps it, and says so once: the run equals the direct one (Newton per step,
+    /// stresses to 1e-8). With the method chosen (`-pc_type gamg`, in the scene or on the
+    /// command line) nothing falls back: the run fails with PETSc's reason.
+    #[test]
+    fn a_failed_default_falls_back_to_asm_with_lu_and_says_so_an_explicit_choice_fails() {
+        let direct_scene = ring_scene("solver(#{ linear: \"direct\" });", "ring-direct");
+        let reference = run::<2>(&direct_scene, &[], "ring-direct", None).unwrap();
+        let default_scene = ring_scene(
+            "solver(#{ linear: \"petsc\", petsc_options: \"-ksp_rtol 1e-12\" });",
+            "ring-default",
+        );
+        let petsc = run::<2>(&default_scene, &[], "ring-default", None)
+            .unwrap_or_else(|e| panic!("the ring with PETSc's default: {e}"));
+        let difference = stress_difference(&petsc.stress, &reference.stress);
+        let said: Vec<&String> = (petsc.warnings.iter())
+            .filter(|w| w.contains("PETSc's default method failed"))
+            .collect();
+        eprintln!(
+            "ring, PETSc's default: Newton {:?} (direct {:?}), Krylov {:?}, stress difference \
+             {difference:.1e}, said {said:?}",
+            petsc.newton, reference.newton, petsc.krylov
+        );
+        assert_eq!(petsc.kind, SolverKind::Petsc);
+        assert_eq!(petsc.newton, reference.newton);
+        assert!(difference < 1e-8, "{difference:e}");
+        assert_eq!(said.len(), 1, "{:?}", petsc.warnings);
+        assert!(
+            said[0].contains("gmres+gamg")
+                && said[0].contains("DIVERGED")
+                && said[0].contains("gmres+asm"),
+            "{}",
+            said[0]
+        );
+        // chosen in the scene: no fallback (the iteration limit only shortens the failure)
+        let chosen_scene = ring_scene(
+            "solver(#{ linear: \"petsc\", petsc_options: \"-pc_type gamg -ksp_max_it 1000\", \
+             max_step_cuts: 0 });",
+            "ring-chosen",
+        );
+        let error = run::<2>(&chosen_scene, &[], "ring-chosen", None)
+            .err()
+            .expect("GMRES + GAMG chosen does not solve the ring");
+        assert!(
+            error.contains("DIVERGED") && error.contains("gmres+gamg"),
+            "{error}"
+        );
+        // chosen on the command line
+        let cli_scene = ring_scene(
+            "solver(#{ linear: \"petsc\", max_step_cuts: 0 });",
+            "ring-chosen-cli",
+        );
+        let out = cli_scene.parent().unwrap().join("out");
+        let chosen = impm(&[
+            "run",
+            &cli_scene.display().to_string(),
+            "--out",
+            &out.display().to_string(),
+            "--threads",
+            "1",
+            "--petsc-options",
+            "-pc_type gamg -ksp_max_it 1000",
+        ]);
+        let stderr = String::from_utf8_lossy(&chosen.stderr);
+        assert!(!chosen.status.success(), "{stderr}");
+        assert!(
+            stderr.contains("DIVERGED") && !stderr.contains("fallback"),
+            "{stderr}"
+        );
+        for scene in [direct_scene, default_scene, chosen_scene, cli_scene] {
+            let _ = std::fs::remove_dir_all(scene.parent().unwrap());
+        }
+    }
+
+    /// A KSP stopped short with the method chosen (the default falls back instead, above).
     #[test]
     fn a_krylov_solve_stopped_short_fails_with_petscs_reason() {
-        let call = "solver(#{ linear: \"petsc\", petsc_options: \"-ksp_max_it 1\", \
+        let call = "solver(#{ linear: \"petsc\", petsc_options: \"-pc_type gamg -ksp_max_it 1\", \
                     max_step_cuts: 1 });";
         let (path, _) = scene_with("column_2d.rhai", call, "max-it");
         let error = run::<2>(&path, &[("cells", "8"), ("steps", "1")], "max-it", None)
@@ -212,7 +329,7 @@ mod with_petsc {
                     "--out",
                     &out_short,
                     "--petsc-options",
-                    "-ksp_max_it 1",
+                    "-ksp_type cg -ksp_max_it 1",
                 ][..],
                 &set,
             ]

@@ -111,6 +111,13 @@ pub trait LinearSolver: Send + Sync {
         None
     }
 
+    /// What the solver changed on its own that the run should say once (a warning), taken
+    /// from it: e.g. the PETSc backend's fallback from its failed default method. `None` when
+    /// there is nothing new.
+    fn take_notice(&mut self) -> Option<String> {
+        None
+    }
+
     /// Lets the next solve stop at the relative residual `relative` (an inexact Newton's
     /// forcing term) if that is looser than the solver's own tolerance; a direct solver ignores
     /// it.

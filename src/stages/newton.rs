@@ -24,7 +24,7 @@ use crate::control::ResidualNorms;
 use crate::resources::{BodyNames, Grid, LargestForce};
 use crate::resources::{
     Convergence, GridFields, LoadStep, Newton, NewtonSettings, RunStatus, SolverError, Stage,
-    StageClock,
+    StageClock, Warnings,
 };
 use crate::solver::EisenstatWalker;
 use crate::solver::modes::{is_zero_energy, rigid_modes, span_has_zero_energy};
@@ -118,6 +118,8 @@ pub fn check_convergence<const D: usize>(
 }
 
 /// Newton stage 4: solve K δ = f_ext − f_int and add δ to the free components of Δu.
+/// What the solver changed on its own (`LinearSolver::take_notice`: PETSc's fallback from its
+/// failed default) becomes a run warning.
 ///
 /// Before the run's first solve (at zero stress, where rigid rotations cost no energy either)
 /// and after a failed solve, the bodies are checked for rigid motions the tangent does not
@@ -136,6 +138,7 @@ pub fn solve_linear_system<const D: usize>(
     grid: Res<Grid<D>>,
     names: Option<Res<BodyNames>>,
     settings: Res<NewtonSettings>,
+    mut warnings: ResMut<Warnings>,
 ) {
     let _timer = clock.time(Stage::LinearSolve);
     let newton = &mut *newton;
@@ -169,10 +172,15 @@ pub fn solve_linear_system<const D: usize>(
         newton.forcing = Some(eta);
         newton.solver.request_tolerance(eta);
     }
-    match newton
+    let solved = newton
         .solver
-        .solve(&newton.matrix, newton.symmetric, &mut newton.residual)
-    {
+        .solve(&newton.matrix, newton.symmetric, &mut newton.residual);
+    if let Some(notice) = newton.solver.take_notice() {
+        warnings
+            .0
+            .push(format!("load step {}: {notice}", step.number));
+    }
+    match solved {
         Ok(kind) => {
             newton.last_solver = kind;
             if let Some(iterations) = newton.solver.last_iterations() {

@@ -38,8 +38,8 @@ use std::sync::{Arc, Mutex};
 
 use super::ffi::{self, PetscInt};
 use super::{
-    BuiltFor, Comm, IDENTITY, LinearSolveError, Padding, PatternObjects, PetscSolver, SolverKind,
-    SparseMatrix, check, configure_ksp, objects_for, refuse_unused_options, session,
+    BuiltFor, Comm, IDENTITY, LinearSolveError, Method, Padding, PatternObjects, PetscSolver,
+    SolverKind, SparseMatrix, check, configure_ksp, objects_for, refuse_unused_options, session,
     set_rigid_body_modes, solve_with_ksp,
 };
 use crate::distributed::traffic::{Traffic, count};
@@ -84,9 +84,10 @@ impl PetscSolver {
             }
             None => None,
         };
+        let method = self.method();
         let (objects, _) = objects_for(&mut self.distributed_objects, matrix, symmetric, || {
             let (objects, tolerance) =
-                DistributedObjects::new(matrix, symmetric, &prefix, blocks.as_ref())?;
+                DistributedObjects::new(matrix, symmetric, &prefix, blocks.as_ref(), method)?;
             self.tolerance = tolerance;
             Ok(objects)
         })?;
@@ -201,6 +202,7 @@ impl DistributedObjects {
         symmetric: bool,
         prefix: &CStr,
         blocks: Option<&GlobalBlocks>,
+        method: Method,
     ) -> Result<(Self, f64), LinearSolveError> {
         let padding = Padding::new(matrix)?;
         let processes = crate::distributed::processes()
@@ -256,7 +258,7 @@ impl DistributedObjects {
         ghosts.sort_unstable();
         ghosts.dedup();
         objects.ghosts = ghosts.len();
-        match objects.create(prefix) {
+        match objects.create(prefix, method) {
             Ok(tolerance) => Ok((objects, tolerance)),
             Err(e) => {
                 objects.destroy();
@@ -285,7 +287,7 @@ impl DistributedObjects {
         }
     }
 
-    fn create(&mut self, prefix: &CStr) -> Result<f64, LinearSolveError> {
+    fn create(&mut self, prefix: &CStr, method: Method) -> Result<f64, LinearSolveError> {
         let comm = Comm::World.raw();
         let local = (self.end - self.first) as PetscInt;
         let global = self.size_global as PetscInt;
@@ -370,7 +372,8 @@ impl DistributedObjects {
             }
             check(ffi::KSPCreate(comm, &mut self.ksp), "KSPCreate")?;
             let symmetric = self.built_for.symmetric;
-            let (method, relative) = configure_ksp(self.ksp, self.matrix, symmetric, prefix)?;
+            let (method, relative) =
+                configure_ksp(self.ksp, self.matrix, symmetric, prefix, method)?;
             self.method = method;
             Ok(relative)
         }

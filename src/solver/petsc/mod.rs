@@ -43,6 +43,27 @@
 //! (options may make PETSc measure another norm). A PETSc error code becomes an error naming
 //! the function and PETSc's message; nothing panics.
 //!
+//! **A fallback when the default fails.** GMRES + GAMG does not converge on every system: a
+//! stiff penalty on a few boundary points with F-bar's non-symmetric coupling (the quarter
+//! ring of `docs/distributed.md`) ends in `DIVERGED_ITS` after the 10 000 iterations. When a
+//! solve with the default fails to converge (PETSc's reason, or the true-residual check above)
+//! and the options did not choose the method (no `-ksp_type`, no `-pc_type` in the scene's
+//! `petsc_options` or in `--petsc-options`), the solver destroys its objects, builds them
+//! again with GMRES and additive Schwarz (`-pc_type asm`: one block per process, PETSc's
+//! default overlap of 1, each block factorised by LU: `-sub_pc_type lu` unless the options
+//! set it) and solves the same system again; the other options (`-ksp_rtol`, ...) still
+//! apply. It keeps the fallback for the rest of the run: the system that defeated GAMG is the
+//! scene's (its penalty and its coupling stay), and trying the default again in every step
+//! would pay its failed iterations each time. The run says it once, as a warning naming the
+//! failed default and the fallback (`LinearSolver::take_notice`). On one process ASM is one
+//! block, an exact LU; over several it is a block-Jacobi of exact solves with overlap,
+//! whose GMRES iterations grow with the processes (tens on the ring over 3). A parallel direct
+//! LU (`-pc_type lu -pc_factor_mat_solver_type mumps`; Debian's PETSc has MUMPS) was measured
+//! as fast on the ring; ASM was kept as it needs no external package and no global
+//! factorisation. A method the user chose is never replaced: its failure stays a failed
+//! solve. Over several processes every process takes the same decision (the reason and the
+//! true residual are collective, the options the same).
+//!
 //! **One process, one thread at a time.** PETSc is initialised once per process
 //! (`PetscInitializeNoArguments`, with `-no_signal_handler` so that impm's own SIGINT/SIGTERM
 //! handling stays) and is not thread-safe: every call runs under one process-wide lock. The
@@ -81,6 +102,47 @@ static NEXT_PREFIX: AtomicUsize = AtomicUsize::new(0);
 const DEFAULT_TOLERANCE: f64 = 1e-10;
 /// The default iteration limit per solve.
 const DEFAULT_MAX_ITERATIONS: usize = 10_000;
+
+/// How a solver's KSP is configured before the options are read.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Method {
+    /// CG (symmetric) or GMRES with GAMG.
+    Default,
+    /// After the default failed: GMRES with [`FALLBACK_PC`] (see the module docs).
+    Fallback,
+}
+
+/// The fallback's preconditioner: additive Schwarz, one block per process with PETSc's
+/// default overlap of 1, each block factorised exactly ([`set_fallback_options`]).
+const FALLBACK_PC: &CStr = c"asm";
+/// The fallback, for messages.
+const FALLBACK_NAME: &str = "gmres+asm (LU on each block: -pc_type asm -sub_pc_type lu)";
+
+/// Sets the fallback's sub-solver options under `prefix` (LU on each block), unless the
+/// options give them. The caller holds the session.
+fn set_fallback_options(prefix: &CStr) -> Result<(), LinearSolveError> {
+    let null = std::ptr::null_mut();
+    let mut given = ffi::PETSC_FALSE;
+    // SAFETY: PETSc is initialised; valid strings and out-pointer.
+    check(
+        unsafe {
+            ffi::PetscOptionsHasName(null, prefix.as_ptr(), c"-sub_pc_type".as_ptr(), &mut given)
+        },
+        "PetscOptionsHasName",
+    )?;
+    if given == ffi::PETSC_TRUE {
+        return Ok(());
+    }
+    let name = c_string(
+        &format!("-{}sub_pc_type", prefix.to_string_lossy()),
+        "the options prefix",
+    )?;
+    // SAFETY: as above; PETSc copies the strings.
+    check(
+        unsafe { ffi::PetscOptionsSetValue(null, name.as_ptr(), c"lu".as_ptr()) },
+        "PetscOptionsSetValue",
+    )
+}
 
 /// Options from the command line (`--petsc-options`) for every PETSc solver made after this
 /// call; they are applied after the scene's `petsc_options`, so they override them.
@@ -235,6 +297,11 @@ pub struct PetscSolver {
     objects: Option<UnderLock<Objects>>,
     /// Whether PETSc's use of this solver's options was checked (after its first solve).
     options_checked: bool,
+    /// Whether the solver went over to the fallback after its default method failed (kept
+    /// for the rest of the run; see the module docs).
+    fallen_back: bool,
+    /// The warning of that change, until the run takes it (`LinearSolver::take_notice`).
+    notice: Option<String>,
     /// Whether the solver works over every process of a distributed run (made by
     /// [`PetscSolver::distributed`]), and its objects there.
     #[cfg(feature = "mpi")]
@@ -258,6 +325,8 @@ impl PetscSolver {
             last_iterations: 0,
             objects: None,
             options_checked: false,
+            fallen_back: false,
+            notice: None,
             #[cfg(feature = "mpi")]
             distributed: false,
             #[cfg(feature = "mpi")]
@@ -478,19 +547,23 @@ unsafe fn configure_ksp(
     matrix: ffi::Mat,
     symmetric: bool,
     prefix: &CStr,
+    method: Method,
 ) -> Result<(String, f64), LinearSolveError> {
     // SAFETY: as the caller promises; every out-pointer is valid.
     unsafe {
         check(ffi::KSPSetOperators(ksp, matrix, matrix), "KSPSetOperators")?;
-        let kind = if symmetric {
-            c"cg".as_ptr()
-        } else {
-            c"gmres".as_ptr()
+        let (kind, preconditioner) = match method {
+            Method::Default if symmetric => (c"cg", c"gamg"),
+            Method::Default => (c"gmres", c"gamg"),
+            Method::Fallback => (c"gmres", FALLBACK_PC),
         };
-        check(ffi::KSPSetType(ksp, kind), "KSPSetType")?;
+        check(ffi::KSPSetType(ksp, kind.as_ptr()), "KSPSetType")?;
         let mut pc = std::ptr::null_mut();
         check(ffi::KSPGetPC(ksp, &mut pc), "KSPGetPC")?;
-        check(ffi::PCSetType(pc, c"gamg".as_ptr()), "PCSetType")?;
+        check(ffi::PCSetType(pc, preconditioner.as_ptr()), "PCSetType")?;
+        if method == Method::Fallback {
+            set_fallback_options(prefix)?;
+        }
         check(
             ffi::KSPSetTolerances(
                 ksp,
@@ -785,6 +858,7 @@ impl Objects {
         matrix: &SparseMatrix,
         symmetric: bool,
         prefix: &CStr,
+        method: Method,
     ) -> Result<(Self, f64), LinearSolveError> {
         let padding = Padding::new(matrix)?;
         let mut objects = Self {
@@ -796,7 +870,7 @@ impl Objects {
             method: String::new(),
             padding,
         };
-        match objects.create(matrix, prefix) {
+        match objects.create(matrix, prefix, method) {
             Ok(tolerance) => Ok((objects, tolerance)),
             Err(e) => {
                 objects.destroy();
@@ -806,7 +880,12 @@ impl Objects {
     }
 
     /// The PETSc calls of [`Objects::new`]; returns the relative tolerance the options set.
-    fn create(&mut self, matrix: &SparseMatrix, prefix: &CStr) -> Result<f64, LinearSolveError> {
+    fn create(
+        &mut self,
+        matrix: &SparseMatrix,
+        prefix: &CStr,
+        method: Method,
+    ) -> Result<f64, LinearSolveError> {
         let padding = &self.padding;
         let size = padding.size as PetscInt;
         let comm = Comm::Serial.raw();
@@ -847,7 +926,8 @@ impl Objects {
             )?;
             check(ffi::KSPCreate(comm, &mut self.ksp), "KSPCreate")?;
             let symmetric = self.built_for.symmetric;
-            let (method, relative) = configure_ksp(self.ksp, self.matrix, symmetric, prefix)?;
+            let (method, relative) =
+                configure_ksp(self.ksp, self.matrix, symmetric, prefix, method)?;
             self.method = method;
             Ok(relative)
         }
@@ -904,26 +984,87 @@ impl Objects {
     }
 }
 
-impl LinearSolver for PetscSolver {
-    fn solve(
+impl PetscSolver {
+    /// The method the solver's objects are built with: the default until it fell back.
+    fn method(&self) -> Method {
+        if self.fallen_back {
+            Method::Fallback
+        } else {
+            Method::Default
+        }
+    }
+
+    /// One solve with the current method, on every process of a distributed solver.
+    fn solve_once(
         &mut self,
         matrix: &SparseMatrix,
         symmetric: bool,
         rhs: &mut [f64],
     ) -> Result<SolverKind, LinearSolveError> {
-        if let Some(bad) = rhs.iter().position(|v| !v.is_finite()) {
-            return Err(LinearSolveError::Backend(format!(
-                "the right-hand side is not finite at DOF {bad}"
-            )));
-        }
         #[cfg(feature = "mpi")]
         if self.distributed {
             return self.solve_distributed(matrix, symmetric, rhs);
         }
+        self.solve_serial(matrix, symmetric, rhs)
+    }
+
+    /// Whether the options (the scene's or the command line's) choose the Krylov method or the
+    /// preconditioner (`-ksp_type`, `-pc_type`): then the solver never falls back.
+    fn method_chosen(&mut self) -> Result<bool, LinearSolveError> {
         let _session = session()?;
         let prefix = self.prefix()?;
+        let null = std::ptr::null_mut();
+        for name in [c"-ksp_type", c"-pc_type"] {
+            let mut set = ffi::PETSC_FALSE;
+            // SAFETY: PETSc is initialised (the session is held); valid strings, out-pointer.
+            check(
+                unsafe { ffi::PetscOptionsHasName(null, prefix.as_ptr(), name.as_ptr(), &mut set) },
+                "PetscOptionsHasName",
+            )?;
+            if set == ffi::PETSC_TRUE {
+                return Ok(true);
+            }
+        }
+        Ok(false)
+    }
+
+    /// Goes over to the fallback for the rest of the run after the default failed with
+    /// `why`: the objects are destroyed (collectively for a distributed solver: every process
+    /// decides alike, see the module docs), to be built anew with the fallback by the next
+    /// solve, and the warning is kept for the run.
+    fn fall_back(&mut self, why: &str) {
+        {
+            let _session = PETSC.lock().unwrap_or_else(|e| e.into_inner());
+            if let Some(objects) = self.objects.take() {
+                objects.0.destroy();
+            }
+            #[cfg(feature = "mpi")]
+            if let Some(objects) = self.distributed_objects.take() {
+                objects.0.destroy();
+            }
+        }
+        self.fallen_back = true;
+        // the failure's own advice (change the options) is what the fallback does
+        let why = why.split("; change petsc_options").next().unwrap_or(why);
+        self.notice = Some(format!(
+            "PETSc's default method failed: {why}; the system is solved again, and the rest of \
+             the run's, with the fallback {FALLBACK_NAME} (choose the method with -ksp_type / \
+             -pc_type in petsc_options or --petsc-options to keep it from falling back)"
+        ));
+    }
+
+    /// `LinearSolver::solve` of the serial solver, with the current method.
+    fn solve_serial(
+        &mut self,
+        matrix: &SparseMatrix,
+        symmetric: bool,
+        rhs: &mut [f64],
+    ) -> Result<SolverKind, LinearSolveError> {
+        let _session = session()?;
+        let prefix = self.prefix()?;
+        let method = self.method();
         let (objects, fresh) = objects_for(&mut self.objects, matrix, symmetric, || {
-            let (objects, tolerance) = Objects::new(matrix, symmetric, &prefix)?;
+            let (objects, tolerance) = Objects::new(matrix, symmetric, &prefix, method)?;
             self.tolerance = tolerance;
             Ok(objects)
         })?;
@@ -956,6 +1097,40 @@ impl LinearSolver for PetscSolver {
             )));
         }
         Ok(SolverKind::Petsc)
+    }
+}
+
+impl LinearSolver for PetscSolver {
+    /// Solves with the current method; when the default fails to converge (PETSc's reason, or
+    /// the true-residual check) and the options did not choose the method, falls back (see
+    /// the module docs) and solves the same system again.
+    fn solve(
+        &mut self,
+        matrix: &SparseMatrix,
+        symmetric: bool,
+        rhs: &mut [f64],
+    ) -> Result<SolverKind, LinearSolveError> {
+        if let Some(bad) = rhs.iter().position(|v| !v.is_finite()) {
+            return Err(LinearSolveError::Backend(format!(
+                "the right-hand side is not finite at DOF {bad}"
+            )));
+        }
+        let (original, requested) = (rhs.to_vec(), self.requested);
+        match self.solve_once(matrix, symmetric, rhs) {
+            Err(LinearSolveError::NotConverged(why))
+                if !self.fallen_back && !self.method_chosen()? =>
+            {
+                self.fall_back(&why);
+                rhs.copy_from_slice(&original);
+                self.requested = requested;
+                self.solve_once(matrix, symmetric, rhs)
+            }
+            solved => solved,
+        }
+    }
+
+    fn take_notice(&mut self) -> Option<String> {
+        self.notice.take()
     }
 
     fn last_iterations(&self) -> Option<usize> {
