@@ -69,7 +69,6 @@ const REFUSED: &[(&str, &str)] = &[
         "arc-length control",
         "is not checked with decomposed points",
     ),
-    ("initial stress", "is not checked with decomposed points"),
     (
         "ghost penalty",
         "needs every cell's fill fraction, from the points of every process",
