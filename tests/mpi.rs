@@ -422,6 +422,9 @@ struct Runs<'a> {
     /// containing each (as many, the same words up to ` moved by `, after which the numbers
     /// may differ in their last digits).
     warned: &'a [&'a str],
+    /// Texts of warnings the distributed runs say and the serial (direct) run does not: each
+    /// distributed run says exactly one warning containing each (its linear solver's).
+    said: &'a [&'a str],
 }
 
 impl<'a> Runs<'a> {
@@ -436,6 +439,7 @@ impl<'a> Runs<'a> {
             history: &[],
             tractions: false,
             warned: &[],
+            said: &[],
         }
     }
 
@@ -586,6 +590,11 @@ fn compare_with(
             assert!(!serial.is_empty(), "{script}: no serial warning {text:?}");
             eprintln!("{label}: warned as serially: {serial:?}");
             assert_eq!(said(&got), serial, "{label}: warnings");
+        }
+        for text in runs.said {
+            let said: Vec<&String> = got.warnings.iter().filter(|w| w.contains(text)).collect();
+            eprintln!("{label}: said {said:?}");
+            assert_eq!(said.len(), 1, "{label}: {text:?} in {:?}", got.warnings);
         }
         measured.push(got.steps);
         let _ = std::fs::remove_dir_all(&dir);
@@ -2150,6 +2159,31 @@ fn a_tresca_footing_by_nitsche_with_decomposed_points_equals_the_serial_run() {
     compare_with(&scene, &set, "tresca-nitsche-dec", &runs);
 }
 
+/// Geostatic initial stresses with decomposed points (`initial_stress`): each process gives
+/// the points it spawns (its slab's) their K0 stress from their own height, and the history
+/// that carries it travels with a point that changes process (the material's point-state
+/// part). The Tresca footing on soil with weight (`weight=true`: K0 = 0.8, γ = 5, the weight
+/// held; `cells=2`, 3 steps, settlement 0.03 B) over 2 and 3 processes: the same Newton
+/// iterations, stresses (the initial ones included: they are most of the stress) and plastic
+/// strain as the serial run, and the footing pressure in every step, to 1e-8.
+#[test]
+fn a_footing_on_soil_with_initial_stresses_with_decomposed_points_equals_the_serial_run() {
+    let runs = Runs {
+        measures: &["footing_pressure", "footing_reaction_x"],
+        history: &["footing_pressure"],
+        ..Runs::decomposed(&[2, 3])
+    };
+    let scene = shipped_scene("strip_footing.rhai");
+    let set = [
+        "material=tresca",
+        "weight=true",
+        "cells=2",
+        "steps=3",
+        "settlement=0.03",
+    ];
+    compare_with(&scene, &set, "geostatic-footing-dec", &runs);
+}
+
 /// Boundary points whose hosts change process: a 2D column (slabs across its height) held on
 /// its left side by a smooth support (`surface_displace` of the x component, symmetric
 /// Nitsche) and pushed down on its top by a rough one (penalty), under its weight. The side's
@@ -2231,6 +2265,72 @@ fn a_boundary_point_reaching_another_process_s_nodes_is_refused_at_the_step() {
         "{stderr}"
     );
     for dir in [scene_dir, serial_dir, dir] {
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
+
+/// A stiff, non-symmetric system (docs/distributed.md, "A stiff, non-symmetric ring"): the
+/// quarter ring of `DRIVEN_BORE` with F-bar, driven radially on its bore (penalty γ = 1e4) to
+/// u_r = 0.02 in 3 steps. Over 3 processes PETSc's default (GMRES + GAMG) does not converge
+/// (`DIVERGED_ITS`); the backend falls back to GMRES + ASM with LU on each process's block,
+/// every process alike, and says so once.
+const STIFF_RING: &str = r#"
+const wall = material(#{ name: "wall", model: "von_mises", E: 500.0, nu: 0.3, sigma_y: 1.0, density: 1.0 });
+grid(#{ lower: [0.0, 0.0], upper: [2.5, 2.5], cells: [10, 10], basis: "linear" });
+body(#{
+    name: "wall",
+    material: wall,
+    region: |x| {
+        let r2 = x[0] * x[0] + x[1] * x[1];
+        x[0] >= 0.0 && x[1] >= 0.0 && r2 >= 1.0 && r2 <= 4.0
+    },
+    ppc: 4,
+    fbar: true,
+});
+fix(|x| x[0] == 0.0, [0]);
+fix(|x| x[1] == 0.0, [1]);
+surface_displace(#{ on: arc(#{ centre: [0.0, 0.0], radius: 1.0, from: 0.0, to: 90.0 }), radial: 0.02, name: "bore" });
+let cuts = 8;
+solver(#{ max_step_cuts: cuts });
+load_steps(3);
+"#;
+
+/// The stiff ring over 3 processes with PETSc's default equals the serial run (Newton per
+/// step, stresses, plastic strain, positions, the bore pressure in every step, to 1e-8) and
+/// says the fallback once; with the method chosen (`-pc_type gamg`) the run fails with PETSc's
+/// reason, as before.
+#[test]
+fn the_stiff_ring_falls_back_from_petscs_default_over_3_processes_and_equals_the_serial_run() {
+    let runs = Runs {
+        measures: &["bore_pressure"],
+        said: &["PETSc's default method failed"],
+        ..Runs::replicated(&[3])
+    };
+    compare_scene_text(STIFF_RING, "stiff_ring.rhai", "stiff-ring", &runs);
+    let Some(_one) = mpi_job_slot() else {
+        return;
+    };
+    let (scene_dir, scene) = scene_file("stiff-ring-chosen", "stiff_ring.rhai", STIFF_RING);
+    let dir = temp_dir("mpi", "stiff-ring-chosen-3");
+    let extra = ["--petsc-options", "-pc_type gamg -ksp_max_it 1000"];
+    let output = run(Some(3), &scene, &["cuts=0"], &dir, &extra);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("DIVERGED") && stderr.contains("gmres+gamg"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("MPI_Abort"), "{stderr}");
+    let summary = read_summary(&dir);
+    assert_eq!(summary["status"], "failed");
+    let warnings = summary["warnings"].as_array().unwrap();
+    assert!(
+        !warnings
+            .iter()
+            .any(|w| w.as_str().unwrap().contains("fallback")),
+        "{warnings:?}"
+    );
+    for dir in [scene_dir, dir] {
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
