@@ -338,3 +338,30 @@ pub fn point_states<A: Material, B: Material>(
     rows.sort_by_key(|row| row.0);
     rows.into_iter().map(|row| row.1).collect()
 }
+
+/// A stiff, non-symmetric system (docs/distributed.md, "A stiff, non-symmetric ring"): a
+/// quarter ring (1 ≤ r ≤ 2, linear MPM, 10 × 10 cells, 4 × 4 points per cell), von Mises
+/// with F-bar, driven radially on its bore by a penalty surface condition (γ = 1e4) to
+/// u_r = 0.02 in 3 steps; `solver_call` ends it.
+pub fn stiff_ring(solver_call: &str) -> String {
+    format!(
+        r#"const wall = material(#{{ name: "wall", model: "von_mises", E: 500.0, nu: 0.3, sigma_y: 1.0, density: 1.0 }});
+grid(#{{ lower: [0.0, 0.0], upper: [2.5, 2.5], cells: [10, 10], basis: "linear" }});
+body(#{{
+    name: "wall",
+    material: wall,
+    region: |x| {{
+        let r2 = x[0] * x[0] + x[1] * x[1];
+        x[0] >= 0.0 && x[1] >= 0.0 && r2 >= 1.0 && r2 <= 4.0
+    }},
+    ppc: 4,
+    fbar: true,
+}});
+fix(|x| x[0] == 0.0, [0]);
+fix(|x| x[1] == 0.0, [1]);
+surface_displace(#{{ on: arc(#{{ centre: [0.0, 0.0], radius: 1.0, from: 0.0, to: 90.0 }}), radial: 0.02, name: "bore" }});
+{solver_call}
+load_steps(3);
+"#
+    )
+}
