@@ -2184,6 +2184,34 @@ fn a_footing_on_soil_with_initial_stresses_with_decomposed_points_equals_the_ser
     compare_with(&scene, &set, "geostatic-footing-dec", &runs);
 }
 
+/// The K0 column of tests/geostatic.rs (von Mises, here σ_y = 300 so that it yields; K0 = 0.6,
+/// γ = 20, its weight held; 21 cells of 0.5 up to 10.5) pushed down by 1.0 on its top (penalty
+/// `surface_displace`) in 3 steps: points cross the slabs' boundaries and change process carrying the history that
+/// holds their initial stress (`points_changing_process` more than zero over 2 and 3
+/// processes). The same Newton iterations, stresses, plastic strain and positions as the
+/// serial run, and the top's reaction in every step, to 1e-8.
+const K0_COLUMN: &str = r#"
+grid(#{ lower: [0.0, 0.0], upper: [1.0, 10.5], cells: [1, 21], basis: "bspline", order: 2 });
+const soil = material(#{ name: "soil", model: "von_mises", sigma_y: 300.0, E: 1.0e4, nu: 0.3, density: 2.0 });
+body(#{ name: "column", material: soil, region: box([0.0, 0.0], [1.0, 10.0]), ppc: 3, placement: "gauss" });
+body_force([0.0, -10.0], #{ held: true });
+fix(|x| x[1] == 0.0, [1]);
+fix(|x| x[0] == 0.0 || x[0] == 1.0, [0]);
+initial_stress(#{ K0: 0.6, unit_weight: 20.0, surface: 10.0 });
+surface_displace(#{ on: [[0.0, 10.0], [1.0, 10.0]], displacement: [0.0, -1.0], name: "top" });
+load_steps(3);
+"#;
+
+#[test]
+fn a_pushed_k0_column_with_decomposed_points_equals_the_serial_run() {
+    let runs = Runs {
+        measures: &["top_reaction_y"],
+        ..Runs::decomposed(&[2, 3])
+    };
+    let runs = compare_scene_text(K0_COLUMN, "k0_column.rhai", "k0-column-dec", &runs);
+    counted_in_every_run("K0 column", &runs, "points_changing_process");
+}
+
 /// Boundary points whose hosts change process: a 2D column (slabs across its height) held on
 /// its left side by a smooth support (`surface_displace` of the x component, symmetric
 /// Nitsche) and pushed down on its top by a rough one (penalty), under its weight. The side's
@@ -2269,31 +2297,13 @@ fn a_boundary_point_reaching_another_process_s_nodes_is_refused_at_the_step() {
     }
 }
 
-/// A stiff, non-symmetric system (docs/distributed.md, "A stiff, non-symmetric ring"): the
-/// quarter ring of `DRIVEN_BORE` with F-bar, driven radially on its bore (penalty γ = 1e4) to
-/// u_r = 0.02 in 3 steps. Over 3 processes PETSc's default (GMRES + GAMG) does not converge
-/// (`DIVERGED_ITS`); the backend falls back to GMRES + ASM with LU on each process's block,
-/// every process alike, and says so once.
-const STIFF_RING: &str = r#"
-const wall = material(#{ name: "wall", model: "von_mises", E: 500.0, nu: 0.3, sigma_y: 1.0, density: 1.0 });
-grid(#{ lower: [0.0, 0.0], upper: [2.5, 2.5], cells: [10, 10], basis: "linear" });
-body(#{
-    name: "wall",
-    material: wall,
-    region: |x| {
-        let r2 = x[0] * x[0] + x[1] * x[1];
-        x[0] >= 0.0 && x[1] >= 0.0 && r2 >= 1.0 && r2 <= 4.0
-    },
-    ppc: 4,
-    fbar: true,
-});
-fix(|x| x[0] == 0.0, [0]);
-fix(|x| x[1] == 0.0, [1]);
-surface_displace(#{ on: arc(#{ centre: [0.0, 0.0], radius: 1.0, from: 0.0, to: 90.0 }), radial: 0.02, name: "bore" });
-let cuts = 8;
-solver(#{ max_step_cuts: cuts });
-load_steps(3);
-"#;
+/// The stiff ring (`common::stiff_ring`; docs/distributed.md, "A stiff, non-symmetric ring"),
+/// its step cuts set by `cuts`. Over 3 processes PETSc's default (GMRES + GAMG) does not
+/// converge; the backend falls back to GMRES + ASM with LU on each process's block, every
+/// process alike, and says so once.
+fn stiff_ring_scene() -> String {
+    common::stiff_ring("let cuts = 8;\nsolver(#{ max_step_cuts: cuts });")
+}
 
 /// The stiff ring over 3 processes with PETSc's default equals the serial run (Newton per
 /// step, stresses, plastic strain, positions, the bore pressure in every step, to 1e-8) and
@@ -2306,11 +2316,12 @@ fn the_stiff_ring_falls_back_from_petscs_default_over_3_processes_and_equals_the
         said: &["PETSc's default method failed"],
         ..Runs::replicated(&[3])
     };
-    compare_scene_text(STIFF_RING, "stiff_ring.rhai", "stiff-ring", &runs);
+    let text = stiff_ring_scene();
+    compare_scene_text(&text, "stiff_ring.rhai", "stiff-ring", &runs);
     let Some(_one) = mpi_job_slot() else {
         return;
     };
-    let (scene_dir, scene) = scene_file("stiff-ring-chosen", "stiff_ring.rhai", STIFF_RING);
+    let (scene_dir, scene) = scene_file("stiff-ring-chosen", "stiff_ring.rhai", &text);
     let dir = temp_dir("mpi", "stiff-ring-chosen-3");
     let extra = ["--petsc-options", "-pc_type gamg -ksp_max_it 1000"];
     let output = run(Some(3), &scene, &["cuts=0"], &dir, &extra);
