@@ -1907,11 +1907,11 @@ fn mohr_coulomb_hardening_on_its_plane_follows_the_closed_form() {
                 let mut gamma = ((drive - 2.0 * cos_phi * model.cohesion)
                     / (a.dot(&(de * b)) + 2.0 * cos_phi * k * hardening))
                     .max(0.0);
-                if let Some(r) = floor {
-                    if model.cohesion + hardening * k * gamma < r {
-                        gamma = (drive - 2.0 * cos_phi * r) / a.dot(&(de * b));
-                        residual_steps += 1;
-                    }
+                if let Some(r) = floor
+                    && model.cohesion + hardening * k * gamma < r
+                {
+                    gamma = (drive - 2.0 * cos_phi * r) / a.dot(&(de * b));
+                    residual_steps += 1;
                 }
                 let expected = de * (strain - b * gamma);
                 let tau = point.kirchhoff.diagonal();

@@ -1,4 +1,5 @@
-//! Drucker–Prager plasticity at finite strain (perfect plasticity), matched to Mohr–Coulomb.
+//! Drucker–Prager plasticity at finite strain (perfect, or with linear hardening or softening of
+//! the cohesion), matched to Mohr–Coulomb.
 //!
 //! Tension positive, `p = ⅓ tr τ`, `J2 = ½ ‖s‖²`; yield function and plastic potential
 //!
@@ -27,6 +28,28 @@
 //!
 //! (`β = 1 − Δγ/(√2 ‖e‖)`, `I_d = I − ⅓ 1⊗1`). `D` is symmetric only for associated flow
 //! (`ψ = φ`).
+//!
+//! **Hardening and softening of the cohesion** (`H`, `c_residual`: `cohesion.rs`,
+//! `c(ε̄_p) = max(c + H ε̄_p, c_r)`). The equivalent plastic strain is the usual
+//! `Δε̄_p = √(2/3) ‖Δε_p‖`, which on the cone, `Δε_p = Δγ (N/√2 + η̄/3 1)`, is `k Δγ` with
+//! `k = √(1/3 + 2η̄²/9)` exactly (de Souza Neto et al., box 8.9, take `ξ Δγ` instead: the same
+//! law with `H` scaled by `k/ξ`). With the branch's cohesion `c_n` and slope `h` (0 on the
+//! residual branch) the returns stay closed-form (boxes 8.9/8.10 with a linear `c`):
+//!
+//! ```text
+//! cone    A = 1/(G + K η η̄ + ξ k h), Δγ = A Φ^tr(c_n), D as above with this A, Δε̄_p = k Δγ
+//! apex    η̄ > 0: q = ξk/(η η̄), Δε_v^p = (p^tr − ξ c_n/η)/(K + q h), p = p^tr − K Δε_v^p,
+//!                D = K q h/(K + q h) 1⊗1, Δε̄_p = k Δε_v^p/η̄  (the cone's Δγ = Δε_v^p/η̄)
+//!         η̄ = 0, h > 0: p = p^tr (no volumetric flow), the apex hardens to it:
+//!                Δγ = (η p^tr/ξ − c_n)/(k h), D = K 1⊗1
+//!         η̄ = 0, h ≤ 0: no admissible stress keeps p^tr; the apex p = ξ c(ε̄_p^n + k Δγ)/η
+//!                with Δγ = √J2^tr/G (the deviator removed), D = (√2 ξ k h/η) 1⊗N
+//! ```
+//!
+//! The stress is continuous across the cone–apex boundary in each case. The return is unique
+//! while `G + K η η̄ + ξ k H > 0` and, for `η, η̄ > 0`, `K η η̄ + ξ k H > 0` (the apex's
+//! denominator, which implies the first): a steeper softening is refused
+//! ([`DruckerPrager::with_hardening`]). The kink at `c_r` is `CohesionHardening::return_on`'s.
 //!
 //! **In plane strain** (associated flow) the cone carries the in-plane loads of a Mohr–Coulomb
 //! soil: with `ε_zz = 0` the flow rule fixes `τ_zz`, and the in-plane stresses at yield obey
@@ -188,7 +211,7 @@ impl DruckerPrager {
         strain: &Vector3<f64>,
         trial_stress: &Vector3<f64>,
         plastic_strain: f64,
-    ) -> PrincipalReturn {
+    ) -> Result<PrincipalReturn, String> {
         let (bulk, shear) = bulk_and_shear(&self.elastic);
         let j2_trial = 2.0f64.sqrt() * shear * deviator(strain).norm();
         let p_trial = bulk * strain.sum();
@@ -196,14 +219,12 @@ impl DruckerPrager {
         let excess = j2_trial + self.eta * p_trial - strength;
         let scale = strength + j2_trial + self.eta * p_trial.abs();
         if excess <= 1e-12 * scale {
-            return PrincipalReturn::elastic(&self.elastic, *trial_stress);
+            return Ok(PrincipalReturn::elastic(&self.elastic, *trial_stress));
         }
-        let returned =
-            self.hardening
-                .return_on(self.cohesion, plastic_strain, |cohesion, slope| {
-                    Ok(self.plastic_return(strain, cohesion, slope))
-                });
-        returned.expect("the Drucker-Prager plastic return does not fail")
+        self.hardening
+            .return_on(self.cohesion, plastic_strain, |cohesion, slope| {
+                Ok(self.plastic_return(strain, cohesion, slope))
+            })
     }
 
     /// The cone or apex return with the cohesion `cohesion + slope Δε̄_p` (module docs).
@@ -467,6 +488,6 @@ impl elastoplastic::PrincipalReturnMap for DruckerPrager {
         stress: &Vector3<f64>,
         alpha: f64,
     ) -> Result<PrincipalReturn, String> {
-        Ok(self.return_map(strain, stress, alpha))
+        self.return_map(strain, stress, alpha)
     }
 }

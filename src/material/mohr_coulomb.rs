@@ -1,5 +1,5 @@
-//! Mohr–Coulomb plasticity at finite strain (perfect plasticity), with an optional tension
-//! cut-off.
+//! Mohr–Coulomb plasticity at finite strain (perfect, or with linear hardening or softening of
+//! the cohesion), with an optional tension cut-off.
 //!
 //! Tension positive. In principal Kirchhoff stresses the yield surface is the intersection of the
 //! six planes (one for each ordered pair `i ≠ j` of principal directions)
@@ -34,6 +34,37 @@
 //! (where its multipliers may have either sign), as the point `c cot φ 1` itself. `D` is non-symmetric unless `ψ = φ`.
 //!
 //! `φ = 0` with `ψ = 0` is Tresca's criterion (`c` the shear strength), without an apex.
+//!
+//! # Hardening and softening of the cohesion
+//!
+//! `c(ε̄_p) = max(c + H ε̄_p, c_r)` (`H`, `c_residual`: `cohesion.rs`) with the equivalent plastic
+//! strain `Δε̄_p = k Σ_i Δγ_i` over the active Mohr–Coulomb planes (the cut-off's flow does not
+//! enter; its `t` stays), `k = √(((1 + sin ψ)² + 2 (1 − sin ψ)²)/3)`: in triaxial compression
+//! (the compressive edge, `Δγ_12 = Δγ_13`) `Δε_p = ½ Σ Δγ (1 + sin ψ, 1 + sin ψ, −2 (1 − sin ψ))`
+//! and `k Σ Δγ = √(2/3) ‖Δε_p‖`, the usual measure (on the plane and the other edge it is a
+//! definition; de Souza Neto et al. take `2 cos φ Σ Δγ`, the same law with `H` scaled). Every
+//! Mohr–Coulomb plane's level `2 c cos φ` then rises by `2 cos φ k h` per unit of every
+//! Mohr–Coulomb multiplier (`h` the branch's slope, 0 at the residual), so the return to a set
+//! is still one linear system, the hardening entering `M`:
+//!
+//! ```text
+//! M_ij = a_i · D_e b_j + 2 cos φ k h [i, j Mohr–Coulomb planes],   M Δγ = Φ_S(τ^tr; c_n),
+//! τ = τ^tr − D_e B Δγ,   D = D_e − D_e B M⁻¹ Aᵀ D_e
+//! ```
+//!
+//! and admissibility is checked against the raised levels. Every Mohr–Coulomb flow has
+//! `tr b = 2 sin ψ`, so for `ψ > 0` `Δε̄_p = k Δε_v^p / (2 sin ψ)` whatever the set: the apex
+//! taken where no set passes (non-associated flow) is `p = cot φ c(ε̄_p^n + k (p^tr − p)/(2K sin ψ))`,
+//! with `g = cot φ h k/(2K sin ψ)`: `p = (cot φ c_n + g p^tr)/(1 + g)`, `D = g K/(1 + g) 1⊗1`,
+//! continuous with the sets' apex. For `ψ = 0` there is no volumetric flow: with `h > 0` the
+//! three-plane set hardens the apex to `p^tr` (found by the sets); with `h ≤ 0` the apex
+//! `cot φ c(ε̄_p^n + Δε̄_p)` with `Δε̄_p = √(2/3) ‖dev ε^tr‖` (the deviator removed),
+//! `D = cot φ h √(2/3) 1⊗N` (here `ε̄_p` jumps where the sets stop passing). The cut-off corner
+//! keeps `D = 0`, `Δε̄_p = 0`.
+//!
+//! The return is unique while `1 + 2 cos φ k H 1ᵀ M₀⁻¹ 1 > 0` for the plane, both edges and the
+//! apex (`M₀` without hardening) and `1 + g > 0`: a steeper softening is refused
+//! ([`MohrCoulomb::softening_limit`]), as is a cut-off above the softened apex `c_r cot φ`.
 
 use nalgebra::{Matrix3, SMatrix, Vector3};
 

@@ -189,10 +189,10 @@ impl SceneApi {
                 // only, the frictional models also soften): the table takes any number and
                 // each model checks its own range
                 Some(shared) => {
-                    if let (Kind::Number(a), Kind::Number(b)) = (&shared.kind, &parameter.kind) {
-                        if a != b {
-                            shared.kind = Kind::Number(Range::Any);
-                        }
+                    if let (Kind::Number(a), Kind::Number(b)) = (&shared.kind, &parameter.kind)
+                        && a != b
+                    {
+                        shared.kind = Kind::Number(Range::Any);
                     }
                 }
             }
