@@ -5,6 +5,7 @@
 
 use nalgebra::{Matrix3, Rotation3, SMatrix, SVector, SymmetricEigen, Unit, Vector3};
 
+use impm::material::cohesion::CohesionHardening;
 use impm::material::drucker_prager::Matching;
 use impm::material::{
     DruckerPrager, Hencky, Material, MohrCoulomb, PlasticHistory, Response, VonMises,
@@ -300,9 +301,10 @@ fn the_mohr_coulomb_return_is_continuous_at_any_stiffness() {
                 let a = Vector3::from_fn(|_, _| range * sample());
                 let b = Vector3::from_fn(|_, _| range * sample());
                 let step = (b - a) / steps as f64;
-                let mut previous = model.return_map(&(de * a)).unwrap();
+                let mut previous = model.return_map(&a, &(de * a), 0.0).unwrap();
                 for k in 1..=steps {
-                    let next = model.return_map(&(de * (a + step * k as f64))).unwrap();
+                    let trial = a + step * k as f64;
+                    let next = model.return_map(&trial, &(de * trial), 0.0).unwrap();
                     if (next.tangent - previous.tangent).amax() > 1e-6 * youngs {
                         switches += 1;
                     }
@@ -505,7 +507,7 @@ fn triaxial<M: Material<History = PlasticHistory>>(
     pressure: f64,
     increment: f64,
     steps: usize,
-) -> Vec<(PlasticHistory, Matrix3<f64>)> {
+) -> Vec<(PlasticHistory, Matrix3<f64>, Matrix3<f64>)> {
     let mut point = Driven::new(model);
     point.step(&(Matrix3::identity() * (-pressure / (3.0 * bulk)).exp()));
     assert!((point.kirchhoff + Matrix3::identity() * pressure).amax() < 1e-10 * pressure);
@@ -536,7 +538,7 @@ fn triaxial<M: Material<History = PlasticHistory>>(
             b,
             b,
         )));
-        out.push((point.history.clone(), point.kirchhoff));
+        out.push((point.history.clone(), point.kirchhoff, point.deformation));
     }
     out
 }
@@ -556,7 +558,7 @@ fn triaxial_compression_reaches_the_mohr_coulomb_limit() {
         let dp = triaxial(drucker_prager(dilation), bulk, pressure, -0.002, 20);
         for states in [&mc, &dp] {
             assert!(!states[0].0.yielding, "the first step is elastic");
-            let (history, tau) = states.last().unwrap();
+            let (history, tau, _) = states.last().unwrap();
             eprintln!(
                 "triaxial psi = {dilation}: τ_a = {:.10} vs limit {limit:.10}",
                 tau[(0, 0)]
@@ -569,7 +571,7 @@ fn triaxial_compression_reaches_the_mohr_coulomb_limit() {
             );
         }
         // the Mohr–Coulomb return is on its edge: the two lateral stresses equal
-        let (_, tau) = mc.last().unwrap();
+        let (_, tau, _) = mc.last().unwrap();
         assert!((tau[(1, 1)] - tau[(2, 2)]).abs() < 1e-9 * pressure);
     }
 }
@@ -1686,4 +1688,430 @@ fn the_former_name_match_is_an_alias_of_matching() {
         assert!(error.contains(":2"), "{options}: no line 2 in '{error}'");
         assert!(error.contains(word), "{options}: '{word}' not in '{error}'");
     }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Hardening and softening of the cohesion (Drucker–Prager, Mohr–Coulomb; material/cohesion.rs)
+
+/// The softening law of the checks: `c = max(1 − 20 ε̄_p, 0.2)`, its kink at `ε̄_p = 0.04`.
+const SOFTENING: (f64, f64) = (-20.0, 0.2);
+const KINK: f64 = 0.04;
+
+fn law(modulus: f64, residual: Option<f64>) -> CohesionHardening {
+    CohesionHardening::new(modulus, residual, 1.0, 30.0).unwrap()
+}
+
+fn hardening_drucker_prager(dilation: f64, law: CohesionHardening) -> DruckerPrager {
+    drucker_prager(dilation).with_hardening(law).unwrap()
+}
+
+fn hardening_mohr_coulomb(dilation: f64, law: CohesionHardening) -> MohrCoulomb {
+    mohr_coulomb(dilation, None).with_hardening(law).unwrap()
+}
+
+/// The yield function at `tau` with the cohesion at `plastic_strain`, relative to it:
+/// Drucker–Prager's cone (`√J2 + η p − ξ c`, zero at the apex too) or Mohr–Coulomb's largest
+/// plane (`(τ_1 − τ_3) + (τ_1 + τ_3) sin φ − 2 c cos φ`).
+fn yield_value<M: Material<History = PlasticHistory> + 'static>(
+    model: &M,
+    tau: &Matrix3<f64>,
+    plastic_strain: f64,
+) -> f64 {
+    let s = principal(tau);
+    let any = model as &dyn std::any::Any;
+    if let Some(dp) = any.downcast_ref::<DruckerPrager>() {
+        let c = dp.hardening.cohesion_at(dp.cohesion, plastic_strain);
+        let p = s.sum() / 3.0;
+        let j2 = (0.5 * s.map(|x| (x - p) * (x - p)).sum()).sqrt();
+        (j2 + dp.eta * p - dp.xi * c) / c
+    } else {
+        let mc = any.downcast_ref::<MohrCoulomb>().unwrap();
+        let c = mc.hardening.cohesion_at(mc.cohesion, plastic_strain);
+        let (sin, cos) = (mc.friction.sin(), mc.friction.cos());
+        ((s[0] - s[2]) + (s[0] + s[2]) * sin - 2.0 * c * cos) / c
+    }
+}
+
+/// The tangent at every trial from the committed states `starts` (the virgin `b_e = I` with the
+/// plastic strain given) against finite differences (`check_tangent`); every plastic return
+/// lies on the surface of the cohesion at the `plastic_strain` it commits, and from every start
+/// the trials reach every region of `regions`. Returns the plastic strains before and after each
+/// plastic trial.
+fn hardening_tangents<const D: usize, M: Material<History = PlasticHistory> + 'static>(
+    model: &M,
+    starts: &[f64],
+    trials: &[[f64; 3]],
+    regions: &[Region],
+) -> Vec<(f64, f64)> {
+    let mut strains = Vec::new();
+    for &start in starts {
+        let committed = PlasticHistory {
+            plastic_strain: start,
+            ..PlasticHistory::default()
+        };
+        let f = SMatrix::<f64, D, D>::identity();
+        let mut reached = Vec::new();
+        for &trial in trials {
+            let df = stretch::<D>(trial);
+            let response = model.respond(&df, &df, &committed).unwrap();
+            let region = region_of::<D, M>(&response);
+            eprintln!("from ε̄_p = {start}: {region:?} at {trial:?}");
+            check_tangent(model, &committed, &f, trial, region);
+            reached.push(region);
+            if response.history.yielding {
+                let after = response.history.plastic_strain;
+                let value = yield_value(model, &response.kirchhoff, after);
+                assert!(
+                    value.abs() < 1e-9,
+                    "{} D = {D} {region:?} from {start}: Φ/c = {value:e} at ε̄_p = {after}",
+                    M::MODEL
+                );
+                assert!(after > start);
+                strains.push((start, after));
+            }
+        }
+        for region in regions {
+            assert!(
+                reached.contains(region),
+                "{} D = {D} from {start}: {region:?} not reached ({reached:?})",
+                M::MODEL
+            );
+        }
+    }
+    strains
+}
+
+/// Starts of the softening checks: virgin, just before the kink, on the residual branch.
+const SOFT_STARTS: [f64; 3] = [0.0, KINK - 1e-4, KINK + 0.01];
+
+/// The branches the softening checks went through: the linear one (a return from 0 ending
+/// before the kink), across the kink (from before to after it) and the residual one.
+fn assert_every_branch(strains: &[(f64, f64)]) {
+    assert!(
+        strains.iter().any(|&(a, b)| a == 0.0 && b < KINK),
+        "{strains:?}"
+    );
+    assert!(
+        strains.iter().any(|&(a, b)| a < KINK && b > KINK),
+        "{strains:?}"
+    );
+    assert!(strains.iter().any(|&(a, _)| a > KINK), "{strains:?}");
+}
+
+fn drucker_prager_hardening_tangents<const D: usize>() {
+    let trials = [
+        [0.00001, -0.00002, 0.0],
+        [-0.02, 0.006, -0.001],
+        [-0.04, 0.012, -0.002],
+        [-0.01, 0.004, 0.0],
+        [0.01, 0.0125, 0.011],
+    ];
+    let regions = [Region::Elastic, Region::Plane, Region::Apex];
+    let (modulus, residual) = SOFTENING;
+    for dilation in [30.0, 10.0, 0.0] {
+        let hard = hardening_drucker_prager(dilation, law(100.0, None));
+        hardening_tangents::<D, _>(&hard, &[0.0, 0.01], &trials, &regions);
+        let soft = hardening_drucker_prager(dilation, law(modulus, Some(residual)));
+        let strains = hardening_tangents::<D, _>(&soft, &SOFT_STARTS, &trials, &regions);
+        assert_every_branch(&strains);
+    }
+}
+
+#[test]
+fn drucker_prager_hardening_and_softening_tangents_match_finite_differences_2d() {
+    drucker_prager_hardening_tangents::<2>();
+}
+
+#[test]
+fn drucker_prager_hardening_and_softening_tangents_match_finite_differences_3d() {
+    drucker_prager_hardening_tangents::<3>();
+}
+
+fn mohr_coulomb_hardening_tangents<const D: usize>(trials: &[[f64; 3]], regions: &[Region]) {
+    let (modulus, residual) = SOFTENING;
+    for dilation in [30.0, 10.0, 0.0] {
+        let hard = hardening_mohr_coulomb(dilation, law(100.0, None));
+        hardening_tangents::<D, _>(&hard, &[0.0, 0.01], trials, regions);
+        let soft = hardening_mohr_coulomb(dilation, law(modulus, Some(residual)));
+        let strains = hardening_tangents::<D, _>(&soft, &SOFT_STARTS, trials, regions);
+        assert_every_branch(&strains);
+    }
+}
+
+#[test]
+fn mohr_coulomb_hardening_and_softening_tangents_match_finite_differences_3d() {
+    mohr_coulomb_hardening_tangents::<3>(
+        &[
+            [0.00001, -0.00002, 0.0],
+            [0.01, -0.002, -0.02],
+            [0.004, 0.0035, -0.02],
+            [0.02, -0.0195, -0.02],
+            // not [0.01, 0.012, 0.011] as above: there τ^tr_3 = p^tr, where for ψ = 0 with
+            // hardening the edge Φ_12, Φ_21 also returns to the apex, with the derivative of the
+            // edge's return along that manifold only
+            [0.01, 0.0125, 0.011],
+        ],
+        &[Region::Elastic, Region::Plane, Region::Edge, Region::Apex],
+    );
+}
+
+#[test]
+fn mohr_coulomb_hardening_and_softening_tangents_match_finite_differences_2d() {
+    let trials = [
+        [0.00001, -0.00002, 0.0],
+        [0.012, -0.02, 0.0],
+        [0.00004, 0.002, 0.0],
+        [0.0002, 0.004, 0.0],
+        [0.00001, 0.0008, 0.0],
+        [0.02, 0.021, 0.0],
+    ];
+    // in plane strain the edge trials reach the apex once c is near its residual 0.2: the
+    // edge is required from the virgin state (with hardening and softening) alone
+    mohr_coulomb_hardening_tangents::<2>(&trials, &[Region::Elastic, Region::Plane, Region::Apex]);
+    for law in [law(100.0, None), law(SOFTENING.0, Some(SOFTENING.1))] {
+        let model = hardening_mohr_coulomb(10.0, law);
+        hardening_tangents::<2, _>(&model, &[0.0], &trials, &[Region::Edge]);
+    }
+}
+
+/// On the Mohr–Coulomb plane (a proportional path with fixed axes, as in
+/// `mohr_coulomb_on_its_plane_follows_the_closed_form`) every plastic increment flows along
+/// the plane's `b`, so the state at the strain `ε` depends on the total multiplier `γ` alone,
+/// which solves `aᵀ D_e (ε − γ b) = 2 cos φ c(k γ)`: with `c(ε̄_p) = max(c + H ε̄_p, c_r)`,
+/// `γ = (aᵀ D_e ε − 2 cos φ c)/(aᵀ D_e b + 2 cos φ k H)` until `c + H k γ` reaches `c_r`, then
+/// `γ = (aᵀ D_e ε − 2 cos φ c_r)/(aᵀ D_e b)`; `τ = D_e (ε − γ b)` and `ε̄_p = k γ`,
+/// `k = √(((1 + sin ψ)² + 2 (1 − sin ψ)²)/3)`, for any step size. Hardening (H = 100) and
+/// softening to the residual (`SOFTENING`), ψ = 30°, 10°, 0°.
+#[test]
+fn mohr_coulomb_hardening_on_its_plane_follows_the_closed_form() {
+    let (modulus, residual) = SOFTENING;
+    for (hardening, floor) in [(100.0, None), (modulus, Some(residual))] {
+        for dilation in [30.0, 10.0, 0.0] {
+            let model = hardening_mohr_coulomb(dilation, law(hardening, floor));
+            let de = impm::material::elastoplastic::elasticity(&model.elastic);
+            let (sin_phi, sin_psi) = (model.friction.sin(), model.dilation.sin());
+            let cos_phi = model.friction.cos();
+            let a = Vector3::new(1.0 + sin_phi, 0.0, -(1.0 - sin_phi));
+            let b = Vector3::new(1.0 + sin_psi, 0.0, -(1.0 - sin_psi));
+            let k = (((1.0 + sin_psi).powi(2) + 2.0 * (1.0 - sin_psi).powi(2)) / 3.0).sqrt();
+            let direction = Vector3::new(0.5, -0.1, -1.0);
+            let mut point = Driven::new(model.clone());
+            let (steps, increment) = (50, 0.005);
+            let mut residual_steps = 0;
+            for n in 1..=steps {
+                let strain = direction * (increment * n as f64);
+                point.step(&Matrix3::from_diagonal(
+                    &(direction * increment).map(f64::exp),
+                ));
+                let drive = a.dot(&(de * strain));
+                let mut gamma = ((drive - 2.0 * cos_phi * model.cohesion)
+                    / (a.dot(&(de * b)) + 2.0 * cos_phi * k * hardening))
+                    .max(0.0);
+                if let Some(r) = floor
+                    && model.cohesion + hardening * k * gamma < r
+                {
+                    gamma = (drive - 2.0 * cos_phi * r) / a.dot(&(de * b));
+                    residual_steps += 1;
+                }
+                let expected = de * (strain - b * gamma);
+                let tau = point.kirchhoff.diagonal();
+                assert!(
+                    (tau - expected).amax() < 1e-9 * expected.amax(),
+                    "H = {hardening}, psi = {dilation}, step {n}: {tau:?} vs {expected:?}"
+                );
+                assert!(
+                    (point.history.plastic_strain - k * gamma).abs() < 1e-12,
+                    "step {n}: ε̄_p = {} vs {}",
+                    point.history.plastic_strain,
+                    k * gamma
+                );
+                assert!(tau[0] > tau[1] && tau[1] > tau[2], "on the plane: {tau:?}");
+            }
+            if floor.is_some() {
+                assert!(
+                    residual_steps >= 10,
+                    "the residual reached: {residual_steps}"
+                );
+            }
+            eprintln!(
+                "plane H = {hardening} psi = {dilation}: ε̄_p = {:.6}, {residual_steps} steps at the residual",
+                point.history.plastic_strain
+            );
+        }
+    }
+}
+
+/// Drained triaxial compression (the lateral stress held, `triaxial`) with hardening and with
+/// softening to the residual: the axial stress is the Mohr–Coulomb limit of the cohesion at
+/// the committed plastic strain, `τ_a = −(p (1 + sin φ) + 2 c(ε̄_p) cos φ)/(1 − sin φ)`, for
+/// Mohr–Coulomb (its compressive edge) and the outer cone; the committed `ε̄_p` is
+/// `√(2/3) ‖ε_p‖` of the plastic logarithmic strain `ε_p = ε − D_e⁻¹ τ` (collinear increments
+/// on this path): the measure each model defines (`k Σ Δγ` on the edge, `k Δγ` on the cone) is
+/// the usual one here.
+#[test]
+fn triaxial_compression_follows_the_hardened_and_softened_cohesion() {
+    let elastic = elastic();
+    let (bulk, _) = impm::material::elastoplastic::bulk_and_shear(&elastic);
+    let pressure = 5.0;
+    let (s, c) = (30f64.to_radians().sin(), 30f64.to_radians().cos());
+    let (modulus, residual) = SOFTENING;
+    for (hardening, floor) in [(100.0, None), (modulus, Some(residual))] {
+        for dilation in [30.0, 10.0] {
+            let mc = triaxial(
+                hardening_mohr_coulomb(dilation, law(hardening, floor)),
+                bulk,
+                pressure,
+                -0.005,
+                30,
+            );
+            let dp = triaxial(
+                hardening_drucker_prager(dilation, law(hardening, floor)),
+                bulk,
+                pressure,
+                -0.005,
+                30,
+            );
+            for states in [&mc, &dp] {
+                let mut plastic_steps = 0;
+                for (history, tau, deformation) in states.iter() {
+                    if !history.yielding {
+                        continue;
+                    }
+                    plastic_steps += 1;
+                    let alpha = history.plastic_strain;
+                    let cohesion = floor.map_or(1.0 + hardening * alpha, |r| {
+                        (1.0 + hardening * alpha).max(r)
+                    });
+                    let limit = -(pressure * (1.0 + s) + 2.0 * cohesion * c) / (1.0 - s);
+                    assert!(
+                        (tau[(0, 0)] - limit).abs() < 1e-9 * limit.abs(),
+                        "H = {hardening}, psi = {dilation}: {} vs {limit}",
+                        tau[(0, 0)]
+                    );
+                    let total = deformation.diagonal().map(f64::ln);
+                    let plastic = total
+                        - impm::material::elastoplastic::elastic_strain(&elastic, &tau.diagonal());
+                    let measure = (2.0 / 3.0f64).sqrt() * plastic.norm();
+                    assert!(
+                        (alpha - measure).abs() < 1e-9 * measure,
+                        "H = {hardening}, psi = {dilation}: ε̄_p {alpha} vs √(2/3)‖ε_p‖ {measure}"
+                    );
+                }
+                assert!(plastic_steps >= 20);
+                let (history, tau, _) = states.last().unwrap();
+                eprintln!(
+                    "triaxial H = {hardening} psi = {dilation}: ε̄_p = {:.6}, τ_a = {:.10}",
+                    history.plastic_strain,
+                    tau[(0, 0)]
+                );
+                if floor.is_some() {
+                    assert!(history.plastic_strain > KINK, "the residual reached");
+                }
+            }
+        }
+    }
+}
+
+/// Bad hardening parameters are refused with the scene line; a softening scene is warned once
+/// that softening is mesh-dependent, a hardening one is not.
+#[test]
+fn bad_hardening_parameters_are_refused_and_softening_is_warned() {
+    let cases = [
+        (
+            "model: \"mohr_coulomb\", c: 1.0, phi: 30.0, H: -1.0, c_residual: 2.0",
+            "c_residual",
+        ),
+        (
+            "model: \"drucker_prager\", c: 1.0, phi: 30.0, H: -1.0, c_residual: -0.5",
+            "c_residual",
+        ),
+        (
+            "model: \"drucker_prager\", c: 1.0, phi: 30.0, H: 0.0 / 0.0",
+            "H",
+        ),
+        (
+            "model: \"mohr_coulomb\", c: 1.0, phi: 0.0, psi: 0.0, H: -1.0",
+            "c_residual",
+        ),
+        (
+            "model: \"mohr_coulomb\", c: 1.0, phi: 30.0, psi: 10.0, H: -1000.0",
+            "steeper",
+        ),
+        (
+            "model: \"drucker_prager\", c: 1.0, phi: 30.0, psi: 10.0, H: -1000.0",
+            "steeper",
+        ),
+        (
+            "model: \"mohr_coulomb\", c: 1.0, phi: 30.0, H: -1.0, c_residual: 0.1, tension_cutoff: 0.5",
+            "cut-off",
+        ),
+    ];
+    let block = |parameters: &str| {
+        format!(
+            "grid(#{{ lower: [0.0, 0.0], upper: [1.0, 1.0], cells: [1, 1], basis: \"linear\" }});\n\
+             const m = material(#{{ name: \"m\", E: 1000.0, nu: 0.3, density: 1.0, {parameters} }});\n\
+             const n = material(#{{ name: \"n\", E: 1000.0, nu: 0.3, density: 1.0, {parameters} }});\n\
+             body(#{{ name: \"b\", material: m, region: box([0.0, 0.0], [0.5, 1.0]), ppc: 1 }});\n\
+             body(#{{ name: \"d\", material: n, region: box([0.5, 0.0], [1.0, 1.0]), ppc: 1 }});\n\
+             load_steps(1);\n"
+        )
+    };
+    for (parameters, word) in cases {
+        let error = scene("bad_hardening", &block(parameters), &[]).unwrap_err();
+        assert!(error.contains(":2"), "{parameters}: no line 2 in '{error}'");
+        assert!(
+            error.contains(word),
+            "{parameters}: '{word}' not in '{error}'"
+        );
+    }
+    let softening = |parameters: &str| -> Vec<String> {
+        let spec = scene("softening", &block(parameters), &[]).unwrap();
+        impm::scene::scene_warnings(&spec)
+            .into_iter()
+            .filter(|w| w.contains("mesh"))
+            .collect()
+    };
+    let warned = softening("model: \"mohr_coulomb\", c: 1.0, phi: 30.0, H: -20.0, c_residual: 0.2");
+    assert_eq!(warned.len(), 1, "{warned:?}");
+    assert!(
+        warned[0].contains("'m'") && warned[0].contains("'n'"),
+        "{}",
+        warned[0]
+    );
+    assert!(softening("model: \"mohr_coulomb\", c: 1.0, phi: 30.0, H: 20.0").is_empty());
+}
+
+/// The FEM block of `non_associated_flow_is_solved_by_lu` with a softening Mohr–Coulomb
+/// cohesion (ψ = 10°, `c = max(1 − 20 ε̄_p, 0.2)`): every point is on the surface of the
+/// cohesion at its committed plastic strain, some steps soften and later ones are at the
+/// residual, and Newton converges quadratically on the softening steps.
+#[test]
+fn a_softening_block_converges_quadratically_onto_its_residual_surface() {
+    let text = FEM_BLOCK
+        .replace(
+            r#"model: "von_mises", sigma_y: 2.0, H: 300.0"#,
+            r#"model: "mohr_coulomb", c: 1.0, phi: 30.0, psi: 10.0, H: -20.0, c_residual: 0.2"#,
+        )
+        .replace("nu: 0.3", "nu: 0.1")
+        .replace("let strain = -0.05;", "let strain = -0.15;")
+        .replace("let steps = 10;", "let steps = 15;");
+    let mut sim = run::<2>("softening_block", &text, &[]);
+    let model = MohrCoulomb::new(Hencky::new(1000.0, 0.1).unwrap(), 1.0, 30.0, 10.0, None)
+        .unwrap()
+        .with_hardening(law(SOFTENING.0, Some(SOFTENING.1)))
+        .unwrap();
+    let mut query = sim.world.query::<(
+        &impm::components::Trial<2>,
+        &impm::stages::PointHistory<MohrCoulomb>,
+    )>();
+    let mut points = 0;
+    for (trial, history) in query.iter(&sim.world) {
+        let committed = &history.committed;
+        assert!(committed.yielding && committed.plastic_strain > KINK);
+        let value = yield_value(&model, &trial.0.kirchhoff, committed.plastic_strain);
+        assert!(value.abs() < 1e-9, "Φ/c = {value:e}");
+        points += 1;
+    }
+    assert_eq!(points, 16);
+    assert_quadratic_convergence(&sim.summary, 10);
 }

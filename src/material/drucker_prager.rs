@@ -1,4 +1,5 @@
-//! Drucker–Prager plasticity at finite strain (perfect plasticity), matched to Mohr–Coulomb.
+//! Drucker–Prager plasticity at finite strain (perfect, or with linear hardening or softening of
+//! the cohesion), matched to Mohr–Coulomb.
 //!
 //! Tension positive, `p = ⅓ tr τ`, `J2 = ½ ‖s‖²`; yield function and plastic potential
 //!
@@ -28,6 +29,28 @@
 //! (`β = 1 − Δγ/(√2 ‖e‖)`, `I_d = I − ⅓ 1⊗1`). `D` is symmetric only for associated flow
 //! (`ψ = φ`).
 //!
+//! **Hardening and softening of the cohesion** (`H`, `c_residual`: `cohesion.rs`,
+//! `c(ε̄_p) = max(c + H ε̄_p, c_r)`). The equivalent plastic strain is the usual
+//! `Δε̄_p = √(2/3) ‖Δε_p‖`, which on the cone, `Δε_p = Δγ (N/√2 + η̄/3 1)`, is `k Δγ` with
+//! `k = √(1/3 + 2η̄²/9)` exactly (de Souza Neto et al., box 8.9, take `ξ Δγ` instead: the same
+//! law with `H` scaled by `k/ξ`). With the branch's cohesion `c_n` and slope `h` (0 on the
+//! residual branch) the returns stay closed-form (boxes 8.9/8.10 with a linear `c`):
+//!
+//! ```text
+//! cone    A = 1/(G + K η η̄ + ξ k h), Δγ = A Φ^tr(c_n), D as above with this A, Δε̄_p = k Δγ
+//! apex    η̄ > 0: q = ξk/(η η̄), Δε_v^p = (p^tr − ξ c_n/η)/(K + q h), p = p^tr − K Δε_v^p,
+//!                D = K q h/(K + q h) 1⊗1, Δε̄_p = k Δε_v^p/η̄  (the cone's Δγ = Δε_v^p/η̄)
+//!         η̄ = 0, h > 0: p = p^tr (no volumetric flow), the apex hardens to it:
+//!                Δγ = (η p^tr/ξ − c_n)/(k h), D = K 1⊗1
+//!         η̄ = 0, h ≤ 0: no admissible stress keeps p^tr; the apex p = ξ c(ε̄_p^n + k Δγ)/η
+//!                with Δγ = √J2^tr/G (the deviator removed), D = (√2 ξ k h/η) 1⊗N
+//! ```
+//!
+//! The stress is continuous across the cone–apex boundary in each case. The return is unique
+//! while `G + K η η̄ + ξ k H > 0` and, for `η, η̄ > 0`, `K η η̄ + ξ k H > 0` (the apex's
+//! denominator, which implies the first): a steeper softening is refused
+//! ([`DruckerPrager::with_hardening`]). The kink at `c_r` is `CohesionHardening::return_on`'s.
+//!
 //! **In plane strain** (associated flow) the cone carries the in-plane loads of a Mohr–Coulomb
 //! soil: with `ε_zz = 0` the flow rule fixes `τ_zz`, and the in-plane stresses at yield obey
 //! Mohr–Coulomb with the angle and cohesion that the `plane_strain` row maps to `(η, ξ)`:
@@ -49,6 +72,7 @@
 
 use nalgebra::{Matrix3, SMatrix, Vector3};
 
+use super::cohesion::CohesionHardening;
 use super::elastoplastic::{
     self, PlasticHistory, PrincipalReturn, bulk_and_shear, deviator, deviatoric_projector,
 };
@@ -108,6 +132,8 @@ pub struct DruckerPrager {
     pub xi: f64,
     /// `η̄` of the plastic potential.
     pub eta_bar: f64,
+    /// The hardening or softening of the cohesion (default: none, perfect plasticity).
+    pub hardening: CohesionHardening,
 }
 
 impl DruckerPrager {
@@ -132,6 +158,7 @@ impl DruckerPrager {
             eta,
             xi,
             eta_bar,
+            hardening: CohesionHardening::default(),
         })
     }
 
@@ -148,30 +175,78 @@ impl DruckerPrager {
         Some((tan.atan(), cohesion))
     }
 
-    /// The principal-space return (module docs).
+    /// The same material with the cohesion hardening or softening `hardening`, or why it
+    /// makes none (a softening steeper than the limit of a unique return, module docs).
+    pub fn with_hardening(mut self, hardening: CohesionHardening) -> Result<Self, String> {
+        if hardening.softens() {
+            let (bulk, shear) = bulk_and_shear(&self.elastic);
+            let stiffness = if self.eta > 0.0 && self.eta_bar > 0.0 {
+                bulk * self.eta * self.eta_bar
+            } else {
+                shear
+            };
+            let limit = -stiffness / (self.xi * self.strain_per_multiplier());
+            if hardening.modulus <= limit {
+                return Err(format!(
+                    "softening modulus H = {} is steeper than this Drucker-Prager material \
+                     allows (H > {limit:.6e}: beyond it the return is not unique)",
+                    hardening.modulus
+                ));
+            }
+        }
+        self.hardening = hardening;
+        Ok(self)
+    }
+
+    /// `k = √(1/3 + 2η̄²/9)`: the equivalent plastic strain per unit multiplier,
+    /// `Δε̄_p = k Δγ = √(2/3) ‖Δε_p‖` on the cone (module docs).
+    pub fn strain_per_multiplier(&self) -> f64 {
+        (1.0 / 3.0 + 2.0 / 9.0 * self.eta_bar * self.eta_bar).sqrt()
+    }
+
+    /// The principal-space return from the committed equivalent plastic strain
+    /// `plastic_strain` (module docs).
     pub fn return_map(
         &self,
         strain: &Vector3<f64>,
         trial_stress: &Vector3<f64>,
-    ) -> PrincipalReturn {
+        plastic_strain: f64,
+    ) -> Result<PrincipalReturn, String> {
+        let (bulk, shear) = bulk_and_shear(&self.elastic);
+        let j2_trial = 2.0f64.sqrt() * shear * deviator(strain).norm();
+        let p_trial = bulk * strain.sum();
+        let strength = self.xi * self.hardening.cohesion_at(self.cohesion, plastic_strain);
+        let excess = j2_trial + self.eta * p_trial - strength;
+        let scale = strength + j2_trial + self.eta * p_trial.abs();
+        if excess <= 1e-12 * scale {
+            return Ok(PrincipalReturn::elastic(&self.elastic, *trial_stress));
+        }
+        self.hardening
+            .return_on(self.cohesion, plastic_strain, |cohesion, slope| {
+                Ok(self.plastic_return(strain, cohesion, slope))
+            })
+    }
+
+    /// The cone or apex return with the cohesion `cohesion + slope Δε̄_p` (module docs).
+    fn plastic_return(&self, strain: &Vector3<f64>, cohesion: f64, slope: f64) -> PrincipalReturn {
         let (bulk, shear) = bulk_and_shear(&self.elastic);
         let e = deviator(strain);
         let norm = e.norm();
         let root2 = 2.0f64.sqrt();
         let j2_trial = root2 * shear * norm;
         let p_trial = bulk * strain.sum();
-        let strength = self.xi * self.cohesion;
-        let excess = j2_trial + self.eta * p_trial - strength;
-        let scale = strength + j2_trial + self.eta * p_trial.abs();
-        if excess <= 1e-12 * scale {
-            return PrincipalReturn::elastic(&self.elastic, *trial_stress);
-        }
-        let a = 1.0 / (shear + bulk * self.eta * self.eta_bar);
+        let k = self.strain_per_multiplier();
+        let excess = j2_trial + self.eta * p_trial - self.xi * cohesion;
+        let a = 1.0 / (shear + bulk * self.eta * self.eta_bar + self.xi * k * slope);
         let increment = a * excess;
+        let n = if norm > 0.0 {
+            e / norm
+        } else {
+            Vector3::zeros()
+        };
+        let one = Vector3::repeat(1.0);
         if j2_trial - shear * increment >= 0.0 && norm > 0.0 {
             let beta = 1.0 - increment / (root2 * norm);
-            let n = e / norm;
-            let one = Vector3::repeat(1.0);
             let flow = n * (root2 * shear) + one * (bulk * self.eta_bar);
             let normal = n * (root2 * shear) + one * (bulk * self.eta);
             let tangent = deviatoric_projector() * (2.0 * shear * beta)
@@ -179,20 +254,51 @@ impl DruckerPrager {
                 - flow * normal.transpose() * a
                 + Matrix3::from_element(bulk);
             let mean = p_trial - bulk * self.eta_bar * increment;
-            PrincipalReturn {
+            return PrincipalReturn {
                 stress: e.map(|x| mean + 2.0 * shear * beta * x),
                 tangent,
                 pair_modulus: Some(2.0 * shear * beta),
                 yielding: true,
-            }
+                plastic_strain_increment: Some(k * increment),
+            };
+        }
+        // The apex (only reachable with friction, η > 0: at η = 0, √J2 − G Δγ = ξ c > 0).
+        let (mean, tangent, multiplier) = if self.eta_bar > 0.0 {
+            // p = p^tr − K Δε_v^p = (ξ/η) c(ε̄_p^n + k Δε_v^p/η̄), Δγ = Δε_v^p/η̄
+            let q = self.xi * k / (self.eta * self.eta_bar);
+            let volumetric = (p_trial - self.xi * cohesion / self.eta) / (bulk + q * slope);
+            let modulus = bulk * q * slope / (bulk + q * slope);
+            (
+                p_trial - bulk * volumetric,
+                Matrix3::from_element(modulus),
+                volumetric / self.eta_bar,
+            )
+        } else if slope > 0.0 {
+            // no volumetric flow (ψ = 0), hardening: p = p^tr, the cohesion hardens until the
+            // apex reaches it, (ξ/η) c(ε̄_p^n + k Δγ) = p^tr (Δγ > √J2^tr/G here)
+            (
+                p_trial,
+                Matrix3::from_element(bulk),
+                (self.eta * p_trial / self.xi - cohesion) / (k * slope),
+            )
         } else {
-            // the apex: only reachable with friction (η > 0), since √J2 − G Δγ = ξ c > 0 at η = 0
-            PrincipalReturn {
-                stress: Vector3::repeat(strength / self.eta),
-                tangent: Matrix3::zeros(),
-                pair_modulus: Some(0.0),
-                yielding: true,
-            }
+            // no volumetric flow (ψ = 0), perfect or softening: no stress at p^tr is
+            // admissible; the apex with the multiplier that removes the deviator,
+            // Δγ = √J2^tr/G, and p = (ξ/η) c(ε̄_p^n + k Δγ)
+            let multiplier = j2_trial / shear;
+            let gain = self.xi * slope * k / self.eta;
+            (
+                self.xi * (cohesion + slope * k * multiplier) / self.eta,
+                one * n.transpose() * (gain * root2),
+                multiplier,
+            )
+        };
+        PrincipalReturn {
+            stress: Vector3::repeat(mean),
+            tangent,
+            pair_modulus: Some(0.0),
+            yielding: true,
+            plastic_strain_increment: Some(k * multiplier),
         }
     }
 }
@@ -250,16 +356,54 @@ pub fn strength_parameters() -> Vec<ParameterSpec> {
             kind: ParameterKind::Number(Range::ClosedOpen(0.0, 90.0)),
             required: false,
         },
+        ParameterSpec {
+            name: "H",
+            meaning: "linear isotropic hardening (H > 0) or softening (H < 0) modulus of the cohesion, c + H eps_p (default 0: perfect plasticity); softening is mesh-dependent",
+            label: Some("cohesion hardening modulus H"),
+            kind: ParameterKind::Number(Range::Any),
+            required: false,
+        },
+        ParameterSpec {
+            name: "c_residual",
+            meaning: "residual cohesion softening (H < 0) stops at, 0 <= c_residual <= c (default 0; required > 0 when phi = 0)",
+            label: Some("residual cohesion c_residual"),
+            kind: ParameterKind::Number(Range::NonNegative),
+            required: false,
+        },
     ]);
     parameters
 }
 
-/// `(E, nu)` elasticity and `(c, φ, ψ)` in degrees from the shared parameters.
-pub fn read_strength(parameters: &MaterialParameters) -> Result<(Hencky, f64, f64, f64), String> {
+/// The shared parameters read: `(E, nu)` elasticity, `(c, φ, ψ)` (angles in degrees) and the
+/// cohesion's hardening (`H`, `c_residual`).
+pub struct Strength {
+    pub elastic: Hencky,
+    pub cohesion: f64,
+    pub friction: f64,
+    pub dilation: f64,
+    pub hardening: CohesionHardening,
+}
+
+/// The [`Strength`] of the shared parameters.
+pub fn read_strength(parameters: &MaterialParameters) -> Result<Strength, String> {
     let elastic = Hencky::from_parameters(parameters)?;
+    let cohesion = parameters.number("c")?;
     let friction = parameters.number("phi")?;
     let dilation = parameters.optional_number("psi")?.unwrap_or(friction);
-    Ok((elastic, parameters.number("c")?, friction, dilation))
+    check_strength(cohesion, friction, dilation)?;
+    let hardening = CohesionHardening::new(
+        parameters.optional_number("H")?.unwrap_or(0.0),
+        parameters.optional_number("c_residual")?,
+        cohesion,
+        friction,
+    )?;
+    Ok(Strength {
+        elastic,
+        cohesion,
+        friction,
+        dilation,
+        hardening,
+    })
 }
 
 impl Material for DruckerPrager {
@@ -288,7 +432,7 @@ impl Material for DruckerPrager {
     }
 
     fn from_parameters(parameters: &MaterialParameters) -> Result<Self, String> {
-        let (elastic, cohesion, friction, dilation) = read_strength(parameters)?;
+        let strength = read_strength(parameters)?;
         let (key, given) = match (parameters.get("matching"), parameters.get(MATCHING_ALIAS)) {
             (Some(_), Some(_)) => {
                 return Err("give matching or its former name \"match\", not both".to_string());
@@ -312,11 +456,18 @@ impl Material for DruckerPrager {
             },
             Some(other) => return Err(format!("{key} must be a word, got {other:?}")),
         };
-        Self::new(elastic, cohesion, friction, dilation, matching)
+        Self::new(
+            strength.elastic,
+            strength.cohesion,
+            strength.friction,
+            strength.dilation,
+            matching,
+        )?
+        .with_hardening(strength.hardening)
     }
 
     fn describe() -> &'static str {
-        "Drucker-Prager elasto-plasticity at finite strain (perfect plasticity, cone and apex returns, associated or not), matched to Mohr-Coulomb"
+        "Drucker-Prager elasto-plasticity at finite strain (perfect, or linear hardening/softening of the cohesion down to a residual; cone and apex returns, associated or not), matched to Mohr-Coulomb"
     }
 
     elastoplastic::elastoplastic_material_methods!();
@@ -335,8 +486,8 @@ impl elastoplastic::PrincipalReturnMap for DruckerPrager {
         &self,
         strain: &Vector3<f64>,
         stress: &Vector3<f64>,
-        _alpha: f64,
+        alpha: f64,
     ) -> Result<PrincipalReturn, String> {
-        Ok(self.return_map(strain, stress))
+        self.return_map(strain, stress, alpha)
     }
 }

@@ -14,8 +14,13 @@
 //! return map          (τ_A, D_AB = ∂τ_A/∂ε^tr_B) = the small-strain return map of the model
 //!                     in principal space, from τ^tr and ε̄_p^n
 //! update              τ = Σ_A τ_A n_A n_Aᵀ,   ε_e = D_e⁻¹ τ,   b_e^{n+1} = Σ_A e^{2 ε_e,A} n_A n_Aᵀ
-//!                     ε̄_p^{n+1} = ε̄_p^n + √(2/3) ‖ε^tr − ε_e‖
+//!                     ε̄_p^{n+1} = ε̄_p^n + √(2/3) ‖ε^tr − ε_e‖   (or the model's Δε̄_p)
 //! ```
+//!
+//! `ε̄_p` is the hardening variable the return map is given, and the `plastic_strain` output: a
+//! model whose hardening variable is not `√(2/3) ‖Δε_p‖` (the frictional models' cohesion
+//! hardening, `cohesion.rs`: a multiple of the sum of the multipliers) returns its increment
+//! (`PrincipalReturn::plastic_strain_increment`), which is then what is accumulated.
 //!
 //! The exponential map integrates the plastic flow `−½ L_v b_e = Δγ ∂Ψ/∂τ b_e` exactly in
 //! direction for isotropic yield functions, so the principal-space return map is the small-strain
@@ -191,6 +196,9 @@ pub struct PrincipalReturn {
     pub pair_modulus: Option<f64>,
     /// Whether the return was plastic.
     pub yielding: bool,
+    /// The model's equivalent plastic strain increment `Δε̄_p` (its hardening variable's, in
+    /// terms of its multipliers), if it defines one; `None`: `√(2/3) ‖ε^tr − ε_e‖`.
+    pub plastic_strain_increment: Option<f64>,
 }
 
 impl PrincipalReturn {
@@ -202,6 +210,7 @@ impl PrincipalReturn {
             tangent: elasticity(elastic),
             pair_modulus: Some(2.0 * shear),
             yielding: false,
+            plastic_strain_increment: None,
         }
     }
 }
@@ -404,7 +413,9 @@ pub fn respond<const D: usize>(
         elastic_left_cauchy_green: spectral.compose(&elastic_strain.map(|e| (2.0 * e).exp())),
         plastic_strain: committed.plastic_strain
             + if returned.yielding {
-                (2.0 / 3.0f64).sqrt() * plastic_increment.norm()
+                returned
+                    .plastic_strain_increment
+                    .unwrap_or_else(|| (2.0 / 3.0f64).sqrt() * plastic_increment.norm())
             } else {
                 0.0
             },

@@ -65,6 +65,7 @@
 //! `effects::materials`), then register `MaterialModule::<YourModel>` with the other modules;
 //! `examples/custom_material/` does it for a compressible neo-Hookean solid outside the crate.
 
+pub mod cohesion;
 pub mod drucker_prager;
 pub mod elastoplastic;
 pub mod hencky;

@@ -86,6 +86,7 @@ impl VonMises {
             tangent,
             pair_modulus: Some(2.0 * shear * beta),
             yielding: true,
+            plastic_strain_increment: None,
         }
     }
 }

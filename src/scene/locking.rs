@@ -134,11 +134,13 @@ pub fn scene_notes(spec: &SceneSpec) -> Vec<String> {
 
 /// Every warning a scene gets before it runs: rank deficiency (`rank_warnings`), volumetric
 /// locking ([`locking_warnings`]), a Drucker–Prager cone's matching in plane strain
-/// (`cone_matching_warnings`) and the modules' ([`ModuleWarnings`]).
+/// (`cone_matching_warnings`), softening cohesions (`softening_warnings`) and the modules'
+/// ([`ModuleWarnings`]).
 pub fn scene_warnings(spec: &SceneSpec) -> Vec<String> {
     let mut warnings = super::rank_warnings(spec);
     warnings.extend(locking_warnings(spec));
     warnings.extend(super::cone_matching_warnings(spec));
+    warnings.extend(super::softening_warnings(spec));
     if let Some(module) = spec.part::<ModuleWarnings>() {
         warnings.extend(module.0.iter().cloned());
     }

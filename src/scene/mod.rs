@@ -44,6 +44,7 @@ mod rank;
 mod registry;
 mod schedule;
 mod seeding;
+mod softening;
 mod stages;
 mod words;
 
@@ -78,6 +79,7 @@ pub use seeding::{
     PartRule, Placement, SurfacePointSeed, first_point_outside_grid, nearest_points, seed_boundary,
     seed_box, seed_points, seed_points_placed, seed_surface,
 };
+pub use softening::softening_warnings;
 pub use stages::{StageDeclaration, StageSpec, Stages};
 pub use words::{BasisRefinement, BasisWord, FieldSpec, ModelSpec, Seeder, Word, Words};
 

@@ -22,6 +22,7 @@ use rhai::{Dynamic, Position};
 use super::builder::SceneBuilder;
 use super::options::{Choice, Kind, OptionSpec, Options};
 use super::words::{Word, Words};
+use crate::parameter::Range;
 
 /// What a call does with its arguments.
 #[derive(Clone)]
@@ -179,11 +180,21 @@ impl SceneApi {
             .collect();
         let mut parameters: Vec<OptionSpec> = Vec::new();
         for parameter in self.words.models.iter().flat_map(|m| &m.parameters) {
-            if !parameters.iter().any(|p| p.key == parameter.key) {
-                parameters.push(OptionSpec {
+            match parameters.iter_mut().find(|p| p.key == parameter.key) {
+                None => parameters.push(OptionSpec {
                     required: false,
                     ..parameter.clone()
-                });
+                }),
+                // models that share a number with different ranges (`H`: von Mises hardens
+                // only, the frictional models also soften): the table takes any number and
+                // each model checks its own range
+                Some(shared) => {
+                    if let (Kind::Number(a), Kind::Number(b)) = (&shared.kind, &parameter.kind)
+                        && a != b
+                    {
+                        shared.kind = Kind::Number(Range::Any);
+                    }
+                }
             }
         }
         for call in &mut self.calls {

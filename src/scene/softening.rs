@@ -1,0 +1,32 @@
+//! A warning for scenes with a softening cohesion (`H < 0` on `drucker_prager` or
+//! `mohr_coulomb`, `material::cohesion`).
+//!
+//! The softening is local (no regularisation: no internal length, no non-local or gradient
+//! plastic strain), so once a band softens the discrete problem localises into the narrowest
+//! band the grid allows: load–displacement curves past the peak, and the width of the failure
+//! zones, depend on the grid (and the basis). A scene is told so once, naming its softening
+//! materials, before it runs.
+
+use super::SceneSpec;
+use crate::material::drucker_prager::read_strength;
+
+/// One warning naming every softening material of the scene, or none.
+pub fn softening_warnings(spec: &SceneSpec) -> Vec<String> {
+    let softening: Vec<String> = spec
+        .materials
+        .iter()
+        .filter(|m| m.model == "drucker_prager" || m.model == "mohr_coulomb")
+        .filter(|m| read_strength(&m.parameters).is_ok_and(|strength| strength.hardening.softens()))
+        .map(|m| format!("'{}'", m.name))
+        .collect();
+    if softening.is_empty() {
+        return Vec::new();
+    }
+    vec![format!(
+        "material {} soften (H < 0) without regularisation: past the peak the results are \
+         mesh-dependent (the failure zone localises into the narrowest band the grid allows); \
+         compare two resolutions before reading a post-peak curve (docs/plasticity.md, \
+         \"Hardening and softening of Drucker-Prager and Mohr-Coulomb\")",
+        softening.join(", ")
+    )]
+}
