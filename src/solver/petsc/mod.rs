@@ -118,21 +118,32 @@ const FALLBACK_PC: &CStr = c"asm";
 /// The fallback, for messages.
 const FALLBACK_NAME: &str = "gmres+asm (LU on each block: -pc_type asm -sub_pc_type lu)";
 
-/// Sets the fallback's sub-solver options under `prefix` (LU on each block), unless the
-/// options give them. The caller holds the session.
-fn set_fallback_options(prefix: &CStr) -> Result<(), LinearSolveError> {
-    let null = std::ptr::null_mut();
-    let mut given = ffi::PETSC_FALSE;
-    // SAFETY: PETSc is initialised; valid strings and out-pointer.
+/// Whether PETSc's options database (the scene's and the command line's options) names
+/// `name` under `prefix`. The caller holds the session.
+fn option_given(prefix: &CStr, name: &CStr) -> Result<bool, LinearSolveError> {
+    let mut set = ffi::PETSC_FALSE;
+    // SAFETY: PETSc is initialised (the caller holds the session); valid strings, out-pointer.
     check(
         unsafe {
-            ffi::PetscOptionsHasName(null, prefix.as_ptr(), c"-sub_pc_type".as_ptr(), &mut given)
+            ffi::PetscOptionsHasName(
+                std::ptr::null_mut(),
+                prefix.as_ptr(),
+                name.as_ptr(),
+                &mut set,
+            )
         },
         "PetscOptionsHasName",
     )?;
-    if given == ffi::PETSC_TRUE {
+    Ok(set == ffi::PETSC_TRUE)
+}
+
+/// Sets the fallback's sub-solver options under `prefix` (LU on each block), unless the
+/// options give them. The caller holds the session.
+fn set_fallback_options(prefix: &CStr) -> Result<(), LinearSolveError> {
+    if option_given(prefix, c"-sub_pc_type")? {
         return Ok(());
     }
+    let null = std::ptr::null_mut();
     let name = c_string(
         &format!("-{}sub_pc_type", prefix.to_string_lossy()),
         "the options prefix",
@@ -669,16 +680,7 @@ unsafe fn set_rigid_body_modes(
 /// # Safety
 /// The session is held and `ksp` is a created KSP.
 unsafe fn measure_the_true_residual(ksp: ffi::KSP, prefix: &CStr) -> Result<(), LinearSolveError> {
-    let null = std::ptr::null_mut();
-    let given = |name: &CStr| -> Result<bool, LinearSolveError> {
-        let mut set = ffi::PETSC_FALSE;
-        // SAFETY: valid strings and out-pointer.
-        check(
-            unsafe { ffi::PetscOptionsHasName(null, prefix.as_ptr(), name.as_ptr(), &mut set) },
-            "PetscOptionsHasName",
-        )?;
-        Ok(set == ffi::PETSC_TRUE)
-    };
+    let given = |name: &CStr| option_given(prefix, name);
     if given(c"-ksp_norm_type")? {
         return Ok(());
     }
@@ -1013,15 +1015,8 @@ impl PetscSolver {
     fn method_chosen(&mut self) -> Result<bool, LinearSolveError> {
         let _session = session()?;
         let prefix = self.prefix()?;
-        let null = std::ptr::null_mut();
         for name in [c"-ksp_type", c"-pc_type"] {
-            let mut set = ffi::PETSC_FALSE;
-            // SAFETY: PETSc is initialised (the session is held); valid strings, out-pointer.
-            check(
-                unsafe { ffi::PetscOptionsHasName(null, prefix.as_ptr(), name.as_ptr(), &mut set) },
-                "PetscOptionsHasName",
-            )?;
-            if set == ffi::PETSC_TRUE {
+            if option_given(&prefix, name)? {
                 return Ok(true);
             }
         }
