@@ -35,7 +35,7 @@
 //!   converged and the `.pvd` series is readable up to the last of them;
 //! * arc-length control (the thick cylinder, past its peak) under `mpirun -n 2` and `-n 3`
 //!   equals its serial run: iterations and step cuts per step, the load factor, the pressure
-//!   and the bore's displacement;
+//!   and the bore's displacement; with `--decompose` it is refused, naming it;
 //! * a signal to one process only stops every process after the same load step (the stop is
 //!   agreed between steps), with the status "interrupted" and no abort;
 //! * `impm study` under `mpirun -n 2` is refused, said once, before anything is written;
@@ -1931,6 +1931,28 @@ fn arc_length_control_over_2_and_3_processes_equals_the_serial_run() {
         );
         assert!(steps.iter().any(|s| s["cuts"].as_u64().unwrap() > 0));
     }
+}
+
+/// With decomposed points arc-length control is still refused (its dot products are over
+/// whole vectors): the arc-controlled footing under `-n 2 --decompose` fails before any point
+/// is spawned, naming it once, without an abort.
+#[test]
+fn arc_length_control_is_refused_with_decomposed_points() {
+    let Some(_one) = mpi_job_slot() else {
+        return;
+    };
+    let scene = shipped_scene("footing_pressure_arc.rhai");
+    let dir: PathBuf = temp_dir("mpi", "arc-decomposed");
+    let stderr = refused(2, &scene, &["cells=2"], &dir, &["--decompose"]);
+    assert_eq!(
+        stderr
+            .matches("arc-length control (its dot products")
+            .count(),
+        1,
+        "{stderr}"
+    );
+    assert!(stderr.contains("without --decompose"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The process of rank `rank` that `mpirun` (process `launcher`) started: a descendant of it
