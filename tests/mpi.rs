@@ -822,20 +822,23 @@ fn the_follower_pressure_over_2_and_3_processes_equals_the_serial_run() {
 /// abort.
 #[test]
 fn the_follower_pressure_is_refused_with_decomposed_points() {
+    refused_with_decomposed_points(
+        "pressure-decomposed",
+        "thick_cylinder.rhai",
+        &["control=load", "cells=4", "steps=1"],
+        "pressure (keeps its points' host points)",
+    );
+}
+
+/// The shipped scene `script` (with `set`) under `mpirun -n 2 --decompose` is refused, naming
+/// `named` once and saying to run it without `--decompose`, without an abort.
+fn refused_with_decomposed_points(tag: &str, script: &str, set: &[&str], named: &str) {
     let Some(_one) = mpi_job_slot() else {
         return;
     };
-    let dir: PathBuf = temp_dir("mpi", "pressure-decomposed");
-    let scene = shipped_scene("thick_cylinder.rhai");
-    let set = ["control=load", "cells=4", "steps=1"];
-    let stderr = refused(2, &scene, &set, &dir, &["--decompose"]);
-    assert_eq!(
-        stderr
-            .matches("pressure (keeps its points' host points)")
-            .count(),
-        1,
-        "{stderr}"
-    );
+    let dir: PathBuf = temp_dir("mpi", tag);
+    let stderr = refused(2, &shipped_scene(script), set, &dir, &["--decompose"]);
+    assert_eq!(stderr.matches(named).count(), 1, "{stderr}");
     assert!(stderr.contains("without --decompose"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -1938,21 +1941,12 @@ fn arc_length_control_over_2_and_3_processes_equals_the_serial_run() {
 /// is spawned, naming it once, without an abort.
 #[test]
 fn arc_length_control_is_refused_with_decomposed_points() {
-    let Some(_one) = mpi_job_slot() else {
-        return;
-    };
-    let scene = shipped_scene("footing_pressure_arc.rhai");
-    let dir: PathBuf = temp_dir("mpi", "arc-decomposed");
-    let stderr = refused(2, &scene, &["cells=2"], &dir, &["--decompose"]);
-    assert_eq!(
-        stderr
-            .matches("arc-length control (its dot products")
-            .count(),
-        1,
-        "{stderr}"
+    refused_with_decomposed_points(
+        "arc-decomposed",
+        "footing_pressure_arc.rhai",
+        &["cells=2"],
+        "arc-length control (its dot products",
     );
-    assert!(stderr.contains("without --decompose"), "{stderr}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The process of rank `rank` that `mpirun` (process `launcher`) started: a descendant of it
