@@ -26,9 +26,11 @@
 //! * a prescribed displacement that is not zero (`displace`, `surface_displace` with a
 //!   `displacement`): its ramp would be a second load parameter the arc does not constrain;
 //!   supports (`fix`, zero displacements) are fine;
-//! * the Newton line search, which would move the iterate off the arc;
-//! * runs under `mpirun` with more than one process (the arc's second solve and its dot
-//!   products are not distributed yet).
+//! * the Newton line search, which would move the iterate off the arc.
+//!
+//! Under `mpirun` with replicated state the arc runs as serially (module docs of
+//! `stages::arc_length`, "Over several processes"); with `--decompose` it is refused
+//! (`effects::distributed::decomposition`).
 //!
 //! # Stages
 //!
@@ -202,14 +204,6 @@ impl Plugin for ArcLengthModule {
                 solver.at,
                 "solver(...): control: \"arc_length\" cannot be combined with line_search: true \
                  (the line search would move the iterate off the arc)",
-            ));
-        }
-        if crate::distributed::launched_by_mpirun().is_some_and(|p| p.size > 1) {
-            return Err(refuse(
-                "control: \"arc_length\" under mpirun with more than one process is not \
-                 supported yet (its second solve and its dot products are not distributed): \
-                 run with mpirun -n 1 or without mpirun"
-                    .to_string(),
             ));
         }
         let first_step = staged.map_or(1, |(_, first)| first);

@@ -180,6 +180,23 @@
 //! `rebalanced_imbalance` (as `initial_imbalance`, at u_c) and `rebalanced_load_factor` (λ_c),
 //! and `initial_imbalance` stays the residual the step inherited.
 //!
+//! # Over several processes
+//!
+//! Under `mpirun -n N` with replicated state (`effects::distributed`) every process holds
+//! every point and the whole grid: f̂ (and f_fixed) are formed in full on every process, a
+//! follower pressure's f̂ follows the iterate on every process, `f_int` is summed before the
+//! residual is formed and every solve's correction is gathered to every process. So Δu, δu_r,
+//! δu_f, Δu_{n−1} and f̂ are whole and the same bits on every process, and so are every dot
+//! product above, the roots, the turn-back and rebalancing decisions, the step policy's end
+//! tests and its cuts: nothing here talks to the other processes. The second solve, K δu_f = f̂,
+//! calls the same distributed solver as the first, on every process (every process reaches
+//! [`correct_load_factor`] in the same iteration with the same state): it sets the shares of K
+//! again (`MatZeroEntries`, then each process adds its share) and solves the right-hand side
+//! every process passes alike. `tests/mpi.rs` runs the thick cylinder past its peak over 2 and
+//! 3 processes and compares it with the serial run. With decomposed points (`--decompose`)
+//! the vectors are local and these dot products would count ghost nodes and miss the other
+//! processes' nodes: the arc is refused there (`effects::distributed::decomposition`).
+//!
 //! # Step control
 //!
 //! [`ArcLengthControl`] is the policy (pure): the first arc is sized so that the first step's

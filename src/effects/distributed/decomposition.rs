@@ -67,7 +67,7 @@ const REFUSED: &[(&str, &str)] = &[
     ),
     (
         "arc-length control",
-        "is not checked with decomposed points",
+        "its dot products are over whole vectors, not summed over the processes' owned DOFs",
     ),
     (
         "ghost penalty",
