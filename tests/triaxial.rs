@@ -296,6 +296,10 @@ fn triaxial_softening_follows_the_closed_form_through_the_peak_to_the_residual()
             .iter()
             .filter(|s| s.plastic_multiplier > 0.0 && plastic_strain(s) < kink)
             .count();
+        println!(
+            "{model}: peak at step {}, {softening_steps} steps softening, {residual_steps} on the residual",
+            peak + 1
+        );
         assert!(
             peak + 1 < reference.len() && peak > 0,
             "peak at step {}",
