@@ -179,9 +179,9 @@ fn run_scene(set: &[(&str, &str)], tag: &str) -> (HashMap<String, Vec<f64>>, Str
 /// of the load scale.
 const TOLERANCE: f64 = 1e-7;
 
-/// Every step of `model` with hardening `h` at 1 and 2 elements per side against the closed
-/// form; returns what the closed form says was reached (largest ε̄_p, peak |τ_a|, last |τ_a|)
-/// and the stderr of the runs.
+/// Every step of `model` with hardening `h` (and `residual`) at 1 and 2 elements per side
+/// against the closed form; returns the closed form's states (for the callers' checks of what
+/// the path reached) and the runs' stderr.
 fn follows_the_closed_form(model: &str, h: f64, residual: f64) -> (Vec<TriaxialState>, String) {
     let steps = 20;
     let reference = ClosedForm {
