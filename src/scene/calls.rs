@@ -585,7 +585,7 @@ fn solver_call() -> CallSpec {
             OptionSpec::new(
                 "max_step_cuts",
                 Kind::Whole { min: 0, max: None },
-                "how many times a load step may be halved when Newton fails (default 8)",
+                "how many times in a row a load step may be halved when Newton fails (default 8): the smallest sub-step is 2^-n of the step; each converged sub-step doubles the next, so a step may be cut more often in all",
             ),
             OptionSpec::new(
                 "linear",
