@@ -35,7 +35,10 @@
 //!   converged and the `.pvd` series is readable up to the last of them;
 //! * arc-length control (the thick cylinder, past its peak) under `mpirun -n 2` and `-n 3`
 //!   equals its serial run: iterations and step cuts per step, the load factor, the pressure
-//!   and the bore's displacement; with `--decompose` it is refused, naming it;
+//!   and the bore's displacement; with `--decompose` the arc-controlled pressure is refused,
+//!   naming the pressure; with decomposed points arc-length control equals its serial run
+//!   too (a traction-loaded footing past first yield, and a column with its weight held whose
+//!   points change process), its sums taken over the processes;
 //! * a signal to one process only stops every process after the same load step (the stop is
 //!   agreed between steps), with the status "interrupted" and no abort;
 //! * `impm study` under `mpirun -n 2` is refused, said once, before anything is written;

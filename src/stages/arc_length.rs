@@ -454,11 +454,16 @@ pub fn load_correction(
     load_correction_with(&dot, increment, residual_part, load_part, radius, sign).unwrap_or(None)
 }
 
+/// An inner product of two vectors by DOF over the whole problem's free DOFs (on a grid split
+/// among processes a collective sum: module docs, "With decomposed points"); its error is a
+/// failed sum.
+pub type InnerProduct<'a> = dyn Fn(&[f64], &[f64]) -> Result<f64, String> + 'a;
+
 /// [`load_correction`] with the inner product `dot` (over the whole problem's free DOFs: on
 /// a grid split among processes a collective sum, which every process calls alike; module
 /// docs, "With decomposed points"); its error is `dot`'s.
 pub fn load_correction_with(
-    dot: &dyn Fn(&[f64], &[f64]) -> Result<f64, String>,
+    dot: &InnerProduct<'_>,
     increment: &[f64],
     residual_part: &[f64],
     load_part: &[f64],
@@ -1287,7 +1292,7 @@ pub fn shortest_correction(residual_part: &[f64], load_part: &[f64]) -> Option<f
 
 /// [`shortest_correction`] with the inner product `dot` (as [`load_correction_with`]).
 pub fn shortest_correction_with(
-    dot: &dyn Fn(&[f64], &[f64]) -> Result<f64, String>,
+    dot: &InnerProduct<'_>,
     residual_part: &[f64],
     load_part: &[f64],
 ) -> Result<Option<f64>, String> {
