@@ -446,9 +446,23 @@ impl<const D: usize> Simulation<D> {
                 }
             }
         }
+        // (collective on a grid split among processes: Δu_{n−1} kept whole)
+        let accepted = self
+            .world
+            .resource_scope(|world, mut arc: Mut<ArcLength<D>>| {
+                arc.accept(world.resource::<Newton>().shared_grid.as_deref())
+            });
+        if let Err(why) = accepted {
+            let cuts = self.arc_control().cuts();
+            let error = SolverError::Module {
+                step: number,
+                what: format!("arc-length control: summing over the processes: {why}"),
+                recoverable: false,
+            };
+            return Err(self.fail_step(record, error, clock, cuts));
+        }
         let (factor, radius, linearised, rebalancing) = {
-            let mut arc = self.world.resource_mut::<ArcLength<D>>();
-            arc.accept();
+            let arc = self.world.resource::<ArcLength<D>>();
             let rebalancing = arc.rebalanced.map_or(0, |r| r.iterations);
             (arc.factor, arc.radius, arc.linearised, rebalancing)
         };

@@ -35,7 +35,10 @@
 //!   converged and the `.pvd` series is readable up to the last of them;
 //! * arc-length control (the thick cylinder, past its peak) under `mpirun -n 2` and `-n 3`
 //!   equals its serial run: iterations and step cuts per step, the load factor, the pressure
-//!   and the bore's displacement; with `--decompose` it is refused, naming it;
+//!   and the bore's displacement; with `--decompose` the arc-controlled pressure is refused,
+//!   naming the pressure; with decomposed points arc-length control equals its serial run
+//!   too (a traction-loaded footing past first yield, and a column with its weight held whose
+//!   points change process), its sums taken over the processes;
 //! * a signal to one process only stops every process after the same load step (the stop is
 //!   agreed between steps), with the status "interrupted" and no abort;
 //! * `impm study` under `mpirun -n 2` is refused, said once, before anything is written;
@@ -840,16 +843,18 @@ fn the_follower_pressure_is_refused_with_decomposed_points() {
 }
 
 /// The shipped scene `script` (with `set`) under `mpirun -n 2 --decompose` is refused, naming
-/// `named` once and saying to run it without `--decompose`, without an abort.
-fn refused_with_decomposed_points(tag: &str, script: &str, set: &[&str], named: &str) {
+/// `named` once and saying to run it without `--decompose`, without an abort; its standard
+/// error (empty where `mpirun` does not run).
+fn refused_with_decomposed_points(tag: &str, script: &str, set: &[&str], named: &str) -> String {
     let Some(_one) = mpi_job_slot() else {
-        return;
+        return String::new();
     };
     let dir: PathBuf = temp_dir("mpi", tag);
     let stderr = refused(2, &shipped_scene(script), set, &dir, &["--decompose"]);
     assert_eq!(stderr.matches(named).count(), 1, "{stderr}");
     assert!(stderr.contains("without --decompose"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
+    stderr
 }
 
 /// The ghost penalty's faces by process 0 (every process finds the same faces): the sliver
@@ -1945,17 +1950,19 @@ fn arc_length_control_over_2_and_3_processes_equals_the_serial_run() {
     }
 }
 
-/// With decomposed points arc-length control is still refused (its dot products are over
-/// whole vectors): the arc-controlled footing under `-n 2 --decompose` fails before any point
-/// is spawned, naming it once, without an abort.
+/// With decomposed points arc-length control runs (`arc_length_control_with_decomposed_points_
+/// equals_the_serial_run`, at the end), but the follower pressure it controls in the thick
+/// cylinder is still refused: the arc-controlled cylinder under `-n 2 --decompose` fails before
+/// any point is spawned, naming the pressure once and not the arc, without an abort.
 #[test]
-fn arc_length_control_is_refused_with_decomposed_points() {
-    refused_with_decomposed_points(
-        "arc-decomposed",
-        "footing_pressure_arc.rhai",
-        &["cells=2"],
-        "arc-length control (its dot products",
+fn an_arc_controlled_pressure_is_refused_with_decomposed_points_naming_the_pressure() {
+    let stderr = refused_with_decomposed_points(
+        "arc-pressure-decomposed",
+        "thick_cylinder.rhai",
+        &["cells=4", "steps=1"],
+        "pressure (keeps its points' host points)",
     );
+    assert!(!stderr.contains("arc-length"), "{stderr}");
 }
 
 /// The process of rank `rank` that `mpirun` (process `launcher`) started: a descendant of it
@@ -2391,3 +2398,66 @@ fn the_stiff_ring_falls_back_from_petscs_default_over_3_processes_and_equals_the
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
+
+/// Arc-length control with decomposed points (`--decompose`): f̂ is the processes' sum at the
+/// shared nodes (as `f_ext`), the arc's dot products and norms count each DOF on its node's
+/// owner and are summed over the processes, Δu_{n−1} is kept whole on every process (the
+/// next step's owners are not this one's), so every process takes the arc's decisions alike
+/// (`stages::arc_length`, "With decomposed points"). Two scenes over 2 and 3 processes
+/// against the serial run: the footing of `footing_pressure_arc.rhai` (tractions, F-bar,
+/// von Mises, a probe; 2 cells across the footing, 12 steps, past first yield to λ = 5.75;
+/// history.csv's settlement and pressure), and a confined von Mises column pressed by a
+/// traction with its weight held (`held: true`: the loads' second evaluation at λ = 0 summed
+/// too, the first step's rebalancing), whose points change process as it is compressed. The
+/// same Newton iterations per step (no step is cut, serially or here), the load factor (and
+/// the column's `initial_imbalance`) per step to 1e-8, stresses, plastic strain and positions
+/// as every comparison.
+#[test]
+fn arc_length_control_with_decomposed_points_equals_the_serial_run() {
+    let runs = Runs {
+        history: &["settlement", "footing_pressure"],
+        // (no initial_imbalance at step 1: λ_0 f̂ = 0)
+        measures: &["load_factor"],
+        ..Runs::decomposed(&[2, 3])
+    };
+    let scene = shipped_scene("footing_pressure_arc.rhai");
+    let runs_of = compare_with(&scene, &["cells=2", "steps=12"], "arc-dec", &runs);
+    for steps in &runs_of {
+        assert!(steps.iter().all(|s| s["cuts"].as_u64() == Some(0)));
+        let last = steps.last().unwrap()["load_factor"].as_f64().unwrap();
+        assert!(
+            last > 5.0,
+            "the footing did not load past first yield: {last}"
+        );
+    }
+    let (dir, column) = scene_file("arc-dec-column", "column.rhai", ARC_COLUMN);
+    let runs = Runs {
+        measures: &["load_factor", "initial_imbalance"],
+        ..Runs::decomposed(&[2, 3])
+    };
+    let runs_of = compare_with(&column, &[], "arc-dec-column", &runs);
+    for (moved, steps) in summed_over_steps(&runs_of, "points_changing_process")
+        .iter()
+        .zip(&runs_of)
+    {
+        assert!(*moved > 0.0, "no point changed process");
+        // the first step balanced the held weight at λ = 0 before its arc
+        assert!(steps[0]["rebalance_iterations"].as_f64().unwrap() > 0.0);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A confined von Mises column (2 × 9 cells: the slabs cut along its height) pressed by a
+/// traction on its top under arc-length control, its weight held: yields in the first step,
+/// and its points cross cell faces, and so slab boundaries, as it shortens (λ 0.52 to 8.76).
+const ARC_COLUMN: &str = "
+const soil = material(#{ name: \"soil\", model: \"von_mises\", E: 1.0e3, nu: 0.3, s_u: 5.0, density: 1.0 });
+grid(#{ lower: [0.0, 0.0], upper: [1.0, 4.5], cells: [2, 9], basis: \"linear\" });
+body(#{ name: \"column\", material: soil, region: box([0.0, 0.0], [1.0, 4.0]), ppc: 2 });
+fix(|x| x[1] == 0.0);
+fix(|x| x[0] == 0.0 || x[0] == 1.0, [0]);
+traction(#{ on: [[0.0, 4.0], [1.0, 4.0]], traction: [0.0, -100.0], per_cell: 2 });
+body_force([0.0, -20.0], #{ held: true });
+solver(#{ control: \"arc_length\", target_iterations: 5 });
+load_factors(6, |k| k * 0.5);
+";

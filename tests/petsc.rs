@@ -351,6 +351,77 @@ mod with_petsc {
         assert!(!error.contains("-pc_type"), "{error}");
     }
 
+    /// Arc-length control with the serial PETSc backend (`scripts/footing_pressure_arc.rhai`,
+    /// 2 cells across the footing, 6 steps: past first yield, λ 1.0 to 5.45): its first
+    /// residual, at λ = 0 on an unstressed body, is zero, and the solver returns the zero
+    /// correction without a solve (no Krylov iteration) instead of failing its true-residual
+    /// check on 0 / 0; the arc's second solve `K δu_f = f̂` goes through PETSc too. The run
+    /// equals the direct one: Newton per step, the load factor per step to 1e-8, stresses to
+    /// 1e-8 of the largest.
+    #[test]
+    fn arc_length_control_with_petsc_equals_the_direct_run() {
+        let base = std::fs::read_to_string(shipped_scene("footing_pressure_arc.rhai")).unwrap();
+        let asked = "solver(#{ control: \"arc_length\",";
+        assert!(base.contains(asked));
+        let text = base.replace(
+            asked,
+            "solver(#{ linear: \"petsc\", petsc_options: \"-ksp_rtol 1e-12\", control: \"arc_length\",",
+        );
+        let dir = temp_dir("petsc", "arc");
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("footing_pressure_arc.rhai");
+        std::fs::write(&path, text).unwrap();
+        let set = [("cells", "2"), ("steps", "6")];
+        let factors = |tag: &str, solver: Option<Box<dyn LinearSolver>>| {
+            let spec = load_scene(&path, &overrides(&set)).unwrap();
+            let out = temp_dir("petsc-run", tag);
+            let mut sim = Simulation::<2>::new(&spec, &out).unwrap();
+            if let Some(solver) = solver {
+                sim.world.resource_mut::<Newton>().solver = solver;
+            }
+            let result = sim.run(|_| {});
+            let _ = std::fs::remove_dir_all(&out);
+            result.unwrap_or_else(|e| panic!("{tag}: {e}"));
+            let steps = &sim.summary.steps;
+            (
+                steps.iter().map(|s| s.iterations).collect::<Vec<_>>(),
+                steps.iter().map(|s| s.load_factor).collect::<Vec<_>>(),
+                steps
+                    .iter()
+                    .map(|s| s.linear_iterations.clone())
+                    .collect::<Vec<_>>(),
+                sim.stress_profile(1),
+                sim.world.resource::<Newton>().last_solver,
+            )
+        };
+        let direct = Box::new(DirectSolver::default()) as Box<dyn LinearSolver>;
+        let (newton, load, _, stress, _) = factors("arc-direct", Some(direct));
+        let (petsc_newton, petsc_load, krylov, petsc_stress, kind) = factors("arc-petsc", None);
+        let _ = std::fs::remove_dir_all(&dir);
+        let largest = load.iter().fold(0.0f64, |m, l| m.max(l.abs()));
+        let load_difference = (load.iter().zip(&petsc_load))
+            .map(|(a, b)| (a - b).abs() / largest)
+            .fold(0.0, f64::max);
+        let difference = stress_difference(&petsc_stress, &stress);
+        eprintln!(
+            "footing arc with PETSc: Newton {petsc_newton:?} (direct {newton:?}), Krylov \
+             {krylov:?}, load factors {petsc_load:?}, load factor difference \
+             {load_difference:.1e}, stress difference {difference:.1e}"
+        );
+        assert_eq!(kind, SolverKind::Petsc);
+        assert_eq!(petsc_newton, newton);
+        assert_eq!(petsc_load.len(), load.len());
+        assert!(load_difference <= 1e-8, "{load_difference:e}");
+        assert!(difference < 1e-8, "{difference:e}");
+        // the first residual is zero: no Krylov iteration; every other solve iterated
+        assert_eq!(krylov[0][0], 0, "{krylov:?}");
+        assert!(
+            krylov.iter().flatten().skip(1).all(|&k| k >= 1),
+            "{krylov:?}"
+        );
+        assert!(*load.last().unwrap() > 5.0, "{load:?}");
+    }
+
     #[test]
     fn petsc_options_belong_to_linear_petsc() {
         let call = "solver(#{ linear: \"direct\", petsc_options: \"-ksp_monitor\" });";

@@ -29,8 +29,9 @@
 //! * the Newton line search, which would move the iterate off the arc.
 //!
 //! Under `mpirun` with replicated state the arc runs as serially (module docs of
-//! `stages::arc_length`, "Over several processes"); with `--decompose` it is refused
-//! (`effects::distributed::decomposition`).
+//! `stages::arc_length`, "Over several processes"); with `--decompose` its sums are taken
+//! over the processes' owned DOFs ("With decomposed points" there; the follower pressure is
+//! still refused there, `effects::distributed::decomposition`).
 //!
 //! # Stages
 //!

@@ -193,9 +193,39 @@
 //! [`correct_load_factor`] in the same iteration with the same state): it sets the shares of K
 //! again (`MatZeroEntries`, then each process adds its share) and solves the right-hand side
 //! every process passes alike. `tests/mpi.rs` runs the thick cylinder past its peak over 2 and
-//! 3 processes and compares it with the serial run. With decomposed points (`--decompose`)
-//! the vectors are local and these dot products would count ghost nodes and miss the other
-//! processes' nodes: the arc is refused there (`effects::distributed::decomposition`).
+//! 3 processes and compares it with the serial run.
+//!
+//! # With decomposed points
+//!
+//! Under `--decompose` each process holds its own points and the grid nodes they touch: its
+//! DOFs are its owned and ghost nodes' (a ghost holding its owner's values: the force sums at
+//! the shared nodes, the correction brought back to the local rows), `Newton::shared_grid` says
+//! which nodes it owns. What the arc needs is then:
+//!
+//! * f̂ at λ = 1: the loads stage's `f_ext`, already the processes' sum at the shared nodes
+//!   (`effects::distributed::decomposition::sum_external_force`, before `Hook::BeforeSolve`);
+//!   with held loads their second evaluation at λ = 0 is summed the same way
+//!   ([`SumFixedLoadsSchedule`], run by [`split_fixed_loads`]); whether f̂ loads a free DOF is
+//!   asked of every process ([`take_reference_load`]).
+//! * Every dot product and norm (δu_f·δu_f, δu_f·(Δu + δu_r), (Δu + δu_r)², Δu·Δu,
+//!   Δu·δu_f, Δu·δu_r, the roots' Δu·(v + δλ δu_f), Δu_{n−1}·δu_f, ‖δu_r‖ for `"auto"`, the
+//!   shortest correction's, the turn-back tests' Δu·Δu_{n−1}, f̂·Δu, ‖Δu‖, ‖f̂‖, the
+//!   rebalancing's f̂·Δu_c, ‖Δu_c‖, and `initial_imbalance`'s ‖r‖, ‖f_ext‖): each DOF or node
+//!   counted on its owner only, the processes' parts added in rank order (`SharedGrid::sum`,
+//!   collective: the same bits on every process); [`load_correction_with`] takes that inner
+//!   product. Serially the sums are the same as before, in the same order, bit for bit.
+//! * Δu_{n−1}: the next step's nodes, owners and DOFs are not this step's (points change
+//!   process), so [`ArcLength::accept`] keeps it whole on every process, each node's value
+//!   from its owner (a sum over the processes of a whole-grid vector, once per step); its
+//!   norm is then a local sum, the same on every process.
+//! * The second solve `K δu_f = f̂`: the decomposed solver, with each process's local f̂ (its
+//!   owned rows are right), the solution back at its local rows.
+//!
+//! So every decision (the roots, the predictor's sign, the turn-back and rebalancing
+//! refusals, the cuts, `max_load_factor`, the end at λ back to zero, a plateau) is taken from
+//! the same numbers on every process. `tests/mpi.rs` runs a traction-loaded footing and a
+//! column with its weight held whose points change process, over 2 and 3 processes, against
+//! the serial run.
 //!
 //! # Step control
 //!
@@ -211,7 +241,7 @@ use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 
 use crate::resources::{
-    GridFields, LoadStep, Newton, NewtonSettings, RunStatus, SolverError, Warnings,
+    GridFields, LoadStep, Newton, NewtonSettings, RunStatus, SharedGrid, SolverError, Warnings,
 };
 use crate::solver::NO_DOF;
 
@@ -333,9 +363,80 @@ fn dot(u: &[f64], v: &[f64]) -> f64 {
     u.iter().zip(v).map(|(a, b)| a * b).sum()
 }
 
-/// Σ_i u_i · v_i over nodes.
-fn node_dot<const D: usize>(u: &[SVector<f64, D>], v: &[SVector<f64, D>]) -> f64 {
-    u.iter().zip(v).map(|(a, b)| a.dot(b)).sum()
+/// The arc's sums over the whole problem (module docs, "With decomposed points"): serially
+/// and with replicated state the plain sums, in DOF (node) order as before; on a grid split
+/// among processes (`Newton::shared_grid`) each DOF and node counted on its node's owner only
+/// (a ghost holds its owner's values) and the processes' parts added
+/// ([`SharedGrid::sum`]: collective, the same bits on every process, so every process takes
+/// the arc's decisions alike).
+struct OverProcesses<'a> {
+    shared: Option<&'a dyn SharedGrid>,
+    /// By DOF: whether this process counts it (empty without `shared`).
+    counted: Vec<bool>,
+}
+
+impl<'a> OverProcesses<'a> {
+    fn new<const D: usize>(fields: &GridFields<D>, shared: Option<&'a dyn SharedGrid>) -> Self {
+        let mut counted = Vec::new();
+        if let Some(shared) = shared {
+            counted.resize(fields.dof_count, false);
+            for (node, dofs) in fields.dofs.iter().enumerate() {
+                for &dof in dofs.iter().filter(|&&d| d != NO_DOF) {
+                    counted[dof as usize] = shared.owned(node);
+                }
+            }
+        }
+        Self { shared, counted }
+    }
+
+    /// Whether this process counts `node` (its owner, or the only process).
+    fn counts(&self, node: usize) -> bool {
+        self.shared.is_none_or(|s| s.owned(node))
+    }
+
+    /// This process's parts summed over the processes (collective; as they are serially).
+    fn sum<const N: usize>(&self, parts: [f64; N]) -> Result<[f64; N], String> {
+        let Some(shared) = self.shared else {
+            return Ok(parts);
+        };
+        let sums = shared.sum(&parts)?;
+        <[f64; N]>::try_from(sums)
+            .map_err(|s| format!("{} sums of {N} values over the processes", s.len()))
+    }
+
+    /// u·v of two vectors by DOF, over the whole problem's free DOFs.
+    fn dot(&self, u: &[f64], v: &[f64]) -> Result<f64, String> {
+        if self.shared.is_none() {
+            return Ok(dot(u, v));
+        }
+        let part = (u.iter().zip(v).zip(&self.counted))
+            .filter(|(_, counted)| **counted)
+            .map(|((a, b), _)| a * b)
+            .sum();
+        Ok(self.sum([part])?[0])
+    }
+
+    /// This process's part of Σ_i u_i · v_i over the nodes it counts (to be [`Self::sum`]med).
+    fn node_dot<const D: usize>(&self, u: &[SVector<f64, D>], v: &[SVector<f64, D>]) -> f64 {
+        (u.iter().zip(v).enumerate())
+            .filter(|(node, _)| self.counts(*node))
+            .map(|(_, (a, b))| a.dot(b))
+            .sum()
+    }
+}
+
+/// A failure to sum the arc's figures over the processes (a message not received): the run's.
+fn sum_failed(step: usize, why: String) -> SolverError {
+    SolverError::Module {
+        step,
+        what: format!("arc-length control: summing over the processes: {why}"),
+        recoverable: false,
+    }
+}
+
+/// |u|: the square root of Σ_i |u_i|² over every node (a vector whole on every process).
+fn length<const D: usize>(u: &[SVector<f64, D>]) -> f64 {
+    u.iter().map(|v| v.norm_squared()).sum::<f64>().sqrt()
 }
 
 /// δλ of one iteration (see the module docs): `increment` Δu before it, `residual_part` δu_r,
@@ -349,16 +450,36 @@ pub fn load_correction(
     radius: f64,
     sign: f64,
 ) -> Option<(f64, Root)> {
+    let dot = |u: &[f64], v: &[f64]| Ok(dot(u, v));
+    load_correction_with(&dot, increment, residual_part, load_part, radius, sign).unwrap_or(None)
+}
+
+/// An inner product of two vectors by DOF over the whole problem's free DOFs (on a grid split
+/// among processes a collective sum: module docs, "With decomposed points"); its error is a
+/// failed sum.
+pub type InnerProduct<'a> = dyn Fn(&[f64], &[f64]) -> Result<f64, String> + 'a;
+
+/// [`load_correction`] with the inner product `dot` (over the whole problem's free DOFs: on
+/// a grid split among processes a collective sum, which every process calls alike; module
+/// docs, "With decomposed points"); its error is `dot`'s.
+pub fn load_correction_with(
+    dot: &InnerProduct<'_>,
+    increment: &[f64],
+    residual_part: &[f64],
+    load_part: &[f64],
+    radius: f64,
+    sign: f64,
+) -> Result<Option<(f64, Root)>, String> {
     let v: Vec<f64> = increment
         .iter()
         .zip(residual_part)
         .map(|(a, b)| a + b)
         .collect();
-    let a = dot(load_part, load_part);
-    let b = 2.0 * dot(load_part, &v);
-    let c = dot(&v, &v) - radius * radius;
+    let a = dot(load_part, load_part)?;
+    let b = 2.0 * dot(load_part, &v)?;
+    let c = dot(&v, &v)? - radius * radius;
     let discriminant = b * b - 4.0 * a * c;
-    let predictor = dot(increment, increment) == 0.0;
+    let predictor = dot(increment, increment)? == 0.0;
     let finite = |x: f64| x.is_finite().then_some(x);
     if a > 0.0 && discriminant >= 0.0 {
         // the roots without cancellation (Numerical Recipes §5.6)
@@ -367,27 +488,27 @@ pub fn load_correction(
         let chosen = if predictor {
             if sign * r1 >= sign * r2 { r1 } else { r2 }
         } else {
+            // (Δu + δu)·Δu for a root: Δu·(v + root δu_f)
             let cosine = |root: f64| {
-                increment
-                    .iter()
-                    .zip(&v)
-                    .zip(load_part)
-                    .map(|((du, vi), f)| du * (vi + root * f))
-                    .sum::<f64>()
+                let moved: Vec<f64> = (v.iter().zip(load_part))
+                    .map(|(vi, f)| vi + root * f)
+                    .collect();
+                dot(increment, &moved)
             };
-            if cosine(r1) >= cosine(r2) { r1 } else { r2 }
+            if cosine(r1)? >= cosine(r2)? { r1 } else { r2 }
         };
-        return finite(chosen).map(|root| (root, Root::Arc));
+        return Ok(finite(chosen).map(|root| (root, Root::Arc)));
     }
     if predictor {
         // ‖δu_r‖ > Δl with no real root: the normal-plane predictor
-        return finite(sign * radius / a.sqrt()).map(|root| (root, Root::Linearised));
+        return Ok(finite(sign * radius / a.sqrt()).map(|root| (root, Root::Linearised)));
     }
-    let denominator = dot(increment, load_part);
+    let denominator = dot(increment, load_part)?;
     if denominator == 0.0 {
-        return None;
+        return Ok(None);
     }
-    finite(-dot(increment, residual_part) / denominator).map(|root| (root, Root::Linearised))
+    let numerator = dot(increment, residual_part)?;
+    Ok(finite(-numerator / denominator).map(|root| (root, Root::Linearised)))
 }
 
 /// The state of the arc-length step being solved (inserted only when the scene asks for
@@ -584,15 +705,36 @@ impl<const D: usize> ArcLength<D> {
     }
 
     /// The attempt converged: its increment gives the next predictor its direction (the arc's
-    /// part Δu − Δu_c after a rebalancing).
-    pub fn accept(&mut self) {
-        self.previous.clone_from(&self.current);
+    /// part Δu − Δu_c after a rebalancing). On a grid split among processes (`shared`:
+    /// `Newton::shared_grid`) Δu_{n−1} is kept whole on every process, each node's value from
+    /// its owner (collective: the next step's owners and DOFs are not this one's; module
+    /// docs, "With decomposed points").
+    pub fn accept(&mut self, shared: Option<&dyn SharedGrid>) -> Result<(), String> {
+        match shared {
+            None => self.previous.clone_from(&self.current),
+            Some(shared) => {
+                let mut values = Vec::with_capacity(self.current.len() * D);
+                for (node, u) in self.current.iter().enumerate() {
+                    if shared.owned(node) {
+                        values.extend(u.iter());
+                    } else {
+                        values.extend([0.0; D]);
+                    }
+                }
+                let whole = shared.sum(&values)?;
+                self.previous = whole
+                    .chunks_exact(D)
+                    .map(SVector::<f64, D>::from_column_slice)
+                    .collect();
+            }
+        }
         let slope = (self.factor - self.start) / self.increment_norm();
         if slope.is_finite() {
             self.last_slope = slope;
             self.first_slope.get_or_insert(slope);
         }
         self.peak = self.peak.max(self.factor);
+        Ok(())
     }
 
     /// The current stiffness parameter (Bergan et al. 1978): the last converged step's
@@ -614,15 +756,11 @@ impl<const D: usize> ArcLength<D> {
                 .is_some_and(|s| s.abs() < PLATEAU_STIFFNESS)
     }
 
-    /// ‖Δu − Δu_c‖ of the last iterate (over the free DOFs it was taken on; Δu_c = 0 without
-    /// rebalancing): Δl on a converged step whose iterations all stayed on the arc
-    /// (`linearised` = 0).
+    /// ‖Δu − Δu_c‖ of the last accepted step, Δu_{n−1} (over the free DOFs it was taken on;
+    /// Δu_c = 0 without rebalancing; whole on every process): Δl on a converged step whose
+    /// iterations all stayed on the arc (`linearised` = 0).
     pub fn increment_norm(&self) -> f64 {
-        self.current
-            .iter()
-            .map(|u| u.norm_squared())
-            .sum::<f64>()
-            .sqrt()
+        length(&self.previous)
     }
 }
 
@@ -649,6 +787,12 @@ pub struct FixedLoadsSchedule;
 #[derive(bevy_ecs::schedule::SystemSet, Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct FixedLoadSlot(pub usize);
 
+/// Run by [`split_fixed_loads`] after [`FixedLoadsSchedule`]: a distributed run with decomposed
+/// points adds the processes' shares of f(0) at the shared nodes there, as it does after the
+/// loads stage for f(1) (`effects::distributed`; absent otherwise).
+#[derive(bevy_ecs::schedule::ScheduleLabel, Clone, Debug, PartialEq, Eq, Hash)]
+pub struct SumFixedLoadsSchedule;
+
 /// How many systems [`FixedLoadsSchedule`] holds.
 #[derive(Resource, Clone, Copy, Debug, Default)]
 pub struct FixedLoadSlots(pub usize);
@@ -668,6 +812,7 @@ pub fn split_fixed_loads<const D: usize>(world: &mut World) {
     }
     world.resource_mut::<LoadStep>().factor = 0.0;
     let _ = world.try_run_schedule(FixedLoadsSchedule); // absent: no load module added to it
+    let _ = world.try_run_schedule(SumFixedLoadsSchedule); // absent: not decomposed
     world.resource_mut::<LoadStep>().factor = 1.0;
     let fixed = std::mem::replace(
         &mut world.resource_mut::<GridFields<D>>().external_force,
@@ -688,6 +833,7 @@ pub fn take_reference_load<const D: usize>(
     mut step: ResMut<LoadStep>,
     mut status: ResMut<RunStatus>,
     mut warnings: ResMut<Warnings>,
+    newton: Res<Newton>,
 ) {
     let (arc, fields) = (&mut *arc, &mut *fields);
     arc.reference.clone_from(&fields.external_force);
@@ -700,7 +846,16 @@ pub fn take_reference_load<const D: usize>(
             }
         }
     }
-    if arc.reference_dofs.iter().all(|&f| f == 0.0) {
+    // on a grid split among processes: whether any process's free DOFs carry f̂
+    let loaded = f64::from(u8::from(arc.reference_dofs.iter().any(|&f| f != 0.0)));
+    let loaded = match OverProcesses::new(fields, newton.shared_grid.as_deref()).sum([loaded]) {
+        Ok([loaded]) => loaded > 0.0,
+        Err(why) => {
+            status.fail(sum_failed(step.number, why));
+            return;
+        }
+    };
+    if !loaded {
         status.fail(SolverError::Module {
             step: step.number,
             what: "arc-length control: the loads at load factor 1 put no force on a free \
@@ -727,6 +882,7 @@ pub fn take_reference_load<const D: usize>(
 /// is refused the same way: this control does not follow one.
 pub fn keep_going_forward<const D: usize>(
     arc: Res<ArcLength<D>>,
+    fields: Res<GridFields<D>>,
     mut newton: ResMut<Newton>,
     step: Res<LoadStep>,
     mut status: ResMut<RunStatus>,
@@ -738,14 +894,22 @@ pub fn keep_going_forward<const D: usize>(
     if !newton.converged || arc.previous.is_empty() {
         return;
     }
-    let length = |u: &[SVector<f64, D>]| u.iter().map(|v| v.norm_squared()).sum::<f64>().sqrt();
-    let (current, previous, reference) = (
-        length(&arc.current),
-        length(&arc.previous),
-        length(&arc.reference),
-    );
-    let along = node_dot(&arc.current, &arc.previous);
-    let work = node_dot(&arc.current, &arc.reference);
+    // Δu and f̂ by node are this process's nodes' (Δu_{n−1} is whole: `accept`)
+    let sums = OverProcesses::new(&fields, newton.shared_grid.as_deref());
+    let parts = [
+        sums.node_dot(&arc.current, &arc.current),
+        sums.node_dot(&arc.reference, &arc.reference),
+        sums.node_dot(&arc.current, &arc.previous),
+        sums.node_dot(&arc.current, &arc.reference),
+    ];
+    let [current, reference, along, work] = match sums.sum(parts) {
+        Ok(sums) => sums,
+        Err(why) => {
+            status.fail(sum_failed(step.number, why));
+            return;
+        }
+    };
+    let (current, previous, reference) = (current.sqrt(), length(&arc.previous), reference.sqrt());
     let unloading = arc.factor < arc.start && turns_back(work, current, reference);
     if turns_back(along, current, previous) || unloading {
         newton.converged = false;
@@ -822,11 +986,18 @@ pub fn record_start_imbalance<const D: usize>(
     newton: Res<Newton>,
     step: Res<LoadStep>,
     mut warnings: ResMut<Warnings>,
+    mut status: ResMut<RunStatus>,
 ) {
     if newton.iterations != 0 || newton.residuals.len() != 1 {
         return;
     }
-    arc.start_imbalance = imbalance(&fields, &newton);
+    arc.start_imbalance = match imbalance(&fields, &newton) {
+        Ok(imbalance) => imbalance,
+        Err(why) => {
+            status.fail(sum_failed(step.number, why));
+            return;
+        }
+    };
     // the first step's start residual is the held loads' (none without them), not a crossing
     let first = arc.previous.is_empty();
     if let Some(imbalance) = arc.start_imbalance
@@ -839,18 +1010,23 @@ pub fn record_start_imbalance<const D: usize>(
     }
 }
 
-/// ‖f_ext − f_int‖_free / ‖f_ext‖ of the iterate just checked ([`start_imbalance`]).
-fn imbalance<const D: usize>(fields: &GridFields<D>, newton: &Newton) -> Option<f64> {
-    let free = newton.residual.iter().map(|r| r * r).sum::<f64>().sqrt();
-    let external = fields
-        .external_force
-        .iter()
-        .zip(&fields.active)
-        .filter(|(_, active)| **active)
-        .map(|(f, _)| f.norm_squared())
-        .sum::<f64>()
-        .sqrt();
-    start_imbalance(free, external)
+/// ‖f_ext − f_int‖_free / ‖f_ext‖ of the iterate just checked ([`start_imbalance`]; on a grid
+/// split among processes summed over them, each node on its owner: collective).
+fn imbalance<const D: usize>(
+    fields: &GridFields<D>,
+    newton: &Newton,
+) -> Result<Option<f64>, String> {
+    let sums = OverProcesses::new(fields, newton.shared_grid.as_deref());
+    let free = (newton.residual.iter().enumerate())
+        .filter(|(dof, _)| sums.counted.get(*dof).is_none_or(|c| *c))
+        .map(|(_, r)| r * r)
+        .sum::<f64>();
+    let external = (fields.external_force.iter().zip(&fields.active).enumerate())
+        .filter(|(node, (_, active))| **active && sums.counts(*node))
+        .map(|(_, (f, _))| f.norm_squared())
+        .sum::<f64>();
+    let [free, external] = sums.sum([free, external])?;
+    Ok(start_imbalance(free.sqrt(), external.sqrt()))
 }
 
 /// `Hook::Convergence`, after [`record_start_imbalance`] and before [`keep_going_forward`]
@@ -877,9 +1053,22 @@ pub fn finish_rebalance<const D: usize>(
     if newton.converged {
         newton.converged = false;
         let origin = free_part(&fields);
-        let length = |u: &[SVector<f64, D>]| u.iter().map(|v| v.norm_squared()).sum::<f64>().sqrt();
-        let work = node_dot(&origin, &arc.reference);
-        let (moved, last) = (length(&origin), length(&arc.previous));
+        let sums = OverProcesses::new(&fields, newton.shared_grid.as_deref());
+        let parts = [
+            sums.node_dot(&origin, &arc.reference),
+            sums.node_dot(&origin, &origin),
+        ];
+        let (work, moved, imbalance) = match sums
+            .sum(parts)
+            .and_then(|[work, moved]| Ok((work, moved.sqrt(), imbalance(&fields, &newton)?)))
+        {
+            Ok(figures) => figures,
+            Err(why) => {
+                status.fail(sum_failed(step.number, why));
+                return;
+            }
+        };
+        let last = length(&arc.previous);
         if arc.factor < arc.start && turns_back(work, moved, length(&arc.reference)) && moved > last
         {
             // λ free: the nearest equilibrium is on the unloading branch, the path traced
@@ -902,7 +1091,7 @@ pub fn finish_rebalance<const D: usize>(
         arc.start = arc.factor;
         arc.rebalanced = Some(Rebalanced {
             iterations: newton.iterations,
-            imbalance: imbalance(&fields, &newton),
+            imbalance,
             factor: arc.factor,
         });
     } else if newton.iterations >= settings.max_iterations {
@@ -983,10 +1172,17 @@ pub fn correct_load_factor<const D: usize>(
         }
     }
     let mut load_part = arc.reference_dofs.clone();
-    if let Err(why) = newton
+    let solved = newton
         .solver
-        .solve(&newton.matrix, newton.symmetric, &mut load_part)
-    {
+        .solve(&newton.matrix, newton.symmetric, &mut load_part);
+    // what the solver changed on its own in this solve (PETSc's fallback), as Newton's solve
+    // says it (`stages::newton::solve_linear_system`)
+    if let Some(notice) = newton.solver.take_notice() {
+        warnings
+            .0
+            .push(format!("load step {}: {notice}", step.number));
+    }
+    if let Err(why) = solved {
         status.fail(SolverError::LinearSolve {
             step: step.number,
             iteration: newton.iterations,
@@ -994,9 +1190,19 @@ pub fn correct_load_factor<const D: usize>(
         });
         return;
     }
+    // every product below over the whole problem (collective on a grid split among processes)
+    let sums = OverProcesses::new(fields, newton.shared_grid.as_deref());
+    let dot = |u: &[f64], v: &[f64]| sums.dot(u, v);
     if arc.rebalancing {
         // λ free, no arc: the shortest correction δu_r + δλ δu_f
-        let Some(delta) = shortest_correction(&residual_part, &load_part) else {
+        let delta = match shortest_correction_with(&dot, &residual_part, &load_part) {
+            Ok(delta) => delta,
+            Err(why) => {
+                status.fail(sum_failed(step.number, why));
+                return;
+            }
+        };
+        let Some(delta) = delta else {
             status.fail(SolverError::Module {
                 step: step.number,
                 what: format!(
@@ -1012,30 +1218,48 @@ pub fn correct_load_factor<const D: usize>(
         set_factor(arc, fields, &mut step, arc.factor + delta);
         return;
     }
-    if arc.radius <= 0.0 {
-        arc.radius = arc.first_increment.abs() * dot(&load_part, &load_part).sqrt();
-    }
-    if arc.rebalance == Rebalance::Auto
-        && predictor
-        && arc.origin.is_empty()
-        && dot(&residual_part, &residual_part) >= arc.radius * arc.radius
-        && arc.may_rebalance(step.number, &mut warnings)
-    {
-        // the start correction is at least the arc ("Held loads"): the step rebalances at
-        // λ_n first, this iteration its first (Δu += δu_r at λ_n is done)
-        arc.rebalancing = true;
-        return;
-    }
-    let sign = if arc.previous.is_empty() {
-        arc.first_increment.signum()
-    } else if dot(&previous, &load_part) < 0.0 {
-        -1.0
-    } else {
-        1.0
+    // the arc's figures: whether to rebalance first, the predictor's sign, δλ
+    let mut correction = || -> Result<Option<Option<(f64, Root)>>, String> {
+        if arc.radius <= 0.0 {
+            arc.radius = arc.first_increment.abs() * dot(&load_part, &load_part)?.sqrt();
+        }
+        if arc.rebalance == Rebalance::Auto
+            && predictor
+            && arc.origin.is_empty()
+            && dot(&residual_part, &residual_part)? >= arc.radius * arc.radius
+            && arc.may_rebalance(step.number, &mut warnings)
+        {
+            // the start correction is at least the arc ("Held loads"): the step rebalances
+            // at λ_n first, this iteration its first (Δu += δu_r at λ_n is done)
+            arc.rebalancing = true;
+            return Ok(None);
+        }
+        let sign = if arc.previous.is_empty() {
+            arc.first_increment.signum()
+        } else if dot(&previous, &load_part)? < 0.0 {
+            -1.0
+        } else {
+            1.0
+        };
+        load_correction_with(
+            &dot,
+            &increment,
+            &residual_part,
+            &load_part,
+            arc.radius,
+            sign,
+        )
+        .map(Some)
     };
-    let Some((delta, root)) =
-        load_correction(&increment, &residual_part, &load_part, arc.radius, sign)
-    else {
+    let correction = match correction() {
+        Ok(Some(correction)) => correction,
+        Ok(None) => return,
+        Err(why) => {
+            status.fail(sum_failed(step.number, why));
+            return;
+        }
+    };
+    let Some((delta, root)) = correction else {
         status.fail(SolverError::Module {
             step: step.number,
             what: format!(
@@ -1062,8 +1286,18 @@ pub fn correct_load_factor<const D: usize>(
 /// δλ of the shortest correction δu_r + δλ δu_f (normal flow: orthogonal to δu_f),
 /// −(δu_f·δu_r)/(δu_f·δu_f); `None` when δu_f = 0 or a value is not finite.
 pub fn shortest_correction(residual_part: &[f64], load_part: &[f64]) -> Option<f64> {
-    let delta = -dot(load_part, residual_part) / dot(load_part, load_part);
-    delta.is_finite().then_some(delta)
+    let dot = |u: &[f64], v: &[f64]| Ok(dot(u, v));
+    shortest_correction_with(&dot, residual_part, load_part).unwrap_or(None)
+}
+
+/// [`shortest_correction`] with the inner product `dot` (as [`load_correction_with`]).
+pub fn shortest_correction_with(
+    dot: &InnerProduct<'_>,
+    residual_part: &[f64],
+    load_part: &[f64],
+) -> Result<Option<f64>, String> {
+    let delta = -dot(load_part, residual_part)? / dot(load_part, load_part)?;
+    Ok(delta.is_finite().then_some(delta))
 }
 
 /// Δu += δλ δu_f at the free DOFs.

@@ -66,10 +66,6 @@ const REFUSED: &[(&str, &str)] = &[
         "fits over neighbouring points, which may be on another process",
     ),
     (
-        "arc-length control",
-        "its dot products are over whole vectors, not summed over the processes' owned DOFs",
-    ),
-    (
         "ghost penalty",
         "needs every cell's fill fraction, from the points of every process",
     ),

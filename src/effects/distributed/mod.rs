@@ -93,7 +93,9 @@ use crate::resources::{
 };
 use crate::scene::{LinearBackend, SceneSpec};
 use crate::solver::{PetscSolver, ProcessSum, SharedBlocks};
+use crate::stages::arc_length::SumFixedLoadsSchedule;
 use crate::stages::output::{OutputPlan, ParticlePieces, WrittenPiece};
+use bevy_ecs::schedule::{Schedule, SingleThreadedExecutor};
 
 pub mod checkpoint;
 pub mod decomposition;
@@ -287,6 +289,11 @@ impl Plugin for DistributedModule {
                     .after(StepSystems::Loads)
                     .before(StepSystems::Solve),
             );
+            // arc-length control with held loads evaluates them again at λ = 0: summed too
+            let mut held = Schedule::new(SumFixedLoadsSchedule);
+            held.set_executor(SingleThreadedExecutor::new());
+            held.add_systems(decomposition::sum_external_force::<D>);
+            schedules.insert(held);
             let numbered = |world: &mut World| {
                 let grid = world.get_resource::<grid::DecomposedGrid>()?;
                 grid.ownership.as_ref()?;

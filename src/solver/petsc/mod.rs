@@ -41,7 +41,10 @@
 //! is negative, e.g. `DIVERGED_ITS`) is a failed solve with PETSc's reason; one that it
 //! reports as converged is checked once more against the true residual `‖r − K δ‖ ≤ 10 tol ‖r‖`
 //! (options may make PETSc measure another norm). A PETSc error code becomes an error naming
-//! the function and PETSc's message; nothing panics.
+//! the function and PETSc's message; nothing panics. A zero right-hand side (the arc-length
+//! control's first residual at λ = 0) returns the zero solution without a solve, where that
+//! check would divide by ‖r‖ = 0; over several processes the test is collective (zero on
+//! every process), so every process skips the solve alike.
 //!
 //! **A fallback when the default fails.** GMRES + GAMG does not converge on every system: a
 //! stiff penalty on a few boundary points with F-bar's non-symmetric coupling (the quarter
@@ -1095,6 +1098,20 @@ impl PetscSolver {
     }
 }
 
+impl PetscSolver {
+    /// Whether the right-hand side is zero: on every process of a distributed solver
+    /// (collective, every process solves together: each decides alike whether to solve; a
+    /// process of a decomposed grid holds its local rows only).
+    fn zero_right_hand_side(&self, rhs: &[f64]) -> bool {
+        let zero = rhs.iter().all(|&v| v == 0.0);
+        #[cfg(feature = "mpi")]
+        if self.distributed {
+            return !crate::distributed::any(!zero);
+        }
+        zero
+    }
+}
+
 impl LinearSolver for PetscSolver {
     /// Solves with the current method; when the default fails to converge (PETSc's reason, or
     /// the true-residual check) and the options did not choose the method, falls back (see
@@ -1109,6 +1126,13 @@ impl LinearSolver for PetscSolver {
             return Err(LinearSolveError::Backend(format!(
                 "the right-hand side is not finite at DOF {bad}"
             )));
+        }
+        if self.zero_right_hand_side(rhs) {
+            // K δ = 0: δ = 0, without a solve (the true-residual check would divide by
+            // ‖r‖ = 0; the arc's first residual at λ = 0 is zero)
+            self.requested = None;
+            self.last_iterations = 0;
+            return Ok(SolverKind::Petsc);
         }
         let (original, requested) = (rhs.to_vec(), self.requested);
         match self.solve_once(matrix, symmetric, rhs) {
