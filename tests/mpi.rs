@@ -420,6 +420,9 @@ struct Runs<'a> {
     /// The last tractions file (`tractions_NNNN.vtu`): every load point's position and force
     /// compared to 1e-8 of the largest.
     tractions: bool,
+    /// The last pressure file (`pressure_NNNN.vtu`): every load point's position and force
+    /// compared to 1e-8 of the largest.
+    pressure: bool,
     /// Texts of warnings the serial run says: the distributed run says the same warnings
     /// containing each (as many, the same words up to ` moved by `, after which the numbers
     /// may differ in their last digits).
@@ -442,6 +445,7 @@ impl<'a> Runs<'a> {
             fields: &[],
             history: &[],
             tractions: false,
+            pressure: false,
             warned: &[],
             said: &[],
             petsc_options: "-ksp_rtol 1e-12",
@@ -585,7 +589,10 @@ fn compare_with(
             decomposed_grid_is_numbered(&script, n, &got.steps);
         }
         if runs.tractions {
-            same_load_points(&label, &dir, &serial_dir, got.steps.len());
+            same_load_points(&label, "tractions", &dir, &serial_dir, got.steps.len());
+        }
+        if runs.pressure {
+            same_load_points(&label, "pressure", &dir, &serial_dir, got.steps.len());
         }
         for text in runs.warned {
             let said = |outcome: &Outcome| -> Vec<String> {
@@ -611,11 +618,12 @@ fn compare_with(
     measured
 }
 
-/// The last tractions file (step `last`) in `dir` against the serial run's in `serial_dir`:
-/// as many load points, every position and force to 1e-8 of the largest.
-fn same_load_points(label: &str, dir: &Path, serial_dir: &Path, last: usize) {
+/// The last file of load points `stem` (`tractions`, `pressure`; step `last`) in `dir` against
+/// the serial run's in `serial_dir`: as many load points, every position and force to 1e-8 of
+/// the largest.
+fn same_load_points(label: &str, stem: &str, dir: &Path, serial_dir: &Path, last: usize) {
     let read = |dir: &Path| {
-        let file = dir.join(impm::output::step_file_name("tractions", last));
+        let file = dir.join(impm::output::step_file_name(stem, last));
         read_vtu(&file).unwrap_or_else(|e| panic!("{}: {e}", file.display()))
     };
     let (got, serial) = (read(dir), read(serial_dir));
@@ -824,19 +832,6 @@ fn the_follower_pressure_over_2_and_3_processes_equals_the_serial_run() {
     let scene = shipped_scene("thick_cylinder.rhai");
     let set = ["control=load", "cells=4", "steps=6", "last=0.6"];
     compare_with(&scene, &set, "pressure", &runs);
-}
-
-/// With decomposed points the follower pressure is still refused (a part ties its load point
-/// to its vertices' hosts, which may be on other processes), naming it, once, without an
-/// abort.
-#[test]
-fn the_follower_pressure_is_refused_with_decomposed_points() {
-    refused_with_decomposed_points(
-        "pressure-decomposed",
-        "thick_cylinder.rhai",
-        &["control=load", "cells=4", "steps=1"],
-        "pressure (keeps its points' host points)",
-    );
 }
 
 /// The shipped scene `script` (with `set`) under `mpirun -n 2 --decompose` is refused, naming
@@ -1555,7 +1550,7 @@ fn a_decomposed_run_with_tractions_resumes_from_its_checkpoint() {
     let (got, seconds) = resume(Some(2), &scene, &set, &dir, &decomposed);
     let label = format!("traction column, -n 3 interrupted after step {done}, then -n 2");
     same_results(&label, &got, &reference, seconds);
-    same_load_points(&label, &dir, &serial_dir, got.iterations.len());
+    same_load_points(&label, "tractions", &dir, &serial_dir, got.iterations.len());
     same_checkpoint(&label, &dir, &serial_dir);
     for dir in [dir, serial_dir, scene_dir] {
         let _ = std::fs::remove_dir_all(&dir);
@@ -2390,4 +2385,26 @@ fn the_stiff_ring_falls_back_from_petscs_default_over_3_processes_and_equals_the
     for dir in [scene_dir, dir] {
         let _ = std::fs::remove_dir_all(&dir);
     }
+}
+
+/// The follower pressure with decomposed points (issue 14): every process holds every
+/// pressure point, the process holding a point's host finds its host weights and its position
+/// at each iterate and shares them, process 0 adds the pressure's force before `f_ext` is
+/// summed and its load stiffness (it numbers every node of the parts), and every process
+/// follows the force at the iterate at its own nodes. The thick cylinder under pressure
+/// control (4 cells, 6 steps to p = 0.6 σ_y, past the elastic limit: the wall yields): the same
+/// Newton iterations, stresses, plastic strain and positions as the serial run, history.csv's
+/// `inner_pressure` and `inner_displacement`, the reactions on the symmetry axes in every step
+/// and the last pressure file's load points and forces, to 1e-8.
+#[test]
+fn the_follower_pressure_with_decomposed_points_equals_the_serial_run() {
+    let runs = Runs {
+        history: &["inner_pressure", "inner_displacement"],
+        measures: &["fix1_reaction_x", "fix2_reaction_y"],
+        pressure: true,
+        ..Runs::decomposed(&[2, 3])
+    };
+    let scene = shipped_scene("thick_cylinder.rhai");
+    let set = ["control=load", "cells=4", "steps=6", "last=0.6"];
+    compare_with(&scene, &set, "pressure-dec", &runs);
 }

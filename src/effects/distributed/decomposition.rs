@@ -59,7 +59,6 @@ use crate::scene::SceneSpec;
 
 /// The modules a decomposed run refuses, and why.
 const REFUSED: &[(&str, &str)] = &[
-    ("pressure", "keeps its points' host points"),
     ("finite-element mesh", "its elements refer to their points"),
     (
         "stress recovery",

@@ -406,7 +406,7 @@ fn point_slices<const D: usize>(world: &mut World) -> (Vec<(Entity, usize)>, Vec
 /// failed less severely takes it on top of its own. So all of them retry the Newton step
 /// (the line search, after an inadmissible trial state), cut the load step or stop together,
 /// and process 0 reports which process failed and why.
-fn share_failure(status: &mut RunStatus, step: usize, iteration: usize) -> bool {
+pub(crate) fn share_failure(status: &mut RunStatus, step: usize, iteration: usize) -> bool {
     let mine = status.0.as_ref().map(|error| note_of(error, step));
     let failures = match share_failures(mine.as_ref()) {
         Ok(None) => return false,
