@@ -88,13 +88,39 @@
 //! right-hand side is the same on every process. So every process adds the pressure's force
 //! and replaces it by the force at the iterate in full, as a serial run does. The tangent is a
 //! sum of the processes' shares (each assembles its own points): the load stiffness is added
-//! by process 0 alone (`distributed::adds_grid_terms`), once. With `--decompose` the pressure
-//! is refused (`distributed::decomposition`): a part ties its load point to its vertices'
-//! hosts, which may be on other processes.
+//! by process 0 alone (`distributed::adds_grid_terms`), once.
+//!
+//! With decomposed points (`--decompose`) a process holds only its slab's material points, a
+//! part ties its load point to its vertices' hosts, which may be on other processes, and the
+//! grid's vectors are local (owned and ghost nodes), `f_ext` summed over the processes after
+//! the loads. Every process holds every carried point (a few per cell of arc) with its host's
+//! `PointId` ([`PressurePoint::host_id`]):
+//!
+//! * at each step start, after the exchange of material points, [`find_pressure_weights`]
+//!   links the points to the hosts this process holds, and finds the ŵ of those;
+//! * [`share_pressure_weights`] (before the DOF stage; collective, outside the stages' sets:
+//!   it shares a failure first) gathers every point's ŵ to all (exact bits), finds the load
+//!   points' spread weights over the nodes active on any process (the supports are evaluated
+//!   on every process at the same positions, their activity summed over the processes: the
+//!   serial weights), pushes the coupling groups, and on process 0 makes every node of every
+//!   group active, so that its DOF stage and the decomposed grid number them all
+//!   (`effects::distributed::grid`: the local nodes are the supports' and the active ones);
+//! * [`move_to_iterate`] (`Hook::Kinematics`, where every process meets before anything in
+//!   the iteration can fail) forms x(Δu) on the host's process and shares it
+//!   (`distributed::numbers_of_points`: the holder's numbers exactly), so every process holds
+//!   every point's position at the iterate, and the point update moves every point there;
+//! * at the loads process 0 alone adds λ f̂_p(0) (then `f_ext` is summed); after the assembly
+//!   every process adds the change λ (f̂_p(Δu) − f̂_p(Δu_prev)) at its own nodes, where `f_ext`
+//!   holds the sum already, and process 0 adds the load stiffness, once (it numbers all the
+//!   parts' nodes; its share of K is summed with the others').
+//!
+//! Arc-length control is refused under `--decompose` (its own refusal), so the pressure's
+//! change of the arc's f̂ there is never needed.
 //!
 //! Systems, added only when a scene declares a pressure: [`find_pressure_weights`]
-//! (`Hook::Connectivity`), [`apply_pressure`] (`Hook::Loads`; with held loads under the arc also
-//! at λ = 0), [`follow_pressure`]
+//! (`Hook::Connectivity`), [`share_pressure_weights`] (decomposed points only),
+//! [`move_to_iterate`] (`Hook::Kinematics`), [`apply_pressure`] (`Hook::Loads`; with held
+//! loads under the arc also at λ = 0), [`follow_pressure`]
 //! (`Hook::AfterAssembly`), [`carry_pressure_points`] (`Hook::PointUpdate`),
 //! [`write_pressure`] (`Hook::Output`): `pressure_NNNN.vtu` (one vertex per part at its load
 //! point, with the current chord's unit normal into the body, its length, λ p and the part's

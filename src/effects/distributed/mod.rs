@@ -59,9 +59,10 @@
 //!   (`distributed::adds_grid_terms`). The follower pressure's force is part of `f_ext`, which
 //!   the replicated path does not sum (every process forms all of it, and the right-hand side
 //!   is the same on every process): every process adds it, and replaces it by the force at the
-//!   iterate, in full (`effects::pressure`, "Over several processes"); with `--decompose` the
-//!   pressure is refused (its parts tie load points to vertices whose hosts may be on other
-//!   processes). Their records (reactions) are computed from the whole
+//!   iterate, in full (`effects::pressure`, "Over several processes"); with `--decompose`
+//!   process 0 adds its force before `f_ext` is summed and its load stiffness (it numbers
+//!   every node of the parts), and every process follows the force at the iterate at its own
+//!   nodes. Their records (reactions) are computed from the whole
 //!   state, which every process holds; with decomposed points a surface condition's boundary
 //!   points are shared after every step and its records taken from all of them
 //!   (`effects::surface_conditions`, "Decomposed points").
