@@ -423,6 +423,9 @@ struct Runs<'a> {
     /// The last tractions file (`tractions_NNNN.vtu`): every load point's position and force
     /// compared to 1e-8 of the largest.
     tractions: bool,
+    /// The last pressure file (`pressure_NNNN.vtu`): every load point's position and force
+    /// compared to 1e-8 of the largest.
+    pressure: bool,
     /// Texts of warnings the serial run says: the distributed run says the same warnings
     /// containing each (as many, the same words up to ` moved by `, after which the numbers
     /// may differ in their last digits).
@@ -445,6 +448,7 @@ impl<'a> Runs<'a> {
             fields: &[],
             history: &[],
             tractions: false,
+            pressure: false,
             warned: &[],
             said: &[],
             petsc_options: "-ksp_rtol 1e-12",
@@ -588,7 +592,10 @@ fn compare_with(
             decomposed_grid_is_numbered(&script, n, &got.steps);
         }
         if runs.tractions {
-            same_load_points(&label, &dir, &serial_dir, got.steps.len());
+            same_load_points(&label, "tractions", &dir, &serial_dir, got.steps.len());
+        }
+        if runs.pressure {
+            same_load_points(&label, "pressure", &dir, &serial_dir, got.steps.len());
         }
         for text in runs.warned {
             let said = |outcome: &Outcome| -> Vec<String> {
@@ -614,11 +621,12 @@ fn compare_with(
     measured
 }
 
-/// The last tractions file (step `last`) in `dir` against the serial run's in `serial_dir`:
-/// as many load points, every position and force to 1e-8 of the largest.
-fn same_load_points(label: &str, dir: &Path, serial_dir: &Path, last: usize) {
+/// The last file of load points `stem` (`tractions`, `pressure`; step `last`) in `dir` against
+/// the serial run's in `serial_dir`: as many load points, every position and force to 1e-8 of
+/// the largest.
+fn same_load_points(label: &str, stem: &str, dir: &Path, serial_dir: &Path, last: usize) {
     let read = |dir: &Path| {
-        let file = dir.join(impm::output::step_file_name("tractions", last));
+        let file = dir.join(impm::output::step_file_name(stem, last));
         read_vtu(&file).unwrap_or_else(|e| panic!("{}: {e}", file.display()))
     };
     let (got, serial) = (read(dir), read(serial_dir));
@@ -829,19 +837,6 @@ fn the_follower_pressure_over_2_and_3_processes_equals_the_serial_run() {
     compare_with(&scene, &set, "pressure", &runs);
 }
 
-/// With decomposed points the follower pressure is still refused (a part ties its load point
-/// to its vertices' hosts, which may be on other processes), naming it, once, without an
-/// abort.
-#[test]
-fn the_follower_pressure_is_refused_with_decomposed_points() {
-    refused_with_decomposed_points(
-        "pressure-decomposed",
-        "thick_cylinder.rhai",
-        &["control=load", "cells=4", "steps=1"],
-        "pressure (keeps its points' host points)",
-    );
-}
-
 /// The shipped scene `script` (with `set`) under `mpirun -n 2 --decompose` is refused, naming
 /// `named` once and saying to run it without `--decompose`, without an abort; its standard
 /// error (empty where `mpirun` does not run).
@@ -855,6 +850,19 @@ fn refused_with_decomposed_points(tag: &str, script: &str, set: &[&str], named: 
     assert!(stderr.contains("without --decompose"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
     stderr
+}
+
+/// Stress recovery fits each point's stress over its neighbours, which may be on another
+/// process: with decomposed points it is refused before any point is spawned (the 2D column
+/// with `recovery=mls`), naming it once.
+#[test]
+fn stress_recovery_is_refused_with_decomposed_points() {
+    refused_with_decomposed_points(
+        "recovery-decomposed",
+        "column_2d.rhai",
+        &["recovery=mls"],
+        "stress recovery (fits over neighbouring points",
+    );
 }
 
 /// The ghost penalty's faces by process 0 (every process finds the same faces): the sliver
@@ -1560,7 +1568,7 @@ fn a_decomposed_run_with_tractions_resumes_from_its_checkpoint() {
     let (got, seconds) = resume(Some(2), &scene, &set, &dir, &decomposed);
     let label = format!("traction column, -n 3 interrupted after step {done}, then -n 2");
     same_results(&label, &got, &reference, seconds);
-    same_load_points(&label, &dir, &serial_dir, got.iterations.len());
+    same_load_points(&label, "tractions", &dir, &serial_dir, got.iterations.len());
     same_checkpoint(&label, &dir, &serial_dir);
     for dir in [dir, serial_dir, scene_dir] {
         let _ = std::fs::remove_dir_all(&dir);
@@ -1928,15 +1936,30 @@ fn a_point_leaving_the_grid_on_one_process_stops_every_process_naming_it() {
 /// step is cut where the serial direct solve is not (docs/distributed.md, 2026-12-07).
 #[test]
 fn arc_length_control_over_2_and_3_processes_equals_the_serial_run() {
+    arc_controlled_cylinder_equals_the_serial_run("arc", Runs::replicated(&[2, 3]));
+}
+
+/// The arc-controlled thick cylinder of the test above with decomposed points: the arc's sums
+/// over the processes' owned DOFs and the follower pressure's shared host weights and positions
+/// together, past the peak and through the cut steps (the arc's decisions at a near-singular
+/// tangent taken alike on every process), equal to the serial run as above.
+#[test]
+fn the_arc_controlled_cylinder_with_decomposed_points_equals_the_serial_run() {
+    arc_controlled_cylinder_equals_the_serial_run("arc-dec-cylinder", Runs::decomposed(&[2, 3]));
+}
+
+/// The thick cylinder under its default arc-length control, 4 cells, 8 steps, run as `base`
+/// says against the serial run (the two tests above).
+fn arc_controlled_cylinder_equals_the_serial_run(tag: &str, base: Runs<'_>) {
     let runs = Runs {
         history: &["inner_pressure", "inner_displacement"],
         measures: &["load_factor", "cuts"],
         petsc_options: "-ksp_rtol 1e-10 -pc_type redundant -redundant_pc_type lu",
-        ..Runs::replicated(&[2, 3])
+        ..base
     };
     let scene = shipped_scene("thick_cylinder.rhai");
     let set = ["cells=4", "steps=8"];
-    for steps in compare_with(&scene, &set, "arc", &runs) {
+    for steps in compare_with(&scene, &set, tag, &runs) {
         // the run went past its peak: the arc's decisions past a limit load were taken alike
         let factors: Vec<f64> = (steps.iter())
             .map(|s| s["load_factor"].as_f64().unwrap())
@@ -1948,21 +1971,6 @@ fn arc_length_control_over_2_and_3_processes_equals_the_serial_run() {
         );
         assert!(steps.iter().any(|s| s["cuts"].as_u64().unwrap() > 0));
     }
-}
-
-/// With decomposed points arc-length control runs (`arc_length_control_with_decomposed_points_
-/// equals_the_serial_run`, at the end), but the follower pressure it controls in the thick
-/// cylinder is still refused: the arc-controlled cylinder under `-n 2 --decompose` fails before
-/// any point is spawned, naming the pressure once and not the arc, without an abort.
-#[test]
-fn an_arc_controlled_pressure_is_refused_with_decomposed_points_naming_the_pressure() {
-    let stderr = refused_with_decomposed_points(
-        "arc-pressure-decomposed",
-        "thick_cylinder.rhai",
-        &["cells=4", "steps=1"],
-        "pressure (keeps its points' host points)",
-    );
-    assert!(!stderr.contains("arc-length"), "{stderr}");
 }
 
 /// The process of rank `rank` that `mpirun` (process `launcher`) started: a descendant of it
@@ -2461,3 +2469,25 @@ body_force([0.0, -20.0], #{ held: true });
 solver(#{ control: \"arc_length\", target_iterations: 5 });
 load_factors(6, |k| k * 0.5);
 ";
+
+/// The follower pressure with decomposed points (issue 14): every process holds every
+/// pressure point, the process holding a point's host finds its host weights and its position
+/// at each iterate and shares them, process 0 adds the pressure's force before `f_ext` is
+/// summed and its load stiffness (it numbers every node of the parts), and every process
+/// follows the force at the iterate at its own nodes. The thick cylinder under pressure
+/// control (4 cells, 6 steps to p = 0.6 σ_y, past the elastic limit: the wall yields): the same
+/// Newton iterations, stresses, plastic strain and positions as the serial run, history.csv's
+/// `inner_pressure` and `inner_displacement`, the reactions on the symmetry axes in every step
+/// and the last pressure file's load points and forces, to 1e-8.
+#[test]
+fn the_follower_pressure_with_decomposed_points_equals_the_serial_run() {
+    let runs = Runs {
+        history: &["inner_pressure", "inner_displacement"],
+        measures: &["fix1_reaction_x", "fix2_reaction_y"],
+        pressure: true,
+        ..Runs::decomposed(&[2, 3])
+    };
+    let scene = shipped_scene("thick_cylinder.rhai");
+    let set = ["control=load", "cells=4", "steps=6", "last=0.6"];
+    compare_with(&scene, &set, "pressure-dec", &runs);
+}

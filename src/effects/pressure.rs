@@ -88,18 +88,46 @@
 //! right-hand side is the same on every process. So every process adds the pressure's force
 //! and replaces it by the force at the iterate in full, as a serial run does. The tangent is a
 //! sum of the processes' shares (each assembles its own points): the load stiffness is added
-//! by process 0 alone (`distributed::adds_grid_terms`), once. With `--decompose` the pressure
-//! is refused (`distributed::decomposition`): a part ties its load point to its vertices'
-//! hosts, which may be on other processes.
+//! by process 0 alone (`distributed::adds_grid_terms`), once.
+//!
+//! With decomposed points (`--decompose`) a process holds only its slab's material points, a
+//! part ties its load point to its vertices' hosts, which may be on other processes, and the
+//! grid's vectors are local (owned and ghost nodes), `f_ext` summed over the processes after
+//! the loads. Every process holds every carried point (a few per cell of arc) with its host's
+//! `PointId` ([`PressurePoint::host_id`]):
+//!
+//! * at each step start, after the exchange of material points, [`find_pressure_weights`]
+//!   links the points to the hosts this process holds, and finds the ŵ of those;
+//! * [`share_pressure_weights`] (before the DOF stage; collective, outside the stages' sets:
+//!   it shares a failure first) gathers every point's ŵ to all (exact bits), finds the load
+//!   points' spread weights over the nodes active on any process (the supports are evaluated
+//!   on every process at the same positions, their activity summed over the processes: the
+//!   serial weights), pushes the coupling groups, and on process 0 makes every node of every
+//!   group active, so that its DOF stage and the decomposed grid number them all
+//!   (`effects::distributed::grid`: the local nodes are the supports' and the active ones);
+//! * [`move_to_iterate`] (`Hook::Kinematics`, where every process meets before anything in
+//!   the iteration can fail) forms x(Δu) on the host's process and shares it
+//!   (`distributed::numbers_of_points`: the holder's numbers exactly), so every process holds
+//!   every point's position at the iterate, and the point update moves every point there;
+//! * at the loads process 0 alone adds λ f̂_p(0) (then `f_ext` is summed); after the assembly
+//!   every process adds the change λ (f̂_p(Δu) − f̂_p(Δu_prev)) at its own nodes, where `f_ext`
+//!   holds the sum already, and process 0 adds the load stiffness, once (it numbers all the
+//!   parts' nodes; its share of K is summed with the others').
+//!
+//! Arc-length control is refused under `--decompose` (its own refusal), so the pressure's
+//! change of the arc's f̂ there is never needed.
 //!
 //! Systems, added only when a scene declares a pressure: [`find_pressure_weights`]
-//! (`Hook::Connectivity`), [`apply_pressure`] (`Hook::Loads`; with held loads under the arc also
-//! at λ = 0), [`follow_pressure`]
+//! (`Hook::Connectivity`), [`share_pressure_weights`] (decomposed points only),
+//! [`move_to_iterate`] (`Hook::Kinematics`), [`apply_pressure`] (`Hook::Loads`; with held
+//! loads under the arc also at λ = 0), [`follow_pressure`]
 //! (`Hook::AfterAssembly`), [`carry_pressure_points`] (`Hook::PointUpdate`),
 //! [`write_pressure`] (`Hook::Output`): `pressure_NNNN.vtu` (one vertex per part at its load
 //! point, with the current chord's unit normal into the body, its length, λ p and the part's
 //! force λ s p Q (x_{k+1} − x_k), [`PartOutput`]) and `pressure.pvd`, written as the traction
 //! points' series is (`tractions::LoadPointOutput`).
+
+use std::collections::{BTreeSet, HashMap, HashSet};
 
 use bevy_ecs::prelude::*;
 use nalgebra::SVector;
@@ -114,8 +142,8 @@ use super::declarations::{
 use super::tractions::{LoadPointOutput, host_weights};
 use crate::basis::{BasisKind, BasisScratch, NodeWeight};
 use crate::checkpoint::CheckpointPart;
-use crate::components::{Position, Support};
-use crate::mechanics::active_weight;
+use crate::components::{PointId, Position, Support};
+use crate::method::{StepSchedule, StepSystems};
 use crate::output::PvdSeries;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{
@@ -290,7 +318,12 @@ pub struct PressurePoint<const D: usize> {
     pub id: u32,
     /// Current position (converged, start of the load step).
     pub position: SVector<f64, D>,
+    /// The host material point's entity (`Entity::PLACEHOLDER` while another process holds
+    /// it: decomposed points, module docs).
     pub host: Entity,
+    /// The host's `PointId`: how it is found again when it is spawned anew or moves to
+    /// another process (decomposed points).
+    pub host_id: u32,
 }
 
 carried_point!(PressurePoint);
@@ -302,8 +335,14 @@ pub struct PressureLoad<const D: usize> {
     pub groups: Vec<PressureGroup>,
     /// Start-of-step positions of the carried points, by id.
     pub start: Vec<SVector<f64, D>>,
+    /// The carried points' positions at the current iterate, x(Δu), by id
+    /// ([`move_to_iterate`]).
+    pub positions: Vec<SVector<f64, D>>,
     /// ŵ_j of every carried point, by id (module docs).
     pub carry: Vec<Vec<(usize, f64)>>,
+    /// Whether this process holds each carried point's host (every point but with decomposed
+    /// points), by id: it finds the point's ŵ and its position at the iterate.
+    pub hosted: Vec<bool>,
     /// N_i(m_k) / Σ_active N of every part's load point, over the active nodes.
     pub spread: Vec<Vec<(usize, f64)>>,
     /// f̂_p by node, per group: the pressures' forces at factor 1 now included in the external
@@ -629,16 +668,24 @@ impl Plugin for PressureModule {
             return;
         }
         let entities = simulation.point_entities();
+        // with decomposed points every process holds every pressure point, and the hosts of
+        // its own slab (module docs)
+        let decomposed = crate::distributed::decomposed();
         let mut batch = Vec::new();
         for (id, point) in pressures.points.iter().enumerate() {
-            let Some(&host) = entities.get(point.host) else {
-                simulation.fail(format!("pressure point host {} does not exist", point.host));
-                return;
+            let host = match entities.get(point.host) {
+                Some(&host) if host != Entity::PLACEHOLDER => host,
+                _ if decomposed => Entity::PLACEHOLDER,
+                _ => {
+                    simulation.fail(format!("pressure point host {} does not exist", point.host));
+                    return;
+                }
             };
             batch.push(PressurePoint::<D> {
                 id: id as u32,
                 position: SVector::from_fn(|a, _| point.position[a]),
                 host,
+                host_id: point.host as u32,
             });
         }
         let load = PressureLoad::<D> {
@@ -667,7 +714,17 @@ impl Plugin for PressureModule {
             .add_systems(Hook::Connectivity, find_pressure_weights::<D>);
         // under arc-length control with held loads also evaluated at λ = 0 (f_fixed)
         add_load_system(simulation, apply_pressure::<D>);
+        if decomposed {
+            // collective, outside the stages' sets (it shares a failure first)
+            let mut schedules = simulation.world().resource_mut::<Schedules>();
+            schedules.entry(StepSchedule).add_systems(
+                share_pressure_weights::<D>
+                    .after(StepSystems::Connectivity)
+                    .before(StepSystems::Dofs),
+            );
+        }
         simulation
+            .add_systems(Hook::Kinematics, move_to_iterate::<D>)
             .add_systems(Hook::AfterAssembly, follow_pressure::<D>)
             .add_systems(Hook::PointUpdate, carry_pressure_points::<D>)
             .add_systems(Hook::Output, write_pressure::<D>);
@@ -762,7 +819,9 @@ fn seed_pressure(
 }
 
 /// Connectivity (start of the step): the carried points' host weights ŵ, the load points'
-/// spread weights over the active nodes, and the coupling of each part's nodes.
+/// spread weights over the active nodes, and the coupling of each part's nodes. With
+/// decomposed points only the ŵ of the points whose hosts this process holds (found by their
+/// `PointId`s after the step start's exchange); [`share_pressure_weights`] does the rest.
 #[allow(clippy::too_many_arguments)] // a system: its parameters are what it reads and writes
 pub fn find_pressure_weights<const D: usize>(
     grid: Res<Grid<D>>,
@@ -773,10 +832,22 @@ pub fn find_pressure_weights<const D: usize>(
     mut clock: ResMut<StageClock>,
     mut scratch: Local<(BasisScratch, Vec<NodeWeight<D>>)>,
     hosts: Query<(&Support<D>, &Position<D>)>,
-    points: Query<&PressurePoint<D>>,
+    held: Query<(Entity, &PointId)>,
+    mut points: Query<&mut PressurePoint<D>>,
 ) {
     let _timer = clock.time(Stage::Connectivity);
     let (load, fields) = (&mut *load, &mut *fields);
+    let decomposed = crate::distributed::decomposed();
+    if decomposed {
+        // the hosts this process holds, by `PointId` (the exchange may have spawned them anew)
+        let entities: HashMap<u32, Entity> = held.iter().map(|(e, id)| (id.0, e)).collect();
+        for mut point in points.iter_mut() {
+            point.host = entities
+                .get(&point.host_id)
+                .copied()
+                .unwrap_or(Entity::PLACEHOLDER);
+        }
+    }
     let mut rows: Vec<&PressurePoint<D>> = points.iter().collect();
     rows.sort_by_key(|point| point.id);
     let fail = |what: String| SolverError::Module {
@@ -785,9 +856,17 @@ pub fn find_pressure_weights<const D: usize>(
         recoverable: false,
     };
     load.start = rows.iter().map(|point| point.position).collect();
+    load.positions = load.start.clone();
     load.carry.clear();
+    load.hosted.clear();
     for point in &rows {
         let Ok((support, x)) = hosts.get(point.host) else {
+            if decomposed {
+                // another process's (shared by `share_pressure_weights`)
+                load.carry.push(Vec::new());
+                load.hosted.push(false);
+                continue;
+            }
             status.fail(fail(format!(
                 "pressure point {} has lost its host material point",
                 point.id
@@ -797,40 +876,232 @@ pub fn find_pressure_weights<const D: usize>(
         let weights = host_weights(&support.0, &(point.position - x.0));
         load.carry
             .push(weights.iter().map(|w| (w.node, w.value)).collect());
+        load.hosted.push(true);
     }
-    load.spread.clear();
-    let (scratch, support) = &mut *scratch;
-    for part in &load.parts {
-        let x = load.start[part.load_point];
+    if decomposed {
+        return;
+    }
+    let active = &fields.active;
+    let spread = spread_weights(&grid.0, &load.parts, &load.start, &mut scratch, |node| {
+        active[node]
+    });
+    match spread {
+        Ok(spread) => load.spread = spread,
+        Err(why) => {
+            status.fail(fail(why));
+            return;
+        }
+    }
+    fields.couplings.extend(coupling_groups(load));
+}
+
+/// The spread weights of every part's load point at `start` (the carried points' positions
+/// by id): N_i(m_k) / Σ_active N over the support's nodes that are `active`. An error names a
+/// load point outside the grid or with no active node.
+pub fn spread_weights<const D: usize>(
+    grid: &crate::basis::GridBasis<D>,
+    parts: &[Part],
+    start: &[SVector<f64, D>],
+    (scratch, support): &mut (BasisScratch, Vec<NodeWeight<D>>),
+    active: impl Fn(usize) -> bool,
+) -> Result<Vec<Vec<(usize, f64)>>, String> {
+    let mut spread = Vec::with_capacity(parts.len());
+    for part in parts {
+        let x = start[part.load_point];
         let at = || x.iter().copied().collect::<Vec<_>>();
-        if grid.0.eval(&x, scratch, support).is_err() {
-            status.fail(fail(format!(
+        if grid.eval(&x, scratch, support).is_err() {
+            return Err(format!(
                 "pressure load point at {:?} left the background grid",
                 at()
-            )));
-            return;
+            ));
         }
-        let total = active_weight(support, &fields.active);
+        let total: f64 = support
+            .iter()
+            .filter(|w| active(w.node))
+            .map(|w| w.value)
+            .sum();
         if total <= 0.0 {
-            status.fail(fail(format!(
+            return Err(format!(
                 "pressure load point at {:?} is not next to any material point (no node of its support is active)",
                 at()
-            )));
+            ));
+        }
+        spread.push(
+            support
+                .iter()
+                .filter(|w| active(w.node))
+                .map(|w| (w.node, w.value / total))
+                .collect(),
+        );
+    }
+    Ok(spread)
+}
+
+/// The nodes of each part coupled in the tangent: its load point's spread nodes and its
+/// vertices' hosts' support nodes (the ŵ), sorted.
+fn coupling_groups<const D: usize>(load: &PressureLoad<D>) -> Vec<Vec<usize>> {
+    (load.parts.iter().zip(&load.spread))
+        .map(|(part, spread)| {
+            let mut group: Vec<usize> = spread.iter().map(|&(node, _)| node).collect();
+            for vertex in [part.start, part.end] {
+                group.extend(load.carry[vertex].iter().map(|&(node, _)| node));
+            }
+            group.sort_unstable();
+            group.dedup();
+            group
+        })
+        .collect()
+}
+
+/// Decomposed points (module docs), after the connectivity and before the DOF stage
+/// (collective: not in a stage's set, it runs after a failure too and shares it first): every
+/// process's ŵ gathered to all (exact bits; each carried point's from the process holding its
+/// host), the load points' spread weights over the nodes active on any process (the same on
+/// every process), the parts' coupling groups, and on process 0, which adds the load
+/// stiffness, every node of every group made active, so that its DOF stage numbers them all.
+#[allow(clippy::too_many_arguments)] // a system: its parameters are what it reads and writes
+pub fn share_pressure_weights<const D: usize>(
+    grid: Res<Grid<D>>,
+    step: Res<LoadStep>,
+    newton: Res<Newton>,
+    mut load: ResMut<PressureLoad<D>>,
+    mut fields: ResMut<GridFields<D>>,
+    mut status: ResMut<RunStatus>,
+    mut clock: ResMut<StageClock>,
+    mut scratch: Local<(BasisScratch, Vec<NodeWeight<D>>)>,
+) {
+    #[cfg(feature = "mpi")]
+    let failed =
+        crate::effects::distributed::share_failure(&mut status, step.number, newton.iterations);
+    #[cfg(not(feature = "mpi"))]
+    let failed = {
+        let _ = &newton; // never scheduled without the feature (no decomposed points)
+        status.0.is_some()
+    };
+    if failed {
+        return;
+    }
+    let _timer = clock.time(Stage::Connectivity);
+    let (load, fields) = (&mut *load, &mut *fields);
+    let fail = |what: String| SolverError::Module {
+        step: step.number,
+        what,
+        recoverable: false,
+    };
+    if let Err(why) = share_carry(load) {
+        status.fail(fail(format!(
+            "sharing the pressure points' host weights between the processes: {why}"
+        )));
+        return;
+    }
+    // the nodes of the load points' supports active on any process (every process evaluates
+    // the same supports at the same positions)
+    let mut candidates = BTreeSet::new();
+    for part in &load.parts {
+        let (scratch, support) = &mut *scratch;
+        if grid
+            .0
+            .eval(&load.start[part.load_point], scratch, support)
+            .is_ok()
+        {
+            candidates.extend(support.iter().map(|w| w.node));
+        }
+    }
+    let candidates: Vec<usize> = candidates.into_iter().collect();
+    let mut counts: Vec<f64> = (candidates.iter())
+        .map(|&node| f64::from(u8::from(fields.active[node])))
+        .collect();
+    crate::distributed::sum_over_points(&mut counts);
+    let anywhere: HashSet<usize> = (candidates.iter().zip(&counts))
+        .filter(|&(_, &count)| count > 0.0)
+        .map(|(&node, _)| node)
+        .collect();
+    let spread = spread_weights(&grid.0, &load.parts, &load.start, &mut scratch, |node| {
+        anywhere.contains(&node)
+    });
+    match spread {
+        Ok(spread) => load.spread = spread,
+        Err(why) => {
+            status.fail(fail(why));
             return;
         }
-        let spread: Vec<(usize, f64)> = support
-            .iter()
-            .filter(|w| fields.active[w.node])
-            .map(|w| (w.node, w.value / total))
-            .collect();
-        let mut group: Vec<usize> = spread.iter().map(|&(node, _)| node).collect();
-        for vertex in [part.start, part.end] {
-            group.extend(load.carry[vertex].iter().map(|&(node, _)| node));
+    }
+    let groups = coupling_groups(load);
+    if crate::distributed::adds_grid_terms() {
+        for &node in groups.iter().flatten() {
+            fields.active[node] = true;
         }
-        group.sort_unstable();
-        group.dedup();
-        fields.couplings.push(group);
-        load.spread.push(spread);
+    }
+    fields.couplings.extend(groups);
+}
+
+/// Every carried point's ŵ from the process that holds its host, to every process (an
+/// all-gather of rows `id, count, (node, weight bits) × count`; identity when the points are
+/// not decomposed). Each point must come from exactly one process.
+fn share_carry<const D: usize>(load: &mut PressureLoad<D>) -> Result<(), String> {
+    let mut rows = Vec::new();
+    for (id, carry) in load.carry.iter().enumerate() {
+        if load.hosted[id] {
+            rows.push(id as u64);
+            rows.push(carry.len() as u64);
+            for &(node, w) in carry {
+                rows.extend([node as u64, w.to_bits()]);
+            }
+        }
+    }
+    let all = crate::distributed::gather_over_points(&rows)?;
+    let mut found = vec![0usize; load.carry.len()];
+    let mut rest = &all[..];
+    while let [id, count, tail @ ..] = rest {
+        let (id, count) = (*id as usize, *count as usize);
+        if tail.len() < 2 * count || id >= found.len() {
+            return Err(format!("a broken row of host weights for point {id}"));
+        }
+        found[id] += 1;
+        load.carry[id] = tail[..2 * count]
+            .chunks_exact(2)
+            .map(|pair| (pair[0] as usize, f64::from_bits(pair[1])))
+            .collect();
+        rest = &tail[2 * count..];
+    }
+    if let Some(id) = found.iter().position(|&n| n != 1) {
+        return Err(format!(
+            "pressure point {id}'s host is held by {} processes, not one",
+            found[id]
+        ));
+    }
+    Ok(())
+}
+
+/// Before the stress update of every Newton iteration: the carried points' positions at the
+/// iterate, x(Δu) = x⁰ + Σ_j ŵ_j Δu_j, each found by the process that holds its host (which
+/// holds the increments at its host's support) and, with decomposed points, shared with the
+/// others (`distributed::numbers_of_points`: the holder's numbers exactly).
+pub fn move_to_iterate<const D: usize>(
+    step: Res<LoadStep>,
+    mut load: ResMut<PressureLoad<D>>,
+    fields: Res<GridFields<D>>,
+    mut status: ResMut<RunStatus>,
+) {
+    let load = &mut *load;
+    let found = crate::distributed::numbers_of_points(load.start.len(), D, |id, numbers| {
+        if !load.hosted[id] {
+            return false;
+        }
+        let x = carried_position(&load.start[id], &load.carry[id], &fields.increment);
+        numbers.copy_from_slice(x.as_slice());
+        true
+    });
+    for (id, numbers) in found.into_iter().enumerate() {
+        let Some(numbers) = numbers else {
+            status.fail(SolverError::Module {
+                step: step.number,
+                what: format!("pressure point {id}'s position at the iterate is on no process"),
+                recoverable: false,
+            });
+            return;
+        };
+        load.positions[id] = SVector::from_column_slice(&numbers);
     }
 }
 
@@ -853,6 +1124,9 @@ pub fn apply_pressure<const D: usize>(
         &load.start,
         fields.external_force.len(),
     );
+    if crate::distributed::decomposed() && !crate::distributed::adds_grid_terms() {
+        return; // process 0 adds it for all (`f_ext` is summed over the processes next)
+    }
     for (group, added) in load.groups.iter().zip(&load.added) {
         let factor = group.factor(&step, stage);
         for (f, added) in fields.external_force.iter_mut().zip(added) {
@@ -878,17 +1152,11 @@ pub fn follow_pressure<const D: usize>(
     let _timer = clock.time(Stage::Assembly);
     let (load, fields) = (&mut *load, &mut *fields);
     let stage = stage.map_or(0, |s| s.0);
-    let positions: Vec<SVector<f64, D>> = load
-        .start
-        .iter()
-        .zip(&load.carry)
-        .map(|(x, carry)| carried_position(x, carry, &fields.increment))
-        .collect();
     let now = group_forces(
         &load.parts,
         load.groups.len(),
         &load.spread,
-        &positions,
+        &load.positions,
         fields.external_force.len(),
     );
     let nodes = fields.external_force.len();
@@ -902,7 +1170,10 @@ pub fn follow_pressure<const D: usize>(
         any_held |= at_zero != 0.0;
         for (node, (n, a)) in now.iter().zip(added).enumerate() {
             let change = n - a;
-            fields.external_force[node] += change * factor;
+            if fields.active[node] {
+                // with decomposed points this process's nodes, whose `f_ext` holds the sum
+                fields.external_force[node] += change * factor;
+            }
             reference[node] += change * slope;
             held[node] += change * at_zero;
         }
@@ -934,16 +1205,15 @@ pub fn follow_pressure<const D: usize>(
     );
 }
 
-/// Point update: the carried points move to x(Δu) of the converged step.
+/// Point update: the carried points move to x(Δu) of the converged step (the last iterate's
+/// positions, [`move_to_iterate`]: with decomposed points every process moves every point).
 pub fn carry_pressure_points<const D: usize>(
     load: Res<PressureLoad<D>>,
-    fields: Res<GridFields<D>>,
     mut points: Query<&mut PressurePoint<D>>,
 ) {
     for mut point in points.iter_mut() {
-        let id = point.id as usize;
-        if let (Some(start), Some(carry)) = (load.start.get(id), load.carry.get(id)) {
-            point.position = carried_position(start, carry, &fields.increment);
+        if let Some(x) = load.positions.get(point.id as usize) {
+            point.position = *x;
         }
     }
 }

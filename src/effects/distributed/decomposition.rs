@@ -33,7 +33,10 @@
 //!    `f_int` is at `Hook::Combine`. Point loads travel as point-state parts of their points;
 //!    traction and load points follow their hosts by `PointId` (`effects::tractions`), and so
 //!    do the surface conditions' boundary points, whose terms after the assembly the host's
-//!    process adds (`effects::surface_conditions`, "Decomposed points").
+//!    process adds (`effects::surface_conditions`, "Decomposed points"). The follower
+//!    pressure's points are held by every process, their positions shared by their hosts'
+//!    processes; process 0 adds its force before this sum and its load stiffness
+//!    (`effects::pressure`, "Over several processes").
 //!
 //! A stage's displacement origins travel with their points ([`carry_displacement_origins`]).
 //! What sums over points elsewhere is summed over the processes too: the eq. 15 error
@@ -59,7 +62,6 @@ use crate::scene::SceneSpec;
 
 /// The modules a decomposed run refuses, and why.
 const REFUSED: &[(&str, &str)] = &[
-    ("pressure", "keeps its points' host points"),
     ("finite-element mesh", "its elements refer to their points"),
     (
         "stress recovery",

@@ -59,9 +59,10 @@
 //!   (`distributed::adds_grid_terms`). The follower pressure's force is part of `f_ext`, which
 //!   the replicated path does not sum (every process forms all of it, and the right-hand side
 //!   is the same on every process): every process adds it, and replaces it by the force at the
-//!   iterate, in full (`effects::pressure`, "Over several processes"); with `--decompose` the
-//!   pressure is refused (its parts tie load points to vertices whose hosts may be on other
-//!   processes). Their records (reactions) are computed from the whole
+//!   iterate, in full (`effects::pressure`, "Over several processes"); with `--decompose`
+//!   process 0 adds its force before `f_ext` is summed and its load stiffness (it numbers
+//!   every node of the parts), and every process follows the force at the iterate at its own
+//!   nodes. Their records (reactions) are computed from the whole
 //!   state, which every process holds; with decomposed points a surface condition's boundary
 //!   points are shared after every step and its records taken from all of them
 //!   (`effects::surface_conditions`, "Decomposed points").
@@ -413,7 +414,7 @@ fn point_slices<const D: usize>(world: &mut World) -> (Vec<(Entity, usize)>, Vec
 /// failed less severely takes it on top of its own. So all of them retry the Newton step
 /// (the line search, after an inadmissible trial state), cut the load step or stop together,
 /// and process 0 reports which process failed and why.
-fn share_failure(status: &mut RunStatus, step: usize, iteration: usize) -> bool {
+pub(crate) fn share_failure(status: &mut RunStatus, step: usize, iteration: usize) -> bool {
     let mine = status.0.as_ref().map(|error| note_of(error, step));
     let failures = match share_failures(mine.as_ref()) {
         Ok(None) => return false,
