@@ -69,10 +69,6 @@ const REFUSED: &[(&str, &str)] = &[
         "arc-length control",
         "its dot products are over whole vectors, not summed over the processes' owned DOFs",
     ),
-    (
-        "ghost penalty",
-        "needs every cell's fill fraction, from the points of every process",
-    ),
 ];
 
 /// Why the scene cannot run with decomposed points, if the points are decomposed and it

@@ -129,17 +129,20 @@ pub fn number_decomposed_grid<const D: usize>(world: &mut World) {
     }
 }
 
-/// The nodes this process's points touch, their layers along the slab axis and their free
+/// The nodes this process's points touch and its modules' coupling groups hold (F-bar's lie
+/// in one cell's supports; a ghost-penalty face's reach one node layer past them on a slab
+/// boundary: `effects::ghost_penalty`), their layers along the slab axis and their free
 /// components (from the DOF stage's numbers).
 fn local_nodes<const D: usize>(world: &mut World) -> LocalNodes {
     let mut query = world.query::<&Support<D>>();
-    let nodes: BTreeSet<usize> = query
+    let mut nodes: BTreeSet<usize> = query
         .iter(world)
         .flat_map(|support| support.0.iter().map(|w| w.node))
         .collect();
     let axis = world.resource::<AssemblyShare>().axis;
     let grid = &world.resource::<Grid<D>>().0;
     let fields = world.resource::<GridFields<D>>();
+    nodes.extend(fields.couplings.iter().flatten().copied());
     let nodes: Vec<usize> = nodes.into_iter().collect();
     LocalNodes {
         layers: nodes

@@ -232,16 +232,26 @@ impl Plugin for DistributedModule {
         if decompose && crate::effects::stages::StagesModule.used_by(simulation.spec()) {
             decomposition::carry_displacement_origins(simulation);
         }
+        let ghost_penalty =
+            crate::effects::ghost_penalty::GhostPenaltyModule.used_by(simulation.spec());
         let world = simulation.world();
         // the shares of the initial state, for its output (step 0 runs no connectivity)
         if decompose {
             decomposition::count_own_points::<D>(world);
             let mut schedules = world.resource_mut::<Schedules>();
             let step = schedules.entry(Hook::Basis.schedule());
+            let exchange = decomposition::exchange_points::<D>
+                .in_set(StepSystems::Connectivity)
+                .before(Hook::Basis);
+            if ghost_penalty {
+                // the cells' fill fractions from the points this process holds in the step
+                step.add_systems(
+                    exchange.before(crate::effects::ghost_penalty::measure_cell_fill::<D>),
+                );
+            } else {
+                step.add_systems(exchange);
+            }
             step.add_systems((
-                decomposition::exchange_points::<D>
-                    .in_set(StepSystems::Connectivity)
-                    .before(Hook::Basis),
                 // not in a stage's set: it runs after a failure too, and shares it; the
                 // owned nodes, ghosts and global numbers, for the solver and the norms
                 grid::number_decomposed_grid::<D>
