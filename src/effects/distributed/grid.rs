@@ -1,9 +1,11 @@
 //! The decomposed grid's ownership and numbering in a run (`impm run --decompose`): every
-//! step, after the DOF stage, each process finds the nodes its own points touch (its owned
-//! nodes and ghost layer), their owners and the global numbers of their DOFs, talking only
-//! to the processes that share nodes with it (`distributed::ownership`, whose docs give the
-//! rule: the lowest rank touching a node owns it; owned DOFs numbered contiguously per
-//! process, offset by the processes before it; ghosts' numbers from their owners).
+//! step, after the DOF stage, each process finds the nodes its own points touch and its
+//! modules' coupling groups hold (its owned nodes and ghost layer; a ghost-penalty face on a
+//! slab boundary reaches one node layer further: `effects::ghost_penalty`), their owners and
+//! the global numbers of their DOFs, talking only to the processes that share nodes with it
+//! (`distributed::ownership`, whose docs give the rule: the lowest rank touching a node owns
+//! it; owned DOFs numbered contiguously per process, offset by the processes before it;
+//! ghosts' numbers from their owners).
 //!
 //! Messages per step (counted as `bytes_grid_numbers`): every process's layer range and
 //! owned and ghost counts to all (`3 P` + `3 P` numbers), then the shared nodes and their numbers to

@@ -55,13 +55,14 @@
 //!   processes: F-bar's rank-one terms by the process that assembles the group's members (a
 //!   group is the F-bar points of one cell, so one slab), a surface condition's boundary point
 //!   by the process that assembles its host (with decomposed points, that holds it), the ghost
-//!   penalty's faces and the follower pressure's load stiffness by process 0
-//!   (`distributed::adds_grid_terms`). The follower pressure's force is part of `f_ext`, which
-//!   the replicated path does not sum (every process forms all of it, and the right-hand side
-//!   is the same on every process): every process adds it, and replaces it by the force at the
-//!   iterate, in full (`effects::pressure`, "Over several processes"); with `--decompose` the
-//!   pressure is refused (its parts tie load points to vertices whose hosts may be on other
-//!   processes). Their records (reactions) are computed from the whole
+//!   penalty's faces (replicated: by process 0; decomposed: by the process holding a face's
+//!   lower cell, `effects::ghost_penalty`) and the follower pressure's load stiffness by
+//!   process 0 (`distributed::adds_grid_terms`). The follower pressure's force is part of
+//!   `f_ext`, which the replicated path does not sum (every process forms all of it, and the
+//!   right-hand side is the same on every process): every process adds it, and replaces it by
+//!   the force at the iterate, in full (`effects::pressure`, "Over several processes"); with
+//!   `--decompose` the pressure is refused (its parts tie load points to vertices whose hosts
+//!   may be on other processes). Their records (reactions) are computed from the whole
 //!   state, which every process holds; with decomposed points a surface condition's boundary
 //!   points are shared after every step and its records taken from all of them
 //!   (`effects::surface_conditions`, "Decomposed points").
@@ -329,7 +330,8 @@ impl Plugin for DistributedModule {
 }
 
 /// The modules of `Hook::AfterAssembly` that add each of their terms once over the processes,
-/// one system each: the ghost penalty (process 0 adds the faces: `distributed::adds_grid_terms`),
+/// one system each: the ghost penalty (process 0 adds the faces, `distributed::adds_grid_terms`;
+/// with decomposed points the process holding a face's lower cell),
 /// F-bar (a group's rank-one terms by the process assembling its members),
 /// material-surface conditions (a boundary point's terms by the process assembling its host)
 /// and the follower pressure (its change of the replicated `f_ext` on every process, its load
