@@ -22,8 +22,9 @@
 //!   the sliver column (ghost penalty) under `mpirun -n 2` and `-n 3` equal their serial runs
 //!   as above, and so do the footing pressure and reaction in every step; F-bar with
 //!   decomposed points too (a nearly incompressible 2D column);
-//! * the ghost penalty is refused with decomposed points, naming it and why (once, without an
-//!   abort: the processes fail together);
+//! * the ghost penalty with decomposed points (`-n 2`, `-n 3`) equals its serial run: the
+//!   sliver column, the heavy column emptying its top cells as points cross the slabs, and a
+//!   sheared block whose sliver row has faces on the slab boundaries;
 //! * a process that fails alone outside the Newton iteration (writing a record) ends every
 //!   process after that step, without an abort, with the cause, instead of leaving the others
 //!   waiting; summary.json says failed and what was written before stays readable; a failure
@@ -1711,26 +1712,6 @@ fn decomposition_refuses_what_cannot_follow_its_points() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// The ghost penalty is refused with decomposed points (the cells' fill fractions need every
-/// process's points), naming it, once, without an abort.
-#[test]
-fn the_ghost_penalty_is_refused_with_decomposed_points() {
-    let Some(_one) = mpi_job_slot() else {
-        return;
-    };
-    let dir: PathBuf = temp_dir("mpi", "ghost-decomposed");
-    let sliver = shipped_scene("sliver_column.rhai");
-    let stderr = refused(2, &sliver, &["steps=1"], &dir, &["--decompose"]);
-    assert_eq!(
-        stderr
-            .matches("ghost penalty (needs every cell's fill fraction")
-            .count(),
-        1,
-        "{stderr}"
-    );
-    let _ = std::fs::remove_dir_all(&dir);
-}
-
 /// A failure on one process outside the Newton iteration (process 0 cannot write history.csv
 /// at the end of step 1: a folder is in its way; the other process writes into its own
 /// scratch folder) ends every process after that step: the processes agree on the step's
@@ -2490,4 +2471,72 @@ fn the_follower_pressure_with_decomposed_points_equals_the_serial_run() {
     let scene = shipped_scene("thick_cylinder.rhai");
     let set = ["control=load", "cells=4", "steps=6", "last=0.6"];
     compare_with(&scene, &set, "pressure-dec", &runs);
+}
+
+/// The ghost penalty with decomposed points (`effects::ghost_penalty`, "Which process adds a
+/// face"): the cells' fill fractions summed over the processes, each face added by the process
+/// holding its lower cell. The sliver column (the face below the sliver cell, inside the top
+/// slab) and the heavy column with the penalty (`ghost_penalty=0.01`, 8 cells, 4 steps: the
+/// column shortens by half, its top cells empty out and points cross the slabs, so they change
+/// process) over 2 and 3 processes: Newton iterations per step, the eq. 15 error, stresses and
+/// positions as the serial run, to 1e-8.
+#[test]
+fn the_ghost_penalty_with_decomposed_points_equals_the_serial_run() {
+    let runs = Runs::decomposed(&[2, 3]);
+    let sliver = shipped_scene("sliver_column.rhai");
+    compare_with(&sliver, &["steps=2"], "sliver-dec", &runs);
+    let heavy = shipped_scene("heavy_column.rhai");
+    let set = ["cells=8", "steps=4", "ghost_penalty=0.01"];
+    let measured = compare_with(&heavy, &set, "heavy-ghost-dec", &runs);
+    counted_in_every_run(
+        "heavy column, ghost penalty",
+        &measured,
+        "points_changing_process",
+    );
+}
+
+/// A block (8 × 4.2 cells of 0.5, q = 2, 2 × 2 points per cell) on a grid 10 × 5 cells, fixed
+/// at its base and sheared by a sideways body force: its top row of cells is a sliver (a fifth
+/// full), so every face between two of its cells is penalised, and as the slabs cut along x
+/// (the axis with the most cells) some of those faces lie on a slab boundary, normal to the
+/// slab axis: their stencils (3 + 1 node columns) reach one node column past the points of
+/// the process holding their lower cell (`effects::distributed::grid`, `local_nodes`). The top
+/// moves by about 0.3 (0.6 of a cell) in 3 steps, so points change process.
+const SHEARED_BLOCK: &str = "
+let ghost_penalty = 0.01;
+grid(#{ lower: [0.0, 0.0], upper: [5.0, 2.5], cells: [10, 5], basis: \"bspline\", order: 2 });
+const soil = material(#{ name: \"block\", E: 1000.0, nu: 0.3, density: 1.0 });
+body(#{ name: \"block\", material: soil, region: box([0.0, 0.0], [4.0, 2.1]), ppc: 2 });
+body_force([50.0, -10.0]);
+fix(|x| x[1] == 0.0);
+load_steps(3);
+solver(#{ ghost_penalty: ghost_penalty });
+";
+
+/// [`SHEARED_BLOCK`] over 2 and 3 processes with decomposed points equals its serial run
+/// (Newton iterations per step, stresses and positions to 1e-8), points change process, and
+/// the penalty matters: the serial run without it (`ghost_penalty=0`) differs by more than
+/// 1e-6 in stress or positions (so a face left out could not pass unseen).
+#[test]
+fn ghost_faces_on_slab_boundaries_with_decomposed_points_equal_the_serial_run() {
+    let (dir, scene) = scene_file("ghost-slab-scene", "sheared_block.rhai", SHEARED_BLOCK);
+    let measured = compare_with(&scene, &[], "ghost-slab-dec", &Runs::decomposed(&[2, 3]));
+    if !measured.is_empty() {
+        counted_in_every_run("sheared block", &measured, "points_changing_process");
+        let with = temp_dir("mpi", "ghost-slab-with");
+        let without = temp_dir("mpi", "ghost-slab-without");
+        let penalised = serial_reference(&scene, &[], &with, &[]);
+        let plain = serial_reference(&scene, &["ghost_penalty=0"], &without, &[]);
+        let stress = relative_difference(&plain.stress, &penalised.stress);
+        let positions = relative_difference(&plain.positions, &penalised.positions);
+        eprintln!(
+            "sheared block: without the ghost penalty, stress differs by {stress:.1e}, \
+             positions by {positions:.1e}"
+        );
+        assert!(stress.max(positions) > 1e-6, "{stress:e} {positions:e}");
+        for dir in [with, without] {
+            let _ = std::fs::remove_dir_all(&dir);
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }

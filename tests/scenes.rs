@@ -357,6 +357,7 @@ fn schedules_hold_only_the_effects_a_scene_uses() {
     let left_out = names(&explanation.left_out);
     for system in OPTIONAL.iter().chain(&[
         "tractions::write_tractions",
+        "ghost_penalty::measure_cell_fill",
         "ghost_penalty::find_ghost_faces",
         "ghost_penalty::assemble_ghost_penalty",
         "stress_recovery::recover_stress",
@@ -390,10 +391,10 @@ fn schedules_hold_only_the_effects_a_scene_uses() {
     }
     // the optional systems above, the recovered-stress output field, F-bar, the line search,
     // arc-length control and the plastic systems (+ 1: the arc's record_start_imbalance;
-    // + 1: the probes' read after each step)
+    // + 1: the probes' read after each step; + 1: the ghost penalty's fill fractions)
     assert_eq!(
         left_out.len(),
-        OPTIONAL.len() + 6 + 3 + 5 + 9 + 1 + 1,
+        OPTIONAL.len() + 6 + 3 + 5 + 9 + 1 + 1 + 1,
         "{left_out:?}"
     );
 }

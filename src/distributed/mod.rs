@@ -246,9 +246,11 @@ pub fn writes_run_files() -> bool {
 }
 
 /// Whether this process adds the terms that belong to the grid rather than to a point it
-/// assembles (the ghost penalty's faces): every serial run, and process 0 alone in a
-/// distributed run. The processes' shares of `f_int` and `K` are summed (`Hook::Combine`,
-/// PETSc's matrix), so a term every process added would count once per process. Terms that
+/// assembles (the ghost penalty's faces on the replicated path; with decomposed points a face
+/// is added by the process holding its lower cell instead, `effects::ghost_penalty`): every
+/// serial run, and process 0 alone in a distributed run. The processes' shares of `f_int` and
+/// `K` are summed (`Hook::Combine`, PETSc's matrix), so a term every process added would count
+/// once per process. Terms that
 /// belong to a point (F-bar's rank-one terms of a group's members, a surface condition's
 /// boundary point through its host) are added by the process that assembles that point
 /// instead: `components::AssembledElsewhere` leaves them out elsewhere.

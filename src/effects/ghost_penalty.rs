@@ -1,18 +1,38 @@
 //! Ghost-penalty stabilisation of nearly empty cells (the formulation and kernels: `ghost`).
 //! Used when the scene sets `solver(#{ ghost_penalty: γ })` with γ > 0 (MPM bases only).
 //!
-//! * [`find_ghost_faces`] (`Hook::Connectivity`): cell fill fractions from the points, the faces
-//!   next to boundary cells, and their penalty matrices, constant through the load step; each
-//!   face couples the nodes of its two cells (`GridFields::couplings`).
+//! * [`measure_cell_fill`] (at the step start, before the basis): each cell's fill fraction
+//!   `φ_c = Σ_{p in c} V_p / |c|` from the points' positions and volumes, and which cells hold
+//!   points of this process. With decomposed points (`--decompose`) the fractions are summed
+//!   over the processes (`distributed::sum_over_points`, collective: it runs where every
+//!   process runs alike, after the points' exchange and before the basis, which can fail on
+//!   one process alone). All points of a cell are on one process (the process of the cell's
+//!   layer along the slab axis: `distributed::layer_of` is the cell's index inside the grid),
+//!   so the others add exact zeros: every process gets the serial run's fractions, bit for bit.
+//! * [`find_ghost_faces`] (`Hook::Connectivity`): the faces next to boundary cells and their
+//!   penalty matrices, constant through the load step; each face couples the nodes of its two
+//!   cells (`GridFields::couplings`), which it makes active.
 //! * [`assemble_ghost_penalty`] (`Hook::AfterAssembly`): f_int += G Δu, K += G (symmetric).
-//!   In a distributed run (every process finds the same faces) process 0 alone adds them
-//!   (`distributed::adds_grid_terms`): the processes' shares are summed.
+//!
+//! **Which process adds a face.** Serial: all. Replicated (every process holds every point):
+//! every process finds every face (its pattern holds them) and process 0 alone adds them
+//! (`distributed::adds_grid_terms`); the processes' shares are summed. Decomposed: a face is
+//! found and added by the process holding the points of its lower cell, once over the
+//! processes. Its stencil is `q + 2` node layers along its normal (the nodes of both cells),
+//! one more than that process's points touch when the face lies on a slab boundary (normal to
+//! the slab axis, its upper cell on the next process): the face's nodes are made active, so
+//! that process's local nodes (`effects::distributed::grid`: its points' supports and its
+//! coupling groups) take in that layer, and its rows of `G` are assembled with the decomposed
+//! grid's numbering like any other local rows (the ghost rows go to their owners; `G Δu` is
+//! summed at the shared nodes with `f_int`). In a serial run the nodes of two occupied cells
+//! are active already (the points' supports cover their cells' nodes): nothing changes.
 
 use bevy_ecs::prelude::*;
 
 use crate::basis::BasisKind;
 use crate::components::{Position, Volume};
 use crate::ghost::{FacePenalty, face_penalty, ghost_faces};
+use crate::method::{StepSchedule, StepSystems};
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{Grid, GridFields, Newton, Stage, StageClock};
 use crate::scene::{Kind, OptionSpec, Range, Resolver, SceneApi, SceneSpec, ScriptError};
@@ -23,7 +43,11 @@ use crate::solver::NO_DOF;
 pub struct GhostPenalty {
     /// γ E: the dimensionless penalty times the scene's largest stiffness (Young's modulus).
     pub gamma_modulus: f64,
-    /// The penalised faces of this step.
+    /// Each cell's fill fraction in this step, over every process's points.
+    pub filled: Vec<f64>,
+    /// Whether this process holds points in each cell in this step.
+    pub held: Vec<bool>,
+    /// The penalised faces of this step that this process finds (module docs).
     pub faces: Vec<FacePenalty>,
 }
 
@@ -100,37 +124,68 @@ impl Plugin for GhostPenaltyModule {
             .fold(0.0, f64::max);
         simulation.world().insert_resource(GhostPenalty {
             gamma_modulus: gamma * modulus,
-            faces: Vec::new(),
+            ..GhostPenalty::default()
         });
+        // before the basis, where every process runs alike (module docs); with decomposed
+        // points after their exchange (`effects::distributed` orders it)
+        let mut schedules = simulation.world().resource_mut::<Schedules>();
+        schedules.entry(StepSchedule).add_systems(
+            measure_cell_fill::<D>
+                .in_set(StepSystems::Connectivity)
+                .before(Hook::Basis),
+        );
         simulation
             .add_systems(Hook::Connectivity, find_ghost_faces::<D>)
             .add_systems(Hook::AfterAssembly, assemble_ghost_penalty::<D>);
     }
 }
 
-pub fn find_ghost_faces<const D: usize>(
+/// The cells' fill fractions and which hold this process's points (module docs; collective
+/// with decomposed points).
+pub fn measure_cell_fill<const D: usize>(
     grid: Res<Grid<D>>,
     mut ghost: ResMut<GhostPenalty>,
-    mut fields: ResMut<GridFields<D>>,
     mut clock: ResMut<StageClock>,
-    mut filled: Local<Vec<f64>>,
     points: Query<(&Position<D>, &Volume)>,
 ) {
     let _timer = clock.time(Stage::Connectivity);
     let basis = &grid.0;
     let cell_volume: f64 = basis.axes.iter().map(|a| a.spacing()).product();
-    filled.clear();
-    filled.resize(basis.num_cells(), 0.0);
+    let ghost = &mut *ghost;
+    ghost.filled.clear();
+    ghost.filled.resize(basis.num_cells(), 0.0);
     for (x, v) in points.iter() {
         if let Ok(cell) = basis.cell_of(&x.0) {
-            filled[basis.cell_index(cell)] += v.0 / cell_volume;
+            ghost.filled[basis.cell_index(cell)] += v.0 / cell_volume;
         }
     }
+    ghost.held.clear();
+    ghost.held.extend(ghost.filled.iter().map(|&f| f > 0.0));
+    crate::distributed::sum_over_points(&mut ghost.filled);
+}
+
+/// The faces of this step this process finds (module docs), their penalties, their coupling
+/// groups, and their nodes made active.
+pub fn find_ghost_faces<const D: usize>(
+    grid: Res<Grid<D>>,
+    mut ghost: ResMut<GhostPenalty>,
+    mut fields: ResMut<GridFields<D>>,
+    mut clock: ResMut<StageClock>,
+) {
+    let _timer = clock.time(Stage::Connectivity);
+    let basis = &grid.0;
+    let ghost = &mut *ghost;
     let gamma_modulus = ghost.gamma_modulus;
-    ghost.faces = ghost_faces(basis, &filled)
+    ghost.faces = ghost_faces(basis, &ghost.filled)
         .iter()
+        .filter(|face| ghost.held[basis.cell_index(face.lower_cell)])
         .map(|face| face_penalty(basis, face, gamma_modulus))
         .collect();
+    for face in &ghost.faces {
+        for &node in &face.nodes {
+            fields.active[node] = true;
+        }
+    }
     fields
         .couplings
         .extend(ghost.faces.iter().map(|face| face.nodes.clone()));
@@ -143,8 +198,8 @@ pub fn assemble_ghost_penalty<const D: usize>(
     mut clock: ResMut<StageClock>,
 ) {
     let _timer = clock.time(Stage::Assembly);
-    if !crate::distributed::adds_grid_terms() {
-        return; // process 0 adds them for all (the shares are summed)
+    if !crate::distributed::decomposed() && !crate::distributed::adds_grid_terms() {
+        return; // replicated: process 0 adds them for all (the shares are summed)
     }
     let fields = &mut *fields;
     for face in &ghost.faces {

@@ -24,9 +24,11 @@
 //!    positions; no message).
 //! 2. The core's basis and DOF stages on the process's own points: its active nodes are the
 //!    nodes its points touch, its pattern that of their supports and of its modules' coupling
-//!    groups (F-bar's, whose members lie in one cell, so on one process); then the decomposed
-//!    grid's owners and global numbers (`super::grid`, which first shares failures: a point
-//!    outside the grid fails the basis on its own process only).
+//!    groups (F-bar's, whose members lie in one cell, so on one process; the ghost penalty's
+//!    faces, each on the process holding its lower cell, whose nodes it makes active:
+//!    `effects::ghost_penalty`); then the decomposed grid's owners and global numbers
+//!    (`super::grid`, which first shares failures: a point outside the grid fails the basis
+//!    on its own process only).
 //! 3. [`sum_external_force`] (after the loads, outside their stage: it runs after a failure
 //!    too, and shares it first): the body force, point loads and tractions are spread from the
 //!    points (and load points) a process holds, so `f_ext` is a sum over the processes, as
@@ -66,10 +68,6 @@ const REFUSED: &[(&str, &str)] = &[
     (
         "stress recovery",
         "fits over neighbouring points, which may be on another process",
-    ),
-    (
-        "ghost penalty",
-        "needs every cell's fill fraction, from the points of every process",
     ),
 ];
 

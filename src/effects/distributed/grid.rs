@@ -1,9 +1,11 @@
 //! The decomposed grid's ownership and numbering in a run (`impm run --decompose`): every
-//! step, after the DOF stage, each process finds the nodes its own points touch (its owned
-//! nodes and ghost layer), their owners and the global numbers of their DOFs, talking only
-//! to the processes that share nodes with it (`distributed::ownership`, whose docs give the
-//! rule: the lowest rank touching a node owns it; owned DOFs numbered contiguously per
-//! process, offset by the processes before it; ghosts' numbers from their owners).
+//! step, after the DOF stage, each process finds the nodes its own points touch and its
+//! modules' coupling groups hold (its owned nodes and ghost layer; a ghost-penalty face on a
+//! slab boundary reaches one node layer further: `effects::ghost_penalty`), their owners and
+//! the global numbers of their DOFs, talking only to the processes that share nodes with it
+//! (`distributed::ownership`, whose docs give the rule: the lowest rank touching a node owns
+//! it; owned DOFs numbered contiguously per process, offset by the processes before it;
+//! ghosts' numbers from their owners).
 //!
 //! Messages per step (counted as `bytes_grid_numbers`): every process's layer range and
 //! owned and ghost counts to all (`3 P` + `3 P` numbers), then the shared nodes and their numbers to
@@ -129,9 +131,11 @@ pub fn number_decomposed_grid<const D: usize>(world: &mut World) {
     }
 }
 
-/// The nodes this process's points touch and the nodes a module made active on it (the
-/// follower pressure's on process 0, which adds its load stiffness: `effects::pressure`), their
-/// layers along the slab axis and their free components (from the DOF stage's numbers).
+/// The nodes this process's points touch, the nodes a module made active on it (the follower
+/// pressure's on process 0, which adds its load stiffness: `effects::pressure`) and its
+/// modules' coupling groups hold (F-bar's lie in one cell's supports; a ghost-penalty face's
+/// reach one node layer past them on a slab boundary: `effects::ghost_penalty`), their layers
+/// along the slab axis and their free components (from the DOF stage's numbers).
 fn local_nodes<const D: usize>(world: &mut World) -> LocalNodes {
     let mut query = world.query::<&Support<D>>();
     let mut nodes: BTreeSet<usize> = query
@@ -142,6 +146,7 @@ fn local_nodes<const D: usize>(world: &mut World) -> LocalNodes {
     let grid = &world.resource::<Grid<D>>().0;
     let fields = world.resource::<GridFields<D>>();
     nodes.extend((fields.active.iter().enumerate()).filter_map(|(n, &active)| active.then_some(n)));
+    nodes.extend(fields.couplings.iter().flatten().copied());
     let nodes: Vec<usize> = nodes.into_iter().collect();
     LocalNodes {
         layers: nodes

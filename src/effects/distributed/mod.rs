@@ -55,14 +55,15 @@
 //!   processes: F-bar's rank-one terms by the process that assembles the group's members (a
 //!   group is the F-bar points of one cell, so one slab), a surface condition's boundary point
 //!   by the process that assembles its host (with decomposed points, that holds it), the ghost
-//!   penalty's faces and the follower pressure's load stiffness by process 0
-//!   (`distributed::adds_grid_terms`). The follower pressure's force is part of `f_ext`, which
-//!   the replicated path does not sum (every process forms all of it, and the right-hand side
-//!   is the same on every process): every process adds it, and replaces it by the force at the
-//!   iterate, in full (`effects::pressure`, "Over several processes"); with `--decompose`
-//!   process 0 adds its force before `f_ext` is summed and its load stiffness (it numbers
-//!   every node of the parts), and every process follows the force at the iterate at its own
-//!   nodes. Their records (reactions) are computed from the whole
+//!   penalty's faces (replicated: by process 0; decomposed: by the process holding a face's
+//!   lower cell, `effects::ghost_penalty`) and the follower pressure's load stiffness by
+//!   process 0 (`distributed::adds_grid_terms`). The follower pressure's force is part of
+//!   `f_ext`, which the replicated path does not sum (every process forms all of it, and the
+//!   right-hand side is the same on every process): every process adds it, and replaces it by
+//!   the force at the iterate, in full (`effects::pressure`, "Over several processes"); with
+//!   `--decompose` process 0 adds its force before `f_ext` is summed and its load stiffness (it
+//!   numbers every node of the parts), and every process follows the force at the iterate at
+//!   its own nodes. Their records (reactions) are computed from the whole
 //!   state, which every process holds; with decomposed points a surface condition's boundary
 //!   points are shared after every step and its records taken from all of them
 //!   (`effects::surface_conditions`, "Decomposed points").
@@ -235,16 +236,26 @@ impl Plugin for DistributedModule {
         if decompose && crate::effects::stages::StagesModule.used_by(simulation.spec()) {
             decomposition::carry_displacement_origins(simulation);
         }
+        let ghost_penalty =
+            crate::effects::ghost_penalty::GhostPenaltyModule.used_by(simulation.spec());
         let world = simulation.world();
         // the shares of the initial state, for its output (step 0 runs no connectivity)
         if decompose {
             decomposition::count_own_points::<D>(world);
             let mut schedules = world.resource_mut::<Schedules>();
             let step = schedules.entry(Hook::Basis.schedule());
+            let exchange = decomposition::exchange_points::<D>
+                .in_set(StepSystems::Connectivity)
+                .before(Hook::Basis);
+            if ghost_penalty {
+                // the cells' fill fractions from the points this process holds in the step
+                step.add_systems(
+                    exchange.before(crate::effects::ghost_penalty::measure_cell_fill::<D>),
+                );
+            } else {
+                step.add_systems(exchange);
+            }
             step.add_systems((
-                decomposition::exchange_points::<D>
-                    .in_set(StepSystems::Connectivity)
-                    .before(Hook::Basis),
                 // not in a stage's set: it runs after a failure too, and shares it; the
                 // owned nodes, ghosts and global numbers, for the solver and the norms
                 grid::number_decomposed_grid::<D>
@@ -327,7 +338,8 @@ impl Plugin for DistributedModule {
 }
 
 /// The modules of `Hook::AfterAssembly` that add each of their terms once over the processes,
-/// one system each: the ghost penalty (process 0 adds the faces: `distributed::adds_grid_terms`),
+/// one system each: the ghost penalty (process 0 adds the faces, `distributed::adds_grid_terms`;
+/// with decomposed points the process holding a face's lower cell),
 /// F-bar (a group's rank-one terms by the process assembling its members),
 /// material-surface conditions (a boundary point's terms by the process assembling its host)
 /// and the follower pressure (its change of the replicated `f_ext` on every process, its load

@@ -1099,16 +1099,14 @@ impl PetscSolver {
 }
 
 impl PetscSolver {
-    /// Whether the right-hand side is zero: on every process of a distributed solver
-    /// (collective, every process solves together: each decides alike whether to solve; a
-    /// process of a decomposed grid holds its local rows only).
-    fn zero_right_hand_side(&self, rhs: &[f64]) -> bool {
-        let zero = rhs.iter().all(|&v| v == 0.0);
+    /// Whether `local` holds on any process of a distributed solver (collective: every process
+    /// of a distributed solver calls it alike, as they solve together), or here serially.
+    fn on_any_process(&self, local: bool) -> bool {
         #[cfg(feature = "mpi")]
         if self.distributed {
-            return !crate::distributed::any(!zero);
+            return crate::distributed::any(local);
         }
-        zero
+        local
     }
 }
 
@@ -1122,12 +1120,16 @@ impl LinearSolver for PetscSolver {
         symmetric: bool,
         rhs: &mut [f64],
     ) -> Result<SolverKind, LinearSolveError> {
-        if let Some(bad) = rhs.iter().position(|v| !v.is_finite()) {
-            return Err(LinearSolveError::Backend(format!(
-                "the right-hand side is not finite at DOF {bad}"
-            )));
+        // Both tests are collective (a process of a decomposed grid holds its local rows only):
+        // every process returns alike, or every process solves.
+        let bad = rhs.iter().position(|v| !v.is_finite());
+        if self.on_any_process(bad.is_some()) {
+            return Err(LinearSolveError::Backend(match bad {
+                Some(bad) => format!("the right-hand side is not finite at DOF {bad}"),
+                None => "the right-hand side is not finite on another process".to_string(),
+            }));
         }
-        if self.zero_right_hand_side(rhs) {
+        if !self.on_any_process(rhs.iter().any(|&v| v != 0.0)) {
             // K δ = 0: δ = 0, without a solve (the true-residual check would divide by
             // ‖r‖ = 0; the arc's first residual at λ = 0 is zero)
             self.requested = None;
