@@ -21,8 +21,8 @@
 //! processes. Its stencil is `q + 2` node layers along its normal (the nodes of both cells),
 //! one more than that process's points touch when the face lies on a slab boundary (normal to
 //! the slab axis, its upper cell on the next process): the face's nodes are made active, so
-//! that process's local nodes (`effects::distributed::grid`: its points' supports and its
-//! coupling groups) take in that layer, and its rows of `G` are assembled with the decomposed
+//! that process's local nodes (`effects::distributed::grid`: its points' supports and the
+//! nodes made active on it) take in that layer, and its rows of `G` are assembled with the decomposed
 //! grid's numbering like any other local rows (the ghost rows go to their owners; `G Δu` is
 //! summed at the shared nodes with `f_int`). In a serial run the nodes of two occupied cells
 //! are active already (the points' supports cover their cells' nodes): nothing changes.

@@ -131,11 +131,12 @@ pub fn number_decomposed_grid<const D: usize>(world: &mut World) {
     }
 }
 
-/// The nodes this process's points touch, the nodes a module made active on it (the follower
-/// pressure's on process 0, which adds its load stiffness: `effects::pressure`) and its
-/// modules' coupling groups hold (F-bar's lie in one cell's supports; a ghost-penalty face's
-/// reach one node layer past them on a slab boundary: `effects::ghost_penalty`), their layers
-/// along the slab axis and their free components (from the DOF stage's numbers).
+/// The nodes this process's points touch and the nodes a module made active on it (the follower
+/// pressure's parts on process 0, which adds their load stiffness: `effects::pressure`; the
+/// nodes of the ghost-penalty faces this process adds, which reach one node layer past its
+/// points on a slab boundary: `effects::ghost_penalty`), their layers along the slab axis and
+/// their free components (from the DOF stage's numbers). Not the coupling groups as such: the
+/// pressure's are in every process's pattern, but only process 0 numbers their nodes.
 fn local_nodes<const D: usize>(world: &mut World) -> LocalNodes {
     let mut query = world.query::<&Support<D>>();
     let mut nodes: BTreeSet<usize> = query
@@ -146,7 +147,6 @@ fn local_nodes<const D: usize>(world: &mut World) -> LocalNodes {
     let grid = &world.resource::<Grid<D>>().0;
     let fields = world.resource::<GridFields<D>>();
     nodes.extend((fields.active.iter().enumerate()).filter_map(|(n, &active)| active.then_some(n)));
-    nodes.extend(fields.couplings.iter().flatten().copied());
     let nodes: Vec<usize> = nodes.into_iter().collect();
     LocalNodes {
         layers: nodes
