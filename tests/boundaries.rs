@@ -1352,6 +1352,49 @@ fn a_study_over_a_recorded_quantity_draws_its_error_chart() {
 /// coordinate range) and its total force at load factor 1: a body force (ρ b times the body's
 /// volume), point loads on every selected point and in total, a traction (h times the
 /// segment's length) and a point load at a position.
+/// What `impm check` prints of the scene `text` (written to a folder named by `tag`), which
+/// must pass.
+fn checked(tag: &str, text: &str) -> String {
+    let dir = common::temp_dir("boundaries", tag);
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("scene.rhai");
+    std::fs::write(&path, text).unwrap();
+    let output = common::impm(&["check", path.to_str().unwrap()]);
+    let stdout = String::from_utf8_lossy(&output.stdout).to_string();
+    assert!(
+        output.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    stdout
+}
+
+/// `impm check` lists the calls of one line (a loop) once, summed: their points counted
+/// together, the range of their positions and their total force (four `point_load_at` of
+/// 0.25 each along the top, from line 4, and one more from line 5 listed apart).
+#[test]
+fn check_sums_the_calls_of_one_line() {
+    let text = r#"grid(#{ lower: [0.0, 0.0], upper: [2.0, 1.5], cells: [4, 3], basis: "bspline", order: 2 });
+const m = material(#{ name: "m", E: 1000.0, nu: 0.3, density: 2.0 });
+body(#{ name: "block", material: m, region: box([0.0, 0.0], [2.0, 1.0]), ppc: 2 });
+for i in 0..4 { point_load_at(#{ at: [0.25 + 0.5 * i, 1.0], force: [0.0, -0.25] }); }
+point_load_at(#{ at: [1.0, 0.5], force: [1.0, 0.0] });
+fix(|x| x[1] == 0.0);
+load_steps(1);
+"#;
+    let stdout = checked("check_calls", text);
+    for expected in [
+        "line 4: point_load_at (4 calls): 4 load points, x in [0.25, 1.0] .. [1.75, 1.0], total force [0.0, -1.0]",
+        "line 5: point_load_at: 1 load point, x in [1.0, 0.5] .. [1.0, 0.5], total force [1.0, 0.0]",
+    ] {
+        assert!(
+            stdout.contains(expected),
+            "missing '{expected}' in\n{stdout}"
+        );
+    }
+    assert_eq!(stdout.matches("line 4:").count(), 1, "{stdout}");
+}
+
 #[test]
 fn check_lists_every_load_with_its_total_force() {
     let text = r#"grid(#{ lower: [0.0, 0.0], upper: [2.0, 1.5], cells: [4, 3], basis: "bspline", order: 2 });
@@ -1365,17 +1408,7 @@ point_load_at(#{ at: [1.0, 1.0], force: [0.0, -3.0] });
 fix(|x| x[1] == 0.0);
 load_steps(1);
 "#;
-    let dir = common::temp_dir("boundaries", "check_loads");
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join("loads.rhai");
-    std::fs::write(&path, text).unwrap();
-    let output = common::impm(&["check", path.to_str().unwrap()]);
-    let stdout = String::from_utf8_lossy(&output.stdout);
-    assert!(
-        output.status.success(),
-        "{stdout}{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
+    let stdout = checked("check_loads", text);
     for expected in [
         "line 4: body_force: 32 material points (all), x in [0.125, 0.125] .. [1.875, 0.875], total force [0.0, -40.0]",
         "line 5: point_load: 8 material points, x in [0.125, 0.875] .. [1.875, 0.875], total force [8.0, 0.0]",

@@ -157,6 +157,10 @@ pub struct LoadSummary {
     pub call: &'static str,
     /// What it selects, counted: "12 material points", "40 traction points".
     pub selects: String,
+    /// How many points it selects (the number in `selects`).
+    pub count: usize,
+    /// How many calls of the same line it sums (a loop in the scene: [`grouped`]).
+    pub calls: usize,
     /// Coordinate range of the selection (reference positions), per axis.
     pub lower: Vec<f64>,
     pub upper: Vec<f64>,
@@ -192,6 +196,8 @@ impl LoadSummary {
             line,
             call,
             selects: format!("{} {what}", positions.len()),
+            count: positions.len(),
+            calls: 1,
             lower,
             upper,
             total_force: total_force.into_iter().map(round).collect(),
@@ -215,11 +221,55 @@ impl LoadSummary {
     /// load factor 1`.
     pub fn describe(&self) -> String {
         let line = self.line.map(|l| format!("line {l}: ")).unwrap_or_default();
+        let calls = match self.calls {
+            1 => String::new(),
+            n => format!(" ({n} calls)"),
+        };
         format!(
-            "{line}{}: {}, x in {:?} .. {:?}, total force {:?} {}",
+            "{line}{}{calls}: {}, x in {:?} .. {:?}, total force {:?} {}",
             self.call, self.selects, self.lower, self.upper, self.total_force, self.factor
         )
     }
+}
+
+/// The summaries with the calls of one line (a loop in the scene: `point_load_at` at each of
+/// a face's quadrature points, say) summed into one, in the order of their first call: their
+/// points counted together, the range of all their positions and their total force. `impm
+/// check` lists a line once, not once per call.
+pub fn grouped(summaries: &[LoadSummary]) -> Vec<LoadSummary> {
+    let mut grouped: Vec<LoadSummary> = Vec::new();
+    for summary in summaries {
+        let same = |g: &&mut LoadSummary| {
+            g.line.is_some()
+                && g.line == summary.line
+                && g.call == summary.call
+                && g.factor == summary.factor
+                && g.total_force.len() == summary.total_force.len()
+        };
+        let Some(group) = grouped.iter_mut().find(same) else {
+            grouped.push(summary.clone());
+            continue;
+        };
+        let what = group
+            .selects
+            .trim_start_matches(|c: char| c.is_ascii_digit())
+            .trim();
+        let what = match what.ends_with("point") {
+            true => format!("{what}s"),
+            false => what.to_string(),
+        };
+        group.count += summary.count;
+        group.calls += summary.calls;
+        group.selects = format!("{} {what}", group.count);
+        for (a, (l, u)) in summary.lower.iter().zip(&summary.upper).enumerate() {
+            group.lower[a] = group.lower[a].min(*l);
+            group.upper[a] = group.upper[a].max(*u);
+        }
+        for (total, f) in group.total_force.iter_mut().zip(&summary.total_force) {
+            *total = round(*total + f);
+        }
+    }
+    grouped
 }
 
 /// Rounds to 9 decimals for listings.

@@ -35,8 +35,8 @@ use rhai::{Dynamic, FnPtr};
 
 use super::arc_length::add_load_system;
 use super::declarations::{
-    LoadSummary, factor_one, held_option, keep_largest_force, released_factor, selection_ranges,
-    until_stage_of, until_stage_option,
+    LoadSummary, factor_one, grouped, held_option, keep_largest_force, released_factor,
+    selection_ranges, until_stage_of, until_stage_option,
 };
 use crate::components::{PointId, Support};
 use crate::mechanics::spread_force;
@@ -204,10 +204,8 @@ impl Plugin for PointLoadsModule {
                 .collect::<Vec<_>>()
                 .join(", ")
         );
-        for declaration in spec
-            .part::<PointLoadDeclarations>()
-            .map_or(&[][..], |d| &d.0)
-        {
+        let declarations = spec.part::<PointLoadDeclarations>();
+        for declaration in grouped(declarations.map_or(&[][..], |d| &d.0)) {
             text += "\n    ";
             text += &declaration.describe();
         }

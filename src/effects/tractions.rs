@@ -85,7 +85,7 @@ use rhai::Dynamic;
 use super::arc_length::add_load_system;
 use super::carried_points::{carried_point, restore_positions, save_positions};
 use super::declarations::{
-    LoadSummary, held_option, keep_largest_force, released_factor, until_stage_of,
+    LoadSummary, grouped, held_option, keep_largest_force, released_factor, until_stage_of,
     until_stage_option,
 };
 use super::probes::material_point_near;
@@ -315,10 +315,8 @@ impl Plugin for TractionsModule {
             parts.push(format!("{} point loads at positions", loads.0.len()));
         }
         let mut text = parts.join("; ");
-        for declaration in spec
-            .part::<LoadPointDeclarations>()
-            .map_or(&[][..], |d| &d.0)
-        {
+        let declarations = spec.part::<LoadPointDeclarations>();
+        for declaration in grouped(declarations.map_or(&[][..], |d| &d.0)) {
             text += "\n    ";
             text += &declaration.describe();
         }
