@@ -2185,6 +2185,13 @@ fn the_strip_footing_with_decomposed_points_equals_the_serial_run() {
 /// serial run's), the consistency term from the host's stress on the host's process.
 #[test]
 fn a_tresca_footing_by_nitsche_with_decomposed_points_equals_the_serial_run() {
+    tresca_footing_with_decomposed_points("tresca-nitsche-dec", "method=nitsche");
+}
+
+/// The Tresca footing (`strip_footing.rhai`, `cells=2`, 3 steps, settlement 0.03 B) with
+/// `option` over 2 and 3 processes with decomposed points against the serial run, its
+/// footing pressure and reaction in every step to 1e-8 (the two tests beside it).
+fn tresca_footing_with_decomposed_points(tag: &str, option: &str) {
     let runs = Runs {
         measures: &["footing_pressure", "footing_reaction_x"],
         history: &["footing_pressure"],
@@ -2193,12 +2200,12 @@ fn a_tresca_footing_by_nitsche_with_decomposed_points_equals_the_serial_run() {
     let scene = shipped_scene("strip_footing.rhai");
     let set = [
         "material=tresca",
-        "method=nitsche",
+        option,
         "cells=2",
         "steps=3",
         "settlement=0.03",
     ];
-    compare_with(&scene, &set, "tresca-nitsche-dec", &runs);
+    compare_with(&scene, &set, tag, &runs);
 }
 
 /// Geostatic initial stresses with decomposed points (`initial_stress`): each process gives
@@ -2210,20 +2217,7 @@ fn a_tresca_footing_by_nitsche_with_decomposed_points_equals_the_serial_run() {
 /// strain as the serial run, and the footing pressure in every step, to 1e-8.
 #[test]
 fn a_footing_on_soil_with_initial_stresses_with_decomposed_points_equals_the_serial_run() {
-    let runs = Runs {
-        measures: &["footing_pressure", "footing_reaction_x"],
-        history: &["footing_pressure"],
-        ..Runs::decomposed(&[2, 3])
-    };
-    let scene = shipped_scene("strip_footing.rhai");
-    let set = [
-        "material=tresca",
-        "weight=true",
-        "cells=2",
-        "steps=3",
-        "settlement=0.03",
-    ];
-    compare_with(&scene, &set, "geostatic-footing-dec", &runs);
+    tresca_footing_with_decomposed_points("geostatic-footing-dec", "weight=true");
 }
 
 /// The K0 column of tests/geostatic.rs (von Mises, here σ_y = 300 so that it yields; K0 = 0.6,
