@@ -7,6 +7,7 @@ use nalgebra::{Matrix3, Rotation3, SMatrix, SVector, SymmetricEigen, Unit, Vecto
 
 use impm::material::cohesion::CohesionHardening;
 use impm::material::drucker_prager::Matching;
+use impm::material::hardening::IsotropicHardening;
 use impm::material::{
     DruckerPrager, Hencky, Material, MohrCoulomb, PlasticHistory, Response, VonMises,
 };
@@ -2114,4 +2115,278 @@ fn a_softening_block_converges_quadratically_onto_its_residual_surface() {
     }
     assert_eq!(points, 16);
     assert_quadratic_convergence(&sim.summary, 10);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Non-linear hardening and softening of von Mises (material/hardening.rs)
+
+/// The von Mises laws of the checks (σ_y0 = 2): Voce to σ_∞ = 3 at rate 40 with H = 10, and
+/// exponential softening to 0.3 σ_y0 with ξ95 = 0.2 (ξ = √3 ε̄_p).
+fn nonlinear_laws() -> [IsotropicHardening; 2] {
+    [
+        IsotropicHardening::voce(3.0, 40.0, 10.0).unwrap(),
+        IsotropicHardening::exponential_softening(0.3, 0.2).unwrap(),
+    ]
+}
+
+/// The laws written out here, independently of `hardening.rs` (its module docs).
+fn yield_stress_of(law: &IsotropicHardening, eps_p: f64) -> f64 {
+    match *law {
+        IsotropicHardening::Linear { modulus } => 2.0 + modulus * eps_p,
+        IsotropicHardening::Voce {
+            saturation,
+            rate,
+            modulus,
+        } => 2.0 + (saturation - 2.0) * (1.0 - (-rate * eps_p).exp()) + modulus * eps_p,
+        IsotropicHardening::ExponentialSoftening {
+            residual_ratio,
+            xi95,
+        } => {
+            let xi = 3.0f64.sqrt() * eps_p;
+            2.0 * (residual_ratio + (1.0 - residual_ratio) * (-3.0 * xi / xi95).exp())
+        }
+    }
+}
+
+/// The plastic strain of a proportional isochoric path with the total equivalent strain
+/// `equivalent` (`√(2/3) ‖dev ε‖`): the root of `3G (equivalent − ε̄_p) = σ_y(ε̄_p)` (the
+/// equivalent stress `q = 3G` times the elastic part), by bisection; 0 while elastic.
+fn plastic_strain_of_path(law: &IsotropicHardening, shear: f64, equivalent: f64) -> f64 {
+    let residual = |eps_p: f64| 3.0 * shear * (equivalent - eps_p) - yield_stress_of(law, eps_p);
+    if residual(0.0) <= 0.0 {
+        return 0.0;
+    }
+    let (mut low, mut high) = (0.0, equivalent);
+    for _ in 0..200 {
+        let mid = 0.5 * (low + high);
+        if residual(mid) > 0.0 {
+            low = mid
+        } else {
+            high = mid
+        }
+    }
+    0.5 * (low + high)
+}
+
+fn von_mises_with(law: IsotropicHardening) -> VonMises {
+    VonMises::with_law(elastic(), 2.0, law).unwrap()
+}
+
+/// The tangent of each non-linear law against finite differences (`check_tangent`) from the
+/// virgin state and from committed plastic strains into saturation and deep softening, at an
+/// elastic and two plastic trials; every plastic return on the surface of the law at the plastic
+/// strain it commits (`|q − σ_y(ε̄_p)| < 1e-9 σ_y0`).
+fn nonlinear_von_mises_tangents<const D: usize>() {
+    for law in nonlinear_laws() {
+        let model = von_mises_with(law);
+        for start in [0.0, 0.02, 0.1] {
+            let committed = PlasticHistory {
+                plastic_strain: start,
+                ..PlasticHistory::default()
+            };
+            let f = SMatrix::<f64, D, D>::identity();
+            check_tangent(
+                &model,
+                &committed,
+                &f,
+                [0.0002, -0.0001, 0.00005],
+                Region::Elastic,
+            );
+            for trial in [[0.02, -0.011, 0.003], [0.08, -0.05, 0.01]] {
+                check_tangent(&model, &committed, &f, trial, Region::Plane);
+                let df = stretch::<D>(trial);
+                let response = model.respond(&df, &df, &committed).unwrap();
+                let tau = response.kirchhoff;
+                let s = tau - Matrix3::identity() * (tau.trace() / 3.0);
+                let q = (1.5 * s.norm_squared()).sqrt();
+                let eps_p = response.history.plastic_strain;
+                assert!(eps_p > start);
+                let off = (q - yield_stress_of(&law, eps_p)).abs();
+                assert!(
+                    off < 1e-9 * 2.0,
+                    "{law:?} from {start}: q {q} off by {off:e}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn von_mises_nonlinear_hardening_tangents_match_finite_differences_2d() {
+    nonlinear_von_mises_tangents::<2>();
+}
+
+#[test]
+fn von_mises_nonlinear_hardening_tangents_match_finite_differences_3d() {
+    nonlinear_von_mises_tangents::<3>();
+}
+
+/// Isochoric plane-strain pure shear in logarithmic strain (`Δf = diag(e^a, e^{−a}, 1)`, fixed
+/// axes, 60 steps to ε = 0.3) for the linear, Voce and softening laws: the path is proportional,
+/// so the state is the closed form of its total strain at every step for any step size: the
+/// stress is deviatoric, `q = σ_y(ε̄_p)` with `ε̄_p` the root of `3G (2ε/√3 − ε̄_p) = σ_y(ε̄_p)`
+/// (the total equivalent strain minus the elastic part), to 1e-9 of σ_y0, into saturation and
+/// to the residual.
+#[test]
+fn von_mises_in_pure_shear_follows_each_hardening_law() {
+    let laws = [
+        IsotropicHardening::linear(300.0).unwrap(),
+        nonlinear_laws()[0],
+        nonlinear_laws()[1],
+    ];
+    for law in laws {
+        let model = von_mises_with(law);
+        let (_, shear) = impm::material::elastoplastic::bulk_and_shear(&model.elastic);
+        let mut point = Driven::new(model);
+        let (steps, total) = (60, 0.3);
+        let a = total / steps as f64;
+        let df = Matrix3::from_diagonal(&Vector3::new(a.exp(), (-a).exp(), 1.0));
+        let mut worst = 0.0f64;
+        for n in 1..=steps {
+            point.step(&df);
+            let equivalent = 2.0 * a * n as f64 / 3.0f64.sqrt();
+            let eps_p = plastic_strain_of_path(&law, shear, equivalent);
+            let q_expected = 3.0 * shear * (equivalent - eps_p);
+            let tau = point.kirchhoff;
+            let s = tau - Matrix3::identity() * (tau.trace() / 3.0);
+            let q = (1.5 * s.norm_squared()).sqrt();
+            assert!(
+                tau.trace().abs() < 1e-9,
+                "step {n}: p = {}",
+                tau.trace() / 3.0
+            );
+            let error = (q - q_expected)
+                .abs()
+                .max(3.0 * shear * (point.history.plastic_strain - eps_p).abs());
+            assert!(
+                error < 1e-9 * 2.0,
+                "{law:?} step {n}: q {q} against {q_expected}, ε̄_p {} against {eps_p}",
+                point.history.plastic_strain
+            );
+            worst = worst.max(error);
+        }
+        let eps_p = point.history.plastic_strain;
+        let end = yield_stress_of(&law, eps_p);
+        eprintln!(
+            "pure shear {}: ε̄_p = {eps_p:.4}, σ_y = {end:.6}, worst error {:.1e} of σ_y0",
+            law.word(),
+            worst / 2.0
+        );
+        match law {
+            IsotropicHardening::Voce { .. } => assert!(end - 10.0 * eps_p > 3.0 - 1e-4),
+            IsotropicHardening::ExponentialSoftening { .. } => assert!(end < 0.601),
+            IsotropicHardening::Linear { .. } => assert!(eps_p > 0.2),
+        }
+    }
+}
+
+/// The FEM block (`a_plastic_block_on_fem_follows_the_closed_form_with_quadratic_newton_convergence`)
+/// with each non-linear law: every point's stress the closed form of uniaxial logarithmic strain
+/// (`ε̄_p` the root of `3G (⅔|ε| − ε̄_p) = σ_y(ε̄_p)`), and Newton quadratic on the plastic steps.
+/// The softening law here has `xi95 = 0.05` (most of the softening within the run).
+#[test]
+fn a_nonlinear_von_mises_block_converges_quadratically_onto_the_closed_form() {
+    let laws = [
+        (
+            nonlinear_laws()[0],
+            r#"hardening: "voce", sigma_inf: 3.0, delta: 40.0, H: 10.0"#,
+        ),
+        (
+            IsotropicHardening::exponential_softening(0.3, 0.05).unwrap(),
+            r#"hardening: "exponential_softening", residual_ratio: 0.3, xi95: 0.05"#,
+        ),
+    ];
+    for (law, options) in laws {
+        let text = FEM_BLOCK.replace("H: 300.0", options);
+        let mut sim = run::<2>("nonlinear_block", &text, &[]);
+        let (bulk, shear) = impm::material::elastoplastic::bulk_and_shear(&elastic());
+        let strain = (1.0f64 - 0.05).ln();
+        let eps_p = plastic_strain_of_path(&law, shear, 2.0 / 3.0 * strain.abs());
+        let q = yield_stress_of(&law, eps_p);
+        let (axial, lateral) = (bulk * strain - 2.0 / 3.0 * q, bulk * strain + q / 3.0);
+        let points = point_stresses(&mut sim);
+        assert_eq!(points.len(), 16);
+        for (tau, _) in &points {
+            assert!(
+                (tau[(0, 0)] - axial).abs() < 1e-8 * bulk,
+                "{} vs {axial}",
+                tau[(0, 0)]
+            );
+            assert!((tau[(1, 1)] - lateral).abs() < 1e-8 * bulk);
+            assert!((tau[(2, 2)] - lateral).abs() < 1e-8 * bulk);
+        }
+        eprintln!("{}: ε̄_p = {eps_p:.4}, σ_y = {q:.4}", law.word());
+        assert_quadratic_convergence(&sim.summary, 10);
+    }
+}
+
+/// Bad von Mises hardening parameters are refused with the scene line; a softening von Mises
+/// material is warned, a Voce one is not.
+#[test]
+fn bad_von_mises_hardening_is_refused_and_softening_is_warned() {
+    let cases = [
+        (
+            r#"hardening: "exponential_softening", residual_ratio: 0.3, xi95: -1.0"#,
+            "xi95",
+        ),
+        (
+            r#"hardening: "exponential_softening", residual_ratio: 1.5, xi95: 0.2"#,
+            "residual_ratio",
+        ),
+        (
+            r#"hardening: "exponential_softening", residual_ratio: 0.0, xi95: 0.2"#,
+            "residual_ratio",
+        ),
+        (
+            r#"hardening: "exponential_softening", xi95: 0.2"#,
+            "residual_ratio",
+        ),
+        (
+            r#"hardening: "exponential_softening", residual_ratio: 0.3, xi95: 0.2, H: 1.0"#,
+            "H",
+        ),
+        (
+            r#"hardening: "exponential_softening", residual_ratio: 0.3, xi95: 1e-4"#,
+            "steeper",
+        ),
+        (
+            r#"hardening: "voce", sigma_inf: 1.0, delta: 10.0"#,
+            "sigma_inf",
+        ),
+        (r#"hardening: "voce", sigma_inf: 3.0"#, "delta"),
+        (
+            r#"hardening: "voce", sigma_inf: 3.0, delta: 10.0, H: -1.0"#,
+            "H",
+        ),
+        (r#"sigma_inf: 3.0, delta: 10.0"#, "sigma_inf"),
+        (r#"hardening: "cubic""#, "hardening"),
+    ];
+    let block = |options: &str| {
+        format!(
+            "grid(#{{ lower: [0.0, 0.0], upper: [1.0, 1.0], cells: [1, 1], basis: \"linear\" }});\n\
+             const m = material(#{{ name: \"clay\", E: 1000.0, nu: 0.3, density: 1.0, model: \"von_mises\", sigma_y: 2.0, {options} }});\n\
+             body(#{{ name: \"b\", material: m, region: box([0.0, 0.0], [1.0, 1.0]), ppc: 1 }});\n\
+             load_steps(1);\n"
+        )
+    };
+    for (options, word) in cases {
+        let error = scene("bad_von_mises_hardening", &block(options), &[]).unwrap_err();
+        assert!(error.contains(":2"), "{options}: no line 2 in '{error}'");
+        assert!(error.contains(word), "{options}: '{word}' not in '{error}'");
+    }
+    let warnings = |options: &str| -> Vec<String> {
+        let spec = scene("von_mises_softening", &block(options), &[]).unwrap();
+        impm::scene::scene_warnings(&spec)
+            .into_iter()
+            .filter(|w| w.contains("mesh-dependent"))
+            .collect()
+    };
+    let warned = warnings(r#"hardening: "exponential_softening", residual_ratio: 0.3, xi95: 0.2"#);
+    assert_eq!(warned.len(), 1, "{warned:?}");
+    assert!(warned[0].contains("'clay'"), "{}", warned[0]);
+    assert!(warnings(r#"hardening: "voce", sigma_inf: 3.0, delta: 10.0"#).is_empty());
+    assert!(
+        warnings(r#"hardening: "exponential_softening", residual_ratio: 1.0, xi95: 0.2"#)
+            .is_empty()
+    );
 }

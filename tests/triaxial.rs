@@ -38,9 +38,55 @@ struct TriaxialState {
 /// `τ_r = −p λ_r = −p exp(ε_r)`. Given `ε_a` and the multiplier of the step before (monotonic
 /// loading), the multiplier follows from the linear yield condition and `ε_r` from the lateral
 /// balance, which is monotonic in `ε_r` (bisection).
+///
+/// With `strength: Strength::VonMises(..)` the soil is von Mises (`--set model=von_mises`):
+/// isochoric flow `m = (−1, ½)` per unit multiplier, `ε̄_p = γ` (`√(2/3) ‖(−1, ½, ½)‖ = 1`), the
+/// yield condition `τ_r − τ_a = σ_y(ε̄_p)` with the law written out here; its residual falls
+/// strictly in γ while `3G + H(ε̄_p) > 0`, so the same bisections apply.
 struct ClosedForm {
-    hardening: f64,
-    residual: f64,
+    strength: Strength,
+}
+
+/// The soil's strength law (the scene's defaults where not given).
+#[derive(Clone, Copy, Debug)]
+enum Strength {
+    /// Mohr–Coulomb or the outer cone: `c = max(c0 + H ε̄_p, c_res)` (no bound for `H ≥ 0`).
+    Cohesion { hardening: f64, residual: f64 },
+    /// von Mises, `σ_y0 = √3 s_u`.
+    VonMises(YieldLaw),
+}
+
+/// von Mises's yield stress laws (`material::hardening`'s, written out independently).
+#[derive(Clone, Copy, Debug)]
+enum YieldLaw {
+    /// `σ_y0 + (σ_∞ − σ_y0)(1 − e^{−δ ε̄_p}) + H ε̄_p`.
+    Voce {
+        saturation: f64,
+        rate: f64,
+        modulus: f64,
+    },
+    /// `σ_y0 (r + (1 − r) e^{−3 √3 ε̄_p/ξ95})`.
+    ExponentialSoftening { ratio: f64, xi95: f64 },
+}
+
+/// The scene's undrained strength (`s_u`) of the von Mises soil.
+const S_U: f64 = 5.0;
+
+impl YieldLaw {
+    fn yield_stress(&self, eps_p: f64) -> f64 {
+        let initial = 3.0f64.sqrt() * S_U;
+        match *self {
+            YieldLaw::Voce {
+                saturation,
+                rate,
+                modulus,
+            } => initial + (saturation - initial) * (1.0 - (-rate * eps_p).exp()) + modulus * eps_p,
+            YieldLaw::ExponentialSoftening { ratio, xi95 } => {
+                let xi = 3.0f64.sqrt() * eps_p;
+                initial * (ratio + (1.0 - ratio) * (-3.0 * xi / xi95).exp())
+            }
+        }
+    }
 }
 
 impl ClosedForm {
@@ -56,30 +102,40 @@ impl ClosedForm {
         (m * e_a + 2.0 * l * e_r, l * e_a + (m + l) * e_r)
     }
 
-    fn cohesion(&self, eps_p: f64) -> f64 {
-        let c = C0 + self.hardening * eps_p;
-        if self.hardening < 0.0 {
-            c.max(self.residual)
-        } else {
-            c
-        }
+    fn cohesion(hardening: f64, residual: f64, eps_p: f64) -> f64 {
+        let c = C0 + hardening * eps_p;
+        if hardening < 0.0 { c.max(residual) } else { c }
     }
 
-    fn flow() -> (f64, f64, f64) {
+    /// The flow `(m_a, m_r)` per unit multiplier and `k = ε̄_p/γ`.
+    fn flow(&self) -> (f64, f64, f64) {
+        if let Strength::VonMises(_) = self.strength {
+            return (-1.0, 0.5, 1.0);
+        }
         let s = PSI.to_radians().sin();
         let k = (((1.0 + s).powi(2) + 2.0 * (1.0 - s).powi(2)) / 3.0).sqrt();
         (-(1.0 - s), 0.5 * (1.0 + s), k)
     }
 
     fn yield_function(&self, tau: (f64, f64), eps_p: f64) -> f64 {
-        let (sin, cos) = PHI.to_radians().sin_cos();
-        tau.1 * (1.0 + sin) - tau.0 * (1.0 - sin) - 2.0 * cos * self.cohesion(eps_p)
+        match self.strength {
+            Strength::Cohesion {
+                hardening,
+                residual,
+            } => {
+                let (sin, cos) = PHI.to_radians().sin_cos();
+                tau.1 * (1.0 + sin)
+                    - tau.0 * (1.0 - sin)
+                    - 2.0 * cos * Self::cohesion(hardening, residual, eps_p)
+            }
+            Strength::VonMises(law) => tau.1 - tau.0 - law.yield_stress(eps_p),
+        }
     }
 
     /// The multiplier γ ≥ `gamma_before` on the yield surface at the total strains (elastic:
     /// `gamma_before`).
     fn multiplier(&self, e_a: f64, e_r: f64, gamma_before: f64) -> f64 {
-        let (m_a, m_r, k) = Self::flow();
+        let (m_a, m_r, k) = self.flow();
         let at = |gamma: f64| {
             let tau = Self::stress(e_a - gamma * m_a, e_r - gamma * m_r);
             self.yield_function(tau, k * gamma)
@@ -87,7 +143,7 @@ impl ClosedForm {
         if at(gamma_before) <= 0.0 {
             return gamma_before;
         }
-        // piecewise linear and decreasing in γ (the unique-return limit): bisection
+        // decreasing in γ (the unique-return limit): bisection
         let (mut low, mut high) = (gamma_before, gamma_before + 1.0);
         assert!(at(high) < 0.0);
         for _ in 0..200 {
@@ -98,7 +154,7 @@ impl ClosedForm {
     }
 
     fn state(&self, axial_strain: f64, gamma_before: f64) -> TriaxialState {
-        let (m_a, m_r, _) = Self::flow();
+        let (m_a, m_r, _) = self.flow();
         let solve = |e_r: f64| {
             let gamma = self.multiplier(axial_strain, e_r, gamma_before);
             let tau = Self::stress(axial_strain - gamma * m_a, e_r - gamma * m_r);
@@ -183,27 +239,38 @@ const TOLERANCE: f64 = 1e-7;
 /// against the closed form; returns the closed form's states (for the callers' checks of what
 /// the path reached) and the runs' stderr.
 fn follows_the_closed_form(model: &str, h: f64, residual: f64) -> (Vec<TriaxialState>, String) {
-    let steps = 20;
-    let reference = ClosedForm {
+    let (h_text, r_text) = (format!("{h:?}"), format!("{residual:?}"));
+    let strength = Strength::Cohesion {
         hardening: h,
         residual,
-    }
-    .path(steps);
+    };
+    let set = [
+        ("model", model),
+        ("H", h_text.as_str()),
+        ("c_residual", r_text.as_str()),
+    ];
+    runs_follow(strength, &set, &format!("{model}{h}"))
+}
+
+/// Every step of the scene with `set` at 1 and 2 elements per side against the closed form of
+/// `strength`; returns the closed form's states and the runs' stderr.
+fn runs_follow(
+    strength: Strength,
+    set: &[(&str, &str)],
+    tag: &str,
+) -> (Vec<TriaxialState>, String) {
+    let steps = 20;
+    let closed_form = ClosedForm { strength };
+    let reference = closed_form.path(steps);
     let scale = reference
         .iter()
         .map(|s| s.axial_kirchhoff.abs())
         .fold(0.0, f64::max);
     let mut stderr = String::new();
     for cells in ["1", "2"] {
-        let (h_text, r_text) = (format!("{h:?}"), format!("{residual:?}"));
-        let set = [
-            ("model", model),
-            ("H", h_text.as_str()),
-            ("c_residual", r_text.as_str()),
-            ("cells", cells),
-            ("steps", "20"),
-        ];
-        let (columns, err) = run_scene(&set, &format!("{model}{h}{cells}"));
+        let mut with_cells = set.to_vec();
+        with_cells.extend([("cells", cells), ("steps", "20")]);
+        let (columns, err) = run_scene(&with_cells, &format!("{tag}{cells}"));
         stderr += &err;
         let column = |name: &str| {
             let c = columns
@@ -238,7 +305,7 @@ fn follows_the_closed_form(model: &str, h: f64, residual: f64) -> (Vec<TriaxialS
             let error = errors.iter().copied().fold(0.0, f64::max);
             assert!(
                 error < TOLERANCE,
-                "{model}, H = {h}, {cells} cells, step {}: τ_a {tau_a} against {}, τ_r {tau_r} \
+                "{set:?}, {cells} cells, step {}: τ_a {tau_a} against {}, τ_r {tau_r} \
                  against {}, errors {errors:?}",
                 k + 1,
                 exact.axial_kirchhoff,
@@ -246,13 +313,20 @@ fn follows_the_closed_form(model: &str, h: f64, residual: f64) -> (Vec<TriaxialS
             );
             worst = worst.max(error);
         }
-        println!("{model}, H = {h}, {cells} cells: largest error {worst:.2e} of {scale:.4}");
+        println!("{set:?}, {cells} cells: largest error {worst:.2e} of {scale:.4}");
     }
     (reference, stderr)
 }
 
+/// The frictional soils' `ε̄_p` (`k γ`).
 fn plastic_strain(state: &TriaxialState) -> f64 {
-    ClosedForm::flow().2 * state.plastic_multiplier
+    let frictional = ClosedForm {
+        strength: Strength::Cohesion {
+            hardening: 0.0,
+            residual: 0.0,
+        },
+    };
+    frictional.flow().2 * state.plastic_multiplier
 }
 
 /// Hardening (`H = 100`): the axial stress rises past the first yield along the hardened
@@ -281,12 +355,7 @@ fn triaxial_hardening_follows_the_closed_form_at_two_resolutions() {
 fn triaxial_softening_follows_the_closed_form_through_the_peak_to_the_residual() {
     for model in ["mohr_coulomb", "drucker_prager"] {
         let (reference, stderr) = follows_the_closed_form(model, -20.0, 0.2);
-        let peak = (0..reference.len())
-            .max_by(|&a, &b| {
-                let (a, b) = (reference[a].axial_kirchhoff, reference[b].axial_kirchhoff);
-                b.partial_cmp(&a).unwrap()
-            })
-            .unwrap();
+        let peak = peak_of(&reference);
         let kink = (1.0 - 0.2) / 20.0;
         let residual_steps = reference
             .iter()
@@ -315,4 +384,85 @@ fn triaxial_softening_follows_the_closed_form_through_the_peak_to_the_residual()
             "no softening warning naming the material:\n{stderr}"
         );
     }
+}
+
+/// The index of the step with the largest axial compression.
+fn peak_of(reference: &[TriaxialState]) -> usize {
+    (0..reference.len())
+        .max_by(|&a, &b| {
+            let (a, b) = (reference[a].axial_kirchhoff, reference[b].axial_kirchhoff);
+            b.partial_cmp(&a).unwrap()
+        })
+        .unwrap()
+}
+
+/// Undrained clay (`--set model=von_mises`, `s_u = 5`) whose strength softens exponentially
+/// with the plastic shear strain (`exponential_softening`, `residual_ratio = 0.3`, `xi95 =
+/// 0.2`): every step at 1 and 2 elements per side within 1e-7 of the closed form, through the
+/// peak deep into the softening (more than 90 % of the strength lost to the residual by the
+/// end); the run is warned that softening is mesh-dependent.
+#[test]
+fn triaxial_von_mises_softening_follows_the_closed_form_deep_into_the_softening() {
+    let law = YieldLaw::ExponentialSoftening {
+        ratio: 0.3,
+        xi95: 0.2,
+    };
+    let (reference, stderr) = runs_follow(
+        Strength::VonMises(law),
+        &[("model", "von_mises"), ("law", "exponential_softening")],
+        "vm_soft",
+    );
+    let peak = peak_of(&reference);
+    let last = reference.last().unwrap();
+    let initial = 3.0f64.sqrt() * S_U;
+    let lost = (initial - law.yield_stress(last.plastic_multiplier)) / (initial * (1.0 - 0.3));
+    println!(
+        "von Mises softening: peak at step {}, {:.1} % of the softening done at the end (ε̄_p = {:.4})",
+        peak + 1,
+        100.0 * lost,
+        last.plastic_multiplier
+    );
+    assert!(
+        peak > 0 && peak + 5 < reference.len(),
+        "peak at step {}",
+        peak + 1
+    );
+    assert!(lost > 0.9, "{lost}");
+    assert!(
+        stderr.contains("mesh-dependent") && stderr.contains("soil"),
+        "no softening warning naming the material:\n{stderr}"
+    );
+}
+
+/// Voce saturation hardening of the von Mises soil (`law = "voce"`, `sigma_inf = 15`,
+/// `delta = 30`, `H = 2`): every step at 1 and 2 elements per side within 1e-7 of the closed
+/// form, to within 10 % of the saturation; no softening warning.
+#[test]
+fn triaxial_von_mises_voce_hardening_follows_the_closed_form_to_saturation() {
+    let law = YieldLaw::Voce {
+        saturation: 15.0,
+        rate: 30.0,
+        modulus: 2.0,
+    };
+    let (reference, stderr) = runs_follow(
+        Strength::VonMises(law),
+        &[("model", "von_mises"), ("law", "voce"), ("H", "2.0")],
+        "vm_voce",
+    );
+    let last = reference.last().unwrap();
+    let initial = 3.0f64.sqrt() * S_U;
+    let exponential_part =
+        law.yield_stress(last.plastic_multiplier) - 2.0 * last.plastic_multiplier;
+    let saturated = (exponential_part - initial) / (15.0 - initial);
+    let yielded = reference
+        .iter()
+        .filter(|s| s.plastic_multiplier > 0.0)
+        .count();
+    println!(
+        "von Mises voce: {yielded} plastic steps, {:.1} % saturated at the end",
+        100.0 * saturated
+    );
+    assert!(yielded >= 15 && saturated > 0.9, "{yielded}, {saturated}");
+    assert_eq!(peak_of(&reference) + 1, reference.len());
+    assert!(!stderr.contains("mesh-dependent"), "{stderr}");
 }

@@ -56,7 +56,7 @@
 //! |---|---|
 //! | [`hencky`] | Hencky elasticity (the paper's model) |
 //! | [`elastoplastic`] | the finite-strain elasto-plastic framework shared by the plastic models: `F = F_e F_p`, Hencky in the elastic logarithmic strain, the return map in principal strain space (exponential map), history, output |
-//! | [`von_mises`] | von Mises (J2) plasticity, perfect or with linear isotropic hardening; Tresca's undrained soil in plane strain |
+//! | [`von_mises`] | von Mises (J2) plasticity, perfect, with linear or Voce hardening or exponential softening (its laws in [`hardening`]); Tresca's undrained soil in plane strain |
 //! | [`drucker_prager`] | Drucker–Prager with cone and apex returns, matched to Mohr–Coulomb |
 //! | [`mohr_coulomb`] | Mohr–Coulomb with plane, edge and apex returns, optional tension cut-off |
 //! | [`spectral`] | eigen-decomposition and the tangent of isotropic functions of `b`, shared |
@@ -68,6 +68,7 @@
 pub mod cohesion;
 pub mod drucker_prager;
 pub mod elastoplastic;
+pub mod hardening;
 pub mod hencky;
 pub mod mohr_coulomb;
 pub mod spectral;

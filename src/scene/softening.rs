@@ -1,5 +1,6 @@
-//! A warning for scenes with a softening cohesion (`H < 0` on `drucker_prager` or
-//! `mohr_coulomb`, `material::cohesion`).
+//! A warning for scenes with a softening material: a softening cohesion (`H < 0` on
+//! `drucker_prager` or `mohr_coulomb`, `material::cohesion`) or a softening yield stress
+//! (`hardening: "exponential_softening"` on `von_mises`, `material::hardening`).
 //!
 //! The softening is local (no regularisation: no internal length, no non-local or gradient
 //! plastic strain), so once a band softens the discrete problem localises into the narrowest
@@ -9,24 +10,32 @@
 
 use super::SceneSpec;
 use crate::material::drucker_prager::read_strength;
+use crate::material::{Material, VonMises};
 
 /// One warning naming every softening material of the scene, or none.
 pub fn softening_warnings(spec: &SceneSpec) -> Vec<String> {
     let softening: Vec<String> = spec
         .materials
         .iter()
-        .filter(|m| m.model == "drucker_prager" || m.model == "mohr_coulomb")
-        .filter(|m| read_strength(&m.parameters).is_ok_and(|strength| strength.hardening.softens()))
+        .filter(|m| match m.model.as_str() {
+            "drucker_prager" | "mohr_coulomb" => {
+                read_strength(&m.parameters).is_ok_and(|strength| strength.hardening.softens())
+            }
+            "von_mises" => VonMises::from_parameters(&m.parameters)
+                .is_ok_and(|model| model.hardening.softens()),
+            _ => false,
+        })
         .map(|m| format!("'{}'", m.name))
         .collect();
     if softening.is_empty() {
         return Vec::new();
     }
     vec![format!(
-        "material {} soften (H < 0) without regularisation: past the peak the results are \
-         mesh-dependent (the failure zone localises into the narrowest band the grid allows); \
-         compare two resolutions before reading a post-peak curve (docs/plasticity.md, \
-         \"Hardening and softening of Drucker-Prager and Mohr-Coulomb\")",
+        "material {} soften (H < 0, or exponential_softening) without regularisation: past \
+         the peak the results are mesh-dependent (the failure zone localises into the narrowest \
+         band the grid allows); compare two resolutions before reading a post-peak curve \
+         (docs/plasticity.md, \"Hardening and softening of Drucker-Prager and Mohr-Coulomb\" and \
+         \"Non-linear hardening and softening of von Mises\")",
         softening.join(", ")
     )]
 }
