@@ -2168,6 +2168,12 @@ fn plastic_strain_of_path(law: &IsotropicHardening, shear: f64, equivalent: f64)
     0.5 * (low + high)
 }
 
+/// The von Mises equivalent stress `q = √(3/2) ‖dev τ‖`.
+fn equivalent_stress(tau: &Matrix3<f64>) -> f64 {
+    let s = tau - Matrix3::identity() * (tau.trace() / 3.0);
+    (1.5 * s.norm_squared()).sqrt()
+}
+
 fn von_mises_with(law: IsotropicHardening) -> VonMises {
     VonMises::with_law(elastic(), 2.0, law).unwrap()
 }
@@ -2196,9 +2202,7 @@ fn nonlinear_von_mises_tangents<const D: usize>() {
                 check_tangent(&model, &committed, &f, trial, Region::Plane);
                 let df = stretch::<D>(trial);
                 let response = model.respond(&df, &df, &committed).unwrap();
-                let tau = response.kirchhoff;
-                let s = tau - Matrix3::identity() * (tau.trace() / 3.0);
-                let q = (1.5 * s.norm_squared()).sqrt();
+                let q = equivalent_stress(&response.kirchhoff);
                 let eps_p = response.history.plastic_strain;
                 assert!(eps_p > start);
                 let off = (q - yield_stress_of(&law, eps_p)).abs();
@@ -2248,8 +2252,7 @@ fn von_mises_in_pure_shear_follows_each_hardening_law() {
             let eps_p = plastic_strain_of_path(&law, shear, equivalent);
             let q_expected = 3.0 * shear * (equivalent - eps_p);
             let tau = point.kirchhoff;
-            let s = tau - Matrix3::identity() * (tau.trace() / 3.0);
-            let q = (1.5 * s.norm_squared()).sqrt();
+            let q = equivalent_stress(&tau);
             assert!(
                 tau.trace().abs() < 1e-9,
                 "step {n}: p = {}",
