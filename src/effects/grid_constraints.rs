@@ -307,8 +307,12 @@ impl Plugin for GridConstraintsModule {
         }
         let world = simulation.world();
         let mut fields = world.resource_mut::<GridFields<D>>();
+        // decomposed points: each process marks the nodes it touches, every step
+        // ([`constrain_nodes`]); the others' pages stay unallocated
         for (node, fixity) in fixities.iter().enumerate() {
-            if let Some(fixity) = fixity {
+            if let Some(fixity) = fixity
+                && !crate::distributed::decomposed()
+            {
                 fields.constrained[node] = fixity.fixed;
             }
         }
@@ -454,7 +458,7 @@ pub fn grid_reactions<const D: usize>(
     let shared = newton.shared_grid.as_deref();
     let counts = |node: usize| shared.is_none_or(|s| s.owned(node));
     let reactions = &mut *reactions;
-    reactions.external = (fields.external_force.iter().enumerate())
+    reactions.external = (fields.external_force.written())
         .filter(|&(node, _)| counts(node))
         .map(|(_, f)| f)
         .sum();
@@ -585,13 +589,23 @@ fn restore_released<const D: usize>(world: &mut World, values: &[f64]) -> Result
     Ok(())
 }
 
-/// The fixed components of every constrained node get no DOF.
+/// The fixed components of every constrained node get no DOF. With decomposed points a
+/// process marks only the nodes it touches (active: `Hook::Constraints` runs after the
+/// connectivity), and drops the marks of the step before (its slab moves), so that its
+/// `constrained` pages are its own nodes' (`node_storage`); serially every constrained node
+/// is marked (the grid output shows them).
 pub fn constrain_nodes<const D: usize>(
     mut fields: ResMut<GridFields<D>>,
     nodes: Query<(&GridNode<D>, &Fixity<D>)>,
 ) {
+    let decomposed = crate::distributed::decomposed();
+    if decomposed {
+        fields.constrained.reset();
+    }
     for (node, fixity) in nodes.iter() {
-        fields.constrained[node.index] = fixity.fixed;
+        if !decomposed || fields.active[node.index] {
+            fields.constrained[node.index] = fixity.fixed;
+        }
     }
 }
 
@@ -659,9 +673,15 @@ fn watched_nodes<const D: usize>(simulation: &mut Extension<'_, D>) -> Prescribe
         .map_or(&[][..], |d| &d.0);
     let grid = &spec.grid;
     let world = simulation.world();
-    let mut node_positions = vec![Vec::new(); world.resource::<GridFields<D>>().active.len()];
+    // the positions of the nodes the declarations name (not a vector over the whole grid)
+    let named: std::collections::BTreeSet<usize> = (declared.iter())
+        .flat_map(|d| d.components.iter().map(|&(n, _)| n))
+        .collect();
+    let mut node_positions: BTreeMap<usize, Vec<f64>> = BTreeMap::new();
     for node in world.query::<&GridNode<D>>().iter(world) {
-        node_positions[node.index] = node.position.as_slice().to_vec();
+        if named.contains(&node.index) {
+            node_positions.insert(node.index, node.position.as_slice().to_vec());
+        }
     }
     let cell = (0..D)
         .map(|a| (grid.upper[a] - grid.lower[a]) / grid.cells[a] as f64)
@@ -678,7 +698,7 @@ fn watched_nodes<const D: usize>(simulation: &mut Extension<'_, D>) -> Prescribe
         }
         let mut nodes: Vec<usize> = declaration.components.iter().map(|&(n, _)| n).collect();
         nodes.dedup();
-        let queries: Vec<Vec<f64>> = nodes.iter().map(|&n| node_positions[n].clone()).collect();
+        let queries: Vec<Vec<f64>> = nodes.iter().map(|&n| node_positions[&n].clone()).collect();
         let hosts = crate::scene::nearest_points(grid, &material, &queries);
         for ((&node, query), host) in nodes.iter().zip(&queries).zip(hosts) {
             let Some(host) = host else { continue };
@@ -854,7 +874,12 @@ pub fn apply_prescribed_displacements<const D: usize>(
     let _timer = clock.time(Stage::Loads);
     let stage = stage_of(&stage);
     let ramp = step.factor - step.previous_factor;
+    // decomposed points: the nodes this process touches (no point reads another's increment)
+    let decomposed = crate::distributed::decomposed();
     for (node, fixity, windows) in nodes.iter() {
+        if decomposed && !fields.active[node.index] {
+            continue;
+        }
         for c in 0..D {
             if fixity.fixed[c] {
                 let ramp = match windows {
