@@ -282,10 +282,19 @@ impl Plugin for DistributedModule {
                 share_step_failure
                     .after(StepSystems::UpdatePoints)
                     .before(StepSystems::Output),
-                share_step_failure
-                    .after(StepSystems::Output)
-                    .before(StepSystems::ResetGrid),
             ));
+            let last = share_step_failure
+                .after(StepSystems::Output)
+                .before(StepSystems::ResetGrid);
+            if decompose {
+                // both collective: in one order on every process
+                let measure = grid::measure_node_storage::<D>;
+                schedules
+                    .entry(StepSchedule)
+                    .add_systems(last.before(measure));
+            } else {
+                schedules.entry(StepSchedule).add_systems(last);
+            }
             schedules.entry(OutputSchedule).add_systems(
                 list_particle_pieces
                     .after(BuiltInOutput)
@@ -307,11 +316,10 @@ impl Plugin for DistributedModule {
             held.set_executor(SingleThreadedExecutor::new());
             held.add_systems(decomposition::sum_external_force::<D>);
             schedules.insert(held);
-            // collective, after every other synchronisation point of the step's end
+            // collective, after the step's last failure share (ordered there)
             schedules.entry(StepSchedule).add_systems(
                 grid::measure_node_storage::<D>
                     .after(StepSystems::Output)
-                    .after(share_step_failure)
                     .before(StepSystems::ResetGrid),
             );
             let numbered = |world: &mut World| {
