@@ -272,60 +272,52 @@ impl Plugin for GridConstraintsModule {
     fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
         let spec = simulation.spec();
         let world = simulation.world();
-        let nodes: Vec<(Entity, usize)> = world
-            .query::<(Entity, &GridNode<D>)>()
-            .iter(world)
-            .map(|(entity, node)| (entity, node.index))
-            .collect();
-        let mut entities = vec![Entity::PLACEHOLDER; nodes.len()];
-        for (entity, index) in nodes {
-            entities[index] = entity;
-        }
-        let mut fixities = vec![None::<Fixity<D>>; entities.len()];
+        // by constrained node (not vectors over the whole grid: the grid's nodes may be many
+        // more, and every process of a decomposed run builds this)
+        let node_count = world.resource::<GridFields<D>>().active.len();
+        let mut fixities: BTreeMap<usize, Fixity<D>> = BTreeMap::new();
         let windows = spec.part::<ConstraintWindows>().map(|w| w.0.clone());
-        let mut staged = vec![None::<FixityWindows<D>>; entities.len()];
+        let mut staged: BTreeMap<usize, FixityWindows<D>> = BTreeMap::new();
         for (index, c) in constraints(spec).iter().enumerate() {
-            let Some(fixity) = fixities.get_mut(c.node) else {
+            if c.node >= node_count {
                 simulation.fail(format!("constraint on node {} outside the grid", c.node));
                 return;
-            };
+            }
             if c.component >= D {
                 simulation.fail(format!("constraint on component {} in {D}D", c.component));
                 return;
             }
-            let fixity = fixity.get_or_insert_default();
+            let fixity = fixities.entry(c.node).or_default();
             fixity.prescribed[c.component] = c.value;
             match windows.as_ref().and_then(|w| w.get(index)) {
                 None => fixity.fixed[c.component] = true,
                 Some(windows) => {
                     // stage 0's fixity; `stage_fixities` sets it at every step
                     fixity.fixed[c.component] = windows.iter().any(|w| w.covers(0));
-                    staged[c.node].get_or_insert_with(FixityWindows::default).0[c.component] =
-                        windows.clone();
+                    staged.entry(c.node).or_default().0[c.component] = windows.clone();
                 }
             }
         }
         let world = simulation.world();
+        let entities: BTreeMap<usize, Entity> = (world.query::<(Entity, &GridNode<D>)>())
+            .iter(world)
+            .filter(|(_, node)| fixities.contains_key(&node.index))
+            .map(|(entity, node)| (node.index, entity))
+            .collect();
         let mut fields = world.resource_mut::<GridFields<D>>();
         // decomposed points: each process marks the nodes it touches, every step
         // ([`constrain_nodes`]); the others' pages stay unallocated
-        for (node, fixity) in fixities.iter().enumerate() {
-            if let Some(fixity) = fixity
-                && !crate::distributed::decomposed()
-            {
+        if !crate::distributed::decomposed() {
+            for (&node, fixity) in &fixities {
                 fields.constrained[node] = fixity.fixed;
             }
         }
-        let batch: Vec<(Entity, Fixity<D>)> = fixities
-            .into_iter()
-            .enumerate()
-            .filter_map(|(node, fixity)| Some((entities[node], fixity?)))
+        let batch: Vec<(Entity, Fixity<D>)> = (fixities.into_iter())
+            .map(|(node, fixity)| (entities[&node], fixity))
             .collect();
         world.insert_batch(batch);
-        let staged: Vec<(Entity, FixityWindows<D>)> = staged
-            .into_iter()
-            .enumerate()
-            .filter_map(|(node, windows)| Some((entities[node], windows?)))
+        let staged: Vec<(Entity, FixityWindows<D>)> = (staged.into_iter())
+            .map(|(node, windows)| (entities[&node], windows))
             .collect();
         let has_windows = !staged.is_empty();
         world.insert_batch(staged);
