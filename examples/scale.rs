@@ -470,14 +470,7 @@ fn print_heap<const D: usize>(
     let matrix = &sim.world.resource::<Newton>().matrix;
     let tangent = matrix.nonzeros() * 16 + (matrix.size() + 1) * 8;
     let fields = sim.world.resource::<GridFields<D>>();
-    let grid = fields.active.capacity()
-        + fields.constrained.capacity() * D
-        + fields.dofs.capacity() * 4 * D
-        + (fields.increment.capacity()
-            + fields.external_force.capacity()
-            + fields.internal_force.capacity())
-            * 8
-            * D;
+    let grid = fields.node_storage_bytes();
     let counted = inline + support + tangent + grid + first_solve;
     println!(
         "  live after the run {} B/point: ECS tables {} (components inline, points and grid \

@@ -9,8 +9,11 @@
 //!   state of the current Newton iterate (`Trial`).
 //! * A **grid node** (a control point of the background basis) carries its index and position
 //!   (`GridNode`). The fields that live on the grid during a load step (displacement increment,
-//!   forces, constrained components, DOF numbers) are dense arrays in `GridFields`, indexed by
-//!   node, because every stage gathers and scatters them by node index.
+//!   forces, constrained components, DOF numbers) are vectors in `GridFields`, indexed by
+//!   node, because every stage gathers and scatters them by node index; they are paged
+//!   (`node_storage::NodeVec`: memory for the pages of nodes written), so a decomposed run's
+//!   process holds its own nodes' only. The `GridNode` entities are the whole grid's on every
+//!   process.
 
 use bevy_ecs::prelude::*;
 use nalgebra::{SMatrix, SVector};

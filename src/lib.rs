@@ -38,6 +38,7 @@ pub mod interrupt;
 pub mod material;
 pub mod mechanics;
 pub mod method;
+pub mod node_storage;
 pub mod output;
 pub mod parallel;
 pub mod parameter;

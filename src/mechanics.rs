@@ -43,6 +43,8 @@
 //! are 1; the material works on the 3x3 `b` padded with ones and only the D x D block enters
 //! the forces, while the full 3x3 stress is kept for output.
 
+use std::ops::{Index, IndexMut};
+
 use nalgebra::{Matrix3, SMatrix, SVector};
 
 use crate::basis::NodeWeight;
@@ -76,7 +78,7 @@ pub fn interpolate<const D: usize>(
 pub fn spread_force<const D: usize>(
     force: &SVector<f64, D>,
     support: &[NodeWeight<D>],
-    external_force: &mut [SVector<f64, D>],
+    external_force: &mut (impl IndexMut<usize, Output = SVector<f64, D>> + ?Sized),
 ) {
     for w in support {
         external_force[w.node] += force * w.value;
@@ -84,7 +86,10 @@ pub fn spread_force<const D: usize>(
 }
 
 /// Σ_{i active} N_i over `support`.
-pub fn active_weight<const D: usize>(support: &[NodeWeight<D>], active: &[bool]) -> f64 {
+pub fn active_weight<const D: usize>(
+    support: &[NodeWeight<D>],
+    active: &(impl Index<usize, Output = bool> + ?Sized),
+) -> f64 {
     support
         .iter()
         .filter(|w| active[w.node])
@@ -97,8 +102,8 @@ pub fn active_weight<const D: usize>(support: &[NodeWeight<D>], active: &[bool])
 pub fn spread_over_active<const D: usize>(
     force: &SVector<f64, D>,
     support: &[NodeWeight<D>],
-    active: &[bool],
-    external_force: &mut [SVector<f64, D>],
+    active: &(impl Index<usize, Output = bool> + ?Sized),
+    external_force: &mut (impl IndexMut<usize, Output = SVector<f64, D>> + ?Sized),
 ) -> bool {
     let total = active_weight(support, active);
     if total <= 0.0 {

@@ -8,33 +8,35 @@ use nalgebra::SVector;
 
 use crate::basis::GridBasis;
 use crate::control::{ConvergenceCriterion, NormalisedResidual};
+use crate::node_storage::NodeVec;
 use crate::solver::{DirectSolver, LinearSolver, NO_DOF, SolverKind, SparseMatrix};
 
 /// The background grid and its basis.
 #[derive(Resource, Clone, Debug)]
 pub struct Grid<const D: usize>(pub GridBasis<D>);
 
-/// Dense fields on the grid nodes during a load step, indexed by node (see `components`).
-/// Reset after every load step.
+/// Fields on the grid nodes during a load step, indexed by global node (see `components`),
+/// stored in pages allocated when written (`node_storage::NodeVec`: a decomposed run's process
+/// holds the pages of the nodes it touches, not the whole grid). Reset after every load step.
 #[derive(Resource, Clone, Debug)]
 pub struct GridFields<const D: usize> {
     /// Nodes supported by at least one material point this step.
-    pub active: Vec<bool>,
+    pub active: NodeVec<bool>,
     /// Components whose displacement a module prescribes (set at `Hook::Constraints`; kept
     /// through the grid reset, so that the initial output shows them): they get no DOF.
-    pub constrained: Vec<[bool; D]>,
+    pub constrained: NodeVec<[bool; D]>,
     /// Groups of nodes coupled in the tangent beyond the points' supports (e.g. the two cells
     /// of a ghost-penalty face, the points of an F-bar cell), added by modules at
     /// `Hook::Connectivity`; their blocks are added at `Hook::AfterAssembly`.
     pub couplings: Vec<Vec<usize>>,
     /// DOF number of each component (`NO_DOF` if fixed or inactive).
-    pub dofs: Vec<[u32; D]>,
+    pub dofs: NodeVec<[u32; D]>,
     /// Displacement increment Δu of the step (the unknown).
-    pub increment: Vec<SVector<f64, D>>,
+    pub increment: NodeVec<SVector<f64, D>>,
     /// External force at the current load factor.
-    pub external_force: Vec<SVector<f64, D>>,
+    pub external_force: NodeVec<SVector<f64, D>>,
     /// Internal force at the current iterate.
-    pub internal_force: Vec<SVector<f64, D>>,
+    pub internal_force: NodeVec<SVector<f64, D>>,
     /// Number of free DOFs.
     pub dof_count: usize,
 }
@@ -42,26 +44,37 @@ pub struct GridFields<const D: usize> {
 impl<const D: usize> GridFields<D> {
     pub fn new(nodes: usize) -> Self {
         Self {
-            active: vec![false; nodes],
-            constrained: vec![[false; D]; nodes],
+            active: NodeVec::new(nodes, false),
+            constrained: NodeVec::new(nodes, [false; D]),
             couplings: Vec::new(),
-            dofs: vec![[NO_DOF; D]; nodes],
-            increment: vec![SVector::zeros(); nodes],
-            external_force: vec![SVector::zeros(); nodes],
-            internal_force: vec![SVector::zeros(); nodes],
+            dofs: NodeVec::new(nodes, [NO_DOF; D]),
+            increment: NodeVec::new(nodes, SVector::zeros()),
+            external_force: NodeVec::new(nodes, SVector::zeros()),
+            internal_force: NodeVec::new(nodes, SVector::zeros()),
             dof_count: 0,
         }
     }
 
     /// Grid reset: the grid returns to its undeformed state and holds no fields.
     pub fn reset(&mut self) {
-        self.active.fill(false);
+        self.active.reset();
         self.couplings.clear();
-        self.dofs.fill([NO_DOF; D]);
-        self.increment.fill(SVector::zeros());
-        self.external_force.fill(SVector::zeros());
-        self.internal_force.fill(SVector::zeros());
+        self.dofs.reset();
+        self.increment.reset();
+        self.external_force.reset();
+        self.internal_force.reset();
         self.dof_count = 0;
+    }
+
+    /// The bytes of the per-node fields this process holds (their written pages and page
+    /// tables; `constrained` included, which the reset keeps).
+    pub fn node_storage_bytes(&self) -> usize {
+        self.active.bytes()
+            + self.constrained.bytes()
+            + self.dofs.bytes()
+            + self.increment.bytes()
+            + self.external_force.bytes()
+            + self.internal_force.bytes()
     }
 }
 

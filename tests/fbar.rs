@@ -154,7 +154,7 @@ fn internal_force<const D: usize, M: Material>(
     assert!(status.0.is_none(), "{:?}", status.0);
     let fields = sim.world.resource::<GridFields<D>>();
     let mut f = vec![0.0; fields.dof_count];
-    for (node, dofs) in fields.dofs.iter().enumerate() {
+    for (node, dofs) in fields.dofs.written() {
         for (c, &d) in dofs.iter().enumerate() {
             if d != NO_DOF {
                 f[d as usize] = fields.internal_force[node][c];

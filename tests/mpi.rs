@@ -2534,3 +2534,47 @@ fn ghost_faces_on_slab_boundaries_with_decomposed_points_equal_the_serial_run() 
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Node storage sized by the process's nodes (`node_storage`, docs/distributed.md "Node
+/// storage sized by the process's nodes"): the 2D block on a 64 × 64-cell grid (slabs along
+/// y, the grid's slowest axis) under `--decompose` over 1 and 2 processes equals its serial
+/// run, and in every step the largest process's grid fields over 2 processes
+/// (`node_storage_bytes`: written pages and page tables) are at most 60 % of the one process's
+/// (a process holds its 32 cell rows' 34 node rows of 66, plus the pages they end in: about
+/// 52 %; with every node's DOF numbers or fixity written on every process, as before, over
+/// 65 %).
+#[test]
+fn decomposed_processes_hold_the_node_storage_of_their_own_nodes() {
+    let scene = shipped_scene("block_2d_self_weight.rhai");
+    let set = ["cells=64", "linear=direct"];
+    let runs = compare_with(&scene, &set, "node-storage", &Runs::decomposed(&[1, 2]));
+    if runs.is_empty() {
+        return;
+    }
+    let bytes = |run: &[serde_json::Value]| -> Vec<f64> {
+        (run.iter())
+            .map(|step| {
+                step["node_storage_bytes"]
+                    .as_f64()
+                    .expect("node_storage_bytes")
+            })
+            .collect()
+    };
+    let (one, two) = (bytes(&runs[0]), bytes(&runs[1]));
+    assert_eq!(one.len(), two.len());
+    // the whole grid's fields, dense: 66² nodes of 1 + 2 + 8 + 3 × 16 bytes
+    let dense = (66.0 * 66.0) * (1.0 + 2.0 + 8.0 + 3.0 * 16.0);
+    for (k, (&one, &two)) in one.iter().zip(&two).enumerate() {
+        eprintln!(
+            "block 64 × 64, step {}: node storage -n 1 {one} B, -n 2 largest process {two} B \
+             ({:.1} %; dense fields {dense} B)",
+            k + 1,
+            100.0 * two / one
+        );
+        assert!(
+            one > 0.9 * dense && one < 1.1 * dense,
+            "{one} B against {dense}"
+        );
+        assert!(two <= 0.6 * one, "step {}: {two} B of {one}", k + 1);
+    }
+}

@@ -277,7 +277,8 @@ fn assembled<const D: usize>(
         sim.world.run_system_once(number_dofs::<D>).unwrap();
         let grid = sim.world.resource::<Grid<D>>().0.clone();
         let mut fields = sim.world.resource_mut::<GridFields<D>>();
-        for (node, u) in fields.increment.iter_mut().enumerate() {
+        for node in 0..fields.increment.len() {
+            let u = &mut fields.increment[node];
             // A shear, a stretch and a wobble: x_0 += 0.1 x_{D-1}, x_k += 0.02 x_k + 0.01 sin(..).
             let x = grid.node_position(node);
             let phase = x

@@ -137,10 +137,11 @@ pub fn request_resume() {
 /// what it sends by kind (`traffic`), the points process 0 assembled and the points that
 /// changed process, and with decomposed points the decomposed grid's counts, the load
 /// points (tractions, loads at positions) that changed process and the surface conditions'
-/// boundary points whose host changed process. A run resumed
+/// boundary points whose host changed process, and the largest per-node storage of a process
+/// in the step (`node_storage_bytes`: the core's grid fields, `node_storage`). A run resumed
 /// from another run's checkpoint (serial, replicated or decomposed, over any number of
 /// processes) takes the records of its steps with these measures as they are.
-pub const RUN_MEASURES: [&str; 7] = [
+pub const RUN_MEASURES: [&str; 8] = [
     "assembled_points",
     "points_changing_process",
     "owned_dofs",
@@ -148,6 +149,7 @@ pub const RUN_MEASURES: [&str; 7] = [
     "local_dofs",
     "load_points_changing_process",
     "boundary_hosts_changing_process",
+    "node_storage_bytes",
 ];
 
 /// [`RUN_MEASURES`] and the traffic counters' names: every measure a distributed run may add.

@@ -272,56 +272,52 @@ impl Plugin for GridConstraintsModule {
     fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
         let spec = simulation.spec();
         let world = simulation.world();
-        let nodes: Vec<(Entity, usize)> = world
-            .query::<(Entity, &GridNode<D>)>()
-            .iter(world)
-            .map(|(entity, node)| (entity, node.index))
-            .collect();
-        let mut entities = vec![Entity::PLACEHOLDER; nodes.len()];
-        for (entity, index) in nodes {
-            entities[index] = entity;
-        }
-        let mut fixities = vec![None::<Fixity<D>>; entities.len()];
+        // by constrained node (not vectors over the whole grid: the grid's nodes may be many
+        // more, and every process of a decomposed run builds this)
+        let node_count = world.resource::<GridFields<D>>().active.len();
+        let mut fixities: BTreeMap<usize, Fixity<D>> = BTreeMap::new();
         let windows = spec.part::<ConstraintWindows>().map(|w| w.0.clone());
-        let mut staged = vec![None::<FixityWindows<D>>; entities.len()];
+        let mut staged: BTreeMap<usize, FixityWindows<D>> = BTreeMap::new();
         for (index, c) in constraints(spec).iter().enumerate() {
-            let Some(fixity) = fixities.get_mut(c.node) else {
+            if c.node >= node_count {
                 simulation.fail(format!("constraint on node {} outside the grid", c.node));
                 return;
-            };
+            }
             if c.component >= D {
                 simulation.fail(format!("constraint on component {} in {D}D", c.component));
                 return;
             }
-            let fixity = fixity.get_or_insert_default();
+            let fixity = fixities.entry(c.node).or_default();
             fixity.prescribed[c.component] = c.value;
             match windows.as_ref().and_then(|w| w.get(index)) {
                 None => fixity.fixed[c.component] = true,
                 Some(windows) => {
                     // stage 0's fixity; `stage_fixities` sets it at every step
                     fixity.fixed[c.component] = windows.iter().any(|w| w.covers(0));
-                    staged[c.node].get_or_insert_with(FixityWindows::default).0[c.component] =
-                        windows.clone();
+                    staged.entry(c.node).or_default().0[c.component] = windows.clone();
                 }
             }
         }
         let world = simulation.world();
+        let entities: BTreeMap<usize, Entity> = (world.query::<(Entity, &GridNode<D>)>())
+            .iter(world)
+            .filter(|(_, node)| fixities.contains_key(&node.index))
+            .map(|(entity, node)| (node.index, entity))
+            .collect();
         let mut fields = world.resource_mut::<GridFields<D>>();
-        for (node, fixity) in fixities.iter().enumerate() {
-            if let Some(fixity) = fixity {
+        // decomposed points: each process marks the nodes it touches, every step
+        // ([`constrain_nodes`]); the others' pages stay unallocated
+        if !crate::distributed::decomposed() {
+            for (&node, fixity) in &fixities {
                 fields.constrained[node] = fixity.fixed;
             }
         }
-        let batch: Vec<(Entity, Fixity<D>)> = fixities
-            .into_iter()
-            .enumerate()
-            .filter_map(|(node, fixity)| Some((entities[node], fixity?)))
+        let batch: Vec<(Entity, Fixity<D>)> = (fixities.into_iter())
+            .map(|(node, fixity)| (entities[&node], fixity))
             .collect();
         world.insert_batch(batch);
-        let staged: Vec<(Entity, FixityWindows<D>)> = staged
-            .into_iter()
-            .enumerate()
-            .filter_map(|(node, windows)| Some((entities[node], windows?)))
+        let staged: Vec<(Entity, FixityWindows<D>)> = (staged.into_iter())
+            .map(|(node, windows)| (entities[&node], windows))
             .collect();
         let has_windows = !staged.is_empty();
         world.insert_batch(staged);
@@ -454,7 +450,7 @@ pub fn grid_reactions<const D: usize>(
     let shared = newton.shared_grid.as_deref();
     let counts = |node: usize| shared.is_none_or(|s| s.owned(node));
     let reactions = &mut *reactions;
-    reactions.external = (fields.external_force.iter().enumerate())
+    reactions.external = (fields.external_force.written())
         .filter(|&(node, _)| counts(node))
         .map(|(_, f)| f)
         .sum();
@@ -585,13 +581,23 @@ fn restore_released<const D: usize>(world: &mut World, values: &[f64]) -> Result
     Ok(())
 }
 
-/// The fixed components of every constrained node get no DOF.
+/// The fixed components of every constrained node get no DOF. With decomposed points a
+/// process marks only the nodes it touches (active: `Hook::Constraints` runs after the
+/// connectivity), and drops the marks of the step before (its slab moves), so that its
+/// `constrained` pages are its own nodes' (`node_storage`); serially every constrained node
+/// is marked (the grid output shows them).
 pub fn constrain_nodes<const D: usize>(
     mut fields: ResMut<GridFields<D>>,
     nodes: Query<(&GridNode<D>, &Fixity<D>)>,
 ) {
+    let decomposed = crate::distributed::decomposed();
+    if decomposed {
+        fields.constrained.reset();
+    }
     for (node, fixity) in nodes.iter() {
-        fields.constrained[node.index] = fixity.fixed;
+        if !decomposed || fields.active[node.index] {
+            fields.constrained[node.index] = fixity.fixed;
+        }
     }
 }
 
@@ -659,9 +665,15 @@ fn watched_nodes<const D: usize>(simulation: &mut Extension<'_, D>) -> Prescribe
         .map_or(&[][..], |d| &d.0);
     let grid = &spec.grid;
     let world = simulation.world();
-    let mut node_positions = vec![Vec::new(); world.resource::<GridFields<D>>().active.len()];
+    // the positions of the nodes the declarations name (not a vector over the whole grid)
+    let named: std::collections::BTreeSet<usize> = (declared.iter())
+        .flat_map(|d| d.components.iter().map(|&(n, _)| n))
+        .collect();
+    let mut node_positions: BTreeMap<usize, Vec<f64>> = BTreeMap::new();
     for node in world.query::<&GridNode<D>>().iter(world) {
-        node_positions[node.index] = node.position.as_slice().to_vec();
+        if named.contains(&node.index) {
+            node_positions.insert(node.index, node.position.as_slice().to_vec());
+        }
     }
     let cell = (0..D)
         .map(|a| (grid.upper[a] - grid.lower[a]) / grid.cells[a] as f64)
@@ -678,7 +690,7 @@ fn watched_nodes<const D: usize>(simulation: &mut Extension<'_, D>) -> Prescribe
         }
         let mut nodes: Vec<usize> = declaration.components.iter().map(|&(n, _)| n).collect();
         nodes.dedup();
-        let queries: Vec<Vec<f64>> = nodes.iter().map(|&n| node_positions[n].clone()).collect();
+        let queries: Vec<Vec<f64>> = nodes.iter().map(|&n| node_positions[&n].clone()).collect();
         let hosts = crate::scene::nearest_points(grid, &material, &queries);
         for ((&node, query), host) in nodes.iter().zip(&queries).zip(hosts) {
             let Some(host) = host else { continue };
@@ -854,7 +866,12 @@ pub fn apply_prescribed_displacements<const D: usize>(
     let _timer = clock.time(Stage::Loads);
     let stage = stage_of(&stage);
     let ramp = step.factor - step.previous_factor;
+    // decomposed points: the nodes this process touches (no point reads another's increment)
+    let decomposed = crate::distributed::decomposed();
     for (node, fixity, windows) in nodes.iter() {
+        if decomposed && !fields.active[node.index] {
+            continue;
+        }
         for c in 0..D {
             if fixity.fixed[c] {
                 let ramp = match windows {

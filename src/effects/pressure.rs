@@ -144,6 +144,7 @@ use crate::basis::{BasisKind, BasisScratch, NodeWeight};
 use crate::checkpoint::CheckpointPart;
 use crate::components::{PointId, Position, Support};
 use crate::method::{StepSchedule, StepSystems};
+use crate::node_storage::NodeVec;
 use crate::output::PvdSeries;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{
@@ -347,7 +348,7 @@ pub struct PressureLoad<const D: usize> {
     pub spread: Vec<Vec<(usize, f64)>>,
     /// f̂_p by node, per group: the pressures' forces at factor 1 now included in the external
     /// force (each group's times its factor).
-    pub added: Vec<Vec<SVector<f64, D>>>,
+    pub added: Vec<NodeVec<SVector<f64, D>>>,
 }
 
 /// The `pressure.pvd` series.
@@ -368,7 +369,7 @@ fn turn<const D: usize>(t: &SVector<f64, D>) -> SVector<f64, D> {
 pub fn carried_position<const D: usize>(
     start: &SVector<f64, D>,
     carry: &[(usize, f64)],
-    increment: &[SVector<f64, D>],
+    increment: &(impl std::ops::Index<usize, Output = SVector<f64, D>> + ?Sized),
 ) -> SVector<f64, D> {
     carry
         .iter()
@@ -432,8 +433,8 @@ pub fn group_forces<const D: usize>(
     spread: &[Vec<(usize, f64)>],
     positions: &[SVector<f64, D>],
     nodes: usize,
-) -> Vec<Vec<SVector<f64, D>>> {
-    let mut forces = vec![vec![SVector::zeros(); nodes]; groups];
+) -> Vec<NodeVec<SVector<f64, D>>> {
+    let mut forces = vec![NodeVec::new(nodes, SVector::zeros()); groups];
     for (part, spread) in parts.iter().zip(spread) {
         let force = part_force(part, positions);
         for &(node, w) in spread {
@@ -1129,8 +1130,8 @@ pub fn apply_pressure<const D: usize>(
     }
     for (group, added) in load.groups.iter().zip(&load.added) {
         let factor = group.factor(&step, stage);
-        for (f, added) in fields.external_force.iter_mut().zip(added) {
-            *f += added * factor;
+        for (node, added) in added.written() {
+            fields.external_force[node] += added * factor;
         }
     }
 }
@@ -1160,7 +1161,10 @@ pub fn follow_pressure<const D: usize>(
         fields.external_force.len(),
     );
     let nodes = fields.external_force.len();
-    let (mut reference, mut held) = (vec![SVector::zeros(); nodes], vec![SVector::zeros(); nodes]);
+    let (mut reference, mut held) = (
+        NodeVec::new(nodes, SVector::zeros()),
+        NodeVec::new(nodes, SVector::zeros()),
+    );
     let mut any_held = false;
     let mut factors = Vec::with_capacity(load.groups.len());
     for ((group, now), added) in load.groups.iter().zip(&now).zip(&load.added) {
@@ -1168,8 +1172,12 @@ pub fn follow_pressure<const D: usize>(
         factors.push(factor);
         let (at_zero, slope) = group.split(&step, stage);
         any_held |= at_zero != 0.0;
-        for (node, (n, a)) in now.iter().zip(added).enumerate() {
-            let change = n - a;
+        // the nodes either spread reaches (the others' change is zero)
+        let reached: BTreeSet<usize> = (now.written().chain(added.written()))
+            .map(|(node, _)| node)
+            .collect();
+        for node in reached {
+            let change = now[node] - added[node];
             if fields.active[node] {
                 // with decomposed points this process's nodes, whose `f_ext` holds the sum
                 fields.external_force[node] += change * factor;

@@ -336,6 +336,7 @@ use super::declarations::{
 };
 use super::pressure::ArcShape;
 use super::probes::{default_neighbours, fit_weights};
+use crate::node_storage::NodeVec;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{
     CurrentStage, Grid, GridFields, LoadStep, Newton, Ramp, RunStatus, SolverError, Stage,
@@ -1129,7 +1130,7 @@ pub fn boundary_weights<const D: usize>(
     support: &[NodeWeight<D>],
     host: &[NodeWeight<D>],
     offset: &SVector<f64, D>,
-    active: &[bool],
+    active: &(impl std::ops::Index<usize, Output = bool> + ?Sized),
 ) -> Vec<(usize, f64)> {
     let kept = |node: usize, value: f64| value != 0.0 && (active[node] || value.abs() > SLIVER);
     let supported = support
@@ -1154,17 +1155,18 @@ pub fn boundary_weights<const D: usize>(
 pub fn sliver_nodes<'a, const D: usize>(
     supports: impl Iterator<Item = &'a [NodeWeight<D>]>,
     cell: f64,
-    active: &[bool],
+    active: &NodeVec<bool>,
 ) -> Vec<usize> {
-    let mut share = vec![0.0f64; active.len()];
+    let mut share = NodeVec::new(active.len(), 0.0f64);
     for support in supports {
         for w in support {
             let s = w.value.abs().max(cell * w.gradient.amax());
             share[w.node] = share[w.node].max(s);
         }
     }
-    (0..active.len())
-        .filter(|&i| active[i] && share[i] <= SLIVER)
+    (active.written())
+        .filter(|&(i, &active)| active && share[i] <= SLIVER)
+        .map(|(i, _)| i)
         .collect()
 }
 
@@ -1328,7 +1330,7 @@ pub fn couple_nitsche_to_fbar_groups<const D: usize>(
 /// The gap g_s = P_s (u_s^n + Σ N̂_i Δu_i − λ ū_s) of a boundary point.
 fn gap<const D: usize>(
     point: &BoundaryPoint<D>,
-    increment: &[SVector<f64, D>],
+    increment: &(impl std::ops::Index<usize, Output = SVector<f64, D>> + ?Sized),
     factor: f64,
 ) -> SVector<f64, D> {
     let mut u = point.position - point.reference_position - point.start[0];

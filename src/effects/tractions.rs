@@ -93,6 +93,7 @@ use crate::basis::{BasisKind, NodeWeight, SurfaceScratch};
 use crate::checkpoint::CheckpointPart;
 use crate::components::{DeformationGradient, PointId, Position, Support};
 use crate::mechanics::spread_over_active;
+use crate::node_storage::NodeVec;
 use crate::output::{Field, PvdSeries, vertex_cells, write_vtu};
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{
@@ -699,7 +700,7 @@ pub fn apply_tractions<const D: usize>(
         .iter()
         .map(|&node| fields.external_force[node])
         .collect();
-    let active: Cow<[bool]> = if elsewhere.is_empty() {
+    let active: Cow<NodeVec<bool>> = if elsewhere.is_empty() {
         Cow::Borrowed(&fields.active)
     } else {
         let mut active = fields.active.clone();
@@ -714,7 +715,7 @@ pub fn apply_tractions<const D: usize>(
         }
         let force = point.traction * (point.area * point.factor(&step, stage));
         let spread =
-            spread_over_active(&force, &point.support, &active, &mut fields.external_force);
+            spread_over_active(&force, &point.support, &*active, &mut fields.external_force);
         if !spread && *weights == LoadPointWeights::Basis {
             failure = Some(fail(
                 point,
@@ -781,7 +782,7 @@ pub fn active_elsewhere(
 fn send_to_owners<const D: usize>(
     forces: &[(usize, SVector<f64, D>)],
     owned: impl Fn(usize) -> bool,
-    external_force: &mut [SVector<f64, D>],
+    external_force: &mut NodeVec<SVector<f64, D>>,
 ) -> Result<(), String> {
     let rows: Vec<u64> = forces
         .iter()

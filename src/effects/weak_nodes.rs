@@ -67,10 +67,13 @@
 //! `Hook::Combine`) nor with arc-length control (its second right-hand side is not
 //! transformed): a scene asking for either is refused.
 
+use std::ops::Index;
+
 use bevy_ecs::prelude::*;
 
 use crate::basis::{BasisKind, GridBasis};
 use crate::components::{Support, Volume};
+use crate::node_storage::NodeVec;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{
     Grid, GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock, Warnings,
@@ -200,13 +203,13 @@ impl Plugin for WeakNodesModule {
     }
 }
 
-/// Every node's share of the material, `Σ_p S_ip V_p / h^D`.
+/// Every node's share of the material, `Σ_p S_ip V_p / h^D` (paged: the nodes the points touch).
 pub fn material_shares<'a, const D: usize>(
     grid: &GridBasis<D>,
     points: impl Iterator<Item = (&'a Support<D>, f64)>,
-) -> Vec<f64> {
+) -> NodeVec<f64> {
     let cell_volume: f64 = grid.axes.iter().map(|a| a.spacing()).product();
-    let mut share = vec![0.0; grid.num_nodes()];
+    let mut share = NodeVec::new(grid.num_nodes(), 0.0);
     for (support, volume) in points {
         for w in &support.0 {
             share[w.node] += w.value * volume / cell_volume;
@@ -219,9 +222,9 @@ pub fn material_shares<'a, const D: usize>(
 /// components left free (no masters, or a master's component constrained where theirs is not).
 pub fn find_ties<const D: usize>(
     grid: &GridBasis<D>,
-    active: &[bool],
-    constrained: &[[bool; D]],
-    share: &[f64],
+    active: &NodeVec<bool>,
+    constrained: &(impl Index<usize, Output = [bool; D]> + ?Sized),
+    share: &(impl Index<usize, Output = f64> + ?Sized),
     epsilon: f64,
 ) -> (Vec<NodeTie<D>>, usize, usize) {
     let weak = |node: usize| active[node] && share[node] < epsilon;
@@ -242,7 +245,8 @@ pub fn find_ties<const D: usize>(
         }
     };
     let (mut ties, mut count, mut left) = (Vec::new(), 0, 0);
-    for node in (0..active.len()).filter(|&n| weak(n)) {
+    let weak_nodes = active.written().filter(|&(n, _)| weak(n)).map(|(n, _)| n);
+    for node in weak_nodes {
         count += 1;
         // (share of j, masters) of the best direction with two masters, else with one
         let mut best: Option<(f64, Vec<(usize, f64)>)> = None;
@@ -299,7 +303,7 @@ fn coupling_groups<'a, const D: usize>(
     supports: impl Iterator<Item = &'a Support<D>>,
     couplings: &[Vec<usize>],
 ) -> Vec<Vec<usize>> {
-    let mut tie_of = vec![usize::MAX; nodes];
+    let mut tie_of = NodeVec::new(nodes, usize::MAX);
     for (t, tie) in ties.iter().enumerate() {
         tie_of[tie.node] = t;
     }
@@ -381,7 +385,10 @@ pub struct DofTie {
 }
 
 /// The DOF ties of the node ties (their extended components).
-pub fn dof_ties<const D: usize>(ties: &[NodeTie<D>], dofs: &[[u32; D]]) -> Vec<DofTie> {
+pub fn dof_ties<const D: usize>(
+    ties: &[NodeTie<D>],
+    dofs: &(impl std::ops::Index<usize, Output = [u32; D]> + ?Sized),
+) -> Vec<DofTie> {
     let mut out = Vec::new();
     for tie in ties {
         for c in (0..D).filter(|&c| tie.components[c]) {
@@ -552,6 +559,7 @@ mod tests {
         }
         let mut constrained = vec![[false; 2]; n];
         constrained[node(0, 1)][0] = true;
+        let active = NodeVec::from_values(&active, false);
         let (ties, count, left) = find_ties(&grid, &active, &constrained, &share, 1e-3);
         // (3, 0) and (3, 1) are weak with no strong neighbour: 4 components left; (0, 2)'s
         // x component is left because its master's is constrained
@@ -576,8 +584,13 @@ mod tests {
                 }
             })
             .collect();
-        let (ties, count, left) =
-            find_ties(&grid, &vec![true; n], &vec![[false; 2]; n], &share, 1e-3);
+        let (ties, count, left) = find_ties(
+            &grid,
+            &NodeVec::from_values(&vec![true; n], false),
+            &vec![[false; 2]; n],
+            &share,
+            1e-3,
+        );
         assert_eq!((count, left, ties.len()), (4, 0, 4));
         for tie in &ties {
             let [x, y] = grid.node_multi_index(tie.node);

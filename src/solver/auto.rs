@@ -207,7 +207,7 @@ mod tests {
             .collect();
         let supports: Vec<Vec<usize>> = (0..nodes - 1).map(|i| vec![i, i + 1]).collect();
         let mut matrix = SparseMatrix::default();
-        matrix.rebuild_pattern(3 * nodes, &dofs, supports.iter().map(|s| s.as_slice()));
+        matrix.rebuild_pattern(3 * nodes, &dofs[..], supports.iter().map(|s| s.as_slice()));
         for i in 0..nodes - 1 {
             for (&a, &b) in dofs[i].iter().zip(&dofs[i + 1]) {
                 matrix.add(a, a, 1.0);

@@ -9,6 +9,8 @@
 
 use std::sync::Arc;
 
+use crate::node_storage::NodeVec;
+
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 
 /// Marker for a node component that has no DOF (fixed, or node inactive).
@@ -50,6 +52,41 @@ pub struct DofLayout {
     pub position: Vec<[f64; 3]>,
 }
 
+/// The DOF numbers of a grid's nodes for [`SparseMatrix::rebuild_pattern`]: a dense slice
+/// (one entry per node) or the core's paged `NodeVec` (the nodes of its written pages).
+pub trait NodeDofs<const D: usize> {
+    /// The grid's node count.
+    fn node_count(&self) -> usize;
+    /// The DOF numbers of `node` (`NO_DOF` where none).
+    fn of(&self, node: usize) -> [u32; D];
+    /// In node order, every node that may have DOFs with its numbers (the others have none).
+    fn with_dofs(&self) -> Box<dyn Iterator<Item = (usize, [u32; D])> + '_>;
+}
+
+impl<const D: usize> NodeDofs<D> for [[u32; D]] {
+    fn node_count(&self) -> usize {
+        self.len()
+    }
+    fn of(&self, node: usize) -> [u32; D] {
+        self[node]
+    }
+    fn with_dofs(&self) -> Box<dyn Iterator<Item = (usize, [u32; D])> + '_> {
+        Box::new(self.iter().copied().enumerate())
+    }
+}
+
+impl<const D: usize> NodeDofs<D> for NodeVec<[u32; D]> {
+    fn node_count(&self) -> usize {
+        self.len()
+    }
+    fn of(&self, node: usize) -> [u32; D] {
+        self[node]
+    }
+    fn with_dofs(&self) -> Box<dyn Iterator<Item = (usize, [u32; D])> + '_> {
+        Box::new(self.written().map(|(node, &dofs)| (node, dofs)))
+    }
+}
+
 impl SparseMatrix {
     /// Number of DOFs.
     pub fn size(&self) -> usize {
@@ -69,10 +106,19 @@ impl SparseMatrix {
     pub fn rebuild_pattern<'a, const D: usize>(
         &mut self,
         size: usize,
-        node_dofs: &[[u32; D]],
+        node_dofs: &(impl NodeDofs<D> + ?Sized),
         supports: impl Iterator<Item = &'a [usize]>,
     ) {
-        let mut adjacency: Vec<Vec<u32>> = vec![Vec::new(); node_dofs.len()];
+        // The nodes with DOFs in node order (their blocks), and each one's place among them:
+        // sized by these nodes, not by the grid (a decomposed run's process numbers its own).
+        let blocks: Vec<(usize, [u32; D])> = (node_dofs.with_dofs())
+            .filter(|(_, dofs)| dofs.iter().any(|&d| d != NO_DOF))
+            .collect();
+        let mut place = NodeVec::new(node_dofs.node_count(), u32::MAX);
+        for (k, &(node, _)) in blocks.iter().enumerate() {
+            place[node] = k as u32;
+        }
+        let mut adjacency: Vec<Vec<u32>> = vec![Vec::new(); blocks.len()];
         let mut previous: &[usize] = &[];
         for support in supports {
             // Points of one cell share their support (B-splines, linear): skip repeats.
@@ -80,14 +126,15 @@ impl SparseMatrix {
                 continue;
             }
             for &j in support {
-                if node_dofs[j].iter().all(|&d| d == NO_DOF) {
+                let k = place[j];
+                if k == u32::MAX {
                     continue;
                 }
-                let list = &mut adjacency[j];
-                list.extend(support.iter().map(|&i| i as u32));
+                adjacency[k as usize].extend(support.iter().map(|&i| i as u32));
             }
             previous = support;
         }
+        drop(place);
         for list in adjacency.iter_mut() {
             list.sort_unstable();
             list.dedup();
@@ -95,28 +142,28 @@ impl SparseMatrix {
 
         self.size = size;
         // New vectors at their exact sizes (a solver may still hold the old pattern).
-        let dofs_of = |node: usize| node_dofs[node].iter().filter(|&&d| d != NO_DOF).count();
-        let entries: usize = (0..node_dofs.len())
-            .map(|j| {
-                dofs_of(j)
-                    * adjacency[j]
-                        .iter()
-                        .map(|&i| dofs_of(i as usize))
-                        .sum::<usize>()
+        let dofs_of = |node: usize| {
+            (node_dofs.of(node).iter())
+                .filter(|&&d| d != NO_DOF)
+                .count()
+        };
+        let entries: usize = (blocks.iter().zip(&adjacency))
+            .map(|(&(j, _), nodes)| {
+                dofs_of(j) * nodes.iter().map(|&i| dofs_of(i as usize)).sum::<usize>()
             })
             .sum();
         let mut col_ptr = Vec::with_capacity(size + 1);
         let mut row_idx = Vec::with_capacity(entries);
         col_ptr.push(0);
         // Columns in DOF order: nodes in index order, components in order (node-major numbering).
-        for (j, dofs_j) in node_dofs.iter().enumerate() {
+        for ((_, dofs_j), nodes) in blocks.iter().zip(&adjacency) {
             for &col in dofs_j.iter() {
                 if col == NO_DOF {
                     continue;
                 }
                 debug_assert_eq!(col as usize, col_ptr.len() - 1);
-                for &i in &adjacency[j] {
-                    for &row in node_dofs[i as usize].iter() {
+                for &i in nodes {
+                    for &row in node_dofs.of(i as usize).iter() {
                         if row != NO_DOF {
                             row_idx.push(row as usize);
                         }
@@ -139,18 +186,15 @@ impl SparseMatrix {
         layout.component.clear();
         layout.position.clear();
         layout.block_start.push(0);
-        for (node, dofs) in node_dofs.iter().enumerate() {
-            let before = layout.component.len();
+        for &(node, dofs) in &blocks {
             for (c, &dof) in dofs.iter().enumerate() {
                 if dof != NO_DOF {
                     debug_assert_eq!(dof as usize, layout.component.len());
                     layout.component.push(c as u8);
                 }
             }
-            if layout.component.len() > before {
-                layout.node.push(node);
-                layout.block_start.push(layout.component.len());
-            }
+            layout.node.push(node);
+            layout.block_start.push(layout.component.len());
         }
     }
 

@@ -172,7 +172,7 @@ mod tests {
         }
         let supports: Vec<Vec<usize>> = (0..n - 1).map(|e| vec![e, e + 1]).collect();
         let mut sys = SparseMatrix::default();
-        sys.rebuild_pattern(n - 1, &dofs, supports.iter().map(|s| s.as_slice()));
+        sys.rebuild_pattern(n - 1, &dofs[..], supports.iter().map(|s| s.as_slice()));
         (sys, dofs)
     }
 
@@ -219,7 +219,7 @@ mod tests {
     fn two_by_two(m: nalgebra::Matrix2<f64>) -> SparseMatrix {
         let dofs = [[0u32, 1u32]];
         let mut sys = SparseMatrix::default();
-        sys.rebuild_pattern(2, &dofs, std::iter::once(&[0usize][..]));
+        sys.rebuild_pattern(2, &dofs[..], std::iter::once(&[0usize][..]));
         sys.add_block(&dofs[0], &dofs[0], &m);
         sys
     }
@@ -320,7 +320,7 @@ mod tests {
             }
         }
         let mut sys = SparseMatrix::default();
-        sys.rebuild_pattern(m * m, &dofs, stencils.iter().map(|s| s.as_slice()));
+        sys.rebuild_pattern(m * m, &dofs[..], stencils.iter().map(|s| s.as_slice()));
         // stiffness of node (i, j); an edge has the mean of its two nodes' (symmetric part)
         let k = |i: usize, j: usize| 1.0 + 0.5 * ((i * j) as f64 * 0.1).sin();
         for j in 0..m {

@@ -39,7 +39,7 @@ const AXES: [&str; 3] = ["x", "y", "z"];
 pub fn rigid_modes<const D: usize>(
     nodes: &[usize],
     position: &dyn Fn(usize) -> SVector<f64, D>,
-    dofs: &[[u32; D]],
+    dofs: &impl std::ops::Index<usize, Output = [u32; D]>,
     size: usize,
     rotations: bool,
 ) -> Vec<RigidMode> {
@@ -168,7 +168,7 @@ mod tests {
         }
         let supports: [&[usize]; 2] = [&[0, 1], &[1, 2]];
         let mut matrix = SparseMatrix::default();
-        matrix.rebuild_pattern(next as usize, &dofs, supports.into_iter());
+        matrix.rebuild_pattern(next as usize, &dofs[..], supports.into_iter());
         for (a, b) in [(0, 1), (1, 2)] {
             for (i, j, k) in [(a, a, 1.0), (a, b, -1.0), (b, a, -1.0), (b, b, 1.0)] {
                 let (di, dj) = (dofs[i][0], dofs[j][0]);
@@ -211,7 +211,7 @@ mod tests {
         let dofs: Vec<[u32; 2]> = vec![[NO_DOF, NO_DOF], [0, 1], [2, 3]];
         let supports: [&[usize]; 2] = [&[0, 1], &[0, 2]];
         let mut matrix = SparseMatrix::default();
-        matrix.rebuild_pattern(4, &dofs, supports.into_iter());
+        matrix.rebuild_pattern(4, &dofs[..], supports.into_iter());
         matrix.add(0, 0, 1.0); // bar 0-1 resists x at node 1
         matrix.add(3, 3, 1.0); // bar 0-2 resists y at node 2
         let modes = rigid_modes(&[0, 1, 2], &position, &dofs, 4, true);

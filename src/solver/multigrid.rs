@@ -1423,7 +1423,7 @@ mod tests {
             }
         }
         let mut matrix = SparseMatrix::default();
-        matrix.rebuild_pattern(2 * nodes, &dofs, supports.iter().map(|s| s.as_slice()));
+        matrix.rebuild_pattern(2 * nodes, &dofs[..], supports.iter().map(|s| s.as_slice()));
         matrix.set_node_positions(|n| nalgebra::Vector2::new((n % nx) as f64, (n / nx) as f64));
         (matrix, supports)
     }

@@ -240,6 +240,7 @@
 use bevy_ecs::prelude::*;
 use nalgebra::SVector;
 
+use crate::node_storage::NodeVec;
 use crate::resources::{
     GridFields, LoadStep, Newton, NewtonSettings, RunStatus, SharedGrid, SolverError, Warnings,
 };
@@ -380,7 +381,7 @@ impl<'a> OverProcesses<'a> {
         let mut counted = Vec::new();
         if let Some(shared) = shared {
             counted.resize(fields.dof_count, false);
-            for (node, dofs) in fields.dofs.iter().enumerate() {
+            for (node, dofs) in fields.dofs.written() {
                 for &dof in dofs.iter().filter(|&&d| d != NO_DOF) {
                     counted[dof as usize] = shared.owned(node);
                 }
@@ -665,15 +666,22 @@ impl<const D: usize> ArcLength<D> {
     }
 
     /// f_ext at load factor `factor`: f_fixed + λ f̂ (λ f̂ without held loads).
-    fn set_external(&self, external: &mut [SVector<f64, D>], factor: f64) {
+    /// Only the nodes where f_fixed or f̂ is not zero are written (the others are zero: the
+    /// grid's pages there stay unallocated, `node_storage`).
+    fn set_external(&self, external: &mut NodeVec<SVector<f64, D>>, factor: f64) {
+        external.reset();
+        let zero = SVector::<f64, D>::zeros();
         if self.fixed.is_empty() {
-            for (f, reference) in external.iter_mut().zip(&self.reference) {
-                *f = reference * factor;
+            for (node, reference) in self.reference.iter().enumerate() {
+                if *reference != zero {
+                    external[node] = reference * factor;
+                }
             }
         } else {
-            for ((f, reference), fixed) in external.iter_mut().zip(&self.reference).zip(&self.fixed)
-            {
-                *f = fixed + reference * factor;
+            for (node, (reference, fixed)) in self.reference.iter().zip(&self.fixed).enumerate() {
+                if *reference != zero || *fixed != zero {
+                    external[node] = fixed + reference * factor;
+                }
             }
         }
     }
@@ -681,22 +689,26 @@ impl<const D: usize> ArcLength<D> {
     /// A follower load's held force changed by `change` (by node) with the iterate: f_fixed is
     /// the loads at λ = 0 in the current configuration, so it follows (`effects::pressure`: a
     /// pressure of an earlier stage under the arc of a later one).
-    pub fn change_fixed(&mut self, change: &[SVector<f64, D>]) {
+    pub fn change_fixed(&mut self, change: &NodeVec<SVector<f64, D>>) {
         if self.fixed.is_empty() {
             self.fixed = vec![SVector::zeros(); change.len()];
         }
-        for (f, df) in self.fixed.iter_mut().zip(change) {
-            *f += df;
+        for (node, df) in change.written() {
+            self.fixed[node] += df;
         }
     }
 
     /// A follower load's force at λ = 1 changed by `change` (by node) with the iterate: f̂ is
     /// the loads at λ = 1 in the current configuration, so it and its free-DOF part follow
     /// (`effects::pressure`).
-    pub fn change_reference(&mut self, change: &[SVector<f64, D>], dofs: &[[u32; D]]) {
-        for ((f, df), node_dofs) in self.reference.iter_mut().zip(change).zip(dofs) {
-            *f += df;
-            for (c, &dof) in node_dofs.iter().enumerate() {
+    pub fn change_reference(
+        &mut self,
+        change: &NodeVec<SVector<f64, D>>,
+        dofs: &NodeVec<[u32; D]>,
+    ) {
+        for (node, df) in change.written() {
+            self.reference[node] += df;
+            for (c, &dof) in dofs[node].iter().enumerate() {
                 if dof != NO_DOF {
                     self.reference_dofs[dof as usize] += df[c];
                 }
@@ -805,11 +817,14 @@ pub fn split_fixed_loads<const D: usize>(world: &mut World) {
     if world.resource::<RunStatus>().0.is_some() {
         return;
     }
-    let unit = std::mem::take(&mut world.resource_mut::<GridFields<D>>().external_force);
-    {
+    let unit = {
         let mut fields = world.resource_mut::<GridFields<D>>();
-        fields.external_force = vec![SVector::zeros(); unit.len()];
-    }
+        let nodes = fields.external_force.len();
+        std::mem::replace(
+            &mut fields.external_force,
+            NodeVec::new(nodes, SVector::zeros()),
+        )
+    };
     world.resource_mut::<LoadStep>().factor = 0.0;
     let _ = world.try_run_schedule(FixedLoadsSchedule); // absent: no load module added to it
     let _ = world.try_run_schedule(SumFixedLoadsSchedule); // absent: not decomposed
@@ -819,10 +834,10 @@ pub fn split_fixed_loads<const D: usize>(world: &mut World) {
         unit,
     );
     let mut fields = world.resource_mut::<GridFields<D>>();
-    for (f, held) in fields.external_force.iter_mut().zip(&fixed) {
-        *f -= held;
+    for (node, held) in fixed.written() {
+        fields.external_force[node] -= held;
     }
-    world.resource_mut::<ArcLength<D>>().fixed = fixed;
+    world.resource_mut::<ArcLength<D>>().fixed = fixed.to_vec();
 }
 
 /// `Hook::BeforeSolve`, before the Newton loop (so after `Hook::Loads`): keeps f̂ and puts
@@ -836,10 +851,10 @@ pub fn take_reference_load<const D: usize>(
     newton: Res<Newton>,
 ) {
     let (arc, fields) = (&mut *arc, &mut *fields);
-    arc.reference.clone_from(&fields.external_force);
+    arc.reference = fields.external_force.to_vec();
     arc.reference_dofs.clear();
     arc.reference_dofs.resize(fields.dof_count, 0.0);
-    for (node, dofs) in fields.dofs.iter().enumerate() {
+    for (node, dofs) in fields.dofs.written() {
         for (c, &dof) in dofs.iter().enumerate() {
             if dof != NO_DOF {
                 arc.reference_dofs[dof as usize] = arc.reference[node][c];
@@ -1021,9 +1036,9 @@ fn imbalance<const D: usize>(
         .filter(|(dof, _)| sums.counted.get(*dof).is_none_or(|c| *c))
         .map(|(_, r)| r * r)
         .sum::<f64>();
-    let external = (fields.external_force.iter().zip(&fields.active).enumerate())
-        .filter(|(node, (_, active))| **active && sums.counts(*node))
-        .map(|(_, (f, _))| f.norm_squared())
+    let external = (fields.external_force.written())
+        .filter(|&(node, _)| fields.active[node] && sums.counts(node))
+        .map(|(_, f)| f.norm_squared())
         .sum::<f64>();
     let [free, external] = sums.sum([free, external])?;
     Ok(start_imbalance(free.sqrt(), external.sqrt()))
@@ -1159,7 +1174,7 @@ pub fn correct_load_factor<const D: usize>(
     let mut previous = vec![0.0; residual_part.len()];
     // the arc's predictor has Δu − Δu_c = 0 exactly (a difference of the sums would not be)
     let predictor = arc.current.is_empty();
-    for (node, dofs) in fields.dofs.iter().enumerate() {
+    for (node, dofs) in fields.dofs.written() {
         for (c, &dof) in dofs.iter().enumerate() {
             if dof != NO_DOF {
                 let dof = dof as usize;
@@ -1302,7 +1317,7 @@ pub fn shortest_correction_with(
 
 /// Δu += δλ δu_f at the free DOFs.
 fn add_load_part<const D: usize>(fields: &mut GridFields<D>, load_part: &[f64], delta: f64) {
-    for (node, dofs) in fields.dofs.iter().enumerate() {
+    for (node, dofs) in fields.dofs.written() {
         for (c, &dof) in dofs.iter().enumerate() {
             if dof != NO_DOF {
                 fields.increment[node][c] += delta * load_part[dof as usize];
@@ -1323,17 +1338,18 @@ fn set_factor<const D: usize>(
     arc.set_external(&mut fields.external_force, factor);
 }
 
-/// Δu by node, with the inactive and constrained components (which carry none) zero.
+/// Δu by node, with the inactive and constrained components (which carry none) zero (dense:
+/// the arc keeps Δu_{n−1} whole on every process, module docs).
 fn free_part<const D: usize>(fields: &GridFields<D>) -> Vec<SVector<f64, D>> {
     let mut free = fields.increment.clone();
-    for (node, dofs) in fields.dofs.iter().enumerate() {
-        for (c, &dof) in dofs.iter().enumerate() {
+    for (node, u) in free.written_mut() {
+        for (c, &dof) in fields.dofs[node].iter().enumerate() {
             if dof == NO_DOF {
-                free[node][c] = 0.0;
+                u[c] = 0.0;
             }
         }
     }
-    free
+    free.to_vec()
 }
 
 /// The arc-length step policy's state between steps ([`ArcLengthControl::state`]), put into

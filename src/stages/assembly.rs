@@ -43,6 +43,7 @@ use nalgebra::{SMatrix, SVector};
 use crate::colouring::{self, Colouring};
 use crate::components::{AssembledElsewhere, ReferenceVolume, Support, Trial};
 use crate::mechanics::StiffnessFactor;
+use crate::node_storage::NodeVec;
 use crate::parallel::{self, Disjoint};
 use crate::resources::{
     Grid, GridFields, LoadStep, Newton, RunStatus, SolverError, Stage, StageClock,
@@ -123,7 +124,7 @@ impl<const D: usize> AssemblyScratch<D> {
     fn cache_block_positions(
         &mut self,
         nodes: impl Iterator<Item = usize>,
-        dofs: &[[u32; D]],
+        dofs: &NodeVec<[u32; D]>,
         system: &SparseMatrix,
         symmetric: bool,
     ) {
@@ -148,7 +149,7 @@ impl<const D: usize> AssemblyScratch<D> {
 
     /// Adds the group's summed blocks (and, if symmetric, their transposes for j != i) to the
     /// sparse values (laid out as the system's) and clears them.
-    fn flush(&mut self, dofs: &[[u32; D]], sums: &mut impl Sums<D>) {
+    fn flush(&mut self, dofs: &NodeVec<[u32; D]>, sums: &mut impl Sums<D>) {
         let m = self.cached_nodes.len();
         let mut pair = 0;
         for i in 0..m {
@@ -246,6 +247,20 @@ pub fn assemble<const D: usize>(
     } = &mut *fields;
     let symmetric = newton.symmetric;
     let mut points: Vec<_> = points.iter().collect();
+    // The nodes the points' supports reach, in the order the points first touch them: the
+    // internal force is summed in an array of these (its place for each node), then put into
+    // the grid's (`GridFields` is paged, `node_storage`: a process sums what it touches).
+    let mut place = NodeVec::new(dofs.len(), u32::MAX);
+    let mut nodes: Vec<usize> = Vec::new();
+    for (support, ..) in &points {
+        for w in &support.0 {
+            if place[w.node] == u32::MAX {
+                place[w.node] = nodes.len() as u32;
+                nodes.push(w.node);
+            }
+        }
+    }
+    let mut force = vec![SVector::<f64, D>::zeros(); nodes.len()];
     // Too few points for two parts on any thread count: the plain loop, as on one thread.
     let colouring = if parallel::can_split(points.len()) {
         let key = (newton.matrix.generation(), points.len());
@@ -256,7 +271,7 @@ pub fn assemble<const D: usize>(
     };
     parts.resize_with(parallel::part_count(points.len()), Default::default);
     newton.matrix.with_values_apart(|system, values| {
-        let target = (dofs.as_slice(), system, symmetric);
+        let target = (&*dofs, &place, system, symmetric);
         match colouring {
             Some(colouring) => {
                 // Only the fallback keeps copies: free any an earlier step made.
@@ -264,22 +279,20 @@ pub fn assemble<const D: usize>(
                     part.internal_force = Vec::new();
                     part.values = Vec::new();
                 }
-                assemble_coloured(
-                    &points,
-                    colouring,
-                    target,
-                    &mut parts,
-                    internal_force,
-                    values,
-                )
+                assemble_coloured(&points, colouring, target, &mut parts, &mut force, values)
             }
-            None => assemble_in_parts(&mut points, target, &mut parts, internal_force, values),
+            None => assemble_in_parts(&mut points, target, &mut parts, &mut force, values),
         }
     });
+    internal_force.reset();
+    for (&node, f) in nodes.iter().zip(&force) {
+        internal_force[node] = *f;
+    }
     // Guard: a non-finite internal force is reported here, at the node where it appears.
-    if let Some(node) = internal_force
-        .iter()
-        .position(|f| f.iter().any(|c| !c.is_finite()))
+    if let Some(node) = (nodes.iter().zip(&force))
+        .filter(|(_, f)| f.iter().any(|c| !c.is_finite()))
+        .map(|(&node, _)| node)
+        .min()
     {
         status.fail(SolverError::NotFinite {
             stage: "assembly",
@@ -296,15 +309,21 @@ fn colour<const D: usize>(grid: &Grid<D>, points: &[PointItem<'_, D>]) -> Option
     })
 }
 
-/// The DOF numbers, the system (for its pattern) and whether K is symmetric.
-type Target<'a, const D: usize> = (&'a [[u32; D]], &'a SparseMatrix, bool);
+/// The DOF numbers, each node's place in the summed internal force, the system (for its
+/// pattern) and whether K is symmetric.
+type Target<'a, const D: usize> = (
+    &'a NodeVec<[u32; D]>,
+    &'a NodeVec<u32>,
+    &'a SparseMatrix,
+    bool,
+);
 
 /// The threads share one internal force and one array of values, colour after colour (module
 /// docs).
 fn assemble_coloured<const D: usize>(
     points: &[PointItem<'_, D>],
     colouring: &Colouring,
-    (dofs, system, symmetric): Target<'_, D>,
+    (dofs, place, system, symmetric): Target<'_, D>,
     parts: &mut [AssemblyPart<D>],
     internal_force: &mut [SVector<f64, D>],
     values: &mut [f64],
@@ -329,7 +348,7 @@ fn assemble_coloured<const D: usize>(
                 force: &force,
                 values: &values,
             };
-            assemble_points(points, dofs, system, symmetric, scratch, &mut sums);
+            assemble_points(points, (dofs, place, system, symmetric), scratch, &mut sums);
         },
     );
 }
@@ -339,7 +358,7 @@ fn assemble_coloured<const D: usize>(
 /// added in order afterwards, so a given thread count gives bit-identical sums.
 fn assemble_in_parts<const D: usize>(
     points: &mut [PointItem<'_, D>],
-    (dofs, system, symmetric): Target<'_, D>,
+    (dofs, place, system, symmetric): Target<'_, D>,
     parts: &mut [AssemblyPart<D>],
     internal_force: &mut [SVector<f64, D>],
     values: &mut [f64],
@@ -366,7 +385,7 @@ fn assemble_in_parts<const D: usize>(
         force.fill(SVector::zeros());
         values.fill(0.0);
         let mut sums = OwnSums { force, values };
-        assemble_points(points, dofs, system, symmetric, scratch, &mut sums);
+        assemble_points(points, (dofs, place, system, symmetric), scratch, &mut sums);
     });
     let forces: Vec<&[_]> = others.iter().map(|p| &p.internal_force[..]).collect();
     parallel::add_parts(internal_force, &forces);
@@ -378,9 +397,7 @@ fn assemble_in_parts<const D: usize>(
 /// support form a group, see the module docs) into `sums`.
 fn assemble_points<const D: usize>(
     points: &[PointItem<'_, D>],
-    dofs: &[[u32; D]],
-    system: &SparseMatrix,
-    symmetric: bool,
+    (dofs, place, system, symmetric): Target<'_, D>,
     scratch: &mut AssemblyScratch<D>,
     sums: &mut impl Sums<D>,
 ) {
@@ -407,7 +424,7 @@ fn assemble_points<const D: usize>(
         let mut pair = 0;
         for (i, wi) in support.iter().enumerate() {
             let g_i = &scratch.gradients[i];
-            sums.add_force(wi.node, state.internal_force(v0, g_i));
+            sums.add_force(place[wi.node] as usize, state.internal_force(v0, g_i));
             for factor_j in &scratch.factors[scratch.first_partner(i)..] {
                 scratch.blocks[pair] += state.stiffness_from(v0, g_i, factor_j);
                 pair += 1;

@@ -21,22 +21,21 @@ pub fn number_dofs<const D: usize>(
 ) {
     let _timer = clock.time(Stage::Dofs);
     let fields = &mut *fields;
-    // Mark free components of active nodes (0 = free, NO_DOF = none)...
-    for i in 0..fields.dofs.len() {
-        let constrained = fields.constrained[i];
-        fields.dofs[i] = if fields.active[i] {
-            std::array::from_fn(|c| if constrained[c] { NO_DOF } else { 0 })
-        } else {
-            [NO_DOF; D]
-        };
-    }
-    // ...then number them in node order.
+    // Number the free components of the active nodes in node order (NO_DOF = none): only the
+    // active nodes' pages are written (`node_storage`), the others read NO_DOF.
+    fields.dofs.reset();
     let mut count = 0u32;
-    for dofs in fields.dofs.iter_mut() {
-        for d in dofs.iter_mut().filter(|d| **d != NO_DOF) {
-            *d = count;
-            count += 1;
-        }
+    let active = fields.active.written().filter(|&(_, &a)| a).map(|(i, _)| i);
+    for i in active {
+        let constrained = fields.constrained[i];
+        fields.dofs[i] = std::array::from_fn(|c| {
+            if constrained[c] {
+                NO_DOF
+            } else {
+                count += 1;
+                count - 1
+            }
+        });
     }
     fields.dof_count = count as usize;
 

@@ -167,12 +167,14 @@ impl LineSearch {
         newton.residuals.truncate(self.accepted_residuals);
         newton.converged = false;
         let (start, correction) = (&self.start, &self.correction);
-        let dofs = fields.dofs.clone();
-        for (node, node_dofs) in dofs.iter().enumerate() {
+        let GridFields {
+            dofs, increment, ..
+        } = fields;
+        for (node, node_dofs) in dofs.written() {
             for (c, &dof) in node_dofs.iter().enumerate() {
                 if dof != NO_DOF {
                     let dof = dof as usize;
-                    fields.increment[node][c] = start[dof] + alpha * correction[dof];
+                    increment[node][c] = start[dof] + alpha * correction[dof];
                 }
             }
         }
@@ -181,7 +183,7 @@ impl LineSearch {
 
 /// Calls `f(node, component, dof)` for every free component.
 fn for_free_dofs<const D: usize>(fields: &GridFields<D>, mut f: impl FnMut(usize, usize, usize)) {
-    for (node, dofs) in fields.dofs.iter().enumerate() {
+    for (node, dofs) in fields.dofs.written() {
         for (c, &dof) in dofs.iter().enumerate() {
             if dof != NO_DOF {
                 f(node, c, dof as usize);

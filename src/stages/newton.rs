@@ -48,7 +48,7 @@ pub fn check_convergence<const D: usize>(
     let newton = &mut *newton;
     let (mut free, mut external, mut internal) = (0.0, 0.0, 0.0);
     let shared = newton.shared_grid.as_deref();
-    for (node, dofs) in fields.dofs.iter().enumerate() {
+    for (node, dofs) in fields.dofs.written() {
         if !fields.active[node] {
             continue;
         }
@@ -204,7 +204,7 @@ pub fn solve_linear_system<const D: usize>(
         }
     }
     let fields = &mut *fields;
-    for (node, dofs) in fields.dofs.iter().enumerate() {
+    for (node, dofs) in fields.dofs.written() {
         for (c, &dof) in dofs.iter().enumerate() {
             if dof != NO_DOF {
                 let delta = newton.residual[dof as usize];

@@ -153,7 +153,7 @@ pub fn internal_force_of<M: Material>(
     after_assembly(&mut sim.world);
     let fields = sim.world.resource::<GridFields<2>>();
     let mut f = vec![0.0; fields.dof_count];
-    for (node, dofs) in fields.dofs.iter().enumerate() {
+    for (node, dofs) in fields.dofs.written() {
         for (c, &d) in dofs.iter().enumerate() {
             if d != NO_DOF {
                 f[d as usize] = fields.internal_force[node][c];

@@ -39,6 +39,7 @@ use crate::distributed::ownership::{
 };
 use crate::distributed::traffic::Traffic;
 use crate::distributed::{any, exchange_counted, gather_all_counted};
+use crate::node_storage::NodeVec;
 use crate::resources::{
     Grid, GridFields, LoadStep, Newton, RunStatus, SharedGrid, SolverError, Stage, StageClock,
 };
@@ -51,9 +52,9 @@ pub struct SolverNumbers(pub SharedBlocks);
 /// The decomposed grid for the core: the nodes this process owns count in the convergence
 /// norms and the reactions here.
 struct OwnedNodes {
-    /// Whether this process owns each node of the grid (a mask, as `GridFields`' vectors are
-    /// sized by the whole grid: one byte per node, read once per node per Newton iteration).
-    owned: Vec<bool>,
+    /// Whether this process owns each node of the grid (a paged mask, `node_storage`: the
+    /// pages of its own nodes; read once per node per Newton iteration).
+    owned: NodeVec<bool>,
     /// The DOFs over all processes.
     dofs: usize,
 }
@@ -146,7 +147,7 @@ fn local_nodes<const D: usize>(world: &mut World) -> LocalNodes {
     let axis = world.resource::<AssemblyShare>().axis;
     let grid = &world.resource::<Grid<D>>().0;
     let fields = world.resource::<GridFields<D>>();
-    nodes.extend((fields.active.iter().enumerate()).filter_map(|(n, &active)| active.then_some(n)));
+    nodes.extend((fields.active.written()).filter_map(|(n, &active)| active.then_some(n)));
     let nodes: Vec<usize> = nodes.into_iter().collect();
     LocalNodes {
         layers: nodes
@@ -193,7 +194,7 @@ fn number<const D: usize>(world: &mut World) -> Result<(), String> {
     // the DOF stage's local DOFs are exactly the owned and ghost ones numbered here
     let fields = world.resource::<GridFields<D>>();
     let numbered = numbering.dofs.iter().filter(|&&n| n != NONE).count();
-    let active = fields.active.iter().filter(|&&a| a).count();
+    let active = fields.active.written().filter(|&(_, &a)| a).count();
     if numbered != fields.dof_count || active != local.nodes.len() {
         return Err(format!(
             "the DOF stage numbered {} DOFs on {active} nodes, the decomposed grid {numbered} \
@@ -202,7 +203,7 @@ fn number<const D: usize>(world: &mut World) -> Result<(), String> {
             local.nodes.len()
         ));
     }
-    let mut owned = vec![false; fields.active.len()];
+    let mut owned = NodeVec::new(fields.active.len(), false);
     for (&node, &owner) in local.nodes.iter().zip(&ownership.owner) {
         owned[node] = owner == rank;
     }
@@ -232,6 +233,26 @@ fn number<const D: usize>(world: &mut World) -> Result<(), String> {
     Ok(())
 }
 
+/// The largest per-node storage of a process in the current step: the bytes of the core's grid
+/// fields (`GridFields::node_storage_bytes`: their written pages and page tables) after the
+/// output, before the grid reset frees them (the step's largest: pages are freed only there,
+/// and by the DOF stage and the assembly, which write the same nodes again). `None` when the
+/// gather failed.
+#[derive(Resource, Default)]
+pub struct NodeStorage {
+    pub largest: Option<u64>,
+}
+
+/// Collective (every process, after a failure too): each process's bytes gathered, their
+/// largest kept for the step's record (`node_storage_bytes`).
+pub fn measure_node_storage<const D: usize>(world: &mut World) {
+    let bytes = world.resource::<GridFields<D>>().node_storage_bytes() as u64;
+    let largest = gather_all_counted(&[bytes], Traffic::Reductions)
+        .ok()
+        .and_then(|all| all.iter().filter_map(|b| b.first().copied()).max());
+    world.insert_resource(NodeStorage { largest });
+}
+
 /// Sums `vectors` (one per node of the whole grid; this process's own points' share at its
 /// nodes) over the processes touching each of its nodes (`distributed::ownership`, "Sums at
 /// the shared nodes": the shares to the owner, the owner's sum back), so that every process
@@ -241,7 +262,7 @@ fn number<const D: usize>(world: &mut World) -> Result<(), String> {
 /// process's.
 pub fn sum_at_nodes<const D: usize>(
     grid: &DecomposedGrid,
-    vectors: &mut [SVector<f64, D>],
+    vectors: &mut NodeVec<SVector<f64, D>>,
 ) -> Result<(), String> {
     let Some(ownership) = grid.ownership.as_ref() else {
         // the same on every process: the numbering fails the step on all of them alike

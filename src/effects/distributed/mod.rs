@@ -87,6 +87,7 @@ use crate::distributed::{
     Processes, RUN_MEASURES, decomposed, layer_of, path_of_process_0, processes, share_failures,
 };
 use crate::method::{BuiltInOutput, OutputSchedule, StepSchedule, StepSystems};
+use crate::node_storage::NodeVec;
 use crate::output::write_pvtu;
 use crate::plugin::{Extension, Hook, Plugin};
 use crate::resources::{
@@ -281,10 +282,19 @@ impl Plugin for DistributedModule {
                 share_step_failure
                     .after(StepSystems::UpdatePoints)
                     .before(StepSystems::Output),
-                share_step_failure
-                    .after(StepSystems::Output)
-                    .before(StepSystems::ResetGrid),
             ));
+            let last = share_step_failure
+                .after(StepSystems::Output)
+                .before(StepSystems::ResetGrid);
+            if decompose {
+                // both collective: in one order on every process
+                let measure = grid::measure_node_storage::<D>;
+                schedules
+                    .entry(StepSchedule)
+                    .add_systems(last.before(measure));
+            } else {
+                schedules.entry(StepSchedule).add_systems(last);
+            }
             schedules.entry(OutputSchedule).add_systems(
                 list_particle_pieces
                     .after(BuiltInOutput)
@@ -292,7 +302,7 @@ impl Plugin for DistributedModule {
                     .before(Hook::Output),
             );
         }
-        let [assembled, changing, owned, ghosts, local, ..] = RUN_MEASURES;
+        let [assembled, changing, owned, ghosts, local, .., storage] = RUN_MEASURES;
         if decompose {
             // not in a stage's set: it runs after a failure too, and shares it
             let mut schedules = simulation.world().resource_mut::<Schedules>();
@@ -306,6 +316,12 @@ impl Plugin for DistributedModule {
             held.set_executor(SingleThreadedExecutor::new());
             held.add_systems(decomposition::sum_external_force::<D>);
             schedules.insert(held);
+            // collective, after the step's last failure share (ordered there)
+            schedules.entry(StepSchedule).add_systems(
+                grid::measure_node_storage::<D>
+                    .after(StepSystems::Output)
+                    .before(StepSystems::ResetGrid),
+            );
             let numbered = |world: &mut World| {
                 let grid = world.get_resource::<grid::DecomposedGrid>()?;
                 grid.ownership.as_ref()?;
@@ -318,7 +334,11 @@ impl Plugin for DistributedModule {
             simulation
                 .add_measure(owned, move |world, _| numbered(world).map(|n| n.0))
                 .add_measure(ghosts, move |world, _| numbered(world).map(|n| n.1))
-                .add_measure(local, move |world, _| numbered(world).map(|n| n.2));
+                .add_measure(local, move |world, _| numbered(world).map(|n| n.2))
+                .add_measure(storage, move |world, _| {
+                    let bytes = world.get_resource::<grid::NodeStorage>()?.largest?;
+                    Some(bytes as f64)
+                });
         } else {
             simulation.add_systems(Hook::Connectivity, mark_assembly_share::<D>);
         }
@@ -602,7 +622,7 @@ pub fn share_step_failure(mut status: ResMut<RunStatus>, step: Res<LoadStep>, ne
 fn sum_grid_vectors<const D: usize>(
     share: &mut AssemblyShare,
     decomposed: Option<&grid::DecomposedGrid>,
-    vectors: &mut [SVector<f64, D>],
+    vectors: &mut NodeVec<SVector<f64, D>>,
 ) -> Result<(), String> {
     if let Some(grid) = decomposed {
         return grid::sum_at_nodes(grid, vectors);
@@ -615,8 +635,12 @@ fn sum_grid_vectors<const D: usize>(
         .sum
         .sum(&mut share.buffer)
         .map_err(|e| e.to_string())?;
-    for (vector, values) in vectors.iter_mut().zip(share.buffer.chunks_exact(D)) {
-        *vector = SVector::<f64, D>::from_column_slice(values);
+    // the whole grid's sums (replicated); a node whose sum it holds already is not written
+    for (node, values) in share.buffer.chunks_exact(D).enumerate() {
+        let sum = SVector::<f64, D>::from_column_slice(values);
+        if vectors[node] != sum {
+            vectors[node] = sum;
+        }
     }
     Ok(())
 }
