@@ -63,6 +63,11 @@
 //!   is counted in `fbar_sparse_cells` (summary.json, history.csv) over every process, and an
 //!   interrupted run's resume command (printed and in summary.json) is `mpirun -n N impm run
 //!   .. --decompose` as launched;
+//! * with decomposed points the grid and node files are pieces too (each node by its owner,
+//!   each cell by the process of its slab): the 2D and the 3D column over 2 and 3 processes
+//!   list one piece per process in every step's `.pvtu`, the node pieces hold every node once,
+//!   `impm merge` turns them into the serial run's files (every point, cell and array, every
+//!   step) and ParaView reads both series with every array and the right nodes and cells;
 //! * checkpoints under mpirun: a run stopped after a checkpoint and resumed gives the
 //!   uninterrupted serial run's results whatever wrote the checkpoint and whatever resumes it
 //!   (decomposed `-n 2` by `-n 2`, `-n 3` serially, serial by `-n 2`; a von Mises column
@@ -715,13 +720,26 @@ fn pieces_are_listed(dir: &Path, n: usize, points: usize, paraview: bool) {
     if !paraview {
         return;
     }
+    let Some(report) = read_by_paraview(dir, &[]) else {
+        return;
+    };
+    assert!(
+        report.contains(&format!("points: {points},")),
+        "{points} points expected: {report}"
+    );
+}
+
+/// ParaView's report on the run in `dir` (`scripts/check_output.py` under `pvpython`, with the
+/// particle fields, `point_id` and `extra`), which must say OK; `None` (said) where pvpython
+/// is not installed.
+fn read_by_paraview(dir: &Path, extra: &[&str]) -> Option<String> {
     let available = Command::new("pvpython")
         .arg("--version")
         .output()
         .is_ok_and(|o| o.status.success());
     if !available {
         eprintln!("skipped the ParaView check: pvpython is not installed");
-        return;
+        return None;
     }
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/check_output.py");
     let output = Command::new("pvpython")
@@ -729,18 +747,16 @@ fn pieces_are_listed(dir: &Path, n: usize, points: usize, paraview: bool) {
         .arg(dir)
         .args(common::PARTICLE_FIELDS)
         .arg("point_id:1")
+        .args(extra)
         .output()
         .unwrap();
-    let report = String::from_utf8_lossy(&output.stdout);
+    let report = String::from_utf8_lossy(&output.stdout).to_string();
     assert!(
         output.status.success() && report.contains("\nOK\n"),
         "{report}{}",
         String::from_utf8_lossy(&output.stderr)
     );
-    assert!(
-        report.contains(&format!("points: {points},")),
-        "{points} points expected: {report}"
-    );
+    Some(report)
 }
 
 #[test]
@@ -2576,5 +2592,275 @@ fn decomposed_processes_hold_the_node_storage_of_their_own_nodes() {
             "{one} B against {dense}"
         );
         assert!(two <= 0.6 * one, "step {}: {two} B of {one}", k + 1);
+    }
+}
+
+/// The values of `file` (a `.vtu` of the serial run, `stem` its series) against `merged` (the
+/// same step's file `impm merge` wrote from a decomposed run's pieces): the same points (to
+/// 1e-12 of the grid's extent), the same cells (kinds and corners, exactly), and every array
+/// of the serial file to 1e-8 of its largest value (exactly where that is zero). Returns the
+/// largest difference.
+fn same_grid_file(label: &str, merged: &Path, file: &Path) -> f64 {
+    let read = |path: &Path| read_vtu(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let (got, serial) = (read(merged), read(file));
+    let flat = |v: &impm::output::VtuContents| -> Vec<f64> {
+        v.points.iter().flatten().copied().collect()
+    };
+    assert_eq!(got.points.len(), serial.points.len(), "{label}: points");
+    let positions = relative_difference(&flat(&got), &flat(&serial));
+    assert!(positions <= 1e-12, "{label}: positions {positions:e}");
+    assert_eq!(got.cell_types, serial.cell_types, "{label}: cell kinds");
+    assert_eq!(
+        got.connectivity, serial.connectivity,
+        "{label}: cells' corners"
+    );
+    assert_eq!(got.offsets, serial.offsets, "{label}: cells");
+    let mut largest_difference = 0.0f64;
+    for (kind, arrays, got_arrays) in [
+        ("point", &serial.point_data, &got.point_data),
+        ("cell", &serial.cell_data, &got.cell_data),
+    ] {
+        assert!(
+            !arrays.is_empty() || kind == "cell",
+            "{label}: no point arrays"
+        );
+        for (name, components, values) in arrays {
+            let (_, got_components, got_values) = got_arrays
+                .iter()
+                .find(|(n, _, _)| n == name)
+                .unwrap_or_else(|| panic!("{label}: no {kind} array {name} in the merged file"));
+            assert_eq!(got_components, components, "{label}: {name}");
+            assert_eq!(got_values.len(), values.len(), "{label}: {name}");
+            let scale = values.iter().map(|v| v.abs()).fold(0.0, f64::max);
+            let difference = (got_values.iter().zip(values))
+                .map(|(a, b)| (a - b).abs() / scale.max(f64::MIN_POSITIVE))
+                .fold(0.0, f64::max);
+            assert!(
+                difference <= 1e-8,
+                "{label}: {kind} array {name} differs by {difference:e} of {scale:e}"
+            );
+            largest_difference = largest_difference.max(difference);
+        }
+    }
+    largest_difference
+}
+
+/// Issue 14, the grid and node files of a decomposed run over each of `counts` processes
+/// (`--decompose`; one process writes the serial files, compared as below): over several, every output step's `grid_NNNN.pvtu` and `nodes_NNNN.pvtu` list one piece
+/// per process and `grid.pvd` and `nodes.pvd` list them; the node pieces hold every node of
+/// the serial file once; `impm merge` turns them into files equal to the serial run's (every
+/// point, cell and array, every step: [`same_grid_file`]); the run no longer says they are
+/// not written; with `paraview`, ParaView reads the series (`scripts/check_output.py`) with
+/// every array and the serial file's nodes and cells (the grid's points: its pieces' vertices,
+/// a vertex on a slab boundary in both).
+fn grid_pieces_equal_the_serial_files(
+    script: &str,
+    set: &[&str],
+    tag: &str,
+    counts: &[usize],
+    paraview: bool,
+) {
+    let Some(_one) = mpi_job_slot() else {
+        return;
+    };
+    let scene = shipped_scene(script);
+    let serial_dir = temp_dir("mpi", &format!("{tag}-serial"));
+    let reference = serial_reference(&scene, set, &serial_dir, &[]);
+    let steps = reference.steps.len();
+    let serial_file =
+        |stem: &str, step: usize| serial_dir.join(impm::output::step_file_name(stem, step));
+    let serial_nodes = read_vtu(&serial_file("nodes", 0)).unwrap().points.len();
+    let serial_cells = read_vtu(&serial_file("grid", 0)).unwrap().cell_count;
+    for &n in counts {
+        let label = format!("{script} -n {n} --decompose");
+        let dir = temp_dir("mpi", &format!("{tag}-{n}"));
+        let extra = ["--petsc-options", "-ksp_rtol 1e-12", "--decompose"];
+        let output = run(Some(n), &scene, set, &dir, &extra);
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(output.status.success(), "{label}: {stderr}");
+        assert!(!stderr.contains("not written"), "{label}: {stderr}");
+        // the pieces: one per process, every node once (one process writes the serial files)
+        let mut grid_points = Vec::new();
+        for stem in ["grid", "nodes"].into_iter().filter(|_| n > 1) {
+            let pvd = std::fs::read_to_string(dir.join(format!("{stem}.pvd"))).unwrap();
+            assert_eq!(pvd.matches(".pvtu\"").count(), steps + 1, "{label}: {pvd}");
+            assert!(!pvd.contains(".vtu\""), "{label}: {pvd}");
+            for step in 0..=steps {
+                let pvtu =
+                    dir.join(impm::output::step_file_name(stem, step).replace(".vtu", ".pvtu"));
+                assert_eq!(
+                    impm::output::pvtu_pieces(&pvtu).unwrap().len(),
+                    n,
+                    "{label}"
+                );
+                let points = points_in_pieces(&pvtu);
+                if stem == "nodes" {
+                    assert_eq!(
+                        points, serial_nodes,
+                        "{label}: step {step}'s nodes in pieces"
+                    );
+                } else {
+                    grid_points.push(points);
+                }
+            }
+        }
+        if paraview && n > 1 {
+            grid_series_read_by_paraview(&label, &dir, serial_nodes, serial_cells, &grid_points);
+        }
+        let got = outcome(&dir); // merges the pieces
+        same_results(&label, &got, &reference, 0.0);
+        let mut largest = 0.0f64;
+        for step in 0..=steps {
+            for stem in ["grid", "nodes"] {
+                let name = impm::output::step_file_name(stem, step);
+                let difference = same_grid_file(
+                    &format!("{label}: {name}"),
+                    &dir.join(&name),
+                    &serial_file(stem, step),
+                );
+                largest = largest.max(difference);
+            }
+        }
+        eprintln!(
+            "{label}: grid and node files of {} steps merged from the pieces, {serial_nodes} \
+             nodes and {serial_cells} cells as the serial run's; grid's points in pieces \
+             {grid_points:?}; largest difference {largest:.1e}",
+            steps + 1
+        );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+    let _ = std::fs::remove_dir_all(&serial_dir);
+}
+
+/// ParaView (`scripts/check_output.py` under `pvpython`, where installed) reads the run in
+/// `dir`: the node series with its arrays and `nodes` points in every step, the grid series
+/// with its arrays, `cells` cells in every step and its pieces' points (`grid_points`, by
+/// step).
+fn grid_series_read_by_paraview(
+    label: &str,
+    dir: &Path,
+    nodes: usize,
+    cells: usize,
+    grid_points: &[usize],
+) {
+    let nodes_arrays = [
+        "--nodes",
+        "active:1",
+        "fixed:3",
+        "displacement_increment:3",
+        "external_force:3",
+        "internal_force:3",
+        "node_id:1",
+    ];
+    let Some(report) = read_by_paraview(dir, &nodes_arrays) else {
+        return;
+    };
+    let section = |name: &str| -> String {
+        let start = report
+            .find(&format!("\n{name}: "))
+            .unwrap_or_else(|| panic!("{label}: no {name} series in {report}"));
+        let rest = &report[start + 1..];
+        let end = rest[1..].find("\n  required").map_or(rest.len(), |e| e + 1);
+        let end = ["\ngrid: ", "\nnodes: ", "\ntractions: ", "\npressure: "]
+            .iter()
+            .filter_map(|next| rest[1..].find(next).map(|e| e + 1))
+            .fold(end, usize::min);
+        rest[..end].to_string()
+    };
+    let span = |values: &[usize]| {
+        let (low, high) = (values.iter().min().unwrap(), values.iter().max().unwrap());
+        if low == high {
+            format!("{low}")
+        } else {
+            format!("{low}..{high}")
+        }
+    };
+    let grid = section("grid");
+    eprintln!("{label}: ParaView's grid series:\n{grid}");
+    assert!(
+        grid.contains(&format!("points: {}, cells: {cells}\n", span(grid_points))),
+        "{label}: {grid}"
+    );
+    for array in [
+        "point array displacement_increment: 3 components",
+        "point array vertex_id: 1 component",
+        "cell array material_points: 1 component",
+        "cell array cell_id: 1 component",
+    ] {
+        assert!(grid.contains(array), "{label}: {array} in {grid}");
+    }
+    let node_series = section("nodes");
+    eprintln!("{label}: ParaView's node series:\n{node_series}");
+    assert!(
+        node_series.contains(&format!("points: {nodes}, cells: {nodes}\n")),
+        "{label}: {node_series}"
+    );
+}
+
+#[test]
+fn the_2d_column_s_grid_and_node_files_in_pieces_equal_the_serial_run_s() {
+    grid_pieces_equal_the_serial_files(
+        "column_2d.rhai",
+        &["cells=16", "steps=3"],
+        "grid-pieces-2d",
+        &[1, 2, 3],
+        true,
+    );
+}
+
+#[test]
+fn the_3d_column_s_grid_and_node_files_in_pieces_equal_the_serial_run_s() {
+    grid_pieces_equal_the_serial_files(
+        "column_3d.rhai",
+        &["cells=4", "steps=2"],
+        "grid-pieces-3d",
+        &[2, 3],
+        true,
+    );
+}
+
+/// A decomposed run with the follower pressure (the thick cylinder of
+/// [`the_follower_pressure_with_decomposed_points_equals_the_serial_run`], past the elastic
+/// limit) stopped after step 3 under `mpirun -n 2 --decompose` with a checkpoint every 2 steps
+/// and resumed by `-n 2` from step 2 gives the uninterrupted serial run's results: Newton
+/// iterations per step, stresses, plastic strain, positions, the history's `inner_pressure`
+/// and `inner_displacement` (every row), the last pressure file's load points and forces, to
+/// 1e-8, and the last checkpoint's parts to 1e-12.
+#[test]
+fn a_decomposed_run_with_a_pressure_resumes_from_its_checkpoint() {
+    let Some(_one) = mpi_job_slot() else {
+        return;
+    };
+    let scene = shipped_scene("thick_cylinder.rhai");
+    let set = ["control=load", "cells=4", "steps=6", "last=0.6"];
+    let decomposed = ["--petsc-options", "-ksp_rtol 1e-12", "--decompose"];
+    let serial_dir = temp_dir("mpi", "pressure-resume-serial");
+    let reference = serial_reference(&scene, &set, &serial_dir, &["--checkpoint-every", "2"]);
+    let dir = temp_dir("mpi", "pressure-resume");
+    let done = stopped_after(Some(2), &scene, &set, &dir, &decomposed, 3);
+    let (got, seconds) = resume(Some(2), &scene, &set, &dir, &decomposed);
+    let label = format!("thick cylinder, -n 2 stopped after step 3, resumed from step {done}");
+    same_results(&label, &got, &reference, seconds);
+    for name in ["inner_pressure", "inner_displacement"] {
+        let (serial, resumed) = (
+            history_column(&serial_dir, name),
+            history_column(&dir, name),
+        );
+        let difference = relative_difference(&resumed, &serial);
+        eprintln!("{label}: history.csv {name}: difference {difference:.1e}");
+        assert!(difference <= 1e-8, "{label}: {name} {difference:e}");
+    }
+    same_load_points(&label, "pressure", &dir, &serial_dir, got.iterations.len());
+    same_checkpoint(&label, &dir, &serial_dir);
+    // the grid and node series in pieces list every step once after the resume too
+    for stem in ["grid", "nodes"] {
+        let pvd = std::fs::read_to_string(dir.join(format!("{stem}.pvd"))).unwrap();
+        for step in 0..=got.iterations.len() {
+            let name = format!("{stem}_{step:04}.pvtu");
+            assert_eq!(pvd.matches(&name).count(), 1, "{label}: {name} in {pvd}");
+        }
+    }
+    for dir in [dir, serial_dir] {
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

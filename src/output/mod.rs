@@ -59,7 +59,9 @@ mod vtu;
 pub use atomic::write_atomic;
 pub use folder::{FolderLock, clear_after_step, clear_earlier_run, is_checkpoint_data};
 pub use pvd::PvdSeries;
-pub use pvtu::{POINT_ID, merge_pieces, merge_pvtu, pvtu_pieces, write_pvtu};
+pub use pvtu::{
+    CELL_ID, NODE_ID, POINT_ID, VERTEX_ID, merge_pieces, merge_pvtu, pvtu_pieces, write_pvtu,
+};
 pub use vtu::{
     CellKind, Cells, Encoding, Field, Sink, Stream, StreamedField, VtuContents, lattice_cells,
     pad_points, read_vtu, try_lattice_cells, vertex_cells, write_vtu, write_vtu_streamed,

@@ -69,6 +69,18 @@ impl CellKind {
         self.cell_type() as u8
     }
 
+    /// The kind of a VTK cell type id, if it is one of these.
+    pub fn from_vtk_type(id: u8) -> Option<Self> {
+        [
+            CellKind::Vertex,
+            CellKind::Line,
+            CellKind::Quad,
+            CellKind::Hexahedron,
+        ]
+        .into_iter()
+        .find(|kind| kind.vtk_type() == id)
+    }
+
     fn cell_type(self) -> CellType {
         match self {
             CellKind::Vertex => CellType::Vertex,

@@ -21,15 +21,15 @@ use std::path::PathBuf;
 use bevy_ecs::prelude::*;
 use nalgebra::{Matrix3, SVector};
 
-use crate::basis::BasisScratch;
+use crate::basis::{BasisScratch, GridBasis};
 use crate::components::{
     AssembledElsewhere, BodyIndex, DeformationGradient, Displacement, GridNode, Mass, PointId,
     Position, ReferencePosition, ReferenceVolume, Trial, Volume,
 };
 use crate::mechanics::{embed, interpolate};
 use crate::output::{
-    Field, POINT_ID, PvdSeries, Sink, StreamedField, lattice_cells, vertex_cells, write_vtu,
-    write_vtu_streamed,
+    CELL_ID, Cells, Field, NODE_ID, POINT_ID, PvdSeries, Sink, StreamedField, VERTEX_ID,
+    lattice_cells, vertex_cells, write_vtu, write_vtu_streamed,
 };
 use crate::resources::{
     CurrentStage, Grid, GridFields, LoadStep, RunStatus, SolverError, Stage, StageClock,
@@ -107,12 +107,44 @@ pub struct ParticlePieces {
     pub written: Option<Result<WrittenPiece, String>>,
 }
 
-/// A piece of the particle file, as written: its file name and its arrays `(name,
-/// components)`, in file order.
+/// A piece of a parallel file, as written: its file name and its point and cell arrays
+/// `(name, components)`, in file order.
 #[derive(Clone, Debug, PartialEq)]
 pub struct WrittenPiece {
     pub file: String,
     pub arrays: Vec<(String, usize)>,
+    pub cell_arrays: Vec<(String, usize)>,
+}
+
+/// The grid and node files as pieces of parallel data sets: a decomposed run
+/// (`impm run --decompose`), where each process holds only the grid nodes its own points
+/// touch. The module that inserts this resource fills it in before the output of a step
+/// (`effects::distributed::grid_pieces`): which nodes and cells this piece writes (every node
+/// and cell of the lattice in exactly one piece), every node's increment (from its owner) and
+/// the material points per cell (summed over the processes). [`write_nodes`] then writes the
+/// piece's nodes as `nodes_NNNN_pK.vtu` with a [`NODE_ID`] array, [`write_grid`] the piece's
+/// cells as `grid_NNNN_pK.vtu` with [`VERTEX_ID`] and [`CELL_ID`] arrays, both into `dir`, and
+/// the module lists them (`.pvtu`, `.pvd`). A failed write is kept in `grid_written` /
+/// `nodes_written`, as [`ParticlePieces::written`].
+#[derive(Resource, Debug, Default)]
+pub struct GridPieces {
+    /// This piece's number (the process's rank).
+    pub piece: usize,
+    /// The folder of the pieces.
+    pub dir: PathBuf,
+    /// Whether this piece writes each node of the grid.
+    pub nodes: Vec<bool>,
+    /// Whether this piece writes each cell of the lattice.
+    pub cells: Vec<bool>,
+    /// Every node's displacement increment, `D` numbers per node.
+    pub increment: Vec<f64>,
+    /// The material points in each cell, over every process.
+    pub points_per_cell: Vec<f64>,
+    /// Whether the fields above are this output step's (set by the module, taken by the
+    /// writers: a piece is never written from another step's values).
+    pub ready: bool,
+    pub grid_written: Option<Result<WrittenPiece, String>>,
+    pub nodes_written: Option<Result<WrittenPiece, String>>,
 }
 
 /// Run condition: the current step is an output step.
@@ -337,7 +369,11 @@ pub fn write_particles<const D: usize>(
             &fields,
         );
         pieces.written = Some(match result {
-            Ok(()) => Ok(WrittenPiece { file: name, arrays }),
+            Ok(()) => Ok(WrittenPiece {
+                file: name,
+                arrays,
+                cell_arrays: Vec::new(),
+            }),
             Err(e) => Err(format!("{name}: {e}")),
         });
         return;
@@ -367,7 +403,24 @@ fn whole(values: &[f64]) -> impl Fn(&mut Sink) -> std::io::Result<()> + '_ {
     move |sink| sink(values)
 }
 
-/// The default grid file (`Hook::GridOutput`): the background grid.
+/// The material points in each cell of the lattice (cells numbered axis 0 fastest, as
+/// [`lattice_cells`]) of the points at `positions`; a point outside the grid is in none.
+pub fn points_per_cell<'a, const D: usize>(
+    basis: &GridBasis<D>,
+    positions: impl Iterator<Item = &'a SVector<f64, D>>,
+) -> Vec<f64> {
+    let mut counts = vec![0.0; basis.num_cells()];
+    for x in positions {
+        if let Ok(cell) = basis.cell_of(x) {
+            counts[basis.cell_index(cell)] += 1.0;
+        }
+    }
+    counts
+}
+
+/// The default grid file (`Hook::GridOutput`): the background grid, or this process's piece
+/// of it ([`GridPieces`]: its cells and their vertices, with their numbers in the whole
+/// lattice).
 #[allow(clippy::too_many_arguments)]
 pub fn write_grid<const D: usize>(
     step: Res<LoadStep>,
@@ -378,6 +431,7 @@ pub fn write_grid<const D: usize>(
     mut status: ResMut<RunStatus>,
     mut clock: ResMut<StageClock>,
     mut scratch: Local<BasisScratch>,
+    mut pieces: Option<ResMut<GridPieces>>,
     positions: Query<&Position<D>>,
 ) {
     if !plan.writes(&step) || !plan.grid_files {
@@ -385,60 +439,116 @@ pub fn write_grid<const D: usize>(
     }
     let _timer = clock.time(Stage::Output);
     let basis = &grid.0;
+    let cells_per_axis: Vec<usize> = basis.axes.iter().map(|a| a.cells).collect();
+    let lattice = lattice_cells(&cells_per_axis);
+    let corners = lattice.kind.nodes_per_cell();
+    let piece = pieces.as_deref();
+    if piece.is_some_and(|p| !p.ready) {
+        status.fail(SolverError::Output {
+            step: step.number,
+            why: "the grid piece's values were not gathered in this step".to_string(),
+        });
+        return;
+    }
+    // the cells and vertices written, the points per cell and each node's increment: the
+    // whole lattice and this process's fields, or the piece's
+    let (cells, vertices, counts): (Vec<usize>, Vec<usize>, Vec<f64>) = match piece {
+        None => (
+            (0..basis.num_cells()).collect(),
+            (0..basis.vertex_count()).collect(),
+            points_per_cell(basis, positions.iter().map(|x| &x.0)),
+        ),
+        Some(p) => {
+            let cells: Vec<usize> = (0..basis.num_cells()).filter(|&c| p.cells[c]).collect();
+            let mut vertices: Vec<usize> = (cells.iter())
+                .flat_map(|&c| &lattice.connectivity[corners * c..corners * (c + 1)])
+                .map(|&v| v as usize)
+                .collect();
+            vertices.sort_unstable();
+            vertices.dedup();
+            (cells, vertices, p.points_per_cell.clone())
+        }
+    };
+    let node_increment = |node: usize| match piece {
+        None => fields.increment[node],
+        Some(p) => SVector::<f64, D>::from_fn(|k, _| p.increment[D * node + k]),
+    };
 
     // The grid: vertices, cells, the step's displacement increment evaluated at the vertices.
-    let vertices: Vec<[f64; 3]> = (0..basis.vertex_count())
-        .map(|v| pad(&basis.vertex_position(v)))
+    let coordinates: Vec<[f64; 3]> = (vertices.iter())
+        .map(|&v| pad(&basis.vertex_position(v)))
         .collect();
     let mut increment = Vec::with_capacity(3 * vertices.len());
     let mut weights = Vec::new();
-    for v in 0..basis.vertex_count() {
+    for &v in &vertices {
         let du = match basis.eval(&basis.vertex_position(v), &mut scratch, &mut weights) {
-            Ok(()) => interpolate(&weights, |node| fields.increment[node]),
+            Ok(()) => interpolate(&weights, node_increment),
             Err(_) => SVector::zeros(),
         };
         increment.extend(pad(&du));
     }
-    let mut points_per_cell = vec![0.0; basis.num_cells()];
-    let cells_per_axis: Vec<usize> = basis.axes.iter().map(|a| a.cells).collect();
-    for x in positions.iter() {
-        if let Ok(cell) = basis.cell_of(&x.0) {
-            let mut index = 0;
-            for a in (0..D).rev() {
-                index = index * cells_per_axis[a] + cell[a];
-            }
-            points_per_cell[index] += 1.0;
-        }
-    }
-    let grid_name = format!("grid_{:04}.vtu", step.number);
-    let grid_result = write_vtu(
-        &plan.dir.join(&grid_name),
-        &vertices,
-        &lattice_cells(&cells_per_axis),
-        &[Field {
-            name: "displacement_increment",
-            components: 3,
-            values: &increment,
-        }],
-        &[Field {
-            name: "material_points",
-            components: 1,
-            values: &points_per_cell,
-        }],
-    );
-    let result = grid_result.and_then(|()| {
-        plan.grid
-            .push(step.series_time(stage.as_deref()), &grid_name)
-    });
-    if let Err(e) = result {
-        status.fail(SolverError::Output {
-            step: step.number,
-            why: e.to_string(),
+    let material_points: Vec<f64> = cells.iter().map(|&c| counts[c]).collect();
+    let mut point_fields = vec![Field {
+        name: "displacement_increment",
+        components: 3,
+        values: &increment,
+    }];
+    let mut cell_fields = vec![Field {
+        name: "material_points",
+        components: 1,
+        values: &material_points,
+    }];
+    let Some(p) = piece else {
+        let grid_name = format!("grid_{:04}.vtu", step.number);
+        let result = write_vtu(
+            &plan.dir.join(&grid_name),
+            &coordinates,
+            &lattice,
+            &point_fields,
+            &cell_fields,
+        )
+        .and_then(|()| {
+            plan.grid
+                .push(step.series_time(stage.as_deref()), &grid_name)
         });
+        if let Err(e) = result {
+            status.fail(SolverError::Output {
+                step: step.number,
+                why: e.to_string(),
+            });
+        }
+        return;
+    };
+    // a piece: its cells' corners by their place among its vertices, and the numbers of both
+    // in the whole lattice
+    let connectivity: Vec<u64> = (cells.iter())
+        .flat_map(|&c| &lattice.connectivity[corners * c..corners * (c + 1)])
+        .map(|&v| vertices.binary_search(&(v as usize)).unwrap_or(0) as u64)
+        .collect();
+    let vertex_ids: Vec<f64> = vertices.iter().map(|&v| v as f64).collect();
+    let cell_ids: Vec<f64> = cells.iter().map(|&c| c as f64).collect();
+    point_fields.push(Field::scalar(VERTEX_ID, &vertex_ids));
+    cell_fields.push(Field::scalar(CELL_ID, &cell_ids));
+    let name = format!("grid_{:04}_p{}.vtu", step.number, p.piece);
+    let result = write_vtu(
+        &p.dir.join(&name),
+        &coordinates,
+        &Cells {
+            kind: lattice.kind,
+            connectivity,
+        },
+        &point_fields,
+        &cell_fields,
+    );
+    let written = written_piece(result, name, &point_fields, &cell_fields);
+    if let Some(pieces) = pieces.as_deref_mut() {
+        pieces.grid_written = Some(written);
     }
 }
 
-/// The control points (grid nodes) with their constraints and forces: `nodes_NNNN.vtu`.
+/// The control points (grid nodes) with their constraints and forces: `nodes_NNNN.vtu`, or
+/// this process's piece of it ([`GridPieces`]: its nodes, with their numbers).
+#[allow(clippy::too_many_arguments)]
 pub fn write_nodes<const D: usize>(
     step: Res<LoadStep>,
     stage: Option<Res<CurrentStage>>,
@@ -446,13 +556,25 @@ pub fn write_nodes<const D: usize>(
     mut plan: ResMut<OutputPlan>,
     mut status: ResMut<RunStatus>,
     mut clock: ResMut<StageClock>,
+    mut pieces: Option<ResMut<GridPieces>>,
     nodes: Query<&GridNode<D>>,
 ) {
     if !plan.writes(&step) || !plan.grid_files {
         return;
     }
     let _timer = clock.time(Stage::Output);
-    let mut rows: Vec<_> = nodes.iter().collect();
+    let piece = pieces.as_deref();
+    if piece.is_some_and(|p| !p.ready) {
+        status.fail(SolverError::Output {
+            step: step.number,
+            why: "the node piece's nodes were not chosen in this step".to_string(),
+        });
+        return;
+    }
+    let mut rows: Vec<_> = nodes
+        .iter()
+        .filter(|node| piece.is_none_or(|p| p.nodes.get(node.index).copied().unwrap_or(false)))
+        .collect();
     rows.sort_by_key(|node| node.index);
     let node_positions: Vec<[f64; 3]> = rows.iter().map(|node| pad(&node.position)).collect();
     let mut active = Vec::with_capacity(rows.len());
@@ -474,48 +596,68 @@ pub fn write_nodes<const D: usize>(
         external.extend(pad(&fields.external_force[i]));
         internal.extend(pad(&fields.internal_force[i]));
     }
-    let nodes_name = format!("nodes_{:04}.vtu", step.number);
-    let nodes_result = write_vtu(
-        &plan.dir.join(&nodes_name),
+    let node_ids: Vec<f64> = rows.iter().map(|node| node.index as f64).collect();
+    let mut arrays = vec![
+        Field::scalar("active", &active),
+        Field::new("fixed", 3, &fixed),
+        Field::new("displacement_increment", 3, &node_increment),
+        Field::new("external_force", 3, &external),
+        Field::new("internal_force", 3, &internal),
+    ];
+    let Some(p) = piece else {
+        let nodes_name = format!("nodes_{:04}.vtu", step.number);
+        let result = write_vtu(
+            &plan.dir.join(&nodes_name),
+            &node_positions,
+            &vertex_cells(rows.len()),
+            &arrays,
+            &[],
+        )
+        .and_then(|()| {
+            plan.nodes
+                .push(step.series_time(stage.as_deref()), &nodes_name)
+        });
+        if let Err(e) = result {
+            status.fail(SolverError::Output {
+                step: step.number,
+                why: e.to_string(),
+            });
+        }
+        return;
+    };
+    arrays.push(Field::scalar(NODE_ID, &node_ids));
+    let name = format!("nodes_{:04}_p{}.vtu", step.number, p.piece);
+    let result = write_vtu(
+        &p.dir.join(&name),
         &node_positions,
         &vertex_cells(rows.len()),
-        &[
-            Field {
-                name: "active",
-                components: 1,
-                values: &active,
-            },
-            Field {
-                name: "fixed",
-                components: 3,
-                values: &fixed,
-            },
-            Field {
-                name: "displacement_increment",
-                components: 3,
-                values: &node_increment,
-            },
-            Field {
-                name: "external_force",
-                components: 3,
-                values: &external,
-            },
-            Field {
-                name: "internal_force",
-                components: 3,
-                values: &internal,
-            },
-        ],
+        &arrays,
         &[],
     );
-    let result = nodes_result.and_then(|()| {
-        plan.nodes
-            .push(step.series_time(stage.as_deref()), &nodes_name)
-    });
-    if let Err(e) = result {
-        status.fail(SolverError::Output {
-            step: step.number,
-            why: e.to_string(),
-        });
+    let written = written_piece(result, name, &arrays, &[]);
+    if let Some(pieces) = pieces.as_deref_mut() {
+        pieces.nodes_written = Some(written);
+    }
+}
+
+/// A piece of a parallel file as written (`file` with these arrays), or why it could not be.
+fn written_piece(
+    result: std::io::Result<()>,
+    file: String,
+    point_fields: &[Field],
+    cell_fields: &[Field],
+) -> Result<WrittenPiece, String> {
+    let layout = |fields: &[Field]| -> Vec<(String, usize)> {
+        (fields.iter())
+            .map(|f| (f.name.to_string(), f.components))
+            .collect()
+    };
+    match result {
+        Ok(()) => Ok(WrittenPiece {
+            file,
+            arrays: layout(point_fields),
+            cell_arrays: layout(cell_fields),
+        }),
+        Err(e) => Err(format!("{file}: {e}")),
     }
 }

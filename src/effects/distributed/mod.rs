@@ -19,20 +19,23 @@
 //!   correction is gathered to every process.
 //! * **Particle file in pieces** (more than one process): each process writes the points it
 //!   assembled in the step as `particles_NNNN_pK.vtu` (with a `point_id` array) into process
-//!   0's folder (`stages::output::ParticlePieces`); [`list_particle_pieces`] (`Hook::Output`)
+//!   0's folder (`stages::output::ParticlePieces`); [`list_pieces`] (`Hook::Output`)
 //!   waits until every piece is written (a collective call that also shares a failed write)
 //!   and process 0 lists them in `particles_NNNN.pvtu`, which `particles.pvd` lists. ParaView
 //!   reads it as one data set; `impm merge OUT_DIR` writes `particles_NNNN.vtu` from the
 //!   pieces (in `point_id` order, the serial file) for tools that do not read `.pvtu`. The grid
-//!   and node files are process 0's (the grid is replicated); with `--decompose` they are not
-//!   written (each process holds its own nodes), which the run says.
+//!   and node files are process 0's (the grid is replicated); with `--decompose` each process
+//!   holds its own nodes only, and they are in pieces too ([`grid_pieces`]: each node by its
+//!   owner, each cell by the process of its cell layer; `grid_NNNN.pvtu`, `nodes_NNNN.pvtu`,
+//!   merged by `impm merge` into the serial run's files).
 //! * **Failures are collective** (`distributed::failure`). A stage that runs on a process's
 //!   own points or files can fail on that process alone; the processes then share it at the
 //!   next point where they meet, before any collective call that follows: in every Newton
 //!   iteration at `Hook::Combine` (after the stress update and the assembly), after the basis
 //!   and DOF stages (`grid::number_decomposed_grid`), after the point update
 //!   ([`share_step_failure`], before the reactions' sum), after the step's last stages on
-//!   points (before the output), in the output ([`list_particle_pieces`], after the pieces
+//!   points (before the output), in the output ([`grid_pieces`] before the pieces are
+//!   written, [`list_pieces`] after the pieces
 //!   are written) and at its end (before the sums over points of the step's records), and
 //!   between load steps ([`share_outcome`]: what one process did alone after the step, such
 //!   as process 0 writing `summary.json`). These run after a failure too. If any process
@@ -97,12 +100,13 @@ use crate::resources::{
 use crate::scene::{LinearBackend, SceneSpec};
 use crate::solver::{PetscSolver, ProcessSum, SharedBlocks};
 use crate::stages::arc_length::SumFixedLoadsSchedule;
-use crate::stages::output::{OutputPlan, ParticlePieces, WrittenPiece};
+use crate::stages::output::{GridPieces, OutputPlan, ParticlePieces, WrittenPiece};
 use bevy_ecs::schedule::{Schedule, SingleThreadedExecutor};
 
 pub mod checkpoint;
 pub mod decomposition;
 pub mod grid;
+pub mod grid_pieces;
 
 /// The module: built when the process is one of a distributed run (`mpirun`).
 #[derive(Clone, Copy, Debug, Default)]
@@ -180,7 +184,12 @@ impl Plugin for DistributedModule {
             // one process assembles every point: its share is all of K
             newton.whole_tangent = processes.size == 1;
         }
-        let files = if processes.size > 1 {
+        let files = if processes.size > 1 && decompose {
+            "each process writes the points it assembles as particles_NNNN_pK.vtu and the grid \
+             nodes it owns and cells of its slab as nodes_NNNN_pK.vtu and grid_NNNN_pK.vtu, \
+             the .pvtu files list them (ParaView; `impm merge OUT_DIR` writes one .vtu per \
+             step for other tools), process 0 writes the other files"
+        } else if processes.size > 1 {
             "each process writes the points it assembles as particles_NNNN_pK.vtu, \
              particles_NNNN.pvtu lists them (ParaView; `impm merge OUT_DIR` writes one .vtu per \
              step for other tools), process 0 writes the other files"
@@ -205,23 +214,30 @@ impl Plugin for DistributedModule {
             processes.size,
             state.replace("{axis}", &axis.to_string())
         ));
-        if decompose && world.resource::<OutputPlan>().grid_files {
-            // each process holds its own nodes' increments and activity, and its own points
-            world.resource_mut::<OutputPlan>().grid_files = false;
-            world.resource_mut::<Warnings>().0.push(
-                "--decompose: the grid and node files (grid_NNNN.vtu, nodes_NNNN.vtu) are not \
-                 written: each process holds only the grid nodes and points of its slab, and \
-                 writing them in pieces is not done yet; the particle file is written"
-                    .to_string(),
-            );
-        }
         if processes.size > 1 {
             // the pieces go into process 0's folder (the others run in scratch folders)
             let dir = world.resource::<OutputPlan>().dir.clone();
             let dir = std::fs::canonicalize(&dir).unwrap_or(dir);
+            let dir = path_of_process_0(&dir);
+            if decompose {
+                // each process holds its own nodes only: the grid and node files in pieces
+                world.insert_resource(GridPieces {
+                    piece: processes.rank,
+                    dir: dir.clone(),
+                    ..GridPieces::default()
+                });
+                world
+                    .resource_mut::<Schedules>()
+                    .entry(OutputSchedule)
+                    .add_systems(
+                        grid_pieces::gather_grid_pieces::<D>
+                            .after(Hook::PointFields)
+                            .before(BuiltInOutput),
+                    );
+            }
             world.insert_resource(ParticlePieces {
                 piece: processes.rank,
-                dir: path_of_process_0(&dir),
+                dir,
                 written: None,
             });
         }
@@ -296,7 +312,7 @@ impl Plugin for DistributedModule {
                 schedules.entry(StepSchedule).add_systems(last);
             }
             schedules.entry(OutputSchedule).add_systems(
-                list_particle_pieces
+                list_pieces
                     .after(BuiltInOutput)
                     .after(Hook::GridOutput)
                     .before(Hook::Output),
@@ -671,14 +687,17 @@ pub fn combine_assembly<const D: usize>(
     }
 }
 
-/// After the processes wrote their pieces of the particle file (`ParticlePieces`), in an
-/// output step: whether any process failed, in the output stages before or writing its piece
+/// After the processes wrote their pieces of the particle file (`ParticlePieces`) and, with
+/// decomposed points, of the grid and node files (`GridPieces`, [`grid_pieces`]), in an
+/// output step: whether any process failed, in the output stages before or writing its pieces
 /// (collective; runs after a failure too: then every process fails the step, and alike); then
-/// process 0 lists the pieces in `particles_NNNN.pvtu` and adds that to `particles.pvd`, at
-/// the serial run's time (`k + λ_k` in stage `k`: `LoadStep::series_time`).
+/// process 0 lists the pieces in `particles_NNNN.pvtu` (and `grid_NNNN.pvtu`,
+/// `nodes_NNNN.pvtu`) and adds those to their `.pvd` series, at the serial run's time
+/// (`k + λ_k` in stage `k`: `LoadStep::series_time`).
 #[allow(clippy::too_many_arguments)] // a system: its parameters are what it reads and writes
-pub fn list_particle_pieces(
+pub fn list_pieces(
     mut pieces: ResMut<ParticlePieces>,
+    mut grid_pieces: Option<ResMut<GridPieces>>,
     mut plan: ResMut<OutputPlan>,
     share: Res<AssemblyShare>,
     mut status: ResMut<RunStatus>,
@@ -687,12 +706,20 @@ pub fn list_particle_pieces(
     newton: Res<Newton>,
 ) {
     let written = pieces.written.take();
+    let (grid_written, nodes_written) = match grid_pieces.as_deref_mut() {
+        Some(grid) => {
+            grid.ready = false;
+            (grid.grid_written.take(), grid.nodes_written.take())
+        }
+        None => (None, None),
+    };
     if !plan.writes(&step) {
         return; // not an output step (the same on every process)
     }
-    let arrays = match (written, &status.0) {
-        (Some(Ok(WrittenPiece { arrays, .. })), None) => Some(arrays),
-        (Some(Err(why)), None) => {
+    // each series' piece as written here, or its failure as this process's
+    let mut written_here = |written: Option<Result<WrittenPiece, String>>| match written {
+        Some(Ok(piece)) if status.0.is_none() => Some(piece),
+        Some(Err(why)) if status.0.is_none() => {
             status.fail(SolverError::Output {
                 step: step.number,
                 why,
@@ -701,27 +728,44 @@ pub fn list_particle_pieces(
         }
         _ => None,
     };
+    let series = [
+        ("particles", written_here(written)),
+        ("nodes", written_here(nodes_written)),
+        ("grid", written_here(grid_written)),
+    ];
     if share_failure(&mut status, step.number, newton.iterations) {
         return;
     }
-    let Some(arrays) = arrays else {
-        return;
-    };
     if share.processes.rank != 0 {
         return;
     }
-    let names: Vec<String> = (0..share.processes.size)
-        .map(|k| format!("particles_{:04}_p{k}.vtu", step.number))
-        .collect();
-    let name = format!("particles_{:04}.pvtu", step.number);
-    let result = write_pvtu(&pieces.dir.join(&name), &names, &arrays, &[]).and_then(|()| {
-        plan.particles
-            .push(step.series_time(stage.as_deref()), &name)
-    });
-    if let Err(e) = result {
-        status.fail(SolverError::Output {
-            step: step.number,
-            why: format!("{name}: {e}"),
-        });
+    for (stem, piece) in series {
+        let Some(piece) = piece else {
+            continue; // not written in this run (the same on every process)
+        };
+        let names: Vec<String> = (0..share.processes.size)
+            .map(|k| format!("{stem}_{:04}_p{k}.vtu", step.number))
+            .collect();
+        let name = format!("{stem}_{:04}.pvtu", step.number);
+        let time = step.series_time(stage.as_deref());
+        let pvd = match stem {
+            "particles" => &mut plan.particles,
+            "nodes" => &mut plan.nodes,
+            _ => &mut plan.grid,
+        };
+        let result = write_pvtu(
+            &pieces.dir.join(&name),
+            &names,
+            &piece.arrays,
+            &piece.cell_arrays,
+        )
+        .and_then(|()| pvd.push(time, &name));
+        if let Err(e) = result {
+            status.fail(SolverError::Output {
+                step: step.number,
+                why: format!("{name}: {e}"),
+            });
+            return;
+        }
     }
 }
