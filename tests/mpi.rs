@@ -2555,10 +2555,9 @@ fn ghost_faces_on_slab_boundaries_with_decomposed_points_equal_the_serial_run() 
 /// storage sized by the process's nodes"): the 2D block on a 64 × 64-cell grid (slabs along
 /// y, the grid's slowest axis) under `--decompose` over 1 and 2 processes equals its serial
 /// run, and in every step the largest process's grid fields over 2 processes
-/// (`node_storage_bytes`: written pages and page tables) are at most 60 % of the one process's
-/// (a process holds its 32 cell rows' 34 node rows of 66, plus the pages they end in: about
-/// 52 %; with every node's DOF numbers or fixity written on every process, as before, over
-/// 65 %).
+/// (`node_storage_bytes`: written pages and page tables) are at most 56 % of the one process's
+/// (a process holds its 32 cell rows' 34 node rows of 66, plus the pages they end in: 53.0 %;
+/// with every node's DOF numbers written on every process, as before, 59.4 %: seen to fail).
 #[test]
 fn decomposed_processes_hold_the_node_storage_of_their_own_nodes() {
     let scene = shipped_scene("block_2d_self_weight.rhai");
@@ -2591,7 +2590,7 @@ fn decomposed_processes_hold_the_node_storage_of_their_own_nodes() {
             one > 0.9 * dense && one < 1.1 * dense,
             "{one} B against {dense}"
         );
-        assert!(two <= 0.6 * one, "step {}: {two} B of {one}", k + 1);
+        assert!(two <= 0.56 * one, "step {}: {two} B of {one}", k + 1);
     }
 }
 

@@ -6,7 +6,9 @@
 //!
 //! * [`GridConstraintsModule`] marks the constrained components at `Hook::Constraints` every
 //!   step (`GridFields::constrained`), so that they get no DOF: the Dirichlet conditions are
-//!   eliminated from the system.
+//!   eliminated from the system. With decomposed points a process marks the nodes it
+//!   touches, and process 0 the untouched ones in an output step ([`mark_untouched_fixity`]:
+//!   the node file shows every constrained node, as serially).
 //! * [`PrescribedDisplacementsModule`], only when some prescribed value is not zero, sets the
 //!   constrained components' increment at `Hook::Loads`: they move by (λ_{n+1} − λ_n) times
 //!   their prescribed total before the first Newton iterate, so after the step the node has
@@ -57,6 +59,7 @@ use crate::scene::{
     CallSpec, Kind, Located, OptionSpec, Options, Resolver, SceneApi, SceneBuilder, SceneSpec,
     ScriptError, Stages, function, numbers, whole_numbers,
 };
+use crate::stages::output::OutputPlan;
 
 /// One constrained component of one grid node (control point). The prescribed displacement
 /// `value` is the total at load factor 1; it is ramped with the load factor (0 = fixed).
@@ -362,6 +365,9 @@ impl Plugin for GridConstraintsModule {
         simulation
             .add_systems(Hook::Constraints, constrain_nodes::<D>)
             .add_systems(Hook::AfterStep, grid_reactions::<D>);
+        if crate::distributed::decomposed() {
+            simulation.add_systems(Hook::PointFields, mark_untouched_fixity::<D>);
+        }
         if releases {
             keep_largest_force(simulation);
             simulation
@@ -596,6 +602,28 @@ pub fn constrain_nodes<const D: usize>(
     }
     for (node, fixity) in nodes.iter() {
         if !decomposed || fields.active[node.index] {
+            fields.constrained[node.index] = fixity.fixed;
+        }
+    }
+}
+
+/// With decomposed points, in an output step with node files: process 0, which writes the
+/// nodes no process's points touch (`stages::output::GridPieces`; with one process, every
+/// node), marks the constrained components at the nodes it does not touch, so that the node
+/// file shows every constrained node as the serial run's does. After the solve: it changes
+/// no DOF, and the grid reset frees the pages. (A node another process touches is written by
+/// its owner, which marked it in [`constrain_nodes`].)
+pub fn mark_untouched_fixity<const D: usize>(
+    mut fields: ResMut<GridFields<D>>,
+    plan: Res<OutputPlan>,
+    step: Res<LoadStep>,
+    nodes: Query<(&GridNode<D>, &Fixity<D>)>,
+) {
+    if !plan.writes(&step) || !plan.grid_files || !crate::distributed::writes_run_files() {
+        return;
+    }
+    for (node, fixity) in nodes.iter() {
+        if !fields.active[node.index] {
             fields.constrained[node.index] = fixity.fixed;
         }
     }

@@ -12,7 +12,8 @@
 //!   with its global number (`node_id`): no node twice. A node no process's points touch
 //!   (inactive in the serial run: `active` 0, no DOF, zero increment and forces) is written
 //!   by process 0 from its own fields, which hold the serial values there (it never numbered
-//!   the node; the constraints are set on every node alike on every process). So the merged
+//!   the node; it marks their constraints
+//!   for the output: `grid_constraints::mark_untouched_fixity`). So the merged
 //!   node file has every node of the serial file, in its order (`node_id`), and the same
 //!   values: each node's from the process that summed its forces and solved for it;
 //! * a cell of the lattice is written by the process of its cell layer along the slab axis,
