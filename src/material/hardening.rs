@@ -194,7 +194,8 @@ impl IsotropicHardening {
         let mut residual = q_trial - yield_stress;
         for _ in 0..MAX_ITERATIONS {
             let derivative = stiffness + slope;
-            if !(derivative > 0.0) {
+            // NaN included: not positive
+            if derivative.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
                 return Err(format!(
                     "the von Mises return with {} hardening has no unique solution: 3G + H = {derivative:e} at eps_p = {:e}",
                     self.word(),

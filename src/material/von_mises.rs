@@ -74,12 +74,12 @@ impl VonMises {
         if !(yield_stress > 0.0 && yield_stress.is_finite()) {
             return Err(format!("yield stress must be positive, got {yield_stress}"));
         }
-        if let IsotropicHardening::Voce { saturation, .. } = law {
-            if saturation < yield_stress {
-                return Err(format!(
-                    "saturation yield stress sigma_inf = {saturation} is below the initial yield stress {yield_stress} (voce hardening saturates above it)"
-                ));
-            }
+        if let IsotropicHardening::Voce { saturation, .. } = law
+            && saturation < yield_stress
+        {
+            return Err(format!(
+                "saturation yield stress sigma_inf = {saturation} is below the initial yield stress {yield_stress} (voce hardening saturates above it)"
+            ));
         }
         let (_, shear) = bulk_and_shear(&elastic);
         let steepest = law.steepest_slope(yield_stress);
