@@ -329,9 +329,12 @@ pub enum SolverError {
         iteration: usize,
         backtracks: usize,
         residuals: Vec<f64>,
-        /// The rejected trials of the last Newton step: step length α and ‖r(α)‖ / ‖r(0)‖
-        /// (`None`: a point's state was inadmissible).
+        /// The rejected trials of the last Newton step: step length α and ‖r(α)‖ / ‖r(0)‖,
+        /// or θ(α) = ‖δ̄(α)‖ / ‖δ‖ under the natural test (`None`: a point's state was
+        /// inadmissible).
         trials: Vec<(f64, Option<f64>)>,
+        /// Whether the trials were judged by the natural level function.
+        natural: bool,
     },
     /// The step could not be solved even after cutting it `cuts` times.
     CuttingFailed {
@@ -418,13 +421,22 @@ impl std::fmt::Display for SolverError {
                 backtracks,
                 residuals,
                 trials,
+                natural,
             } => {
+                let (what, ratio) = if *natural {
+                    (
+                        "the natural level function (the simplified Newton correction)",
+                        "‖K⁻¹r(α)‖ / ‖K⁻¹r(0)‖",
+                    )
+                } else {
+                    ("the out-of-balance force", "‖r(α)‖ / ‖r(0)‖")
+                };
                 write!(
                     f,
                     "load step {step}: the line search shortened Newton step {iteration} \
-                     {backtracks} times without reducing the out-of-balance force enough; \
-                     its trials (step length α: ‖r(α)‖ / ‖r(0)‖ − 1, which a consistent \
-                     tangent makes about −α for short steps):"
+                     {backtracks} times without reducing {what} enough; its trials (step \
+                     length α: {ratio} − 1, which a consistent tangent makes about −α for \
+                     short steps):"
                 )?;
                 for (alpha, ratio) in trials {
                     match ratio {

@@ -1465,16 +1465,32 @@ fn the_line_search_leaves_a_converging_newton_alone() {
     assert_eq!(totals["line_search_steps"], 0, "{totals}");
 }
 
-/// `max_backtracks` without `line_search: true` is refused with the scene line.
+/// `max_backtracks` and `merit` without `line_search: true` are refused with the scene line,
+/// and so is a merit word that is not one.
 #[test]
 fn max_backtracks_needs_the_line_search() {
-    let text = "grid(#{ lower: [0.0, 0.0], upper: [1.0, 1.0], cells: [2, 2], basis: \"linear\" });\n\
-                solver(#{ max_backtracks: 4 });\n";
-    let error = scene("backtracks", text, &[]).unwrap_err();
-    assert!(
-        error.contains(":2:") && error.contains("'max_backtracks' applies to line_search"),
-        "{error}"
-    );
+    let grid =
+        "grid(#{ lower: [0.0, 0.0], upper: [1.0, 1.0], cells: [2, 2], basis: \"linear\" });\n";
+    for (call, expected) in [
+        (
+            "solver(#{ max_backtracks: 4 });",
+            "'max_backtracks' applies to line_search",
+        ),
+        (
+            "solver(#{ merit: \"natural\" });",
+            "'merit' applies to line_search",
+        ),
+        (
+            "solver(#{ line_search: true, merit: \"energy\" });",
+            "natural",
+        ),
+    ] {
+        let error = scene("backtracks", &format!("{grid}{call}\n"), &[]).unwrap_err();
+        assert!(
+            error.contains(":2:") && error.contains(expected),
+            "{call}: {error}"
+        );
+    }
 }
 
 /// Globalisation where plain Newton needs step cuts: the 1D column of `column_1d.rhai` (10
@@ -1515,6 +1531,84 @@ fn the_line_search_converges_a_step_that_plain_newton_cuts() {
     assert!(order > 1.8, "{:?}", s.residuals);
     let totals = &searched.summary.to_json()["totals"];
     assert_eq!(totals["line_search_steps"], 1, "{totals}");
+}
+
+/// The natural level function (`merit: "natural"`) on the same heavy column: the step converges
+/// whole, with at least one shortened Newton step, quadratically at the end and to the same
+/// answer as the residual test's (eq. 15 error below 4e-3, and the two top displacements equal
+/// to the solver's tolerance). With an iterative linear solver, which keeps no factor, the run
+/// says it uses the residual test and does what the residual test does.
+#[test]
+fn the_natural_level_function_converges_the_heavy_column_step() {
+    let with_solver = |call: &str| {
+        std::fs::read_to_string(common::shipped_scene("column_1d.rhai"))
+            .unwrap()
+            .replace("load_steps(steps);", &format!("{call}\nload_steps(steps);"))
+    };
+    let set = [("steps", "1"), ("cells", "10"), ("body_force", "-40000.0")];
+    let top = |sim: &mut Simulation<1>| -> f64 {
+        let mut query = sim.world.query::<(
+            &impm::components::ReferencePosition<1>,
+            &impm::components::Position<1>,
+        )>();
+        let (x, p) = query
+            .iter(&sim.world)
+            .max_by(|a, b| a.0.0[0].total_cmp(&b.0.0[0]))
+            .map(|(x, p)| (x.0[0], p.0[0]))
+            .unwrap();
+        p - x
+    };
+    let mut residual = run::<1>(
+        "heavy_residual",
+        &with_solver("solver(#{ line_search: true });"),
+        &set,
+    );
+    let mut natural = run::<1>(
+        "heavy_natural",
+        &with_solver("solver(#{ line_search: true, merit: \"natural\" });"),
+        &set,
+    );
+    let (u_r, u_n) = (top(&mut residual), top(&mut natural));
+    let (r, n) = (&residual.summary.steps[0], &natural.summary.steps[0]);
+    eprintln!(
+        "residual test: {} iterations, {:?}; natural: {} iterations, {:?}, residuals {:?}, error {:?}",
+        r.iterations, r.line_search, n.iterations, n.line_search, n.residuals, n.error
+    );
+    assert!(n.converged && n.cuts == 0, "{n:?}");
+    assert!(n.line_search.shortened >= 1, "{:?}", n.line_search);
+    let error = n.error.unwrap();
+    assert!(error < 4e-3, "{error}");
+    let k = n.residuals.len();
+    let order = n.residuals[k - 1].ln() / n.residuals[k - 2].ln();
+    assert!(order > 1.8, "{:?}", n.residuals);
+    assert!((u_r - u_n).abs() < 1e-6 * u_r.abs(), "{u_r} {u_n}");
+    assert!(
+        natural.summary.warnings.is_empty(),
+        "{:?}",
+        natural.summary.warnings
+    );
+
+    let iterative = run::<1>(
+        "heavy_natural_iterative",
+        &with_solver(
+            "solver(#{ line_search: true, merit: \"natural\", linear: \"iterative\", \
+             preconditioner: \"jacobi\" });",
+        ),
+        &set,
+    );
+    let warned = &iterative.summary.warnings;
+    assert!(
+        warned.iter().any(|w| w.contains("natural level function")
+            && w.contains("keeps none")
+            && w.contains("residual test")),
+        "{warned:?}"
+    );
+    let i = &iterative.summary.steps[0];
+    assert!(i.converged && i.cuts == 0, "{i:?}");
+    assert_eq!(
+        i.line_search.rejected, r.line_search.rejected,
+        "{i:?} {r:?}"
+    );
 }
 
 /// `initial_stress` is listed by `impm check --explain` as used when the scene calls it (it

@@ -723,6 +723,7 @@ fn displacements_load_factors_solver_and_output() {
             petsc_options: String::new(),
             line_search: false,
             max_backtracks: 10,
+            merit: impm::scene::LineSearchMerit::Residual,
         }
     );
     assert_eq!(scene.output.every, 2);

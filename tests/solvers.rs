@@ -456,3 +456,52 @@ fn auto_chooses_the_backend_by_dimension_and_size_and_says_why() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The direct solver solves again with the factor of its last solve (what the line search's
+/// natural level function needs): Cholesky and LU alike, the answer that of the matrix it
+/// factorised even after the matrix changed (its values doubled), and `None` where no factor
+/// is kept (before a first solve, another size, an iterative solver).
+#[test]
+fn the_direct_solver_solves_again_with_its_last_factorisation() {
+    let mut matrix = self_weight_tangent::<2>(4);
+    let n = matrix.size();
+    let first: Vec<f64> = (0..n).map(|i| (0.01 * i as f64).cos()).collect();
+    let second: Vec<f64> = (0..n).map(|i| (0.003 * i as f64).sin() + 0.2).collect();
+    assert!(
+        DirectSolver::default()
+            .solve_with_last_factor(&mut second.clone())
+            .is_none()
+    );
+    for (symmetric, kind) in [(true, SolverKind::Cholesky), (false, SolverKind::Lu)] {
+        let mut solver = DirectSolver::default();
+        let mut x = first.clone();
+        assert_eq!(solver.solve(&matrix, symmetric, &mut x), Ok(kind));
+        let mut y = second.clone();
+        assert!(matches!(
+            solver.solve_with_last_factor(&mut y),
+            Some(Ok(()))
+        ));
+        let mut check = vec![0.0; n];
+        multiply(&matrix, &y, &mut check);
+        let residual = relative(&check, &second);
+        assert!(residual < 1e-10, "{kind:?}: {residual:e}");
+        // the matrix changes (a new iterate's tangent, same pattern): the kept factor is the old one
+        matrix.with_values_apart(|_, values| values.iter_mut().for_each(|v| *v *= 2.0));
+        let mut z = second.clone();
+        assert!(matches!(
+            solver.solve_with_last_factor(&mut z),
+            Some(Ok(()))
+        ));
+        assert!(relative(&z, &y) < 1e-12, "{kind:?}");
+        matrix.with_values_apart(|_, values| values.iter_mut().for_each(|v| *v *= 0.5));
+        assert!(
+            solver
+                .solve_with_last_factor(&mut vec![1.0; n + 1])
+                .is_none()
+        );
+    }
+    let mut krylov = KrylovSolver::default();
+    let mut x = first.clone();
+    krylov.solve(&matrix, true, &mut x).unwrap();
+    assert!(krylov.solve_with_last_factor(&mut second.clone()).is_none());
+}

@@ -24,7 +24,8 @@ impl Plugin for LineSearchModule {
     }
 
     fn build<const D: usize>(&self, simulation: &mut Extension<'_, D>) {
-        simulation.world().insert_resource(LineSearch::default());
+        let merit = simulation.spec().solver.merit;
+        simulation.world().insert_resource(LineSearch::new(merit));
         simulation.add_systems(Hook::Convergence, judge_iterate::<D>);
     }
 }

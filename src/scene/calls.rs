@@ -16,7 +16,9 @@ use super::registry::{CallSpec, SceneApi};
 use super::schedule::{MAX_STEPS, equal_steps, phase_factors};
 use super::seeding::Placement;
 use super::words::{BasisWord, ModelSpec};
-use super::{GridSpec, LinearBackend, MaterialSpec, OutputSpec, Preconditioning, SolverSpec};
+use super::{
+    GridSpec, LineSearchMerit, LinearBackend, MaterialSpec, OutputSpec, Preconditioning, SolverSpec,
+};
 use crate::basis::BasisKind;
 use crate::basis::axis::{MIN_CELL_RESOLUTION, unresolved_grid_line};
 use crate::material::{Hencky, Material, MaterialParameters, ParameterValue};
@@ -685,8 +687,9 @@ fn solver_call() -> CallSpec {
                 "backtracking line search on the out-of-balance force (Armijo, safeguarded \
                  parabolic steps): the full Newton step is tried first and shortened only where \
                  it does not reduce ‖f_ext − f_int‖ enough or a point's state becomes \
-                 inadmissible (det F ≤ 0); summary.json counts the shortened steps (default \
-                 false)",
+                 inadmissible (det F ≤ 0); `merit: \"natural\"` judges the trials by the \
+                 natural level function instead; summary.json counts the shortened steps \
+                 (default false)",
             ),
             OptionSpec::new(
                 "max_backtracks",
@@ -696,6 +699,30 @@ fn solver_call() -> CallSpec {
                 },
                 "most shortenings of one Newton step by the line search, after which the \
                  attempt fails and the load step is cut (default 10)",
+            ),
+            OptionSpec::new(
+                "merit",
+                Kind::Choice(vec![
+                    Choice {
+                        word: "residual",
+                        meaning: Some(
+                            "Armijo's sufficient decrease of ‖f_ext − f_int‖ (the default)",
+                        ),
+                    },
+                    Choice {
+                        word: "natural",
+                        meaning: Some(
+                            "Deuflhard's natural level function: the simplified Newton \
+                             correction ‖K_k⁻¹ r(u_k + α δ)‖ must fall below (1 − α/4) ‖δ‖, \
+                             solved with the kept factor of the step's tangent; insensitive to \
+                             the tangent's scaling (a stiff penalty or a soft plastic zone) \
+                             where ‖r‖ is not. Needs the direct solver and an undivided grid: \
+                             elsewhere the residual test is used, with a warning",
+                        ),
+                    },
+                ]),
+                "the test a trial step of the line search must pass (line_search: true; \
+                 default \"residual\")",
             ),
         ],
         |builder, options, at| {
@@ -740,6 +767,10 @@ fn solver_call() -> CallSpec {
                 max_backtracks: options
                     .whole("max_backtracks")
                     .unwrap_or(default.max_backtracks),
+                merit: match options.text("merit") {
+                    Some("natural") => LineSearchMerit::Natural,
+                    _ => LineSearchMerit::Residual,
+                },
             };
             if options.text("smoother").is_some()
                 && !matches!(
@@ -753,10 +784,12 @@ fn solver_call() -> CallSpec {
                         .to_string(),
                 );
             }
-            if options.whole("max_backtracks").is_some() && !solver.line_search {
-                return Err(
-                    "solver(...): 'max_backtracks' applies to line_search: true only".to_string(),
-                );
+            for option in ["max_backtracks", "merit"] {
+                if options.has(option) && !solver.line_search {
+                    return Err(format!(
+                        "solver(...): '{option}' applies to line_search: true only"
+                    ));
+                }
             }
             if options.text("petsc_options").is_some() && solver.linear != LinearBackend::Petsc {
                 return Err(

@@ -152,10 +152,24 @@ pub struct SolverSpec {
     /// Options for PETSc's options database (`linear: "petsc"`), e.g. `-ksp_type cg -pc_type
     /// gamg`; empty for PETSc's defaults as the backend sets them.
     pub petsc_options: String,
-    /// Backtracking line search on the out-of-balance force (`stages::line_search`).
+    /// Backtracking line search (`stages::line_search`).
     pub line_search: bool,
     /// Most shortenings of one Newton step by the line search.
     pub max_backtracks: usize,
+    /// What the line search asks of a shortened step (`stages::line_search`).
+    pub merit: LineSearchMerit,
+}
+
+/// The test a trial step of the line search must pass (`stages::line_search`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum LineSearchMerit {
+    /// Armijo's sufficient decrease of the out-of-balance force ‖r‖ (the default).
+    #[default]
+    Residual,
+    /// Deuflhard's natural level function ‖K_k⁻¹ r‖: the simplified Newton correction with
+    /// the tangent of the iterate the step starts from, which the tangent's scaling does not
+    /// distort (needs the direct solver's kept factor; otherwise the residual test is used).
+    Natural,
 }
 
 impl SolverSpec {
@@ -180,6 +194,7 @@ impl Default for SolverSpec {
             petsc_options: String::new(),
             line_search: false,
             max_backtracks: 10,
+            merit: LineSearchMerit::Residual,
         }
     }
 }

@@ -162,6 +162,11 @@ impl LinearSolver for AutoSolver {
         self.current.as_ref()?.1.last_iterations()
     }
 
+    /// The backend in use keeps its factor (the direct one) or has none (an iterative one).
+    fn solve_with_last_factor(&mut self, rhs: &mut [f64]) -> Option<Result<(), LinearSolveError>> {
+        self.current.as_mut()?.1.solve_with_last_factor(rhs)
+    }
+
     fn hierarchy(&self) -> Option<Hierarchy> {
         self.current.as_ref()?.1.hierarchy()
     }

@@ -6,6 +6,10 @@
 //! Cholesky reads one triangle only, so it is used only when the tangent is declared symmetric;
 //! if that fails (not positive definite, e.g. past a limit point) the solve falls back to LU. A
 //! non-symmetric tangent always goes to LU.
+//!
+//! The factor of the last solve is kept until the next one, so a right-hand side can be solved
+//! with it again (`LinearSolver::solve_with_last_factor`: the line search's natural level
+//! function solves with the tangent of the iterate its correction came from).
 
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt::factor::LltRegularization;
@@ -25,6 +29,22 @@ pub struct DirectSolver {
     factor_values: Vec<f64>,
     scratch: Option<MemBuffer>,
     lu_symbolic: Option<SymbolicLu<usize>>,
+    /// The factorisation the last solve used, kept for `solve_with_last_factor`.
+    last: LastFactor,
+}
+
+/// Which factor the last solve left (the Cholesky factor's values live in `factor_values`).
+#[derive(Default)]
+enum LastFactor {
+    #[default]
+    None,
+    Cholesky {
+        size: usize,
+    },
+    Lu {
+        factor: Box<Lu<usize, f64>>,
+        size: usize,
+    },
 }
 
 impl LinearSolver for DirectSolver {
@@ -48,6 +68,7 @@ impl LinearSolver for DirectSolver {
                 ..Self::default()
             };
         }
+        self.last = LastFactor::None;
         if symmetric {
             debug_assert!(
                 matrix.is_symmetric(1e-9),
@@ -55,11 +76,44 @@ impl LinearSolver for DirectSolver {
             );
             // a failed factorisation returns before rhs is touched
             if self.solve_cholesky(matrix, rhs).is_ok() {
+                self.last = LastFactor::Cholesky {
+                    size: matrix.size(),
+                };
                 return Ok(SolverKind::Cholesky);
             }
         }
         self.solve_lu(matrix, rhs)?;
         Ok(SolverKind::Lu)
+    }
+
+    fn solve_with_last_factor(&mut self, rhs: &mut [f64]) -> Option<Result<(), LinearSolveError>> {
+        use faer::linalg::solvers::SolveCore;
+        let size = rhs.len();
+        match &self.last {
+            LastFactor::Cholesky { size: n } if *n == size => {
+                let (symbolic, scratch) = (self.cholesky.as_ref()?, self.scratch.as_mut()?);
+                let factor = LltRef::<usize, f64>::new(symbolic, &self.factor_values);
+                let rhs_mat = MatMut::from_column_major_slice_mut(rhs, size, 1);
+                factor.solve_in_place_with_conj(
+                    Conj::No,
+                    rhs_mat,
+                    Par::Seq,
+                    MemStack::new(scratch),
+                );
+            }
+            LastFactor::Lu { factor, size: n } if *n == size => {
+                let rhs_mat = MatMut::from_column_major_slice_mut(rhs, size, 1);
+                factor.solve_in_place_with_conj(Conj::No, rhs_mat);
+            }
+            _ => return None,
+        }
+        Some(if rhs.iter().all(|v| v.is_finite()) {
+            Ok(())
+        } else {
+            Err(LinearSolveError::Singular(
+                "the solution with the last factor is not finite".to_string(),
+            ))
+        })
     }
 }
 
@@ -142,6 +196,10 @@ impl DirectSolver {
                 "LU solution is not finite".to_string(),
             ));
         }
+        self.last = LastFactor::Lu {
+            factor: Box::new(lu),
+            size: matrix.size(),
+        };
         Ok(())
     }
 }

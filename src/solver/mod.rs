@@ -90,6 +90,15 @@ pub trait LinearSolver: Send + Sync {
         rhs: &mut [f64],
     ) -> Result<SolverKind, LinearSolveError>;
 
+    /// Solves `K x = rhs` in place with the factorisation of the last [`solve`](Self::solve)
+    /// again (the tangent of the Newton iterate the last correction came from), without
+    /// factorising anything: `None` when the solver keeps no factor (an iterative solver, a
+    /// solve not yet done, or a `rhs` of another size). The natural level function of the line
+    /// search (`stages::line_search`) needs it.
+    fn solve_with_last_factor(&mut self, _rhs: &mut [f64]) -> Option<Result<(), LinearSolveError>> {
+        None
+    }
+
     /// Iterations of the last solve, for an iterative solver (`None` for a direct one).
     fn last_iterations(&self) -> Option<usize> {
         None

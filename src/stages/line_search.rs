@@ -1,5 +1,7 @@
-//! Newton stage 4c': globalisation by a backtracking line search on the out-of-balance force
-//! (`solver(#{ line_search: true })`; off by default, and then nothing here runs).
+//! Newton stage 4c': globalisation by a backtracking line search
+//! (`solver(#{ line_search: true })`; off by default, and then nothing here runs), on the
+//! out-of-balance force (`merit: "residual"`, the default) or on Deuflhard's natural level
+//! function (`merit: "natural"`, below).
 //!
 //! After the solve `K δ = r(u_k)` the full step `u_k + δ` is evaluated as usual (stress
 //! update, assembly, convergence check). The merit function is the squared out-of-balance
@@ -36,10 +38,38 @@
 //! quadratic phase, a well-behaved elastic step) the iteration is exactly Newton's: same
 //! iterates, same counts. Rejected trials are not Newton iterations: they are left out of the
 //! residual history and counted separately (`Newton::iterations` counts linear solves).
+//!
+//! **The natural level function** (`merit: "natural"`; Deuflhard 2011, *Newton Methods for
+//! Nonlinear Problems*, §3.3, the restricted monotonicity test of NLEQ-ERR). ‖r‖ weighs the
+//! DOFs by the tangent's scale: where a stiff part (a penalty, the elastic soil) and a soft one
+//! (a plastic zone) meet, a step that is right in the soft part can raise ‖r‖ in the stiff part
+//! and be rejected, and Armijo then shortens good steps into many load-step cuts. The natural
+//! level function measures the residual of a trial in the metric of the tangent K_k of the
+//! iterate the step started from, by the simplified Newton correction
+//!
+//! ```text
+//!   δ̄(α) = K_k⁻¹ r(u_k + α δ),        δ = K_k⁻¹ r(u_k)    (so δ̄(0) = δ)
+//! ```
+//!
+//! solved with the factor of K_k the direct solver kept (no new factorisation:
+//! `LinearSolver::solve_with_last_factor`). A trial is accepted when
+//!
+//! ```text
+//!   θ(α) = ‖δ̄(α)‖ / ‖δ‖ ≤ 1 − α/4
+//! ```
+//!
+//! (for a linear problem δ̄(α) = (1 − α) δ: the test passes for every α). Otherwise the
+//! a-posteriori estimate of the affine-covariant Lipschitz constant,
+//! `h = 2 ‖δ̄(α) − (1 − α) δ‖ / (α² ‖δ‖)`, predicts the next step length `α⁺ = 1/h`, with the
+//! same safeguards [0.1 α, 0.5 α]. The test is invariant to a scaling of the equations (a
+//! penalty's size, the units of force), where the residual test is not. With an iterative
+//! linear solver (no factor is kept) or a grid divided among processes, the residual test is
+//! used instead and the run warns once.
 
 use bevy_ecs::prelude::*;
 
-use crate::resources::{GridFields, Newton, NewtonSettings, RunStatus, SolverError};
+use crate::resources::{GridFields, Newton, NewtonSettings, RunStatus, SolverError, Warnings};
+use crate::scene::LineSearchMerit;
 use crate::solver::NO_DOF;
 
 /// Sufficient-decrease constant c of the Armijo condition.
@@ -72,10 +102,35 @@ pub fn shorter_step(alpha: f64, start: f64, norm: Option<f64>) -> f64 {
     minimiser.clamp(SHORTEST * alpha, LONGEST * alpha)
 }
 
+/// Whether the trial at step length `alpha` passes the restricted monotonicity test of the
+/// natural level function, `θ = ‖δ̄(α)‖ / ‖δ‖ ≤ 1 − α/4`.
+pub fn natural_decrease(alpha: f64, theta: f64) -> bool {
+    theta <= 1.0 - 0.25 * alpha
+}
+
+/// The next step length after the natural test rejected the trial at `alpha`: `1/h` with the
+/// estimate `h = 2 ‖δ̄(α) − (1 − α) δ‖ / (α² ‖δ‖)` (`deviation` = ‖δ̄(α) − (1 − α) δ‖ / ‖δ‖),
+/// safeguarded to [0.1 α, 0.5 α].
+pub fn natural_shorter_step(alpha: f64, deviation: f64) -> f64 {
+    let h = 2.0 * deviation / (alpha * alpha);
+    let prediction = if h.is_finite() && h > 0.0 {
+        1.0 / h
+    } else {
+        LONGEST * alpha
+    };
+    prediction.clamp(SHORTEST * alpha, LONGEST * alpha)
+}
+
 /// The line search's state in the current load step (inserted only when the scene asks for a
 /// line search), and its counts for the summary.
 #[derive(Resource, Default, Debug)]
 pub struct LineSearch {
+    /// The test of a trial step.
+    merit: LineSearchMerit,
+    /// The natural test could not be used in this run (said once in the warnings).
+    natural_unavailable: bool,
+    /// The simplified Newton correction δ̄ of the trial (natural test), by DOF.
+    simplified: Vec<f64>,
     /// ‖r‖ at the accepted iterate the current correction starts from.
     start_norm: f64,
     /// The free components of Δu at that iterate, by DOF.
@@ -103,6 +158,14 @@ pub struct LineSearch {
 }
 
 impl LineSearch {
+    /// A line search with the test `merit`.
+    pub fn new(merit: LineSearchMerit) -> Self {
+        Self {
+            merit,
+            ..Self::default()
+        }
+    }
+
     /// Forgets the previous attempt (called when a load step's Newton solve begins).
     pub fn begin_step(&mut self) {
         self.accepted_at = None;
@@ -140,19 +203,10 @@ impl LineSearch {
         self.accepted_residuals = newton.residuals.len();
     }
 
-    /// Rejects the trial just evaluated (residual norm `norm`, if it has one) and puts the
-    /// iterate at step length `alpha`.
-    fn retry_at<const D: usize>(
-        &mut self,
-        alpha: f64,
-        norm: Option<f64>,
-        fields: &mut GridFields<D>,
-        newton: &mut Newton,
-    ) {
-        self.trials
-            .push((self.alpha, norm.map(|n| n / self.start_norm)));
+    /// Keeps the Newton correction δ when the trial under evaluation is the full step
+    /// (Δu = start + δ there); later trials reuse it.
+    fn keep_correction<const D: usize>(&mut self, fields: &GridFields<D>) {
         if !self.has_correction {
-            // the rejected trial was the full step: Δu = start + δ
             self.correction.clear();
             self.correction.resize(self.start.len(), 0.0);
             for_free_dofs(fields, |node, c, dof| {
@@ -160,6 +214,53 @@ impl LineSearch {
             });
             self.has_correction = true;
         }
+    }
+
+    /// The natural level function of the trial just evaluated: `Some((θ, ‖δ̄ − (1 − α) δ‖ /
+    /// ‖δ‖))`, or `None` when the kept factor cannot be used (then the residual test serves).
+    fn natural_measure<const D: usize>(
+        &mut self,
+        fields: &GridFields<D>,
+        newton: &mut Newton,
+    ) -> Option<(f64, f64)> {
+        if newton.shared_grid.is_some() {
+            return None;
+        }
+        self.keep_correction(fields);
+        self.simplified.clear();
+        self.simplified.extend_from_slice(&newton.residual);
+        if newton
+            .solver
+            .solve_with_last_factor(&mut self.simplified)?
+            .is_err()
+        {
+            return None;
+        }
+        let full = self.correction.iter().map(|d| d * d).sum::<f64>().sqrt();
+        if full.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+            return None;
+        }
+        let (theta, deviation) = self
+            .simplified
+            .iter()
+            .zip(&self.correction)
+            .fold((0.0, 0.0), |(t, d), (s, c)| {
+                (t + s * s, d + (s - (1.0 - self.alpha) * c).powi(2))
+            });
+        Some((theta.sqrt() / full, deviation.sqrt() / full))
+    }
+
+    /// Rejects the trial just evaluated (`ratio`: its merit relative to the start's, if it has
+    /// one) and puts the iterate at step length `alpha`.
+    fn retry_at<const D: usize>(
+        &mut self,
+        alpha: f64,
+        ratio: Option<f64>,
+        fields: &mut GridFields<D>,
+        newton: &mut Newton,
+    ) {
+        self.trials.push((self.alpha, ratio));
+        self.keep_correction(fields);
         self.alpha = alpha;
         self.backtracks += 1;
         self.rejected += 1;
@@ -220,6 +321,7 @@ pub fn judge_iterate<const D: usize>(
     mut fields: ResMut<GridFields<D>>,
     mut newton: ResMut<Newton>,
     mut status: ResMut<RunStatus>,
+    mut warnings: ResMut<Warnings>,
     step: Res<crate::resources::LoadStep>,
 ) {
     let (search, newton) = (&mut *search, &mut *newton);
@@ -240,27 +342,62 @@ pub fn judge_iterate<const D: usize>(
             return;
         }
     };
-    let rejected = search.trial_pending(newton.iterations)
-        && !newton.converged
-        && !sufficient_decrease(search.start_norm, search.alpha, norm);
-    if !rejected {
+    if !search.trial_pending(newton.iterations) || newton.converged {
+        search.accept(norm, &fields, newton);
+        return;
+    }
+    // the trial's merit relative to the start's, whether it passes, and the next step length
+    let natural = match search.merit {
+        LineSearchMerit::Natural => {
+            let measure = search.natural_measure(&fields, newton);
+            if measure.is_none() && !search.natural_unavailable {
+                search.natural_unavailable = true;
+                warnings.0.push(format!(
+                    "load step {}: the line search's natural level function needs the kept \
+                     factor of a direct solve on an undivided grid ({}): the residual test \
+                     (merit: \"residual\") is used instead in this run",
+                    step.number,
+                    if newton.shared_grid.is_some() {
+                        "this grid is divided among processes"
+                    } else {
+                        "this linear solver keeps none"
+                    }
+                ));
+            }
+            measure
+        }
+        LineSearchMerit::Residual => None,
+    };
+    let (ratio, passes, next) = match natural {
+        Some((theta, deviation)) => (
+            theta,
+            natural_decrease(search.alpha, theta),
+            natural_shorter_step(search.alpha, deviation),
+        ),
+        None => (
+            norm / search.start_norm,
+            sufficient_decrease(search.start_norm, search.alpha, norm),
+            shorter_step(search.alpha, search.start_norm, Some(norm)),
+        ),
+    };
+    if passes {
         search.accept(norm, &fields, newton);
         return;
     }
     if search.backtracks >= settings.max_backtracks {
         let mut trials = search.trials.clone();
-        trials.push((search.alpha, Some(norm / search.start_norm)));
+        trials.push((search.alpha, Some(ratio)));
         status.fail(SolverError::LineSearch {
             step: step.number,
             iteration: newton.iterations,
             backtracks: search.backtracks,
             residuals: newton.residuals.clone(),
             trials,
+            natural: natural.is_some(),
         });
         return;
     }
-    let alpha = shorter_step(search.alpha, search.start_norm, Some(norm));
-    search.retry_at(alpha, Some(norm), &mut fields, newton);
+    search.retry_at(next, Some(ratio), &mut fields, newton);
 }
 
 /// Run condition of the linear solve: the line search (if any) accepted the iterate.
@@ -309,11 +446,12 @@ pub fn retry_after_failure<const D: usize>(world: &mut World) -> bool {
         _ => return false,
     };
     let alpha = shorter_step(search.alpha, search.start_norm, norm);
+    let ratio = norm.map(|n| n / search.start_norm);
     world.resource_mut::<RunStatus>().0 = None;
     world.resource_scope(|world, mut search: Mut<LineSearch>| {
         world.resource_scope(|world, mut fields: Mut<GridFields<D>>| {
             let mut newton = world.resource_mut::<Newton>();
-            search.retry_at(alpha, norm, &mut fields, &mut newton);
+            search.retry_at(alpha, ratio, &mut fields, &mut newton);
         });
     });
     true
@@ -347,5 +485,29 @@ mod tests {
         // no residual (an inverted point): half the step
         assert_eq!(shorter_step(0.5, 1.0, None), 0.25);
         assert_eq!(shorter_step(0.5, 1.0, Some(f64::NAN)), 0.25);
+    }
+
+    #[test]
+    fn the_natural_test_accepts_a_linear_problems_steps_and_predicts_from_the_curvature() {
+        // linear: δ̄(α) = (1 − α) δ, θ = 1 − α passes at every α, and no deviation
+        for alpha in [1.0, 0.5, 0.1] {
+            assert!(natural_decrease(alpha, 1.0 - alpha));
+        }
+        assert!(!natural_decrease(0.5, 0.9));
+        assert!(natural_decrease(0.5, 0.875));
+        // r(u) = δ0 − u − κ u²/2 in 1D with K = 1 at u = 0 (δ = δ0): δ̄(α) − (1 − α) δ =
+        // −κ α² δ0²/2, h = κ δ0, and the prediction 1/h is the step of a sound quadratic model
+        let (kappa, delta) = (8.0_f64, 1.0_f64);
+        let alpha = 1.0;
+        let deviation = (kappa * alpha * alpha * delta * delta / 2.0) / delta;
+        let next = natural_shorter_step(alpha, deviation);
+        assert!(
+            (next - (1.0 / (kappa * delta)).clamp(0.1, 0.5)).abs() < 1e-15,
+            "{next}"
+        );
+        // a huge deviation gives the shortest step, none the longest
+        assert!((natural_shorter_step(0.5, 1e9) - 0.05).abs() < 1e-15);
+        assert_eq!(natural_shorter_step(0.5, 0.0), 0.25);
+        assert_eq!(natural_shorter_step(0.5, f64::NAN), 0.25);
     }
 }
