@@ -116,4 +116,56 @@ fn the_finer_footing_gets_past_half_a_width_with_the_ghost_penalty() {
     assert!(q[steps / 5 - 1..].iter().all(|&v| v > prandtl), "{q:?}");
     assert!(late > 1.2 * prandtl, "{late}");
     assert!(worst_drop < 0.05, "{q:?}");
+
+    // the line search's natural level function (`merit=natural`): the same converged states
+    // until a step is cut in either run (a cut step commits a state halfway, and the plastic
+    // path then parts: observed 1.6 % in the cut step, at most 2.8 % after, 0.08 % at 0.5 B;
+    // docs/plasticity.md, "The natural level function"), in fewer Newton iterations
+    let natural = penetration(&[
+        ("settlement", "0.5"),
+        ("steps", "20"),
+        ("cells", "8"),
+        ("ghost_penalty", "0.01"),
+        ("top_room", "4"),
+        ("merit", "natural"),
+    ]);
+    assert_eq!(natural.summary.steps.len(), steps);
+    let q_natural: Vec<f64> = natural
+        .summary
+        .steps
+        .iter()
+        .map(|s| s.measure("footing_pressure").unwrap())
+        .collect();
+    let first_cut = sim
+        .summary
+        .steps
+        .iter()
+        .zip(&natural.summary.steps)
+        .position(|(a, b)| a.cuts > 0 || b.cuts > 0)
+        .unwrap_or(steps);
+    let difference = |k: usize| (q[k] - q_natural[k]).abs() / q[k];
+    let iterations = |sim: &impm::run::Simulation<2>| -> usize {
+        sim.summary.steps.iter().map(|s| s.iterations).sum()
+    };
+    println!(
+        "natural level function: first cut in step {}, largest difference before it {:.1e}, \
+         after it {:.2} %, at 0.5 B {:.2} %; Newton iterations {} against {}",
+        first_cut + 1,
+        (0..first_cut).map(difference).fold(0.0, f64::max),
+        100.0 * (first_cut..steps).map(difference).fold(0.0, f64::max),
+        100.0 * difference(steps - 1),
+        iterations(&natural),
+        iterations(&sim)
+    );
+    assert!(first_cut >= 3, "cut in step {}", first_cut + 1);
+    assert!(
+        (0..first_cut).all(|k| difference(k) < 1e-6),
+        "{q:?} {q_natural:?}"
+    );
+    assert!(
+        (first_cut..steps).all(|k| difference(k) < 0.04),
+        "{q:?} {q_natural:?}"
+    );
+    assert!(difference(steps - 1) < 0.01, "{q:?} {q_natural:?}");
+    assert!(iterations(&natural) < iterations(&sim));
 }
