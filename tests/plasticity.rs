@@ -2603,18 +2603,25 @@ fn softened_stress_paths_match_a_fine_integration_of_the_rate_equations() {
             }
             let tau = point.kirchhoff.diagonal();
             let error = (tau - reference).amax() / reference.amax();
-            let strain_error = (point.history.plastic_strain - plastic_strain).abs() / plastic_strain;
+            let strain_error =
+                (point.history.plastic_strain - plastic_strain).abs() / plastic_strain;
             eprintln!(
                 "psi {psi} -> {}: {steps} steps: stress error {error:.3e}, eps_p error {strain_error:.3e} (eps_p = {plastic_strain:.5}, tau = {tau:?})",
                 residual.2
             );
             errors.push(error);
             if exact {
-                assert!(error < 1e-9 && strain_error < 1e-9, "{steps} steps: {error:e}");
+                assert!(
+                    error < 1e-9 && strain_error < 1e-9,
+                    "{steps} steps: {error:e}"
+                );
             }
         }
         // the softening went a long way: c and φ most of the way to their residuals
-        assert!((-30.0 * plastic_strain).exp() < 0.2, "eps_p = {plastic_strain}");
+        assert!(
+            (-30.0 * plastic_strain).exp() < 0.2,
+            "eps_p = {plastic_strain}"
+        );
         if !exact {
             let ratio = errors[2] / errors[3];
             assert!((3.0..5.0).contains(&ratio), "first order: {errors:?}");
@@ -2674,8 +2681,8 @@ fn the_softening_return_reduces_to_the_closed_form_without_softening() {
                     .zip(&tb)
                     .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()))
                     / largest.max(elastic().youngs_modulus);
-                let strain =
-                    (a.history.plastic_strain - b.history.plastic_strain).abs() / a.history.plastic_strain;
+                let strain = (a.history.plastic_strain - b.history.plastic_strain).abs()
+                    / a.history.plastic_strain;
                 eprintln!("psi {psi} {trial:?}: {stress:.1e} {tangent:.1e} {strain:.1e}");
                 assert!(a.history.yielding && b.history.yielding);
                 assert!(
@@ -2695,16 +2702,37 @@ fn the_softening_return_reduces_to_the_closed_form_without_softening() {
 fn bad_friction_softening_is_refused_and_softening_is_warned() {
     let dp = "model: \"drucker_prager\", c: 1.0, phi: 30.0";
     let cases = [
-        (format!("{dp}, softening_rate: 10.0, phi_residual: 35.0"), "phi_residual"),
-        (format!("{dp}, softening_rate: 10.0, c_residual: 2.0"), "c_residual"),
-        (format!("{dp}, psi: 10.0, softening_rate: 10.0, psi_residual: 12.0"), "psi_residual"),
-        (format!("{dp}, psi: 20.0, softening_rate: 10.0, phi_residual: 15.0"), "psi_residual"),
-        (format!("{dp}, softening_rate: -1.0, phi_residual: 20.0"), "softening_rate"),
+        (
+            format!("{dp}, softening_rate: 10.0, phi_residual: 35.0"),
+            "phi_residual",
+        ),
+        (
+            format!("{dp}, softening_rate: 10.0, c_residual: 2.0"),
+            "c_residual",
+        ),
+        (
+            format!("{dp}, psi: 10.0, softening_rate: 10.0, psi_residual: 12.0"),
+            "psi_residual",
+        ),
+        (
+            format!("{dp}, psi: 20.0, softening_rate: 10.0, phi_residual: 15.0"),
+            "psi_residual",
+        ),
+        (
+            format!("{dp}, softening_rate: -1.0, phi_residual: 20.0"),
+            "softening_rate",
+        ),
         (format!("{dp}, softening_rate: 10.0"), "softens nothing"),
         (format!("{dp}, phi_residual: 20.0"), "needs softening_rate"),
         (format!("{dp}, psi_residual: 0.0"), "needs softening_rate"),
-        (format!("{dp}, H: -1.0, softening_rate: 10.0, phi_residual: 20.0"), "two laws"),
-        (format!("{dp}, softening_rate: 1.0e6, c_residual: 0.1"), "steeper"),
+        (
+            format!("{dp}, H: -1.0, softening_rate: 10.0, phi_residual: 20.0"),
+            "two laws",
+        ),
+        (
+            format!("{dp}, softening_rate: 1.0e6, c_residual: 0.1"),
+            "steeper",
+        ),
         (
             "model: \"mohr_coulomb\", c: 1.0, phi: 30.0, softening_rate: 10.0, phi_residual: 20.0"
                 .to_string(),
@@ -2729,7 +2757,10 @@ fn bad_friction_softening_is_refused_and_softening_is_warned() {
         let error = scene("bad_friction_softening", &block(parameters), &[]).unwrap_err();
         eprintln!("{parameters}: {error}");
         assert!(error.contains(":2"), "{parameters}: no line 2 in '{error}'");
-        assert!(error.contains(word), "{parameters}: '{word}' not in '{error}'");
+        assert!(
+            error.contains(word),
+            "{parameters}: '{word}' not in '{error}'"
+        );
     }
     let softening = |parameters: &str| -> Vec<String> {
         let spec = scene("friction_softening", &block(parameters), &[]).unwrap();
@@ -2743,7 +2774,9 @@ fn bad_friction_softening_is_refused_and_softening_is_warned() {
     ));
     assert_eq!(warned.len(), 1, "{warned:?}");
     assert!(
-        warned[0].contains("'m'") && warned[0].contains("'n'") && warned[0].contains("softening_rate"),
+        warned[0].contains("'m'")
+            && warned[0].contains("'n'")
+            && warned[0].contains("softening_rate"),
         "{}",
         warned[0]
     );

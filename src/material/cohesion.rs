@@ -169,7 +169,11 @@ pub struct StrengthSoftening {
 impl StrengthSoftening {
     /// The law with rate `rate` from the peaks `(c, φ, ψ)` to the residuals `(c_r, φ_r, ψ_r)`
     /// (angles in degrees), or why it makes none (module docs).
-    pub fn new(rate: f64, peak: (f64, f64, f64), residual: (f64, f64, f64)) -> Result<Self, String> {
+    pub fn new(
+        rate: f64,
+        peak: (f64, f64, f64),
+        residual: (f64, f64, f64),
+    ) -> Result<Self, String> {
         let (c, phi, psi) = peak;
         let (c_r, phi_r, psi_r) = residual;
         if !(rate > 0.0 && rate.is_finite()) {

@@ -662,7 +662,7 @@ pub fn strength_parameters() -> Vec<ParameterSpec> {
         },
         ParameterSpec {
             name: "c_residual",
-            meaning: "residual cohesion softening (H < 0) stops at, 0 <= c_residual <= c (default 0; required > 0 when phi = 0)",
+            meaning: "residual cohesion: where the linear softening (H < 0) stops, 0 <= c_residual <= c (default 0; required > 0 when phi = 0), or the residual of the exponential softening (softening_rate; default c: c does not soften)",
             label: Some("residual cohesion c_residual"),
             kind: ParameterKind::Number(Range::NonNegative),
             required: false,
@@ -741,7 +741,9 @@ pub fn read_strength(parameters: &MaterialParameters) -> Result<Strength, String
                     "softening_rate and H = {modulus} are two laws of the cohesion: give one (c_residual is the residual of either)"
                 ));
             }
-            let phi_residual = parameters.optional_number("phi_residual")?.unwrap_or(friction);
+            let phi_residual = parameters
+                .optional_number("phi_residual")?
+                .unwrap_or(friction);
             let psi_residual = match parameters.optional_number("psi_residual")? {
                 Some(given) => given,
                 None if parameters.get("psi").is_some() => dilation,
