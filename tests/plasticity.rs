@@ -2487,3 +2487,400 @@ fn bad_von_mises_hardening_is_refused_and_softening_is_warned() {
             .is_empty()
     );
 }
+
+// ---------------------------------------------------------------------------------------------
+// Exponential softening of c, φ, ψ of Drucker–Prager (Yerro, Alonso & Pinyol 2016)
+// ---------------------------------------------------------------------------------------------
+
+/// The outer-cone material of `drucker_prager` (c = 1, φ = 30°) with dilation `psi`, matched by
+/// `matching`, softening at `rate` to `(c_r, φ_r, ψ_r)`.
+fn softening_drucker_prager(
+    matching: Matching,
+    psi: f64,
+    rate: f64,
+    residual: (f64, f64, f64),
+) -> DruckerPrager {
+    use impm::material::cohesion::StrengthSoftening;
+    let law = StrengthSoftening::new(rate, (1.0, 30.0, psi), residual).unwrap();
+    DruckerPrager::new(elastic(), 1.0, 30.0, psi, matching)
+        .unwrap()
+        .with_softening(law)
+        .unwrap()
+}
+
+/// `(η, ξ, η̄, c)` at `plastic_strain`, from the law written out here (not the model's code).
+fn softened_by_hand(model: &DruckerPrager, plastic_strain: f64) -> (f64, f64, f64, f64) {
+    let law = model.softening.unwrap();
+    let decay = (-law.rate * plastic_strain).exp();
+    let value = |peak: f64, residual: f64| residual + (peak - residual) * decay;
+    let (eta, xi) = model
+        .matching
+        .coefficients(value(model.friction, law.friction));
+    let (eta_bar, _) = model
+        .matching
+        .coefficients(value(model.dilation, law.dilation));
+    (eta, xi, eta_bar, value(model.cohesion, law.cohesion))
+}
+
+/// The matchings' slopes `dη/dφ`, `dξ/dφ` against central differences of their coefficients.
+#[test]
+fn the_matching_slopes_are_the_derivatives_of_the_coefficients() {
+    for matching in [Matching::Outer, Matching::Inner, Matching::PlaneStrain] {
+        for degrees in [0.0, 10.0, 25.0, 40.0, 60.0] {
+            let angle = f64::to_radians(degrees);
+            let h = 1e-6;
+            let (up, down) = (
+                matching.coefficients(angle + h),
+                matching.coefficients(angle - h),
+            );
+            let fd = ((up.0 - down.0) / (2.0 * h), (up.1 - down.1) / (2.0 * h));
+            let slopes = matching.slopes(angle);
+            assert!(
+                (slopes.0 - fd.0).abs() < 1e-8 && (slopes.1 - fd.1).abs() < 1e-8,
+                "{matching:?} at {degrees}: {slopes:?} vs {fd:?}"
+            );
+        }
+    }
+}
+
+/// The point tangent with c, φ and ψ softening against central differences (`check_tangent`,
+/// 1e-6 of the largest entry) at trials reaching the elastic region, the cone and the apex from
+/// the virgin state, from a partly softened one and from a nearly residual one; every plastic
+/// return lies on the cone of the parameters at the `ε̄_p` it commits (computed here from the
+/// law, `|Φ|/c < 1e-9`); associated (ψ = φ → ψ_r = φ_r), non-associated with ψ softening, and
+/// ψ = 0 (the apex without volumetric flow), outer and plane-strain matchings.
+fn softening_tangents<const D: usize>() {
+    let trials = [
+        [0.00001, -0.00002, 0.0],
+        [-0.02, 0.006, -0.001],
+        [-0.04, 0.012, -0.002],
+        [-0.01, 0.004, 0.0],
+        [0.01, 0.0125, 0.011],
+    ];
+    let cases = [
+        (30.0, (0.2, 20.0, 20.0)),
+        (10.0, (0.2, 20.0, 2.0)),
+        (0.0, (0.2, 20.0, 0.0)),
+        (10.0, (1.0, 30.0, 4.0)),
+    ];
+    for matching in [Matching::Outer, Matching::PlaneStrain] {
+        for (psi, residual) in cases {
+            let model = softening_drucker_prager(matching, psi, 20.0, residual);
+            for start in [0.0, 0.02, 0.2] {
+                let committed = PlasticHistory {
+                    plastic_strain: start,
+                    ..PlasticHistory::default()
+                };
+                let f = SMatrix::<f64, D, D>::identity();
+                let mut reached = Vec::new();
+                for trial in trials {
+                    let df = stretch::<D>(trial);
+                    let response = model.respond(&df, &df, &committed).unwrap();
+                    let region = region_of::<D, DruckerPrager>(&response);
+                    check_tangent(&model, &committed, &f, trial, region);
+                    reached.push(region);
+                    if response.history.yielding {
+                        let after = response.history.plastic_strain;
+                        assert!(after > start);
+                        let (eta, xi, _, c) = softened_by_hand(&model, after);
+                        let s = principal(&response.kirchhoff);
+                        let p = s.sum() / 3.0;
+                        let j2 = (0.5 * s.map(|x| (x - p) * (x - p)).sum()).sqrt();
+                        let value = (j2 + eta * p - xi * c) / c;
+                        assert!(
+                            value.abs() < 1e-9,
+                            "{matching:?} psi {psi} {residual:?} D = {D} {region:?} from {start}: Φ/c = {value:e}"
+                        );
+                    }
+                }
+                for region in [Region::Elastic, Region::Plane, Region::Apex] {
+                    assert!(
+                        reached.contains(&region),
+                        "{matching:?} psi {psi} from {start}: {region:?} not reached ({reached:?})"
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn softening_friction_cohesion_dilation_tangents_match_finite_differences_2d() {
+    softening_tangents::<2>();
+}
+
+#[test]
+fn softening_friction_cohesion_dilation_tangents_match_finite_differences_3d() {
+    softening_tangents::<3>();
+}
+
+/// A proportional path of principal logarithmic strain `ε(t) = t d` (fixed axes, so the return
+/// in log strains is the small-strain one exactly) on the cone. With `dev ε_p = γ N/√2`,
+/// `v = tr ε_p` the rate form is `dv/dγ = η̄(ε̄_p)`, `dε̄_p/dγ = k(ε̄_p)`, and the consistency
+/// condition is linear in `t`: `√2 G t |dev d| − G γ + η K (t tr d − v) − ξ c = 0`. Integrated
+/// here with RK4 in γ (independent of the model's code), it gives the reference end state; the
+/// model is driven to the same `t` in 1, 4, 16, 64 steps.
+///
+/// * ψ fixed (c and φ soften): `v = η̄ γ`, `ε̄_p = k γ` whatever the path, so backward Euler is
+///   exact in any number of steps: one big step agrees with the fine integration to 1e-9.
+/// * ψ softening too: the one-step state takes η̄, k at the end of the step, first-order in the
+///   step: the error falls like 1/steps (ratio 16 → 64 steps between 3 and 5) and is below 1 %
+///   of the stress at 64 steps.
+#[test]
+fn softened_stress_paths_match_a_fine_integration_of_the_rate_equations() {
+    let d = Vector3::new(-0.12, 0.048, 0.036);
+    let trace = d.sum();
+    let deviator = d - Vector3::repeat(trace / 3.0);
+    let n = deviator / deviator.norm();
+    for (psi, residual, exact) in [
+        (10.0, (0.3, 22.0, 10.0), true),
+        (12.0, (0.3, 22.0, 2.0), false),
+    ] {
+        let model = softening_drucker_prager(Matching::Outer, psi, 30.0, residual);
+        let (bulk, shear) = impm::material::elastoplastic::bulk_and_shear(&model.elastic);
+        // consistency solved for t at (γ, v, ε̄_p)
+        let time = |gamma: f64, v: f64, e: f64| {
+            let (eta, xi, _, c) = softened_by_hand(&model, e);
+            (shear * gamma + eta * bulk * v + xi * c)
+                / (2f64.sqrt() * shear * deviator.norm() + eta * bulk * trace)
+        };
+        let rates = |e: f64| {
+            let (_, _, eta_bar, _) = softened_by_hand(&model, e);
+            (eta_bar, (1.0 / 3.0 + 2.0 / 9.0 * eta_bar * eta_bar).sqrt())
+        };
+        let rk4 = |(v, e): (f64, f64), h: f64| {
+            let k1 = rates(e);
+            let k2 = rates(e + 0.5 * h * k1.1);
+            let k3 = rates(e + 0.5 * h * k2.1);
+            let k4 = rates(e + h * k3.1);
+            (
+                v + h / 6.0 * (k1.0 + 2.0 * k2.0 + 2.0 * k3.0 + k4.0),
+                e + h / 6.0 * (k1.1 + 2.0 * k2.1 + 2.0 * k3.1 + k4.1),
+            )
+        };
+        // the reference at t = 1: march γ by h until t passes 1, then the partial step by bisection
+        let h = 1e-5;
+        let (mut gamma, mut state) = (0.0, (0.0, 0.0));
+        assert!(time(0.0, 0.0, 0.0) < 1.0, "yield before the end");
+        loop {
+            let next = rk4(state, h);
+            if time(gamma + h, next.0, next.1) >= 1.0 {
+                let (mut lo, mut hi) = (0.0, h);
+                for _ in 0..100 {
+                    let mid = 0.5 * (lo + hi);
+                    let s = rk4(state, mid);
+                    if time(gamma + mid, s.0, s.1) < 1.0 {
+                        lo = mid;
+                    } else {
+                        hi = mid;
+                    }
+                }
+                state = rk4(state, lo);
+                gamma += lo;
+                break;
+            }
+            let before = time(gamma, state.0, state.1);
+            state = next;
+            gamma += h;
+            assert!(time(gamma, state.0, state.1) > before, "loading all along");
+        }
+        let (v, plastic_strain) = state;
+        let elastic_strain = d - n * (gamma / 2f64.sqrt()) - Vector3::repeat(v / 3.0);
+        let reference = Vector3::repeat(bulk * elastic_strain.sum())
+            + (elastic_strain - Vector3::repeat(elastic_strain.sum() / 3.0)) * (2.0 * shear);
+        let mut errors = Vec::new();
+        for steps in [1usize, 4, 16, 64] {
+            let mut point = Driven::new(model.clone());
+            let increment = Matrix3::from_diagonal(&(d / steps as f64).map(f64::exp));
+            for _ in 0..steps {
+                point.step(&increment);
+            }
+            let tau = point.kirchhoff.diagonal();
+            let error = (tau - reference).amax() / reference.amax();
+            let strain_error =
+                (point.history.plastic_strain - plastic_strain).abs() / plastic_strain;
+            eprintln!(
+                "psi {psi} -> {}: {steps} steps: stress error {error:.3e}, eps_p error {strain_error:.3e} (eps_p = {plastic_strain:.5}, tau = {tau:?})",
+                residual.2
+            );
+            errors.push(error);
+            if exact {
+                assert!(
+                    error < 1e-9 && strain_error < 1e-9,
+                    "{steps} steps: {error:e}"
+                );
+            }
+        }
+        // the softening went a long way: c and φ most of the way to their residuals
+        assert!(
+            (-30.0 * plastic_strain).exp() < 0.2,
+            "eps_p = {plastic_strain}"
+        );
+        if !exact {
+            let ratio = errors[2] / errors[3];
+            assert!((3.0..5.0).contains(&ratio), "first order: {errors:?}");
+            assert!(errors[3] < 1e-2, "{errors:?}");
+            assert!(errors[0] > 4.0 * errors[3], "{errors:?}");
+        }
+    }
+}
+
+/// Without the softening options a scene's Drucker–Prager material is today's (no softening,
+/// the same return bit for bit); with a softening so slow it does nothing over the strains met
+/// (`softening_rate = 1e-14`), the softening return (the scalar Newton) reproduces the closed-form
+/// cone and apex returns within 1e-12 (stress and `ε̄_p` relative; the tangent relative to its
+/// largest entry or to E where it vanishes, the perfect apex), for ψ > 0 and ψ = 0.
+#[test]
+fn the_softening_return_reduces_to_the_closed_form_without_softening() {
+    use impm::material::{MaterialParameters, ParameterValue};
+    let mut parameters = MaterialParameters::numbers(&[
+        ("E", 1000.0),
+        ("nu", 0.3),
+        ("c", 1.0),
+        ("phi", 30.0),
+        ("psi", 10.0),
+    ]);
+    parameters
+        .0
+        .push(("matching".into(), ParameterValue::Text("outer".into())));
+    let read = DruckerPrager::from_parameters(&parameters).unwrap();
+    assert_eq!(read, drucker_prager(10.0));
+    assert!(read.softening.is_none());
+    let trials = [
+        [-0.02, 0.006, -0.001],
+        [-0.04, 0.012, -0.002],
+        [0.01, 0.0125, 0.011],
+        [0.004, 0.0125, 0.011],
+    ];
+    for psi in [10.0, 0.0] {
+        let plain = drucker_prager(psi);
+        let slow = softening_drucker_prager(Matching::Outer, psi, 1e-14, (0.5, 20.0, 0.0));
+        for start in [0.0, 0.01] {
+            let committed = PlasticHistory {
+                plastic_strain: start,
+                ..PlasticHistory::default()
+            };
+            for trial in trials {
+                let df = stretch::<3>(trial);
+                let a = plain.respond(&df, &df, &committed).unwrap();
+                let b = slow.respond(&df, &df, &committed).unwrap();
+                let stress = (a.kirchhoff - b.kirchhoff).amax() / a.kirchhoff.amax();
+                let flat = |t: &impm::material::Tangent<3>| -> Vec<f64> {
+                    t.iter().flatten().flatten().flatten().copied().collect()
+                };
+                let (ta, tb) = (flat(&a.tangent), flat(&b.tangent));
+                let largest = ta.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+                let tangent = ta
+                    .iter()
+                    .zip(&tb)
+                    .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()))
+                    / largest.max(elastic().youngs_modulus);
+                let strain = (a.history.plastic_strain - b.history.plastic_strain).abs()
+                    / a.history.plastic_strain;
+                eprintln!("psi {psi} {trial:?}: {stress:.1e} {tangent:.1e} {strain:.1e}");
+                assert!(a.history.yielding && b.history.yielding);
+                assert!(
+                    stress < 1e-12 && tangent < 1e-12 && strain < 1e-12,
+                    "psi {psi} from {start} at {trial:?}: {stress:e} {tangent:e} {strain:e}"
+                );
+            }
+        }
+    }
+}
+
+/// Bad softening parameters are refused with the scene line and the parameter; Mohr–Coulomb
+/// refuses the options by name; a softening scene is warned once that it is mesh-dependent;
+/// a ψ that softens to 0 cannot relieve a trial far in tension at the apex (refused, module
+/// docs).
+#[test]
+fn bad_friction_softening_is_refused_and_softening_is_warned() {
+    let dp = "model: \"drucker_prager\", c: 1.0, phi: 30.0";
+    let cases = [
+        (
+            format!("{dp}, softening_rate: 10.0, phi_residual: 35.0"),
+            "phi_residual",
+        ),
+        (
+            format!("{dp}, softening_rate: 10.0, c_residual: 2.0"),
+            "c_residual",
+        ),
+        (
+            format!("{dp}, psi: 10.0, softening_rate: 10.0, psi_residual: 12.0"),
+            "psi_residual",
+        ),
+        (
+            format!("{dp}, psi: 20.0, softening_rate: 10.0, phi_residual: 15.0"),
+            "psi_residual",
+        ),
+        (
+            format!("{dp}, softening_rate: -1.0, phi_residual: 20.0"),
+            "softening_rate",
+        ),
+        (format!("{dp}, softening_rate: 10.0"), "softens nothing"),
+        (format!("{dp}, phi_residual: 20.0"), "needs softening_rate"),
+        (format!("{dp}, psi_residual: 0.0"), "needs softening_rate"),
+        (
+            format!("{dp}, H: -1.0, softening_rate: 10.0, phi_residual: 20.0"),
+            "two laws",
+        ),
+        (
+            format!("{dp}, softening_rate: 1.0e6, c_residual: 0.1"),
+            "steeper",
+        ),
+        (
+            "model: \"mohr_coulomb\", c: 1.0, phi: 30.0, softening_rate: 10.0, phi_residual: 20.0"
+                .to_string(),
+            "softening_rate (the exponential softening of c, phi and psi) is not implemented for mohr_coulomb",
+        ),
+        (
+            "model: \"mohr_coulomb\", c: 1.0, phi: 30.0, psi_residual: 0.0".to_string(),
+            "psi_residual (the exponential softening of c, phi and psi) is not implemented for mohr_coulomb",
+        ),
+    ];
+    let block = |parameters: &str| {
+        format!(
+            "grid(#{{ lower: [0.0, 0.0], upper: [1.0, 1.0], cells: [1, 1], basis: \"linear\" }});\n\
+             const m = material(#{{ name: \"m\", E: 1000.0, nu: 0.3, density: 1.0, {parameters} }});\n\
+             const n = material(#{{ name: \"n\", E: 1000.0, nu: 0.3, density: 1.0, {parameters} }});\n\
+             body(#{{ name: \"b\", material: m, region: box([0.0, 0.0], [0.5, 1.0]), ppc: 1 }});\n\
+             body(#{{ name: \"d\", material: n, region: box([0.5, 0.0], [1.0, 1.0]), ppc: 1 }});\n\
+             load_steps(1);\n"
+        )
+    };
+    for (parameters, word) in &cases {
+        let error = scene("bad_friction_softening", &block(parameters), &[]).unwrap_err();
+        eprintln!("{parameters}: {error}");
+        assert!(error.contains(":2"), "{parameters}: no line 2 in '{error}'");
+        assert!(
+            error.contains(word),
+            "{parameters}: '{word}' not in '{error}'"
+        );
+    }
+    let softening = |parameters: &str| -> Vec<String> {
+        let spec = scene("friction_softening", &block(parameters), &[]).unwrap();
+        impm::scene::scene_warnings(&spec)
+            .into_iter()
+            .filter(|w| w.contains("mesh"))
+            .collect()
+    };
+    let warned = softening(&format!(
+        "{dp}, psi: 10.0, softening_rate: 10.0, c_residual: 0.2, phi_residual: 20.0, psi_residual: 0.0"
+    ));
+    assert_eq!(warned.len(), 1, "{warned:?}");
+    assert!(
+        warned[0].contains("'m'")
+            && warned[0].contains("'n'")
+            && warned[0].contains("softening_rate"),
+        "{}",
+        warned[0]
+    );
+    assert!(softening(dp).is_empty());
+    // ψ = 10° → 0 at rate 20: the volumetric flow V = η̄ x/k stays below 0.007, while the
+    // isotropic tension trial needs K V = p^tr − c cot φ ≈ 27.5 (V ≈ 0.033)
+    let model = softening_drucker_prager(Matching::Outer, 10.0, 20.0, (0.2, 20.0, 0.0));
+    let df = stretch::<3>([0.01, 0.0125, 0.011]);
+    let error = model
+        .respond(&df, &df, &PlasticHistory::default())
+        .unwrap_err();
+    assert!(error.contains("apex return has no solution"), "{error}");
+}

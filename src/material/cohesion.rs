@@ -27,6 +27,25 @@
 //! positive `c_residual` is required. `c_residual` must be finite, at least 0 and at most `c`; it
 //! has no effect for `H ≥ 0`. A too steep softening (`H` below the models' limits, where the
 //! return stops being unique) is refused by the models.
+//!
+//! # Exponential softening of c, φ and ψ (Drucker–Prager only)
+//!
+//! [`StrengthSoftening`] is the law of Yerro, Alonso & Pinyol (2016, *Run-out of landslides in
+//! brittle soils*, Computers and Geotechnics 80, 427–439): each strength parameter decays from
+//! its peak `x_p` to its residual `x_r` with the accumulated equivalent plastic strain,
+//!
+//! ```text
+//! x(ε̄_p) = x_r + (x_p − x_r) e^{−η ε̄_p},    x'(ε̄_p) = −η (x_p − x_r) e^{−η ε̄_p},    x ∈ {c, φ, ψ}
+//! ```
+//!
+//! with one shape factor `η > 0` (`softening_rate`) and `c_residual`, `phi_residual`,
+//! `psi_residual` (defaults: the peak, no softening of that parameter; `psi_residual` defaults to
+//! `phi_residual` when `psi` is not given, so associated flow stays associated). Refused: a
+//! residual above its peak, `ψ_r > φ_r`, a negative residual, `c_r = φ_r = 0` (no strength
+//! left), a rate that is not positive and finite, a rate with every residual at its peak (it
+//! would do nothing), a residual angle without a rate, and a rate with a linear `H ≠ 0` (two laws
+//! of one cohesion). The return with it is Drucker–Prager's (`drucker_prager.rs`); Mohr–Coulomb
+//! refuses the options (not implemented there).
 
 use super::elastoplastic::PrincipalReturn;
 
@@ -133,6 +152,96 @@ impl CohesionHardening {
     }
 }
 
+/// Exponential softening of the cohesion, the friction angle and the dilation angle to their
+/// residuals (module docs). Angles in radians.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StrengthSoftening {
+    /// `η` of `e^{−η ε̄_p}`: the scene's `softening_rate`.
+    pub rate: f64,
+    /// `c_r`.
+    pub cohesion: f64,
+    /// `φ_r` (radians).
+    pub friction: f64,
+    /// `ψ_r` (radians).
+    pub dilation: f64,
+}
+
+impl StrengthSoftening {
+    /// The law with rate `rate` from the peaks `(c, φ, ψ)` to the residuals `(c_r, φ_r, ψ_r)`
+    /// (angles in degrees), or why it makes none (module docs).
+    pub fn new(
+        rate: f64,
+        peak: (f64, f64, f64),
+        residual: (f64, f64, f64),
+    ) -> Result<Self, String> {
+        let (c, phi, psi) = peak;
+        let (c_r, phi_r, psi_r) = residual;
+        if !(rate > 0.0 && rate.is_finite()) {
+            return Err(format!(
+                "softening_rate must be positive and finite, got {rate}"
+            ));
+        }
+        if !(c_r >= 0.0 && c_r.is_finite()) {
+            return Err(format!(
+                "residual cohesion c_residual must be zero or positive, got {c_r}"
+            ));
+        }
+        if c_r > c {
+            return Err(format!(
+                "residual cohesion c_residual = {c_r} exceeds the cohesion c = {c}: softening lowers c towards c_residual"
+            ));
+        }
+        if !(phi_r >= 0.0 && phi_r.is_finite()) {
+            return Err(format!(
+                "residual friction angle phi_residual must be zero or positive (degrees), got {phi_r}"
+            ));
+        }
+        if phi_r > phi {
+            return Err(format!(
+                "residual friction angle phi_residual = {phi_r} exceeds the friction angle phi = {phi}: softening lowers phi towards phi_residual"
+            ));
+        }
+        if !(psi_r >= 0.0 && psi_r.is_finite()) {
+            return Err(format!(
+                "residual dilation angle psi_residual must be zero or positive (degrees), got {psi_r}"
+            ));
+        }
+        if psi_r > psi {
+            return Err(format!(
+                "residual dilation angle psi_residual = {psi_r} exceeds the dilation angle psi = {psi}: softening lowers psi towards psi_residual"
+            ));
+        }
+        if psi_r > phi_r {
+            return Err(format!(
+                "residual dilation angle psi_residual = {psi_r} exceeds the residual friction angle phi_residual = {phi_r} (give psi_residual <= phi_residual)"
+            ));
+        }
+        if c_r == 0.0 && phi_r == 0.0 {
+            return Err(
+                "c_residual = 0 and phi_residual = 0 leave the softened material without strength"
+                    .into(),
+            );
+        }
+        if c_r == c && phi_r == phi && psi_r == psi {
+            return Err(format!(
+                "softening_rate = {rate} without a residual below its peak (c_residual, phi_residual or psi_residual) softens nothing"
+            ));
+        }
+        Ok(Self {
+            rate,
+            cohesion: c_r,
+            friction: phi_r.to_radians(),
+            dilation: psi_r.to_radians(),
+        })
+    }
+
+    /// `x(ε̄_p)` and `x'(ε̄_p)` of the parameter with peak `peak` and residual `residual`.
+    pub fn decay(&self, peak: f64, residual: f64, plastic_strain: f64) -> (f64, f64) {
+        let drop = (peak - residual) * (-self.rate * plastic_strain).exp();
+        (residual + drop, -self.rate * drop)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -158,5 +267,42 @@ mod tests {
         assert!(CohesionHardening::new(-1.0, Some(f64::INFINITY), 1.0, 30.0).is_err());
         assert!(CohesionHardening::new(-1.0, None, 1.0, 0.0).is_err());
         assert!(CohesionHardening::new(-1.0, Some(0.5), 1.0, 0.0).is_ok());
+    }
+
+    #[test]
+    fn the_strength_decays_exponentially_to_its_residual() {
+        let law = StrengthSoftening::new(8.0, (10.0, 30.0, 10.0), (2.0, 20.0, 0.0)).unwrap();
+        assert_eq!(law.decay(10.0, 2.0, 0.0), (10.0, -64.0));
+        let (value, slope) = law.decay(10.0, 2.0, 0.25);
+        assert!((value - (2.0 + 8.0 * (-2.0f64).exp())).abs() < 1e-14);
+        let h = 1e-6;
+        let fd = (law.decay(10.0, 2.0, 0.25 + h).0 - law.decay(10.0, 2.0, 0.25 - h).0) / (2.0 * h);
+        assert!((slope - fd).abs() < 1e-7 * slope.abs());
+        assert!((law.decay(10.0, 2.0, 100.0).0 - 2.0).abs() < 1e-14);
+        assert!((law.friction - 20f64.to_radians()).abs() < 1e-15);
+    }
+
+    #[test]
+    fn bad_strength_softening_is_refused() {
+        let peak = (10.0, 30.0, 10.0);
+        let bad = [
+            (0.0, (2.0, 20.0, 0.0), "softening_rate"),
+            (-1.0, (2.0, 20.0, 0.0), "softening_rate"),
+            (f64::INFINITY, (2.0, 20.0, 0.0), "softening_rate"),
+            (8.0, (12.0, 20.0, 0.0), "c_residual"),
+            (8.0, (-1.0, 20.0, 0.0), "c_residual"),
+            (8.0, (2.0, 35.0, 0.0), "phi_residual"),
+            (8.0, (2.0, -1.0, 0.0), "phi_residual"),
+            (8.0, (2.0, 20.0, 12.0), "psi_residual"),
+            (8.0, (2.0, 5.0, 8.0), "psi_residual"),
+            (8.0, (0.0, 0.0, 0.0), "without strength"),
+            (8.0, (10.0, 30.0, 10.0), "softens nothing"),
+        ];
+        for (rate, residual, word) in bad {
+            let error = StrengthSoftening::new(rate, peak, residual).unwrap_err();
+            assert!(error.contains(word), "{rate} {residual:?}: {error}");
+        }
+        assert!(StrengthSoftening::new(8.0, peak, (10.0, 30.0, 5.0)).is_ok());
+        assert!(StrengthSoftening::new(8.0, peak, (0.0, 30.0, 10.0)).is_ok());
     }
 }

@@ -1,5 +1,5 @@
-//! Drucker–Prager plasticity at finite strain (perfect, or with linear hardening or softening of
-//! the cohesion), matched to Mohr–Coulomb.
+//! Drucker–Prager plasticity at finite strain (perfect, with linear hardening or softening of
+//! the cohesion, or with exponential softening of c, φ and ψ), matched to Mohr–Coulomb.
 //!
 //! Tension positive, `p = ⅓ tr τ`, `J2 = ½ ‖s‖²`; yield function and plastic potential
 //!
@@ -51,6 +51,43 @@
 //! denominator, which implies the first): a steeper softening is refused
 //! ([`DruckerPrager::with_hardening`]). The kink at `c_r` is `CohesionHardening::return_on`'s.
 //!
+//! **Exponential softening of c, φ and ψ** (`softening_rate`, `c_residual`, `phi_residual`,
+//! `psi_residual`: `cohesion.rs`, Yerro, Alonso & Pinyol 2016): `c, φ, ψ` each decay as
+//! `x(ε̄_p) = x_r + (x_p − x_r) e^{−η_s ε̄_p}`, so `η, ξ` (through φ), `η̄` and `k` (through ψ)
+//! are functions of `ε̄_p` too, with the derivatives `η' = (dη/dφ) φ'` etc. of the matching
+//! ([`Matching::slopes`]; outer `dη/dφ = (6/√3) 3 cos φ/(3 − sin φ)²`,
+//! `dξ/dφ = (6/√3)(1 − 3 sin φ)/(3 − sin φ)²`; inner the same with `3 + sin φ` and
+//! `dξ/dφ = −(6/√3)(1 + 3 sin φ)/(3 + sin φ)²`; plane strain `dη/dφ = 27 sec²φ/D³`,
+//! `dξ/dφ = −36 tan φ sec²φ/D³`, `D = √(9 + 12 tan² φ)`) and `k' = 2η̄η̄'/(9k)`. Backward
+//! Euler takes every parameter at the end of the step: the unknown is `x = Δε̄_p`,
+//! `ε̄ = ε̄_p^n + x`, the multiplier `Δγ = x/k(ε̄)` (increasing in `x` since `k' ≤ 0`), and each
+//! return is one scalar equation solved by the safeguarded Newton iteration shared with von
+//! Mises (`hardening::decreasing_root`: bisection inside a bracket, `|r| ≤ 1e-12` of the trial's
+//! stress scale):
+//!
+//! ```text
+//! x*      the deviator removed: x*/k(ε̄_p^n + x*) = √J2^tr/G   (x* = k √J2^tr/G if ψ does not soften)
+//! cone    r(x) = √J2^tr − G Δγ + η (p^tr − K η̄ Δγ) − ξ c = 0 on [0, x*]        (if r(x*) < 0)
+//!         s = β 2G e, β = 1 − Δγ/(√2 ‖e‖),   p = p^tr − K η̄ Δγ
+//!         D = 2G β I_d + 2G (1 − β) N⊗N + K 1⊗1 − (√2 G Δγ' N + K (η̄' Δγ + η̄ Δγ') 1) ⊗ (√2 G N + K η 1) / (−r')
+//!         Δγ' = (1 − x k'/k)/k,  −r' = G Δγ' − η' p + K η (η̄' Δγ + η̄ Δγ') + ξ' c + ξ c'
+//! apex    ψ > 0: r(x) = p^tr − K V(x) − A(x) = 0 on [x*, ∞), V = η̄ x/k (= Δε_v^p), A = ξ c/η
+//!                p = p^tr − K V,  D = K A'/(K V' + A') 1⊗1
+//!         ψ = 0: x = x*, p = A(ε̄_p^n + x*),  D = √2 k A' 1⊗N   (as without softening)
+//! ```
+//!
+//! (`p` in `−r'` the returned mean stress; `N⊗` rows are the flow, `⊗(..)` columns `∂r/∂ε^tr`.) The
+//! region test is exact: `r_cone(x*) = η r_apex(x*)`, so the cone root lies in `[0, x*]` when
+//! `r_cone(x*) < 0` and the apex root beyond `x*` otherwise (its bracket is widened by doubling;
+//! with `ψ_r = 0` the volumetric flow `V` saturates and a trial far in tension may have no apex
+//! root: refused, the step is cut). The terms `η' p`, `ξ' c`, `ξ c'`, `η̄'`, `k'` are the
+//! softening's in the tangent; without softening they vanish and `D` is the one above. A
+//! non-positive `−r'` (the softening outweighs the elastic stiffness: friction softening at a
+//! high confinement, `η' p > 0`) makes the root non-unique and is refused where met; the
+//! cohesion's slope at `ε̄_p = 0` is checked against the limit of the linear law when the
+//! material is built ([`DruckerPrager::with_softening`]). `tangent_is_symmetric` is false once φ
+//! or ψ soften (the flow vector carries `η̄'`, `k'`).
+//!
 //! **In plane strain** (associated flow) the cone carries the in-plane loads of a Mohr–Coulomb
 //! soil: with `ε_zz = 0` the flow rule fixes `τ_zz`, and the in-plane stresses at yield obey
 //! Mohr–Coulomb with the angle and cohesion that the `plane_strain` row maps to `(η, ξ)`:
@@ -72,10 +109,11 @@
 
 use nalgebra::{Matrix3, SMatrix, Vector3};
 
-use super::cohesion::CohesionHardening;
+use super::cohesion::{CohesionHardening, StrengthSoftening};
 use super::elastoplastic::{
     self, PlasticHistory, PrincipalReturn, bulk_and_shear, deviator, deviatoric_projector,
 };
+use super::hardening::{MAX_ITERATIONS, RootFailure, TOLERANCE, decreasing_root};
 use super::{
     Hencky, Material, MaterialParameters, ParameterKind, ParameterSpec, ParameterValue, Range,
     Response,
@@ -113,6 +151,56 @@ impl Matching {
             }
         }
     }
+
+    /// `(dη/dφ, dξ/dφ)` at the angle `angle` (radians; `dη̄/dψ` likewise): the derivatives of
+    /// [`Matching::coefficients`] (module docs, "Exponential softening").
+    pub fn slopes(self, angle: f64) -> (f64, f64) {
+        let (sin, cos) = angle.sin_cos();
+        let scale = 6.0 / 3.0f64.sqrt();
+        match self {
+            Matching::Outer => {
+                let d = (3.0 - sin).powi(2);
+                (scale * 3.0 * cos / d, scale * (1.0 - 3.0 * sin) / d)
+            }
+            Matching::Inner => {
+                let d = (3.0 + sin).powi(2);
+                (scale * 3.0 * cos / d, -scale * (1.0 + 3.0 * sin) / d)
+            }
+            Matching::PlaneStrain => {
+                let tan = angle.tan();
+                let d3 = (9.0 + 12.0 * tan * tan).powf(1.5);
+                let secant2 = 1.0 + tan * tan;
+                (27.0 / d3 * secant2, -36.0 * tan / d3 * secant2)
+            }
+        }
+    }
+}
+
+/// The strength parameters of a softening material at one `ε̄_p`, with their derivatives
+/// `d/dε̄_p` (module docs, "Exponential softening").
+#[derive(Clone, Copy, Debug)]
+struct Softened {
+    cohesion: f64,
+    cohesion_slope: f64,
+    eta: f64,
+    eta_slope: f64,
+    xi: f64,
+    xi_slope: f64,
+    eta_bar: f64,
+    eta_bar_slope: f64,
+    /// `k = √(1/3 + 2η̄²/9)`.
+    k: f64,
+    k_slope: f64,
+}
+
+impl Softened {
+    /// The apex `A = ξ c/η` and its slope.
+    fn apex(&self) -> (f64, f64) {
+        let apex = self.xi * self.cohesion / self.eta;
+        let slope = (self.xi_slope * self.cohesion + self.xi * self.cohesion_slope) / self.eta
+            - apex * self.eta_slope / self.eta;
+        (apex, slope)
+    }
 }
 
 /// Drucker–Prager perfect plasticity (module docs).
@@ -134,6 +222,8 @@ pub struct DruckerPrager {
     pub eta_bar: f64,
     /// The hardening or softening of the cohesion (default: none, perfect plasticity).
     pub hardening: CohesionHardening,
+    /// The exponential softening of c, φ and ψ (default: none; module docs).
+    pub softening: Option<StrengthSoftening>,
 }
 
 impl DruckerPrager {
@@ -159,6 +249,7 @@ impl DruckerPrager {
             xi,
             eta_bar,
             hardening: CohesionHardening::default(),
+            softening: None,
         })
     }
 
@@ -198,6 +289,60 @@ impl DruckerPrager {
         Ok(self)
     }
 
+    /// The same material with the exponential softening `softening` of c, φ and ψ (module docs),
+    /// or why it makes none: with a linear cohesion law besides it, or a cohesion softening at
+    /// `ε̄_p = 0` steeper than the limit of [`DruckerPrager::with_hardening`] (the other
+    /// softening terms depend on the state: the return refuses a non-unique root where it meets
+    /// one).
+    pub fn with_softening(mut self, softening: StrengthSoftening) -> Result<Self, String> {
+        if self.hardening.modulus != 0.0 {
+            return Err(format!(
+                "softening_rate and H = {} are two laws of the cohesion: give one",
+                self.hardening.modulus
+            ));
+        }
+        let (bulk, shear) = bulk_and_shear(&self.elastic);
+        let stiffness = if self.eta > 0.0 && self.eta_bar > 0.0 {
+            bulk * self.eta * self.eta_bar
+        } else {
+            shear
+        };
+        let steepest = -softening.rate * (self.cohesion - softening.cohesion);
+        let limit = -stiffness / (self.xi * self.strain_per_multiplier());
+        if steepest < 0.0 && steepest <= limit {
+            return Err(format!(
+                "softening_rate = {} softens the cohesion at dc/deps_p = {steepest:.6e}, steeper than this Drucker-Prager material allows (> {limit:.6e}: beyond it the return is not unique)",
+                softening.rate
+            ));
+        }
+        self.softening = Some(softening);
+        Ok(self)
+    }
+
+    /// The softened parameters at `plastic_strain` (module docs, "Exponential softening").
+    fn softened(&self, law: &StrengthSoftening, plastic_strain: f64) -> Softened {
+        let (cohesion, cohesion_slope) = law.decay(self.cohesion, law.cohesion, plastic_strain);
+        let (phi, phi_slope) = law.decay(self.friction, law.friction, plastic_strain);
+        let (psi, psi_slope) = law.decay(self.dilation, law.dilation, plastic_strain);
+        let (eta, xi) = self.matching.coefficients(phi);
+        let (eta_phi, xi_phi) = self.matching.slopes(phi);
+        let (eta_bar, _) = self.matching.coefficients(psi);
+        let eta_bar_slope = self.matching.slopes(psi).0 * psi_slope;
+        let k = (1.0 / 3.0 + 2.0 / 9.0 * eta_bar * eta_bar).sqrt();
+        Softened {
+            cohesion,
+            cohesion_slope,
+            eta,
+            eta_slope: eta_phi * phi_slope,
+            xi,
+            xi_slope: xi_phi * phi_slope,
+            eta_bar,
+            eta_bar_slope,
+            k,
+            k_slope: 2.0 / 9.0 * eta_bar * eta_bar_slope / k,
+        }
+    }
+
     /// `k = √(1/3 + 2η̄²/9)`: the equivalent plastic strain per unit multiplier,
     /// `Δε̄_p = k Δγ = √(2/3) ‖Δε_p‖` on the cone (module docs).
     pub fn strain_per_multiplier(&self) -> f64 {
@@ -212,6 +357,9 @@ impl DruckerPrager {
         trial_stress: &Vector3<f64>,
         plastic_strain: f64,
     ) -> Result<PrincipalReturn, String> {
+        if let Some(law) = &self.softening {
+            return self.softening_return(law, strain, trial_stress, plastic_strain);
+        }
         let (bulk, shear) = bulk_and_shear(&self.elastic);
         let j2_trial = 2.0f64.sqrt() * shear * deviator(strain).norm();
         let p_trial = bulk * strain.sum();
@@ -225,6 +373,155 @@ impl DruckerPrager {
             .return_on(self.cohesion, plastic_strain, |cohesion, slope| {
                 Ok(self.plastic_return(strain, cohesion, slope))
             })
+    }
+
+    /// The return with the exponential softening `law` of c, φ, ψ from the committed
+    /// `plastic_strain` (module docs, "Exponential softening"): the unknown is `x = Δε̄_p`.
+    fn softening_return(
+        &self,
+        law: &StrengthSoftening,
+        strain: &Vector3<f64>,
+        trial_stress: &Vector3<f64>,
+        plastic_strain: f64,
+    ) -> Result<PrincipalReturn, String> {
+        let (bulk, shear) = bulk_and_shear(&self.elastic);
+        let e = deviator(strain);
+        let norm = e.norm();
+        let root2 = 2.0f64.sqrt();
+        let j2_trial = root2 * shear * norm;
+        let p_trial = bulk * strain.sum();
+        let start = self.softened(law, plastic_strain);
+        let strength = start.xi * start.cohesion;
+        let excess = j2_trial + start.eta * p_trial - strength;
+        let scale = strength + j2_trial + start.eta * p_trial.abs();
+        if excess <= 1e-12 * scale {
+            return Ok(PrincipalReturn::elastic(&self.elastic, *trial_stress));
+        }
+        let tolerance = TOLERANCE * scale;
+        let failed = |what: &str, failure: RootFailure| match failure {
+            RootFailure::NotDecreasing { at, derivative } => format!(
+                "the softening Drucker-Prager {what} has no unique solution at eps_p = {:e}: the consistency condition's slope -r' = {derivative:e} is not positive (the softening of c, phi or psi outweighs the elastic stiffness there: a smaller softening_rate)",
+                plastic_strain + at
+            ),
+            RootFailure::NoConvergence { at, residual } => format!(
+                "the softening Drucker-Prager {what} did not converge in {MAX_ITERATIONS} iterations: residual {residual:e} at eps_p = {:e}",
+                plastic_strain + at
+            ),
+        };
+        let n = if norm > 0.0 {
+            e / norm
+        } else {
+            Vector3::zeros()
+        };
+        let one = Vector3::repeat(1.0);
+        // x*: the Δε̄_p whose multiplier x/k(ε̄_p^n + x) removes the deviator, Δγ = √J2^tr/G
+        let removal = j2_trial / shear;
+        let x_star = if norm == 0.0 {
+            0.0
+        } else if law.dilation < self.dilation {
+            let upper = start.k * removal;
+            decreasing_root((0.0, upper), TOLERANCE * upper, false, |x| {
+                let at = self.softened(law, plastic_strain + x);
+                (at.k * removal - x, 1.0 - at.k_slope * removal, ())
+            })
+            .map_err(|why| failed("deviator removal", why))?
+            .0
+        } else {
+            start.k * removal
+        };
+        // the cone: r(x) = √J2^tr − G Δγ + η (p^tr − K η̄ Δγ) − ξ c, Δγ = x/k, all at ε̄_p^n + x
+        let cone = |x: f64| {
+            let at = self.softened(law, plastic_strain + x);
+            let multiplier = x / at.k;
+            let multiplier_slope = (1.0 - x * at.k_slope / at.k) / at.k;
+            let mean = p_trial - bulk * at.eta_bar * multiplier;
+            let mean_slope =
+                -bulk * (at.eta_bar_slope * multiplier + at.eta_bar * multiplier_slope);
+            let residual = j2_trial - shear * multiplier + at.eta * mean - at.xi * at.cohesion;
+            let slope = -shear * multiplier_slope + at.eta_slope * mean + at.eta * mean_slope
+                - (at.xi_slope * at.cohesion + at.xi * at.cohesion_slope);
+            (
+                residual,
+                -slope,
+                (at, multiplier, multiplier_slope, mean, mean_slope, -slope),
+            )
+        };
+        if norm > 0.0 && cone(x_star).0 < 0.0 {
+            let (x, (at, multiplier, multiplier_slope, mean, mean_slope, denominator)) =
+                decreasing_root((0.0, x_star), tolerance, false, cone)
+                    .map_err(|why| failed("cone return", why))?;
+            let beta = 1.0 - multiplier / (root2 * norm);
+            let flow = n * (root2 * shear * multiplier_slope) - one * mean_slope;
+            let normal = n * (root2 * shear) + one * (bulk * at.eta);
+            let tangent = deviatoric_projector() * (2.0 * shear * beta)
+                + n * n.transpose() * (2.0 * shear * (1.0 - beta))
+                - flow * normal.transpose() / denominator
+                + Matrix3::from_element(bulk);
+            return Ok(PrincipalReturn {
+                stress: e.map(|v| mean + 2.0 * shear * beta * v),
+                tangent,
+                pair_modulus: Some(2.0 * shear * beta),
+                yielding: true,
+                plastic_strain_increment: Some(x),
+            });
+        }
+        let (mean, tangent, increment) = if self.dilation == 0.0 {
+            // ψ ≡ 0: no volumetric flow; the deviator removed (x = x* = k √J2^tr/G, k = √(1/3))
+            // and p at the apex there (as without softening, module docs)
+            let at = self.softened(law, plastic_strain + x_star);
+            let (apex, apex_slope) = at.apex();
+            (
+                apex,
+                one * n.transpose() * (apex_slope * at.k * root2),
+                x_star,
+            )
+        } else {
+            // the apex: r(x) = p^tr − K V(x) − A(x), V = η̄ x/k (= Δε_v^p), A = ξ c/η
+            let apex = |x: f64| {
+                let at = self.softened(law, plastic_strain + x);
+                let volumetric = at.eta_bar * x / at.k;
+                let volumetric_slope =
+                    (at.eta_bar_slope * x + at.eta_bar) / at.k - volumetric * at.k_slope / at.k;
+                let (apex, apex_slope) = at.apex();
+                let denominator = bulk * volumetric_slope + apex_slope;
+                (
+                    p_trial - bulk * volumetric - apex,
+                    denominator,
+                    (p_trial - bulk * volumetric, apex_slope, denominator),
+                )
+            };
+            let mut width = (apex(x_star).0.max(0.0) * start.k / (bulk * start.eta_bar))
+                .max(x_star)
+                .max(f64::MIN_POSITIVE);
+            let mut bracketed = false;
+            for _ in 0..200 {
+                if apex(x_star + width).0 <= 0.0 {
+                    bracketed = true;
+                    break;
+                }
+                width *= 2.0;
+            }
+            if !bracketed {
+                return Err(format!(
+                    "the softening Drucker-Prager apex return has no solution from eps_p = {plastic_strain:e}: the trial mean stress {p_trial:e} lies beyond what the plastic dilation left by psi_residual can relieve"
+                ));
+            }
+            let (x, (mean, apex_slope, denominator)) =
+                decreasing_root((x_star, x_star + width), tolerance, false, apex)
+                    .map_err(|why| failed("apex return", why))?;
+            (
+                mean,
+                Matrix3::from_element(bulk * apex_slope / denominator),
+                x,
+            )
+        };
+        Ok(PrincipalReturn {
+            stress: Vector3::repeat(mean),
+            tangent,
+            pair_modulus: Some(0.0),
+            yielding: true,
+            plastic_strain_increment: Some(increment),
+        })
     }
 
     /// The cone or apex return with the cohesion `cohesion + slope Δε̄_p` (module docs).
@@ -365,23 +662,56 @@ pub fn strength_parameters() -> Vec<ParameterSpec> {
         },
         ParameterSpec {
             name: "c_residual",
-            meaning: "residual cohesion softening (H < 0) stops at, 0 <= c_residual <= c (default 0; required > 0 when phi = 0)",
+            meaning: "residual cohesion: where the linear softening (H < 0) stops, 0 <= c_residual <= c (default 0; required > 0 when phi = 0), or the residual of the exponential softening (softening_rate; default c: c does not soften)",
             label: Some("residual cohesion c_residual"),
             kind: ParameterKind::Number(Range::NonNegative),
+            required: false,
+        },
+        ParameterSpec {
+            name: "softening_rate",
+            meaning: "drucker_prager only (mohr_coulomb refuses it: not implemented there): the shape factor eta > 0 of the exponential softening of c, phi and psi to c_residual, phi_residual, psi_residual, x = x_r + (x_p - x_r) exp(-eta eps_p) (Yerro et al. 2016; no H with it; mesh-dependent)",
+            label: Some("softening rate softening_rate"),
+            kind: ParameterKind::Number(Range::Positive),
+            required: false,
+        },
+        ParameterSpec {
+            name: "phi_residual",
+            meaning: "drucker_prager only, with softening_rate: residual friction angle in degrees, 0 <= phi_residual <= phi (default phi: phi does not soften)",
+            label: Some("residual friction angle phi_residual"),
+            kind: ParameterKind::Number(Range::ClosedOpen(0.0, 90.0)),
+            required: false,
+        },
+        ParameterSpec {
+            name: "psi_residual",
+            meaning: "drucker_prager only, with softening_rate: residual dilation angle in degrees, 0 <= psi_residual <= psi and <= phi_residual (default psi, or phi_residual when psi is not given: associated flow stays associated)",
+            label: Some("residual dilation angle psi_residual"),
+            kind: ParameterKind::Number(Range::ClosedOpen(0.0, 90.0)),
             required: false,
         },
     ]);
     parameters
 }
 
-/// The shared parameters read: `(E, nu)` elasticity, `(c, φ, ψ)` (angles in degrees) and the
-/// cohesion's hardening (`H`, `c_residual`).
+/// The options of the exponential softening of c, φ, ψ, which only Drucker–Prager has.
+pub const SOFTENING_OPTIONS: [&str; 3] = ["softening_rate", "phi_residual", "psi_residual"];
+
+/// The shared parameters read: `(E, nu)` elasticity, `(c, φ, ψ)` (angles in degrees), the
+/// cohesion's hardening (`H`, `c_residual`) and the exponential softening of c, φ, ψ
+/// (`softening_rate`, `c_residual`, `phi_residual`, `psi_residual`; `cohesion.rs`).
 pub struct Strength {
     pub elastic: Hencky,
     pub cohesion: f64,
     pub friction: f64,
     pub dilation: f64,
     pub hardening: CohesionHardening,
+    pub softening: Option<StrengthSoftening>,
+}
+
+impl Strength {
+    /// Whether a strength parameter falls with plastic strain.
+    pub fn softens(&self) -> bool {
+        self.hardening.softens() || self.softening.is_some()
+    }
 }
 
 /// The [`Strength`] of the shared parameters.
@@ -391,18 +721,49 @@ pub fn read_strength(parameters: &MaterialParameters) -> Result<Strength, String
     let friction = parameters.number("phi")?;
     let dilation = parameters.optional_number("psi")?.unwrap_or(friction);
     check_strength(cohesion, friction, dilation)?;
-    let hardening = CohesionHardening::new(
-        parameters.optional_number("H")?.unwrap_or(0.0),
-        parameters.optional_number("c_residual")?,
-        cohesion,
-        friction,
-    )?;
+    let modulus = parameters.optional_number("H")?.unwrap_or(0.0);
+    let residual = parameters.optional_number("c_residual")?;
+    let softening = match parameters.optional_number("softening_rate")? {
+        None => {
+            if let Some(key) = ["phi_residual", "psi_residual"]
+                .into_iter()
+                .find(|key| parameters.get(key).is_some())
+            {
+                return Err(format!(
+                    "{key} needs softening_rate (the exponential softening of c, phi and psi): give softening_rate, or leave {key} out"
+                ));
+            }
+            None
+        }
+        Some(rate) => {
+            if modulus != 0.0 {
+                return Err(format!(
+                    "softening_rate and H = {modulus} are two laws of the cohesion: give one (c_residual is the residual of either)"
+                ));
+            }
+            let phi_residual = parameters
+                .optional_number("phi_residual")?
+                .unwrap_or(friction);
+            let psi_residual = match parameters.optional_number("psi_residual")? {
+                Some(given) => given,
+                None if parameters.get("psi").is_some() => dilation,
+                None => phi_residual,
+            };
+            Some(StrengthSoftening::new(
+                rate,
+                (cohesion, friction, dilation),
+                (residual.unwrap_or(cohesion), phi_residual, psi_residual),
+            )?)
+        }
+    };
+    let hardening = CohesionHardening::new(modulus, residual, cohesion, friction)?;
     Ok(Strength {
         elastic,
         cohesion,
         friction,
         dilation,
         hardening,
+        softening,
     })
 }
 
@@ -456,24 +817,32 @@ impl Material for DruckerPrager {
             },
             Some(other) => return Err(format!("{key} must be a word, got {other:?}")),
         };
-        Self::new(
+        let model = Self::new(
             strength.elastic,
             strength.cohesion,
             strength.friction,
             strength.dilation,
             matching,
         )?
-        .with_hardening(strength.hardening)
+        .with_hardening(strength.hardening)?;
+        match strength.softening {
+            Some(softening) => model.with_softening(softening),
+            None => Ok(model),
+        }
     }
 
     fn describe() -> &'static str {
-        "Drucker-Prager elasto-plasticity at finite strain (perfect, or linear hardening/softening of the cohesion down to a residual; cone and apex returns, associated or not), matched to Mohr-Coulomb"
+        "Drucker-Prager elasto-plasticity at finite strain (perfect, linear hardening/softening of the cohesion down to a residual, or exponential softening of c, phi and psi to residuals; cone and apex returns, associated or not), matched to Mohr-Coulomb"
     }
 
     elastoplastic::elastoplastic_material_methods!();
 
     fn tangent_is_symmetric(&self) -> bool {
+        // a softening friction or dilation adds dη̄/dε̄_p, dk/dε̄_p to the flow vector only
         self.eta == self.eta_bar
+            && self
+                .softening
+                .is_none_or(|law| law.friction == self.friction && law.dilation == self.dilation)
     }
 }
 

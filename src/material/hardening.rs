@@ -41,7 +41,8 @@
 //! stopped at `|r| ≤ 1e-12 q^tr` or refused after [`MAX_ITERATIONS`]. The root is unique when
 //! `3G + H(ε̄_p) > 0` for every `ε̄_p`: always for the hardening laws, and for the softening one
 //! when `3G > (1 − δ_rem) σ_y0 3√3/ξ_95` (its steepest slope is at `ε̄_p = 0`), which the model
-//! checks. The linear law is solved by the first Newton step exactly (`Δγ = r(0)/(3G + H)`),
+//! checks. The iteration is [`decreasing_root`], shared with every other scalar consistency
+//! condition (the softening Drucker–Prager cone and apex, `drucker_prager.rs`). The linear law is solved by the first Newton step exactly (`Δγ = r(0)/(3G + H)`),
 //! the closed-form return, and stops there. The consistent tangent uses the slope at the
 //! returned state, `H(ε̄_p^{n+1})` (von Mises module docs).
 
@@ -188,47 +189,86 @@ impl IsotropicHardening {
         q_trial: f64,
         stiffness: f64,
     ) -> Result<(f64, f64), String> {
-        let (mut lower, mut upper) = (0.0, q_trial / stiffness);
-        let mut increment = 0.0;
-        let (yield_stress, mut slope) = self.branch(initial, plastic_strain);
-        let mut residual = q_trial - yield_stress;
-        for _ in 0..MAX_ITERATIONS {
-            let derivative = stiffness + slope;
-            // NaN included: not positive
-            if derivative.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
-                return Err(format!(
-                    "the von Mises return with {} hardening has no unique solution: 3G + H = {derivative:e} at eps_p = {:e}",
-                    self.word(),
-                    plastic_strain + increment
-                ));
-            }
-            if residual > 0.0 {
-                lower = increment;
-            } else {
-                upper = increment;
-            }
-            let newton = increment + residual / derivative;
-            increment = if newton > lower && newton < upper {
-                newton
-            } else {
-                0.5 * (lower + upper)
-            };
-            let (yield_stress, next_slope) = self.branch(initial, plastic_strain + increment);
-            slope = next_slope;
-            residual = q_trial - stiffness * increment - yield_stress;
-            if !residual.is_finite() {
-                break;
-            }
-            if matches!(self, Self::Linear { .. }) || residual.abs() <= TOLERANCE * q_trial {
-                return Ok((increment, slope));
-            }
-        }
-        Err(format!(
-            "the von Mises return with {} hardening did not converge in {MAX_ITERATIONS} iterations: consistency residual {residual:e} (of q_trial {q_trial:e}) at eps_p = {:e}",
-            self.word(),
-            plastic_strain + increment
-        ))
+        let root = decreasing_root(
+            (0.0, q_trial / stiffness),
+            TOLERANCE * q_trial,
+            matches!(self, Self::Linear { .. }),
+            |increment| {
+                let (yield_stress, slope) = self.branch(initial, plastic_strain + increment);
+                (
+                    q_trial - stiffness * increment - yield_stress,
+                    stiffness + slope,
+                    slope,
+                )
+            },
+        );
+        root.map_err(|failure| match failure {
+            RootFailure::NotDecreasing { at, derivative } => format!(
+                "the von Mises return with {} hardening has no unique solution: 3G + H = {derivative:e} at eps_p = {:e}",
+                self.word(),
+                plastic_strain + at
+            ),
+            RootFailure::NoConvergence { at, residual } => format!(
+                "the von Mises return with {} hardening did not converge in {MAX_ITERATIONS} iterations: consistency residual {residual:e} (of q_trial {q_trial:e}) at eps_p = {:e}",
+                self.word(),
+                plastic_strain + at
+            ),
+        })
     }
+}
+
+/// Why [`decreasing_root`] found no root.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum RootFailure {
+    /// `−r'(at)` is not positive (NaN included): the root is not unique.
+    NotDecreasing { at: f64, derivative: f64 },
+    /// No `|r| ≤ tolerance` in [`MAX_ITERATIONS`] steps, or a residual that is not finite.
+    NoConvergence { at: f64, residual: f64 },
+}
+
+/// The safeguarded Newton iteration of the module docs, shared by every scalar consistency
+/// condition (von Mises' radial return here, the softening Drucker–Prager cone and apex in
+/// `drucker_prager.rs`): the root in `[lower, upper]` of a decreasing `r` with `r(lower) > 0` and
+/// `r(upper) ≤ 0`, from `x = lower`. `evaluate(x)` gives `(r(x), −r'(x), state)`; a Newton step
+/// that leaves the bracket is replaced by bisection, the bracket shrinks with the sign of `r`,
+/// and the iteration stops at `|r| ≤ tolerance` (absolute), or after the first step if
+/// `exact_after_one_step` (a linear `r`, where that step is the closed form). Returns the root
+/// and the `state` of its last evaluation; refuses a non-positive `−r'` (the root would not be
+/// unique, and the consistent tangent divides by `−r'`).
+pub fn decreasing_root<T>(
+    (mut lower, mut upper): (f64, f64),
+    tolerance: f64,
+    exact_after_one_step: bool,
+    mut evaluate: impl FnMut(f64) -> (f64, f64, T),
+) -> Result<(f64, T), RootFailure> {
+    let mut at = lower;
+    let (mut residual, mut derivative, _) = evaluate(at);
+    for _ in 0..MAX_ITERATIONS {
+        // NaN included: not positive
+        if derivative.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+            return Err(RootFailure::NotDecreasing { at, derivative });
+        }
+        if residual > 0.0 {
+            lower = at;
+        } else {
+            upper = at;
+        }
+        let newton = at + residual / derivative;
+        at = if newton > lower && newton < upper {
+            newton
+        } else {
+            0.5 * (lower + upper)
+        };
+        let (next_residual, next_derivative, state) = evaluate(at);
+        (residual, derivative) = (next_residual, next_derivative);
+        if !residual.is_finite() {
+            break;
+        }
+        if exact_after_one_step || residual.abs() <= tolerance {
+            return Ok((at, state));
+        }
+    }
+    Err(RootFailure::NoConvergence { at, residual })
 }
 
 fn check_modulus(modulus: f64) -> Result<(), String> {

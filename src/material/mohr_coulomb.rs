@@ -69,7 +69,9 @@
 use nalgebra::{Matrix3, SMatrix, Vector3};
 
 use super::cohesion::CohesionHardening;
-use super::drucker_prager::{check_strength, read_strength, strength_parameters};
+use super::drucker_prager::{
+    SOFTENING_OPTIONS, check_strength, read_strength, strength_parameters,
+};
 use super::elastoplastic::{
     self, PlasticHistory, PrincipalReturn, bulk_and_shear, deviator, elasticity,
 };
@@ -461,6 +463,14 @@ impl Material for MohrCoulomb {
     }
 
     fn from_parameters(parameters: &MaterialParameters) -> Result<Self, String> {
+        if let Some(key) = SOFTENING_OPTIONS
+            .into_iter()
+            .find(|key| parameters.get(key).is_some())
+        {
+            return Err(format!(
+                "{key} (the exponential softening of c, phi and psi) is not implemented for mohr_coulomb: use drucker_prager for it, or the linear cohesion softening H < 0 with c_residual"
+            ));
+        }
         let strength = read_strength(parameters)?;
         Self::new(
             strength.elastic,

@@ -1,5 +1,6 @@
 //! A warning for scenes with a softening material: a softening cohesion (`H < 0` on
-//! `drucker_prager` or `mohr_coulomb`, `material::cohesion`) or a softening yield stress
+//! `drucker_prager` or `mohr_coulomb`, `material::cohesion`), the exponential softening of c, φ
+//! and ψ (`softening_rate` on `drucker_prager`, `material::cohesion`) or a softening yield stress
 //! (`hardening: "exponential_softening"` on `von_mises`, `material::hardening`).
 //!
 //! The softening is local (no regularisation: no internal length, no non-local or gradient
@@ -19,7 +20,7 @@ pub fn softening_warnings(spec: &SceneSpec) -> Vec<String> {
         .iter()
         .filter(|m| match m.model.as_str() {
             "drucker_prager" | "mohr_coulomb" => {
-                read_strength(&m.parameters).is_ok_and(|strength| strength.hardening.softens())
+                read_strength(&m.parameters).is_ok_and(|strength| strength.softens())
             }
             "von_mises" => VonMises::from_parameters(&m.parameters)
                 .is_ok_and(|model| model.hardening.softens()),
@@ -31,7 +32,7 @@ pub fn softening_warnings(spec: &SceneSpec) -> Vec<String> {
         return Vec::new();
     }
     vec![format!(
-        "material {} soften (H < 0, or exponential_softening) without regularisation: past \
+        "material {} soften (H < 0, softening_rate, or exponential_softening) without regularisation: past \
          the peak the results are mesh-dependent (the failure zone localises into the narrowest \
          band the grid allows); compare two resolutions before reading a post-peak curve \
          (docs/plasticity.md, \"Hardening and softening of Drucker-Prager and Mohr-Coulomb\" and \
