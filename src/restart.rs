@@ -626,7 +626,9 @@ fn remove_other_data_files(dir: &Path, keep: &[String]) -> Result<(), String> {
     for entry in entries.flatten() {
         let name = entry.file_name();
         let name = name.to_string_lossy();
-        if !keep.iter().any(|kept| *kept == name) && is_checkpoint_data(&name) {
+        // only files: a folder of that name is not a checkpoint's (and not this run's)
+        let is_file = entry.file_type().is_ok_and(|kind| kind.is_file());
+        if is_file && !keep.iter().any(|kept| *kept == name) && is_checkpoint_data(&name) {
             std::fs::remove_file(entry.path())
                 .map_err(|e| format!("{}: {e}", entry.path().display()))?;
         }
