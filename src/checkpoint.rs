@@ -216,7 +216,10 @@ pub fn restore_parts_except(
         .cloned()
         .unwrap_or_default();
     let registered: Vec<&str> = parts.0.iter().map(|p| p.name).collect();
-    if let Some(unknown) = carried.iter().find(|name| !registered.contains(&name.as_str())) {
+    if let Some(unknown) = carried
+        .iter()
+        .find(|name| !registered.contains(&name.as_str()))
+    {
         return Err(format!(
             "the saved state's points carry the part '{unknown}' but this simulation has the \
              parts {registered:?}"

@@ -212,7 +212,12 @@ pub fn read_piece(pieces: &Pieces, piece: &Piece) -> Result<Vec<f64>, String> {
     let header = Checkpoint::path_in(&pieces.folder);
     let contents = std::fs::read(&path).map_err(|e| missing_piece(&path, &header, &e))?;
     if contents.len() as u64 != piece.bytes {
-        return Err(truncated(&path, contents.len() as u64, piece.bytes, &header));
+        return Err(truncated(
+            &path,
+            contents.len() as u64,
+            piece.bytes,
+            &header,
+        ));
     }
     if fnv1a(&contents) != piece.fnv1a {
         return Err(format!(
@@ -515,7 +520,10 @@ fn read_pieces(value: &Value, path: &Path, dir: &Path) -> Result<Option<Pieces>,
         return Ok(None);
     }
     let bad = |what: &str| format!("{} is not a valid checkpoint: {what}", path.display());
-    let count = |v: &Value, what: &str| v.as_u64().ok_or_else(|| bad(&format!("{what} is not a count")));
+    let count = |v: &Value, what: &str| {
+        v.as_u64()
+            .ok_or_else(|| bad(&format!("{what} is not a count")))
+    };
     let list = |v: &Value, what: &str| {
         v.as_array()
             .cloned()
@@ -538,7 +546,9 @@ fn read_pieces(value: &Value, path: &Path, dir: &Path) -> Result<Option<Pieces>,
         let file = piece["file"]
             .as_str()
             .filter(|name| {
-                !name.contains(['/', '\\']) && name.starts_with("checkpoint_") && name.ends_with(".bin")
+                !name.contains(['/', '\\'])
+                    && name.starts_with("checkpoint_")
+                    && name.ends_with(".bin")
             })
             .ok_or_else(|| bad("a piece names no file"))?
             .to_string();
@@ -792,7 +802,10 @@ mod tests {
             .enumerate()
             .map(|(k, values)| {
                 let file = piece_file_name(3, k);
-                let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_bits().to_le_bytes()).collect();
+                let bytes: Vec<u8> = values
+                    .iter()
+                    .flat_map(|v| v.to_bits().to_le_bytes())
+                    .collect();
                 let (bytes, fnv1a) = write_piece(&dir, &file, &bytes).unwrap();
                 Piece {
                     file,
@@ -815,7 +828,10 @@ mod tests {
         let earlier = dir.join(piece_file_name(1, 2));
         std::fs::write(&earlier, [0u8; 8]).unwrap();
         written.write(&dir).unwrap();
-        assert!(!earlier.exists(), "the earlier checkpoint's piece is removed");
+        assert!(
+            !earlier.exists(),
+            "the earlier checkpoint's piece is removed"
+        );
         let read = Checkpoint::read(&dir, &written.identity).unwrap();
         assert_eq!(read, written);
         let pieces = read.pieces.as_ref().unwrap();
@@ -823,7 +839,10 @@ mod tests {
             assert_eq!(&read_piece(pieces, piece).unwrap(), values);
         }
         let why = read.needs_decomposition(&dir).unwrap();
-        assert!(why.contains("2 pieces") && why.contains("--decompose --resume"), "{why}");
+        assert!(
+            why.contains("2 pieces") && why.contains("--decompose --resume"),
+            "{why}"
+        );
         assert!(sample().needs_decomposition(&dir).is_none());
 
         let second = dir.join(piece_file_name(3, 1));

@@ -1567,7 +1567,9 @@ fn refused_serially(scene: &Path, set: &[&str], dir: &Path) -> String {
     assert!(!output.status.success(), "{stderr}");
     assert!(!stderr.contains("panicked"), "{stderr}");
     assert!(
-        stderr.contains("written in") && stderr.contains("pieces") && stderr.contains("mpirun -n N impm run"),
+        stderr.contains("written in")
+            && stderr.contains("pieces")
+            && stderr.contains("mpirun -n N impm run"),
         "{stderr}"
     );
     stderr
@@ -1638,7 +1640,11 @@ fn points_of_pieces(dir: &Path) -> Vec<f64> {
     for piece in pieces["files"].as_array().unwrap() {
         let file = piece["file"].as_str().unwrap();
         let data = std::fs::read(dir.join(file)).unwrap();
-        assert_eq!(data.len() as u64, piece["bytes"].as_u64().unwrap(), "{file}");
+        assert_eq!(
+            data.len() as u64,
+            piece["bytes"].as_u64().unwrap(),
+            "{file}"
+        );
         let numbers: Vec<f64> = data
             .chunks_exact(8)
             .map(|bytes| f64::from_le_bytes(bytes.try_into().unwrap()))
@@ -3002,7 +3008,11 @@ fn a_checkpoint_in_pieces_over_3_processes_resumes_over_2_and_names_a_missing_pi
         .collect();
     assert_eq!(
         pieces,
-        ["checkpoint_0002_p0.bin", "checkpoint_0002_p1.bin", "checkpoint_0002_p2.bin"]
+        [
+            "checkpoint_0002_p0.bin",
+            "checkpoint_0002_p1.bin",
+            "checkpoint_0002_p2.bin"
+        ]
     );
     let mut left: Vec<String> = std::fs::read_dir(&dir)
         .unwrap()
@@ -3022,7 +3032,12 @@ fn a_checkpoint_in_pieces_over_3_processes_resumes_over_2_and_names_a_missing_pi
     let broken = temp_dir("mpi", "pieces-broken");
     let copy = |from: &Path, to: &Path| {
         let _ = std::fs::remove_dir_all(to);
-        let status = Command::new("cp").arg("-r").arg(from).arg(to).status().unwrap();
+        let status = Command::new("cp")
+            .arg("-r")
+            .arg(from)
+            .arg(to)
+            .status()
+            .unwrap();
         assert!(status.success());
     };
     copy(&dir, &broken);
@@ -3105,7 +3120,10 @@ fn same_history(label: &str, dir: &Path, serial_dir: &Path) {
             .position(|other| other == name)
             .unwrap_or_else(|| panic!("{label}: no column {name} in history.csv"));
         let serial: Vec<Option<f64>> = serial_rows.iter().map(|row| row[k]).collect();
-        let got: Vec<Option<f64>> = rows.iter().map(|row| row.get(j).copied().flatten()).collect();
+        let got: Vec<Option<f64>> = rows
+            .iter()
+            .map(|row| row.get(j).copied().flatten())
+            .collect();
         let mut scale = serial.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
         if is_force(name) {
             scale = scale.max(largest_force);

@@ -118,10 +118,13 @@ fn saved_in_pieces<const D: usize>(
         write_piece(&dir, &file, &bytes).map(|(length, hash)| (points, length, hash))
     });
     // every piece written, or every process fails alike (the header is not written)
-    let outcome = written.as_ref().map(|_| ()).map_err(|why| SolverError::Output {
-        step: steps_done,
-        why: format!("writing this process's piece of the checkpoint: {why}"),
-    });
+    let outcome = written
+        .as_ref()
+        .map(|_| ())
+        .map_err(|why| SolverError::Output {
+            step: steps_done,
+            why: format!("writing this process's piece of the checkpoint: {why}"),
+        });
     share_outcome(outcome, steps_done)?;
     let (points, length, hash) = written.unwrap_or_default();
     let (first, last) = layers.unwrap_or_default();
@@ -329,9 +332,8 @@ fn own_records<const D: usize>(
         }
         let path = pieces.folder.join(&piece.file);
         let numbers = read_piece(pieces, piece)?;
-        let records = unpack_points::<D>(&numbers).map_err(|why| {
-            format!("{}: {why}", path.display())
-        })?;
+        let records =
+            unpack_points::<D>(&numbers).map_err(|why| format!("{}: {why}", path.display()))?;
         drop(numbers);
         if records.len() as u64 != piece.points {
             return Err(format!(
