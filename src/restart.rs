@@ -796,7 +796,7 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("impm-restart-pieces-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
-        let numbers = [vec![1.0, 2.0, 3.0], vec![-4.5, 1.0 / 3.0]];
+        let numbers: [Vec<f64>; 2] = [vec![1.0, 2.0, 3.0], vec![-4.5, 1.0 / 3.0]];
         let files = numbers
             .iter()
             .enumerate()
