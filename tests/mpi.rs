@@ -70,9 +70,13 @@
 //!   step) and ParaView reads both series with every array and the right nodes and cells;
 //! * checkpoints under mpirun: a run stopped after a checkpoint and resumed gives the
 //!   uninterrupted serial run's results whatever wrote the checkpoint and whatever resumes it
-//!   (decomposed `-n 2` by `-n 2`, `-n 3` serially, serial by `-n 2`; a von Mises column
+//!   (decomposed `-n 2` by `-n 2`, `-n 3` by `-n 1`, serial by `-n 2`; a von Mises column
 //!   `-n 3` by `-n 2`), a decomposed run's checkpoint holds the serial one's numbers, and a
-//!   checkpoint process 0 fails to write stops every process, the previous one kept.
+//!   checkpoint process 0 fails to write stops every process, the previous one kept; with
+//!   decomposed points over several processes the checkpoint is in pieces (one per process,
+//!   since 2026-12-08): the 2D column's, written over 3 processes, resumes over 2 with the
+//!   serial run's results and history.csv, and a serial or replicated resume of it, and a
+//!   missing, truncated or damaged piece, are refused, naming what to do or the file.
 //!
 //! Skipped, with a message, where `mpirun` is missing (`.ci/run` installs OpenMPI as root).
 
