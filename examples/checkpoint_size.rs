@@ -33,6 +33,7 @@ fn main() -> Result<(), String> {
         series: checkpoint::save_series(&mut sim.world),
         steps: Vec::new(),
         warnings: Vec::new(),
+        pieces: None,
     };
     let mut seconds = Vec::new();
     for _ in 0..5 {

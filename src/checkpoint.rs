@@ -200,18 +200,44 @@ pub fn save_parts(world: &mut World) -> Vec<(String, Vec<f64>)> {
 
 /// Restores `saved` into `world`, whose registered parts must be the same, in the same order.
 pub fn restore_parts(world: &mut World, saved: &[(String, Vec<f64>)]) -> Result<(), String> {
+    restore_parts_except(world, saved, &[])
+}
+
+/// [`restore_parts`] but for the parts named in `carried`, which `saved` leaves out and which
+/// are restored otherwise (a checkpoint in pieces: the points' records carry them,
+/// `effects::distributed::checkpoint`); every carried part must be registered.
+pub fn restore_parts_except(
+    world: &mut World,
+    saved: &[(String, Vec<f64>)],
+    carried: &[String],
+) -> Result<(), String> {
     let parts = world
         .get_resource::<CheckpointParts>()
         .cloned()
         .unwrap_or_default();
-    let names: Vec<&str> = parts.0.iter().map(|p| p.name).collect();
+    let registered: Vec<&str> = parts.0.iter().map(|p| p.name).collect();
+    if let Some(unknown) = carried
+        .iter()
+        .find(|name| !registered.contains(&name.as_str()))
+    {
+        return Err(format!(
+            "the saved state's points carry the part '{unknown}' but this simulation has the \
+             parts {registered:?}"
+        ));
+    }
+    let parts: Vec<&CheckpointPart> = parts
+        .0
+        .iter()
+        .filter(|part| !carried.iter().any(|name| name == part.name))
+        .collect();
+    let names: Vec<&str> = parts.iter().map(|p| p.name).collect();
     let saved_names: Vec<&str> = saved.iter().map(|(name, _)| name.as_str()).collect();
     if names != saved_names {
         return Err(format!(
             "the saved state has the parts {saved_names:?} but this simulation has {names:?}"
         ));
     }
-    for (part, (_, values)) in parts.0.iter().zip(saved) {
+    for (part, (_, values)) in parts.into_iter().zip(saved) {
         (part.restore)(world, values).map_err(|why| format!("{}: {why}", part.name))?;
     }
     Ok(())

@@ -461,6 +461,15 @@ fn run_command(
                 ));
             }
             let checkpoint = Checkpoint::read(dir, &plan.identity)?;
+            // a checkpoint in pieces: resumed with decomposed points only, each process
+            // building its run without points and reading its own from the pieces
+            if checkpoint.pieces.is_some() {
+                if !impm::distributed::decomposed() {
+                    let why = checkpoint.needs_decomposition(dir).unwrap_or_default();
+                    return Err(why.into());
+                }
+                impm::distributed::request_resume_from_pieces();
+            }
             note(&format!(
                 "resuming {} after load step {} of {}",
                 dir.display(),

@@ -15,14 +15,19 @@
 //! data                     the binary file's name, its length in bytes and its FNV-1a hash
 //! series                   the entries of every .pvd series (checkpoint::CheckpointSeries)
 //! steps, warnings          the records: summary.json's steps (history.csv is made from them)
+//! pieces                   with decomposed points over several processes (else null): the
+//!                          parts the pieces carry, the dimension, the slab axis and the points
+//!                          per cell layer along it, and each piece's file, points, bytes,
+//!                          FNV-1a hash and first and last cell layer
 //! ```
 //!
 //! Numbers are stored exactly, so a resumed run continues from the very same state and writes
 //! bit-identical files: in the binary file every `f64` as the 8 little-endian bytes of its
 //! bits, the parts one after the other; in the header (the series' times) as the 16
-//! hexadecimal digits of its bits. Both files are written atomically (the output folder's
-//! [`write_atomic`]), the binary one first: a run killed between the two leaves the previous
-//! header with its own binary file, which is removed only after the new header is in place.
+//! hexadecimal digits of its bits. Both files are written atomically and durably (a temporary
+//! file, fsynced, renamed over the file, the folder fsynced), the binary one first: a run
+//! killed between the two leaves the previous header with its own binary file, which is
+//! removed only after the new header is in place.
 //! Reading checks the binary file's length and hash against the header, so a truncated or
 //! damaged file is refused with a message instead of resuming from a wrong state. At 100 000
 //! points the pair is half the size of format 1's hexadecimal JSON (docs/restart.md). The step
@@ -36,17 +41,27 @@
 //! must be stable across Rust releases (std's `DefaultHasher` is not promised to be). Files a
 //! scene imports are not hashed.
 //!
-//! Under `mpirun` there is one checkpoint, process 0's, in this format: with decomposed points
-//! every process's points are gathered to process 0 for it
-//! (`effects::distributed::checkpoint`). Every process of a resumed run reads it from process
-//! 0's folder (the others run into scratch folders of their own), so a checkpoint is resumed
-//! by a serial run, a replicated or a decomposed one, over any number of processes.
+//! Under `mpirun` there is one header, process 0's, in this format. Without decomposed points,
+//! or with them on one process, it is the serial checkpoint (process 0 holds every point).
+//! With decomposed points over several processes it is **in pieces** ([`Pieces`]): each
+//! process writes its own points' records to `checkpoint_NNNN_pK.bin` in process 0's folder
+//! (durably: a temporary file, fsynced, renamed; [`write_piece`]), the binary file holds only
+//! the parts the records do not carry, and the header, written last, names every piece with
+//! its points, length, hash and cell layers (`effects::distributed::checkpoint`). A crash
+//! before the header leaves the previous checkpoint, whose files are removed only once the new
+//! header is in place. Reading checks that every piece exists with its length; a piece's hash
+//! is checked by the process that reads it ([`read_piece`]). A checkpoint in pieces is resumed
+//! with decomposed points over any number of processes; a serial or replicated `--resume`
+//! refuses it, saying how ([`Checkpoint::needs_decomposition`]). Every process of a resumed
+//! run reads the header from process 0's folder (the others run into scratch folders of their
+//! own). All the files of a checkpoint are written durably (fsynced before the rename, the
+//! folder after it), serial ones too.
 
 use std::path::{Path, PathBuf};
 
 use serde_json::{Value, json};
 
-use crate::output::{is_checkpoint_data, write_atomic};
+use crate::output::is_checkpoint_data;
 
 /// The checkpoint's file name in the output folder.
 pub const CHECKPOINT_FILE: &str = "checkpoint.json";
@@ -140,6 +155,153 @@ pub struct Checkpoint {
     pub steps: Vec<Value>,
     /// The run's warnings so far.
     pub warnings: Vec<String>,
+    /// With decomposed points over several processes, the pieces holding the points (their
+    /// parts are then not in the binary file); `None` in the serial format.
+    pub pieces: Option<Pieces>,
+}
+
+/// The pieces of a checkpoint written by a decomposed run over several processes: each
+/// process's points as records (`distributed::migration::PointRecord`, in `PointId` order) in
+/// a file of its own, `checkpoint_NNNN_pK.bin` (see the module docs).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Pieces {
+    /// The parts the points' records carry (each point's state), left out of the binary file.
+    pub carried: Vec<String>,
+    /// The dimension of the points' records.
+    pub dim: usize,
+    /// The slab axis, and the points in each cell layer along it (over every piece): what a
+    /// resumed run divides the points by, over any number of processes.
+    pub axis: usize,
+    pub layers: Vec<u64>,
+    /// The pieces, by rank.
+    pub files: Vec<Piece>,
+    /// The folder holding the pieces (the checkpoint's; not written to the header).
+    pub folder: PathBuf,
+}
+
+/// One process's piece of a checkpoint ([`Pieces`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Piece {
+    pub file: String,
+    /// Its points, its length in bytes and its FNV-1a hash.
+    pub points: u64,
+    pub bytes: u64,
+    pub fnv1a: u64,
+    /// The first and last cell layer its points lie in (`None`: it has no points).
+    pub layers: Option<(usize, usize)>,
+}
+
+/// The piece of process `rank` of the checkpoint after `steps_done` steps.
+pub fn piece_file_name(steps_done: usize, rank: usize) -> String {
+    format!("checkpoint_{steps_done:04}_p{rank}.bin")
+}
+
+/// Writes a piece's bytes (its numbers' little-endian bits) to `dir/name` durably (a
+/// temporary file, fsynced, renamed over `name`, the folder fsynced); returns its length and
+/// hash.
+pub fn write_piece(dir: &Path, name: &str, data: &[u8]) -> Result<(u64, u64), String> {
+    let path = dir.join(name);
+    write_durable(&path, data).map_err(|e| format!("{}: {e}", path.display()))?;
+    Ok((data.len() as u64, fnv1a(data)))
+}
+
+/// The numbers of `piece` (of the checkpoint in `pieces.folder`), checked against the length
+/// and hash the header gives; an error names the file.
+pub fn read_piece(pieces: &Pieces, piece: &Piece) -> Result<Vec<f64>, String> {
+    let path = pieces.folder.join(&piece.file);
+    let header = Checkpoint::path_in(&pieces.folder);
+    let contents = std::fs::read(&path).map_err(|e| missing_piece(&path, &header, &e))?;
+    if contents.len() as u64 != piece.bytes {
+        return Err(truncated(
+            &path,
+            contents.len() as u64,
+            piece.bytes,
+            &header,
+        ));
+    }
+    if fnv1a(&contents) != piece.fnv1a {
+        return Err(format!(
+            "{} does not have the hash the checkpoint {} names: the piece is damaged, so the run \
+             cannot be continued from it; run the scene anew without --resume",
+            path.display(),
+            header.display()
+        ));
+    }
+    Ok(bytes_to_numbers(&contents).collect())
+}
+
+fn missing_piece(path: &Path, header: &Path, e: &std::io::Error) -> String {
+    format!(
+        "cannot read {}, a piece of the checkpoint {}: {e}; the run cannot be continued without \
+         it: run the scene anew without --resume",
+        path.display(),
+        header.display()
+    )
+}
+
+fn truncated(path: &Path, length: u64, named: u64, header: &Path) -> String {
+    format!(
+        "{} is {length} bytes long, but the checkpoint {} names {named}: the file is truncated or \
+         damaged, so the run cannot be continued from it; run the scene anew without --resume",
+        path.display(),
+        header.display()
+    )
+}
+
+fn bytes_to_numbers(data: &[u8]) -> impl Iterator<Item = f64> + '_ {
+    data.chunks_exact(8).map(|bytes| {
+        let mut word = [0u8; 8];
+        word.copy_from_slice(bytes);
+        f64::from_bits(u64::from_le_bytes(word))
+    })
+}
+
+/// Replaces `path` by `contents` atomically and durably: a temporary file beside it
+/// (`.NAME.PID.N.tmp`, which the output folder's cleaning knows), written and fsynced, renamed
+/// over `path`, and the folder fsynced, so that after a crash `path` is the old file or the
+/// whole new one, and a file the next header names is on the disk before the header.
+fn write_durable(path: &Path, contents: &[u8]) -> std::io::Result<()> {
+    use std::io::Write;
+    static COUNTER: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let folder = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    let name = path
+        .file_name()
+        .ok_or_else(|| std::io::Error::other("the path names no file"))?
+        .to_string_lossy()
+        .into_owned();
+    let (temp, mut file) = loop {
+        let n = COUNTER.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let temp = folder.join(format!(".{name}.{}.{n}.tmp", std::process::id()));
+        match std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&temp)
+        {
+            Ok(file) => break (temp, file),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(e),
+        }
+    };
+    let mut written = file.write_all(contents);
+    if written.is_ok() {
+        written = file.sync_all();
+    }
+    drop(file);
+    if written.is_ok() {
+        written = std::fs::rename(&temp, path);
+    }
+    if let Err(e) = written {
+        let _ = std::fs::remove_file(&temp);
+        return Err(e);
+    }
+    // the rename itself on the disk (best effort: not every file system lets a folder sync)
+    if let Ok(dir) = std::fs::File::open(folder) {
+        let _ = dir.sync_all();
+    }
+    Ok(())
 }
 
 impl Checkpoint {
@@ -148,8 +310,9 @@ impl Checkpoint {
         dir.join(CHECKPOINT_FILE)
     }
 
-    /// Writes the checkpoint into `dir` atomically: the binary file of the parts, then the
-    /// header naming it; then removes the binary files of earlier checkpoints.
+    /// Writes the checkpoint into `dir` atomically and durably: the binary file of the parts,
+    /// then the header naming it (and the pieces, which their processes wrote before); then
+    /// removes the binary files and pieces of earlier checkpoints.
     pub fn write(&self, dir: &Path) -> Result<(), String> {
         let data_name = data_file_name(self.steps_done);
         let data_path = dir.join(&data_name);
@@ -158,12 +321,33 @@ impl Checkpoint {
         for value in self.parts.iter().flat_map(|(_, values)| values) {
             data.extend_from_slice(&value.to_bits().to_le_bytes());
         }
-        write_atomic(&data_path, &data).map_err(|e| format!("{}: {e}", data_path.display()))?;
+        write_durable(&data_path, &data).map_err(|e| format!("{}: {e}", data_path.display()))?;
         let path = Self::path_in(dir);
         let header = self.to_json(&data_name, &data);
         let text = serde_json::to_string(&header).map_err(|e| e.to_string())?;
-        write_atomic(&path, text.as_bytes()).map_err(|e| format!("{}: {e}", path.display()))?;
-        remove_other_data_files(dir, &data_name)
+        write_durable(&path, text.as_bytes()).map_err(|e| format!("{}: {e}", path.display()))?;
+        let mut keep = vec![data_name];
+        if let Some(pieces) = &self.pieces {
+            keep.extend(pieces.files.iter().map(|piece| piece.file.clone()));
+        }
+        remove_other_data_files(dir, &keep)
+    }
+
+    /// Why this checkpoint cannot be resumed by a run whose points are not decomposed over
+    /// `mpirun`, if it cannot (it is in pieces); `dir` is its folder.
+    pub fn needs_decomposition(&self, dir: &Path) -> Option<String> {
+        let pieces = self.pieces.as_ref()?;
+        Some(format!(
+            "{} was written in {} pieces by a run with decomposed points (mpirun -n {} .. \
+             --decompose: {} ..): it is resumed only with decomposed points, over any number of \
+             processes: mpirun -n N impm run {} --decompose --resume {}",
+            Self::path_in(dir).display(),
+            pieces.files.len(),
+            pieces.files.len(),
+            pieces.files.first().map_or("", |piece| piece.file.as_str()),
+            self.identity.scene,
+            dir.display()
+        ))
     }
 
     /// Reads the checkpoint of `dir` and checks that `identity` may resume it.
@@ -214,6 +398,19 @@ impl Checkpoint {
             })).collect::<Vec<_>>(),
             "steps": self.steps,
             "warnings": self.warnings,
+            "pieces": self.pieces.as_ref().map(|pieces| json!({
+                "carried": pieces.carried,
+                "dim": pieces.dim,
+                "axis": pieces.axis,
+                "layers": pieces.layers,
+                "files": pieces.files.iter().map(|piece| json!({
+                    "file": piece.file,
+                    "points": piece.points,
+                    "bytes": piece.bytes,
+                    "fnv1a": format!("{:016x}", piece.fnv1a),
+                    "layers": piece.layers.map(|(first, last)| [first, last]),
+                })).collect::<Vec<_>>(),
+            })),
         })
     }
 
@@ -254,11 +451,7 @@ impl Checkpoint {
             })
             .collect::<Result<_, String>>()?;
         let data = read_data(&value["data"], path, dir)?;
-        let mut numbers = data.chunks_exact(8).map(|bytes| {
-            let mut word = [0u8; 8];
-            word.copy_from_slice(bytes);
-            f64::from_bits(u64::from_le_bytes(word))
-        });
+        let mut numbers = bytes_to_numbers(&data);
         let parts: Vec<(String, Vec<f64>)> = array(&value["parts"], "parts")?
             .iter()
             .map(|part| {
@@ -313,8 +506,87 @@ impl Checkpoint {
             series,
             steps: array(&value["steps"], "steps")?,
             warnings,
+            pieces: read_pieces(&value["pieces"], path, dir)?,
         })
     }
+}
+
+/// The pieces a checkpoint header names (`None` in the serial format), each checked to exist
+/// with the length the header gives (its hash is checked by the process that reads it:
+/// [`read_piece`]), so that every process of a resumed run refuses a missing or truncated
+/// piece alike, naming it, before the run is built.
+fn read_pieces(value: &Value, path: &Path, dir: &Path) -> Result<Option<Pieces>, String> {
+    if value.is_null() {
+        return Ok(None);
+    }
+    let bad = |what: &str| format!("{} is not a valid checkpoint: {what}", path.display());
+    let count = |v: &Value, what: &str| {
+        v.as_u64()
+            .ok_or_else(|| bad(&format!("{what} is not a count")))
+    };
+    let list = |v: &Value, what: &str| {
+        v.as_array()
+            .cloned()
+            .ok_or_else(|| bad(&format!("{what} is not a list")))
+    };
+    let carried = list(&value["carried"], "pieces.carried")?
+        .iter()
+        .map(|name| {
+            name.as_str()
+                .map(str::to_string)
+                .ok_or_else(|| bad("a carried part's name is not a string"))
+        })
+        .collect::<Result<_, String>>()?;
+    let layers = list(&value["layers"], "pieces.layers")?
+        .iter()
+        .map(|n| count(n, "a layer's points"))
+        .collect::<Result<_, String>>()?;
+    let mut files = Vec::new();
+    for piece in list(&value["files"], "pieces.files")? {
+        let file = piece["file"]
+            .as_str()
+            .filter(|name| {
+                !name.contains(['/', '\\'])
+                    && name.starts_with("checkpoint_")
+                    && name.ends_with(".bin")
+            })
+            .ok_or_else(|| bad("a piece names no file"))?
+            .to_string();
+        let fnv1a = piece["fnv1a"]
+            .as_str()
+            .and_then(|hash| u64::from_str_radix(hash, 16).ok())
+            .ok_or_else(|| bad(&format!("the hash of {file} is not a hash")))?;
+        let layers = match &piece["layers"] {
+            Value::Null => None,
+            range => Some((
+                count(&range[0], "a piece's first layer")? as usize,
+                count(&range[1], "a piece's last layer")? as usize,
+            )),
+        };
+        let bytes = count(&piece["bytes"], "a piece's bytes")?;
+        let piece_path = dir.join(&file);
+        let length = std::fs::metadata(&piece_path)
+            .map_err(|e| missing_piece(&piece_path, path, &e))?
+            .len();
+        if length != bytes {
+            return Err(truncated(&piece_path, length, bytes, path));
+        }
+        files.push(Piece {
+            points: count(&piece["points"], "a piece's points")?,
+            bytes,
+            fnv1a,
+            layers,
+            file,
+        });
+    }
+    Ok(Some(Pieces {
+        carried,
+        dim: count(&value["dim"], "pieces.dim")? as usize,
+        axis: count(&value["axis"], "pieces.axis")? as usize,
+        layers,
+        files,
+        folder: dir.to_path_buf(),
+    }))
 }
 
 /// The binary file a checkpoint header names, checked against the length and hash it gives.
@@ -358,13 +630,15 @@ fn read_data(data: &Value, path: &Path, dir: &Path) -> Result<Vec<u8>, String> {
     Ok(contents)
 }
 
-/// Removes the binary files of earlier checkpoints in `dir` (all but `keep`).
-fn remove_other_data_files(dir: &Path, keep: &str) -> Result<(), String> {
+/// Removes the binary files and pieces of earlier checkpoints in `dir` (all but `keep`).
+fn remove_other_data_files(dir: &Path, keep: &[String]) -> Result<(), String> {
     let entries = std::fs::read_dir(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     for entry in entries.flatten() {
         let name = entry.file_name();
         let name = name.to_string_lossy();
-        if name != keep && is_checkpoint_data(&name) {
+        // only files: a folder of that name is not a checkpoint's (and not this run's)
+        let is_file = entry.file_type().is_ok_and(|kind| kind.is_file());
+        if is_file && !keep.iter().any(|kept| *kept == name) && is_checkpoint_data(&name) {
             std::fs::remove_file(entry.path())
                 .map_err(|e| format!("{}: {e}", entry.path().display()))?;
         }
@@ -438,6 +712,7 @@ mod tests {
             )],
             steps: vec![json!({"step": 1})],
             warnings: vec!["careful".into()],
+            pieces: None,
         }
     }
 
@@ -507,6 +782,89 @@ mod tests {
         let why = Checkpoint::read(&dir, &written.identity).unwrap_err();
         assert!(
             why.contains("cannot read") && why.contains("checkpoint_0004.bin"),
+            "{why}"
+        );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// A checkpoint in pieces: the header names every piece and reads back as written; the
+    /// earlier checkpoint's pieces go once the new header is in place, the new ones stay; a
+    /// truncated or missing piece is refused when the header is read, a damaged one when the
+    /// piece is, each naming the file; resuming it needs decomposed points, and says how.
+    #[test]
+    fn a_checkpoint_in_pieces_names_them_and_refuses_a_missing_or_damaged_one() {
+        let dir = std::env::temp_dir().join(format!("impm-restart-pieces-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let numbers: [Vec<f64>; 2] = [vec![1.0, 2.0, 3.0], vec![-4.5, 1.0 / 3.0]];
+        let files = numbers
+            .iter()
+            .enumerate()
+            .map(|(k, values)| {
+                let file = piece_file_name(3, k);
+                let bytes: Vec<u8> = values
+                    .iter()
+                    .flat_map(|v| v.to_bits().to_le_bytes())
+                    .collect();
+                let (bytes, fnv1a) = write_piece(&dir, &file, &bytes).unwrap();
+                Piece {
+                    file,
+                    points: k as u64 + 1,
+                    bytes,
+                    fnv1a,
+                    layers: Some((k, k)),
+                }
+            })
+            .collect();
+        let mut written = sample();
+        written.pieces = Some(Pieces {
+            carried: vec!["points".into()],
+            dim: 2,
+            axis: 1,
+            layers: vec![1, 2],
+            files,
+            folder: dir.clone(),
+        });
+        let earlier = dir.join(piece_file_name(1, 2));
+        std::fs::write(&earlier, [0u8; 8]).unwrap();
+        written.write(&dir).unwrap();
+        assert!(
+            !earlier.exists(),
+            "the earlier checkpoint's piece is removed"
+        );
+        let read = Checkpoint::read(&dir, &written.identity).unwrap();
+        assert_eq!(read, written);
+        let pieces = read.pieces.as_ref().unwrap();
+        for (piece, values) in pieces.files.iter().zip(&numbers) {
+            assert_eq!(&read_piece(pieces, piece).unwrap(), values);
+        }
+        let why = read.needs_decomposition(&dir).unwrap();
+        assert!(
+            why.contains("2 pieces") && why.contains("--decompose --resume"),
+            "{why}"
+        );
+        assert!(sample().needs_decomposition(&dir).is_none());
+
+        let second = dir.join(piece_file_name(3, 1));
+        let bytes = std::fs::read(&second).unwrap();
+        let mut damaged = bytes.clone();
+        damaged[3] ^= 1;
+        std::fs::write(&second, &damaged).unwrap();
+        let why = read_piece(pieces, &pieces.files[1]).unwrap_err();
+        assert!(
+            why.contains("checkpoint_0003_p1.bin does not have the hash"),
+            "{why}"
+        );
+        std::fs::write(&second, &bytes[..8]).unwrap();
+        let why = Checkpoint::read(&dir, &written.identity).unwrap_err();
+        assert!(
+            why.contains("checkpoint_0003_p1.bin is 8 bytes long") && why.contains("truncated"),
+            "{why}"
+        );
+        std::fs::remove_file(&second).unwrap();
+        let why = Checkpoint::read(&dir, &written.identity).unwrap_err();
+        assert!(
+            why.contains("cannot read") && why.contains("checkpoint_0003_p1.bin"),
             "{why}"
         );
         let _ = std::fs::remove_dir_all(&dir);

@@ -148,6 +148,16 @@ impl<const D: usize> Simulation<D> {
     /// Restores a state saved from a simulation of the same scene (with the same modules):
     /// the next step is the one after `saved.steps_done`.
     pub fn restore_state(&mut self, saved: &SavedState) -> Result<(), String> {
+        self.restore_state_except(saved, &[])
+    }
+
+    /// [`Simulation::restore_state`] but for the parts named in `carried`, which `saved` leaves
+    /// out (a checkpoint in pieces: the points' records carry them).
+    fn restore_state_except(
+        &mut self,
+        saved: &SavedState,
+        carried: &[String],
+    ) -> Result<(), String> {
         if saved.steps_done > self.spec.load_factors.len() {
             return Err(format!(
                 "the saved state is after step {} but the scene has {} steps",
@@ -155,7 +165,7 @@ impl<const D: usize> Simulation<D> {
                 self.spec.load_factors.len()
             ));
         }
-        checkpoint::restore_parts(&mut self.world, &saved.parts)?;
+        checkpoint::restore_parts_except(&mut self.world, &saved.parts, carried)?;
         if let Some(arc) = &mut self.arc {
             let state = self
                 .world
@@ -211,18 +221,18 @@ impl<const D: usize> Simulation<D> {
         };
         let identity = plan.identity.clone();
         // with decomposed points every process's points, on process 0 (the others write none)
+        // (over several processes each has written its piece, and process 0 writes the rest)
         #[cfg(feature = "mpi")]
-        let parts = {
+        let saved = {
             self.share_arc_control();
-            effects::distributed::checkpoint::saved_parts_of_every_point::<D>(&mut self.world)
-                .map_err(|why| SolverError::Output {
-                    step: self.steps_done,
-                    why: format!("gathering the checkpoint's points: {why}"),
-                })?
+            effects::distributed::checkpoint::saved_parts_of_every_point::<D>(
+                &mut self.world,
+                self.steps_done,
+            )?
         };
         #[cfg(not(feature = "mpi"))]
-        let parts = Some(self.save_state().parts);
-        let Some(parts) = parts else {
+        let saved = Some((self.save_state().parts, None));
+        let Some((parts, pieces)) = saved else {
             return Ok(());
         };
         let checkpoint = Checkpoint {
@@ -232,6 +242,7 @@ impl<const D: usize> Simulation<D> {
             series: checkpoint::save_series(&mut self.world),
             steps: self.summary.steps_json(),
             warnings: self.summary.warnings.clone(),
+            pieces,
         };
         let dir = self.world.resource::<OutputPlan>().dir.clone();
         checkpoint.write(&dir).map_err(|why| SolverError::Output {
@@ -244,13 +255,25 @@ impl<const D: usize> Simulation<D> {
     /// points and every module's state, the records (`summary.json`, `history.csv`) and the
     /// `.pvd` series, and removes the files of the steps after the checkpoint.
     pub fn resume_from(&mut self, checkpoint: Checkpoint) -> Result<(), String> {
-        self.restore_state(&SavedState {
-            steps_done: checkpoint.steps_done,
-            parts: checkpoint.parts,
-        })?;
-        // a decomposed run restored every point: each process keeps its slab's
+        let carried = checkpoint
+            .pieces
+            .as_ref()
+            .map(|pieces| pieces.carried.clone())
+            .unwrap_or_default();
+        self.restore_state_except(
+            &SavedState {
+                steps_done: checkpoint.steps_done,
+                parts: checkpoint.parts,
+            },
+            &carried,
+        )?;
+        // a decomposed run restored every point, or none from a checkpoint in pieces: each
+        // process keeps (or reads) its slab's
         #[cfg(feature = "mpi")]
-        effects::distributed::checkpoint::keep_own_points::<D>(&mut self.world)?;
+        effects::distributed::checkpoint::keep_own_points::<D>(
+            &mut self.world,
+            checkpoint.pieces.as_ref(),
+        )?;
         let mut measures: Vec<String> = self
             .world
             .get_resource::<StepMeasures>()

@@ -70,9 +70,13 @@
 //!   step) and ParaView reads both series with every array and the right nodes and cells;
 //! * checkpoints under mpirun: a run stopped after a checkpoint and resumed gives the
 //!   uninterrupted serial run's results whatever wrote the checkpoint and whatever resumes it
-//!   (decomposed `-n 2` by `-n 2`, `-n 3` serially, serial by `-n 2`; a von Mises column
+//!   (decomposed `-n 2` by `-n 2`, `-n 3` by `-n 1`, serial by `-n 2`; a von Mises column
 //!   `-n 3` by `-n 2`), a decomposed run's checkpoint holds the serial one's numbers, and a
-//!   checkpoint process 0 fails to write stops every process, the previous one kept.
+//!   checkpoint process 0 fails to write stops every process, the previous one kept; with
+//!   decomposed points over several processes the checkpoint is in pieces (one per process,
+//!   since 2026-12-08): the 2D column's, written over 3 processes, resumes over 2 with the
+//!   serial run's results and history.csv, and a serial or replicated resume of it, and a
+//!   missing, truncated or damaged piece, are refused, naming what to do or the file.
 //!
 //! Skipped, with a message, where `mpirun` is missing (`.ci/run` installs OpenMPI as root).
 
@@ -1509,9 +1513,13 @@ fn checkpoint_parts(dir: &Path) -> Vec<(String, Vec<f64>)> {
 /// step 2 (one every 2 steps) and resumed gives the serial run's results (Newton iterations
 /// in every step, the eq. 15 error to 1e-8 relative, stresses and positions to 1e-8) whatever
 /// wrote the checkpoint and whatever resumes it: decomposed `-n 2` resumed by `-n 2`,
-/// decomposed `-n 3` resumed serially, serial resumed by decomposed `-n 2`. A completed
-/// decomposed run's last checkpoint holds the serial one's parts and numbers (one file, the
-/// serial format, every point in `PointId` order: to 1e-12 of each part's largest number).
+/// decomposed `-n 3` resumed by decomposed `-n 1` (refused serially first: a checkpoint in
+/// pieces is resumed with decomposed points only, and the message says how; until 2026-12-08
+/// the checkpoint was one serial file and this case resumed serially), serial resumed by
+/// decomposed `-n 2`. A completed decomposed run's last checkpoint holds the serial one's
+/// parts and numbers (to 1e-12 of each part's largest number): over one process in the serial
+/// format, over several in pieces (the points' core part rebuilt from the pieces' records,
+/// every point once: `same_checkpoint`).
 #[test]
 fn a_decomposed_run_resumes_from_checkpoints_of_any_process_count() {
     let Some(_one) = mpi_job_slot() else {
@@ -1522,9 +1530,11 @@ fn a_decomposed_run_resumes_from_checkpoints_of_any_process_count() {
     let decomposed = ["--petsc-options", "-ksp_rtol 1e-12", "--decompose"];
     let serial_dir = temp_dir("mpi", "resume-serial");
     let reference = serial_reference(&scene, &set, &serial_dir, &["--checkpoint-every", "2"]);
+    // a checkpoint in pieces (-n 3) is refused serially, saying how to resume it (below),
+    // and resumed by -n 1 with decomposed points
     let cases: [(&str, Option<usize>, Option<usize>); 3] = [
         ("-n 2 then -n 2", Some(2), Some(2)),
-        ("-n 3 then serial", Some(3), None),
+        ("-n 3 then -n 1", Some(3), Some(1)),
         ("serial then -n 2", None, Some(2)),
     ];
     for (label, first, then) in cases {
@@ -1537,6 +1547,10 @@ fn a_decomposed_run_resumes_from_checkpoints_of_any_process_count() {
             }
         };
         let done = stopped_after(first, &scene, &set, &dir, flags(first), 3);
+        if first.is_some_and(|n| n > 1) {
+            let said = refused_serially(&scene, &set, &dir);
+            assert!(said.contains("--decompose --resume"), "{said}");
+        }
         let (got, seconds) = resume(then, &scene, &set, &dir, flags(then));
         eprintln!("heavy column, {label}: stopped after step 3, checkpoint after step {done}");
         same_results(&format!("heavy column, {label}"), &got, &reference, seconds);
@@ -1548,13 +1562,59 @@ fn a_decomposed_run_resumes_from_checkpoints_of_any_process_count() {
     let _ = std::fs::remove_dir_all(&serial_dir);
 }
 
+/// A serial `--resume` of the checkpoint in pieces in `dir`: refused (non-zero, no panic),
+/// saying that it is in pieces; its standard error.
+fn refused_serially(scene: &Path, set: &[&str], dir: &Path) -> String {
+    let folder = dir.display().to_string();
+    let output = run(None, scene, set, dir, &["--resume", &folder]);
+    let stderr = String::from_utf8_lossy(&output.stderr).to_string();
+    assert!(!output.status.success(), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(
+        stderr.contains("written in")
+            && stderr.contains("pieces")
+            && stderr.contains("mpirun -n N impm run"),
+        "{stderr}"
+    );
+    stderr
+}
+
 /// The last checkpoint in `dir` (of a resumed decomposed run) against the serial run's in
 /// `serial_dir`: the same parts, each to 1e-12 of its largest number.
+///
+/// A checkpoint in pieces (decomposed over several processes) holds the parts its points'
+/// records do not carry, each compared so; of the carried ones, the core's `points` (x, u, F,
+/// V) is rebuilt from the pieces' records and compared so, every point once
+/// ([`points_of_pieces`]); the others (a material's history, the load points placed from
+/// their hosts) must be named as carried.
 fn same_checkpoint(label: &str, dir: &Path, serial_dir: &Path) {
-    let (serial, decomposed) = (checkpoint_parts(serial_dir), checkpoint_parts(dir));
-    assert_eq!(serial.len(), decomposed.len());
-    for ((name, a), (other, b)) in serial.iter().zip(&decomposed) {
-        assert_eq!(name, other);
+    let serial = checkpoint_parts(serial_dir);
+    let mut decomposed = checkpoint_parts(dir);
+    let header: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("checkpoint.json")).unwrap())
+            .unwrap();
+    let carried: Vec<String> = header["pieces"]["carried"]
+        .as_array()
+        .map(|names| {
+            names
+                .iter()
+                .map(|name| name.as_str().unwrap().to_string())
+                .collect()
+        })
+        .unwrap_or_default();
+    if header["pieces"].is_object() {
+        assert!(carried.iter().any(|name| name == "points"), "{header}");
+        decomposed.push(("points".to_string(), points_of_pieces(dir)));
+    }
+    for (name, a) in &serial {
+        let Some((_, b)) = decomposed.iter().find(|(other, _)| other == name) else {
+            assert!(
+                carried.contains(name),
+                "{label}: part {name} is neither in the checkpoint nor carried by its pieces"
+            );
+            eprintln!("{label}: checkpoint part {name}: carried by the pieces' records");
+            continue;
+        };
         let difference = relative_difference(b, a);
         eprintln!(
             "{label}: checkpoint part {name}: {} numbers, difference {difference:.1e}",
@@ -1562,6 +1622,59 @@ fn same_checkpoint(label: &str, dir: &Path, serial_dir: &Path) {
         );
         assert!(difference <= 1e-12, "{label}: part {name}: {difference:e}");
     }
+    for (name, _) in &decomposed {
+        assert!(
+            serial.iter().any(|(other, _)| other == name),
+            "{label}: the checkpoint has a part {name} the serial one has not"
+        );
+    }
+}
+
+/// The core's checkpoint part (`points`: per point x, u, F by rows and V, in `PointId` order)
+/// rebuilt from the records of a checkpoint in pieces (`checkpoint_NNNN_pK.bin`, each record
+/// `id, body, x, X, u, F by rows, m, V0, V, n, n numbers`); every point id once, 0 to N - 1,
+/// each piece's count and length as the header names them.
+fn points_of_pieces(dir: &Path) -> Vec<f64> {
+    let text = std::fs::read_to_string(dir.join("checkpoint.json")).unwrap();
+    let header: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let pieces = &header["pieces"];
+    let d = pieces["dim"].as_u64().unwrap() as usize;
+    let fixed = 2 + 3 * d + d * d + 4;
+    let mut points: Vec<(u64, Vec<f64>)> = Vec::new();
+    for piece in pieces["files"].as_array().unwrap() {
+        let file = piece["file"].as_str().unwrap();
+        let data = std::fs::read(dir.join(file)).unwrap();
+        assert_eq!(
+            data.len() as u64,
+            piece["bytes"].as_u64().unwrap(),
+            "{file}"
+        );
+        let numbers: Vec<f64> = data
+            .chunks_exact(8)
+            .map(|bytes| f64::from_le_bytes(bytes.try_into().unwrap()))
+            .collect();
+        let mut rest = &numbers[..];
+        let mut count = 0;
+        while !rest.is_empty() {
+            let n = rest[fixed - 1] as usize;
+            let record = &rest[..fixed + n];
+            let mut core = record[2..2 + d].to_vec(); // x
+            core.extend(&record[2 + 2 * d..2 + 3 * d]); // u
+            core.extend(&record[2 + 3 * d..2 + 3 * d + d * d]); // F by rows
+            core.push(record[2 + 3 * d + d * d + 2]); // V
+            points.push((record[0] as u64, core));
+            rest = &rest[fixed + n..];
+            count += 1;
+        }
+        assert_eq!(count, piece["points"].as_u64().unwrap(), "{file}");
+    }
+    points.sort_by_key(|(id, _)| *id);
+    let ids: Vec<u64> = points.iter().map(|(id, _)| *id).collect();
+    assert!(
+        ids.iter().enumerate().all(|(k, &id)| id == k as u64),
+        "the pieces hold every point once"
+    );
+    points.into_iter().flat_map(|(_, core)| core).collect()
 }
 
 /// Load points in checkpoints of decomposed runs: the traction column (8 steps) decomposed
@@ -2862,4 +2975,176 @@ fn a_decomposed_run_with_a_pressure_resumes_from_its_checkpoint() {
     for dir in [dir, serial_dir] {
         let _ = std::fs::remove_dir_all(&dir);
     }
+}
+
+/// Checkpoints in pieces (2026-12-08): the 2D column (16 cells, 6 steps) decomposed over 3
+/// processes and stopped after step 3 (`--stop-after`) leaves the checkpoint of step 2 in
+/// pieces: the header names one piece per process (`checkpoint_0002_pK.bin`), which hold every
+/// point once, and the folder holds no earlier checkpoint's files. A serial `--resume` and a
+/// replicated `mpirun -n 2` one (no `--decompose`) are refused, saying how to resume it; a
+/// deleted piece, a truncated one and a damaged one are refused by `mpirun -n 2 --decompose
+/// --resume`, non-zero, without a panic or an abort, naming the file. Resumed over 2
+/// processes, the run gives the uninterrupted serial run's results (Newton iterations, eq. 15
+/// error, stresses and positions to 1e-8: `same_results`), the serial run's history.csv in
+/// every column it has (to 1e-8 of the column's largest value) and a last checkpoint (in 2
+/// pieces) holding the serial one's numbers (`same_checkpoint`).
+#[test]
+fn a_checkpoint_in_pieces_over_3_processes_resumes_over_2_and_names_a_missing_piece() {
+    let Some(_one) = mpi_job_slot() else {
+        return;
+    };
+    let scene = shipped_scene("column_2d.rhai");
+    let set = ["cells=16", "steps=6"];
+    let decomposed = ["--petsc-options", "-ksp_rtol 1e-12", "--decompose"];
+    let serial_dir = temp_dir("mpi", "pieces-serial");
+    let reference = serial_reference(&scene, &set, &serial_dir, &["--checkpoint-every", "2"]);
+    let dir = temp_dir("mpi", "pieces");
+    let done = stopped_after(Some(3), &scene, &set, &dir, &decomposed, 3);
+    assert_eq!(done, 2);
+    let header: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("checkpoint.json")).unwrap())
+            .unwrap();
+    let pieces: Vec<String> = header["pieces"]["files"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no pieces: {header}"))
+        .iter()
+        .map(|piece| piece["file"].as_str().unwrap().to_string())
+        .collect();
+    assert_eq!(
+        pieces,
+        [
+            "checkpoint_0002_p0.bin",
+            "checkpoint_0002_p1.bin",
+            "checkpoint_0002_p2.bin"
+        ]
+    );
+    let mut left: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|entry| entry.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|name| name.starts_with("checkpoint_"))
+        .collect();
+    left.sort();
+    let mut expected = pieces.clone();
+    expected.insert(0, "checkpoint_0002.bin".to_string());
+    assert_eq!(left, expected, "only the last checkpoint's files are kept");
+    let record = 2 * 2 + 2 * 2 + 1; // x, u, F, V in 2D
+    let points = points_of_pieces(&dir).len() / record;
+    assert_eq!(points, reference.points.points.len());
+    eprintln!("pieces of step 2: {pieces:?}, {points} points in all");
+
+    // refused without decomposed points, and with a piece missing, truncated or damaged
+    let broken = temp_dir("mpi", "pieces-broken");
+    let copy = |from: &Path, to: &Path| {
+        let _ = std::fs::remove_dir_all(to);
+        let status = Command::new("cp")
+            .arg("-r")
+            .arg(from)
+            .arg(to)
+            .status()
+            .unwrap();
+        assert!(status.success());
+    };
+    copy(&dir, &broken);
+    let folder = broken.display().to_string();
+    refused_serially(&scene, &set, &broken);
+    let replicated = ["--petsc-options", "-ksp_rtol 1e-12", "--resume", &folder];
+    let said = refused(2, &scene, &set, &broken, &replicated);
+    assert!(said.contains("--decompose --resume"), "{said}");
+    let resume_broken = [&decomposed[..], &["--resume", &folder]].concat();
+    let refused_naming = |what: &str, file: &str| {
+        let said = refused(2, &scene, &set, &broken, &resume_broken);
+        eprintln!("a {what} piece: {said}");
+        assert!(!said.contains("panicked"), "{said}");
+        assert!(said.contains(file), "{what}: {said}");
+        said
+    };
+    std::fs::remove_file(broken.join(&pieces[1])).unwrap();
+    let said = refused_naming("deleted", &pieces[1]);
+    assert!(said.contains("cannot read"), "{said}");
+    copy(&dir, &broken);
+    let bytes = std::fs::read(dir.join(&pieces[2])).unwrap();
+    std::fs::write(broken.join(&pieces[2]), &bytes[..bytes.len() / 2]).unwrap();
+    let said = refused_naming("truncated", &pieces[2]);
+    assert!(said.contains("truncated"), "{said}");
+    copy(&dir, &broken);
+    let mut damaged = std::fs::read(dir.join(&pieces[0])).unwrap();
+    damaged[100] ^= 1;
+    std::fs::write(broken.join(&pieces[0]), &damaged).unwrap();
+    let said = refused_naming("damaged", &pieces[0]);
+    assert!(said.contains("does not have the hash"), "{said}");
+    let _ = std::fs::remove_dir_all(&broken);
+
+    let (got, seconds) = resume(Some(2), &scene, &set, &dir, &decomposed);
+    let label = "2D column, -n 3 in pieces then -n 2";
+    same_results(label, &got, &reference, seconds);
+    same_history(label, &dir, &serial_dir);
+    same_checkpoint(label, &dir, &serial_dir);
+    for dir in [dir, serial_dir] {
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
+
+/// Every column of the serial run's history.csv (in `serial_dir`) in the one of `dir`, with
+/// the same rows: each value to 1e-8 of the column's largest, a force's (a reaction or an
+/// external force) to 1e-8 of the largest force of the run (a component zero up to roundoff,
+/// such as the 2D column's side reaction `fix2_reaction_x`, 2.4e-10 against 4e4, has no scale
+/// of its own); empty where the serial one is.
+fn same_history(label: &str, dir: &Path, serial_dir: &Path) {
+    let table = |dir: &Path| {
+        let text = std::fs::read_to_string(dir.join("history.csv")).expect("history.csv");
+        let mut lines = text.lines();
+        let names: Vec<String> = lines
+            .next()
+            .unwrap()
+            .split(',')
+            .map(|name| name.trim().to_string())
+            .collect();
+        let rows: Vec<Vec<Option<f64>>> = lines
+            .map(|line| {
+                line.split(',')
+                    .map(|value| value.trim().parse::<f64>().ok())
+                    .collect()
+            })
+            .collect();
+        (names, rows)
+    };
+    let (serial_names, serial_rows) = table(serial_dir);
+    let (names, rows) = table(dir);
+    assert_eq!(rows.len(), serial_rows.len(), "{label}: history.csv rows");
+    let is_force = |name: &str| name.contains("reaction") || name.contains("force");
+    let largest_force = serial_names
+        .iter()
+        .enumerate()
+        .filter(|(_, name)| is_force(name))
+        .flat_map(|(k, _)| serial_rows.iter().filter_map(move |row| row[k]))
+        .fold(0.0f64, |m, v| m.max(v.abs()));
+    for (k, name) in serial_names.iter().enumerate() {
+        let j = names
+            .iter()
+            .position(|other| other == name)
+            .unwrap_or_else(|| panic!("{label}: no column {name} in history.csv"));
+        let serial: Vec<Option<f64>> = serial_rows.iter().map(|row| row[k]).collect();
+        let got: Vec<Option<f64>> = rows
+            .iter()
+            .map(|row| row.get(j).copied().flatten())
+            .collect();
+        let mut scale = serial.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
+        if is_force(name) {
+            scale = scale.max(largest_force);
+        }
+        for (step, (a, b)) in got.iter().zip(&serial).enumerate() {
+            match (a, b) {
+                (Some(a), Some(b)) => assert!(
+                    (a - b).abs() <= 1e-8 * scale,
+                    "{label}: history.csv {name}, row {step}: {a} against {b}"
+                ),
+                _ => assert_eq!(a.is_some(), b.is_some(), "{label}: {name}, row {step}"),
+            }
+        }
+    }
+    eprintln!(
+        "{label}: history.csv: the serial run's {} columns, {} rows, equal",
+        serial_names.len(),
+        serial_rows.len()
+    );
 }

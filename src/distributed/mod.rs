@@ -92,7 +92,14 @@ pub fn initial_points<const D: usize>(
     grid: &crate::basis::GridBasis<D>,
     spec: &crate::scene::SceneSpec,
 ) -> Option<Vec<bool>> {
-    if !decomposed() || RESUMING.load(std::sync::atomic::Ordering::Relaxed) {
+    if !decomposed() {
+        return None;
+    }
+    if FROM_PIECES.load(std::sync::atomic::Ordering::Relaxed) {
+        let seeds = spec.bodies.iter().map(|body| body.points.len()).sum();
+        return Some(vec![false; seeds]);
+    }
+    if RESUMING.load(std::sync::atomic::Ordering::Relaxed) {
         return None;
     }
     #[cfg(feature = "mpi")]
@@ -123,6 +130,18 @@ pub fn initial_points<const D: usize>(
 static DECOMPOSITION: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
 static RESUMING: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+static FROM_PIECES: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Says that the run resumes a checkpoint in pieces (written by a decomposed run over several
+/// processes, `restart::Pieces`): a decomposed run then spawns no point at the start
+/// ([`initial_points`] is all `false`), and each process spawns its slab's points from the
+/// pieces (`effects::distributed::checkpoint::keep_own_points`). Call it before the simulation
+/// is built.
+pub fn request_resume_from_pieces() {
+    request_resume();
+    FROM_PIECES.store(true, std::sync::atomic::Ordering::Relaxed);
+}
 
 /// Says that the run resumes a checkpoint (`impm run --resume`): a decomposed run then spawns
 /// every point at the start ([`initial_points`] is `None`), the checkpoint restores them as in

@@ -168,12 +168,16 @@ fn is_impm_file(name: &str, series: &[&str]) -> bool {
     is_temporary(name) || series_step(name, series).is_some()
 }
 
-/// `checkpoint_NNNN.bin` (any number of digits), the binary file of a checkpoint
-/// (`crate::restart`).
+/// `checkpoint_NNNN.bin` (any number of digits), the binary file of a checkpoint, or
+/// `checkpoint_NNNN_pK.bin`, a process's piece of one (`crate::restart`).
 pub fn is_checkpoint_data(name: &str) -> bool {
+    let digits = |s: &str| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit());
     name.strip_prefix("checkpoint_")
         .and_then(|rest| rest.strip_suffix(".bin"))
-        .is_some_and(|digits| !digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit()))
+        .is_some_and(|stem| match stem.split_once("_p") {
+            Some((step, piece)) => digits(step) && digits(piece),
+            None => digits(stem),
+        })
 }
 
 /// `.NAME.PID.N.tmp`, the temporary file of an atomic write.
@@ -203,6 +207,7 @@ mod tests {
             "particles.pvd",
             "summary.json",
             "checkpoint_0012.bin",
+            "checkpoint_0012_p3.bin",
             ".particles_0001.vtu.4242.0.tmp",
         ] {
             assert!(is_impm_file(name, &series), "{name}");
@@ -214,6 +219,8 @@ mod tests {
             "particles_final.pvtu",
             "notes.txt",
             "checkpoint_final.bin",
+            "checkpoint_0012_p.bin",
+            "checkpoint__p1.bin",
             ".hidden.tmp",
             "particles_0001.vtu.bak",
         ] {

@@ -1,121 +1,239 @@
 //! Checkpoints of decomposed runs (`mpirun -n N impm run SCENE --decompose
-//! --checkpoint-every K`, and `--resume`): one checkpoint file in the serial format, whatever
-//! the number of processes, so that a decomposed run resumes a serial checkpoint and a serial
-//! run a decomposed one, over any number of processes.
+//! --checkpoint-every K`, and `--resume`).
+//!
+//! With one process (`-n 1 --decompose`) the checkpoint is the serial one (one binary file,
+//! `crate::restart`). With several, it is **in pieces**, so that no process ever holds more
+//! points than its own, writing or resuming:
+//!
+//! ```text
+//! checkpoint_NNNN_pK.bin   process K's points as records (PointRecord: the core's state and
+//!                          every module's point-state part, what the exchange between the
+//!                          processes sends), in PointId order, written by process K itself
+//! checkpoint_NNNN.bin      the parts that are not the points' (process 0's: the arc-length
+//!                          control, released supports, boundary and pressure points, ...)
+//! checkpoint.json          the header, by process 0, last: it names the binary file and every
+//!                          piece (points, bytes, FNV-1a hash, first and last cell layer of its
+//!                          points), the parts the records carry, and the points in each cell
+//!                          layer along the slab axis
+//! ```
 //!
 //! **Writing** ([`saved_parts_of_every_point`], at every checkpoint step, collective): each
-//! process packs the points it holds as `PointRecord`s (`respawn::take_record`: the core's
-//! state and every module's point-state part, the records the exchange between the processes
-//! sends) and sends them to process 0 (`distributed::exchange`, the other processes' messages
-//! empty). Process 0 spawns the arrivals beside its own points (`respawn::spawn_record`),
-//! saves every checkpoint part as a serial run does (`checkpoint::save_parts`: each part
-//! writes its points in `PointId` order, so the numbers are the serial run's), and despawns
-//! the arrivals again, last first (a table of the world then only loses its last rows: its
-//! own points keep their order, the order its stages sum in). Process 0 then writes the
-//! checkpoint as a serial run does (atomically, the previous one valid until the new header
-//! names the new binary file); the other processes write none. A failure (a point that does
-//! not pack, process 0 failing to spawn or to write) is shared between the load steps as every
-//! failure of what a process does alone there (`share_outcome`): every process stops after the
-//! same step, the previous checkpoint kept.
+//! process packs its points, one record after the other, straight into the bytes of its piece
+//! and writes them durably into process 0's folder (`restart::write_piece`: a temporary file,
+//! fsynced, renamed, the folder fsynced). Then every process learns whether every piece was
+//! written (`share_outcome`: a failure is every process's, naming the process and the file,
+//! and no header is written: the previous checkpoint stays the valid one), process 0 gathers
+//! the pieces' counts, lengths and hashes (one `gather_all` of 6 numbers per process) and the
+//! points per cell layer (one `sum_all` of a number per layer), saves the parts the records do
+//! not carry, and `Simulation::write_checkpoint` writes the binary file and then the header
+//! (both durably). Only once the header is in place are the files of the earlier checkpoint
+//! removed (`restart`), so a crash at any point leaves the previous header with its files.
 //!
-//! Cost: process 0 holds, while it saves, every point's record (`FIXED + n` numbers, 16 + n in
-//! 2D) and every point as an entity, as a replicated process does; the other processes hold
-//! nothing more. Past one machine's memory the checkpoint should be written per process
-//! (each its points' records beside process 0's header) instead.
+//! The parts the records carry ([`carried_parts`]): the core's `points`, every part named as a
+//! point-state part (a material's history, the displacement origins), and the load points'
+//! positions (`traction points`), which are their hosts' `x + F·offset` and are placed again
+//! from the hosts a process holds at the next step's start (`tractions::follow_hosts`). Every
+//! other part is replicated (every process holds every boundary and pressure point, the
+//! arc-length state is agreed), so process 0's is the run's.
 //!
-//! **Resuming** (`--resume` under `mpirun --decompose`): every process reads the checkpoint and
-//! spawns every point of the scene (`distributed::initial_points` is `None` when resuming), the
-//! checkpoint restores them as in a serial run, and [`keep_own_points`] then keeps the points of
-//! the process's slab: the rule of a step's start (`partition::slab_owners` over the points in
-//! each cell layer), here over every point, which each process holds, so no message is needed.
-//! The points kept are spawned anew in `PointId` order, as the exchange leaves them. While it
-//! resumes, each process holds every point once (as a replicated process does).
+//! **Resuming** ([`keep_own_points`], under `mpirun -n M --decompose --resume`, any `M`):
+//! every process reads the header (`Checkpoint::read` checks that every piece exists with its
+//! length, so a missing or truncated piece is refused alike by every process, naming it,
+//! before the run is built), builds the run without any point (`distributed::initial_points`
+//! when resuming in pieces), restores the non-carried parts, and divides the points by the
+//! header's points per cell layer with the rule of a step's start (`partition::slab_owners`
+//! over `M` processes): it then reads only the pieces whose cell layers meet its own slab, one
+//! at a time (checking each piece's hash and count), keeps the records of its layers and spawns
+//! them in `PointId` order (`respawn::spawn_record`), as the exchange leaves them. A piece that
+//! cannot be read is shared (`distributed::any`): every process fails, the one that read it
+//! naming the file. A serial or replicated `--resume` of a checkpoint in pieces is refused,
+//! saying how to resume it (`Checkpoint::needs_decomposition`).
+//!
+//! **Cost.** Writing, a process holds its own points as entities plus the bytes of its piece
+//! (`8 (FIXED + n)` per point: 16 + n numbers in 2D, `n` the point-state numbers) and one
+//! record; process 0 also the non-carried parts. Resuming, a process holds at peak its own
+//! points' records (kept), one piece's bytes and numbers at a time, and then its own points
+//! as entities; never another process's points as entities. (Before 2026-12-08 process 0
+//! gathered every point's record and spawned them all to write one serial file, and every
+//! process spawned every point when resuming: `docs/distributed.md` gives the measured peaks.)
 
 use bevy_ecs::prelude::*;
 
-use super::{AssemblyShare, point_slices};
-use crate::checkpoint::save_parts;
+use super::{AssemblyShare, point_slices, share_outcome};
+use crate::checkpoint::{CheckpointParts, PointStateParts, save_parts};
 use crate::components::PointId;
-use crate::distributed::migration::{PointRecord, pack_points, unpack_points};
+use crate::distributed::migration::{PointRecord, unpack_points};
 use crate::distributed::partition::slab_owners;
 use crate::distributed::respawn::{spawn_record, take_record};
-use crate::distributed::{decomposed, exchange};
+use crate::distributed::{any, decomposed, gather_all, layer_of, sum_all};
+use crate::resources::{Grid, SolverError};
+use crate::restart::{Piece, Pieces, piece_file_name, read_piece, write_piece};
+use crate::stages::output::ParticlePieces;
 
 /// A checkpoint's parts: each owner's name and numbers (`checkpoint::save_parts`).
 pub type SavedParts = Vec<(String, Vec<f64>)>;
 
-/// Every point's checkpoint parts, on process 0 of a decomposed run (collective: every process
-/// must call it at the same step); `Ok(None)` on the other processes, which write no
-/// checkpoint. Outside a decomposed run, the parts of the points this process holds (all of
-/// them) on process 0 or in a serial run; `Ok(None)` on the other processes of a replicated
-/// run (process 0's checkpoint is the same).
+/// The parts of positions derived from the host points (`x + F·offset`), which a resumed
+/// process places again from the hosts it holds (`tractions::follow_hosts`).
+const PLACED_FROM_HOSTS: [&str; 1] = ["traction points"];
+
+/// The checkpoint of the steps done so far (collective: every process of a decomposed run
+/// must call it at the same step), on process 0: its parts and, over several processes, its
+/// pieces (every process has written its own; see the module docs); `Ok(None)` on the other
+/// processes. With decomposed points on one process, or outside a decomposed run, the serial
+/// checkpoint's parts of the points this process holds (all of them) on process 0 or in a
+/// serial run; `Ok(None)` on the other processes of a replicated run (process 0's checkpoint
+/// is the same).
 pub fn saved_parts_of_every_point<const D: usize>(
     world: &mut World,
-) -> Result<Option<SavedParts>, String> {
+    steps_done: usize,
+) -> Result<Option<(SavedParts, Option<Pieces>)>, SolverError> {
     if !decomposed() {
-        return Ok(crate::distributed::writes_run_files().then(|| save_parts(world)));
+        return Ok(crate::distributed::writes_run_files().then(|| (save_parts(world), None)));
     }
-    let rank = world.resource::<AssemblyShare>().processes.rank;
-    let size = world.resource::<AssemblyShare>().processes.size;
-    // the points this process holds, as the exchange sends them (a failure to pack one still
-    // takes part in the exchange, with nothing sent)
-    let mut outgoing = vec![Vec::new(); size];
-    let packed = if rank == 0 {
-        Ok(())
-    } else {
-        held_records::<D>(world).map(|records| outgoing[0] = pack_points(&records))
+    if world.resource::<AssemblyShare>().processes.size > 1 {
+        return saved_in_pieces::<D>(world, steps_done);
+    }
+    // one process: it holds every point
+    Ok(Some((save_parts(world), None)))
+}
+
+/// [`saved_parts_of_every_point`] over several processes: each writes its piece (module docs).
+fn saved_in_pieces<const D: usize>(
+    world: &mut World,
+    steps_done: usize,
+) -> Result<Option<(SavedParts, Option<Pieces>)>, SolverError> {
+    let (rank, axis) = {
+        let share = world.resource::<AssemblyShare>();
+        (share.processes.rank, share.axis)
     };
-    let received = exchange(&outgoing)?;
-    // process 0 must not write a checkpoint without some process's points
-    if crate::distributed::any(packed.is_err()) {
-        return packed.and(Err("a point could not be packed on another process".into()));
-    }
+    let dir = world.resource::<ParticlePieces>().dir.clone();
+    let file = piece_file_name(steps_done, rank);
+    let (_, per_layer) = point_slices::<D>(world);
+    let layers = per_layer
+        .iter()
+        .position(|&n| n > 0)
+        .zip(per_layer.iter().rposition(|&n| n > 0));
+    let written = piece_bytes::<D>(world).and_then(|(points, bytes)| {
+        write_piece(&dir, &file, &bytes).map(|(length, hash)| (points, length, hash))
+    });
+    // every piece written, or every process fails alike (the header is not written)
+    let outcome = written
+        .as_ref()
+        .map(|_| ())
+        .map_err(|why| SolverError::Output {
+            step: steps_done,
+            why: format!("writing this process's piece of the checkpoint: {why}"),
+        });
+    share_outcome(outcome, steps_done)?;
+    let (points, length, hash) = written.unwrap_or_default();
+    let (first, last) = layers.unwrap_or_default();
+    let mine = [
+        points,
+        length,
+        hash,
+        u64::from(layers.is_some()),
+        first as u64,
+        last as u64,
+    ];
+    let every = gather_all(&mine).map_err(|why| SolverError::Output {
+        step: steps_done,
+        why: format!("gathering the checkpoint's pieces: {why}"),
+    })?;
+    let mut counts: Vec<f64> = per_layer.iter().map(|&n| n as f64).collect();
+    sum_all(&mut counts);
     if rank != 0 {
         return Ok(None);
     }
-    let mut arrived = Vec::new();
-    for message in &received {
-        arrived.extend(unpack_points::<D>(message)?);
-    }
-    let mut spawned = Vec::with_capacity(arrived.len());
-    let mut result = Ok(());
-    for record in &arrived {
-        match spawn_record::<D>(world, record) {
-            Ok(entity) => spawned.push(entity),
-            Err(why) => {
-                result = Err(format!("a point of another process: {why}"));
-                break;
-            }
-        }
-    }
-    let parts = result.map(|()| save_parts(world));
-    // last first: each removal takes the last row of its table, so no point of this
-    // process's own moves
-    for entity in spawned.into_iter().rev() {
-        world.despawn(entity);
-    }
-    parts.map(Some)
+    let files = every
+        .iter()
+        .enumerate()
+        .map(|(k, piece)| Piece {
+            file: piece_file_name(steps_done, k),
+            points: piece[0],
+            bytes: piece[1],
+            fnv1a: piece[2],
+            layers: (piece[3] == 1).then(|| (piece[4] as usize, piece[5] as usize)),
+        })
+        .collect();
+    let carried = carried_parts(world);
+    let parts = world
+        .get_resource::<CheckpointParts>()
+        .cloned()
+        .unwrap_or_default();
+    let saved = parts
+        .0
+        .iter()
+        .filter(|part| !carried.iter().any(|name| name == part.name))
+        .map(|part| (part.name.to_string(), (part.save)(world)))
+        .collect();
+    let pieces = Pieces {
+        carried,
+        dim: D,
+        axis,
+        layers: counts.iter().map(|&n| n as u64).collect(),
+        files,
+        folder: dir,
+    };
+    Ok(Some((saved, Some(pieces))))
 }
 
-/// The points this process holds, in `PointId` order, as records.
-fn held_records<const D: usize>(world: &mut World) -> Result<Vec<PointRecord<D>>, String> {
+/// The names of the registered checkpoint parts that the points' records carry, in
+/// registration order: the core's `points`, every part named as a point-state part, and the
+/// load points placed from their hosts (module docs).
+pub fn carried_parts(world: &World) -> Vec<String> {
+    let point_state: Vec<&str> = world
+        .get_resource::<PointStateParts>()
+        .map(|parts| parts.0.iter().map(|part| part.name).collect())
+        .unwrap_or_default();
+    world
+        .get_resource::<CheckpointParts>()
+        .map(|parts| {
+            parts
+                .0
+                .iter()
+                .map(|part| part.name)
+                .filter(|name| {
+                    *name == "points"
+                        || point_state.contains(name)
+                        || PLACED_FROM_HOSTS.contains(name)
+                })
+                .map(str::to_string)
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// The points this process holds, in `PointId` order, as the bytes of its piece (each record
+/// packed and appended in turn: one record held at a time), and their number.
+fn piece_bytes<const D: usize>(world: &mut World) -> Result<(u64, Vec<u8>), String> {
     let mut points: Vec<(u32, Entity)> = world
         .query::<(Entity, &PointId)>()
         .iter(world)
         .map(|(entity, id)| (id.0, entity))
         .collect();
     points.sort_unstable_by_key(|&(id, _)| id);
-    points
-        .into_iter()
-        .map(|(_, entity)| take_record::<D>(world, entity))
-        .collect()
+    let mut bytes = Vec::new();
+    let mut numbers = Vec::new();
+    for &(_, entity) in &points {
+        numbers.clear();
+        take_record::<D>(world, entity)?.pack(&mut numbers);
+        for value in &numbers {
+            bytes.extend_from_slice(&value.to_bits().to_le_bytes());
+        }
+    }
+    Ok((points.len() as u64, bytes))
 }
 
-/// After a resumed decomposed run restored every point from the checkpoint: keeps the points
-/// of this process's slab (the ownership rule of a step's start, over every point, which this
-/// process holds), spawned anew in `PointId` order, and counts them in the share. Nothing
-/// outside a decomposed run.
-pub fn keep_own_points<const D: usize>(world: &mut World) -> Result<(), String> {
+/// After a resumed decomposed run restored the checkpoint's parts: gives this process the
+/// points of its slab, and counts them in the share (collective). From a checkpoint in
+/// `pieces`, the records of the pieces that meet its slab, read one at a time (module docs);
+/// from a serial checkpoint, which restored every point, the ownership rule of a step's start
+/// over every point, which this process holds. Nothing outside a decomposed run.
+pub fn keep_own_points<const D: usize>(
+    world: &mut World,
+    pieces: Option<&Pieces>,
+) -> Result<(), String> {
     if !decomposed() {
         return Ok(());
     }
@@ -123,17 +241,37 @@ pub fn keep_own_points<const D: usize>(world: &mut World) -> Result<(), String> 
         let share = world.resource::<AssemblyShare>();
         (share.processes.rank, share.processes.size)
     };
-    let (points, per_slice) = point_slices::<D>(world);
-    let layer_owners = slab_owners(&per_slice, size);
-    let mut kept = Vec::new();
-    for &(entity, slice) in &points {
-        if layer_owners[slice] == rank {
-            kept.push(take_record::<D>(world, entity)?);
+    let kept = match pieces {
+        Some(pieces) => {
+            let read = own_records::<D>(world, pieces, rank, size);
+            // a piece one process could not read fails every process
+            if any(read.is_err()) {
+                return Err(read.err().unwrap_or_else(|| {
+                    format!(
+                        "another process could not read its pieces of the checkpoint in {} \
+                         (it says which)",
+                        pieces.folder.display()
+                    )
+                }));
+            }
+            read?
         }
-    }
-    for (entity, _) in points {
-        world.despawn(entity);
-    }
+        None => {
+            let (points, per_slice) = point_slices::<D>(world);
+            let layer_owners = slab_owners(&per_slice, size);
+            let mut kept = Vec::new();
+            for &(entity, slice) in &points {
+                if layer_owners[slice] == rank {
+                    kept.push(take_record::<D>(world, entity)?);
+                }
+            }
+            for (entity, _) in points {
+                world.despawn(entity);
+            }
+            kept
+        }
+    };
+    let mut kept = kept;
     kept.sort_by_key(|record| record.id);
     for record in &kept {
         spawn_record::<D>(world, record)?;
@@ -142,4 +280,75 @@ pub fn keep_own_points<const D: usize>(world: &mut World) -> Result<(), String> 
     share.points = kept.len();
     share.moved = 0;
     Ok(())
+}
+
+/// The records of this process's slab from the pieces that meet it (module docs), checking
+/// each piece's count and that the pieces' points add up to the header's.
+fn own_records<const D: usize>(
+    world: &World,
+    pieces: &Pieces,
+    rank: usize,
+    size: usize,
+) -> Result<Vec<PointRecord<D>>, String> {
+    let header = crate::restart::Checkpoint::path_in(&pieces.folder);
+    let grid = &world.resource::<Grid<D>>().0;
+    let axis = world.resource::<AssemblyShare>().axis;
+    if pieces.dim != D {
+        return Err(format!(
+            "{} holds points of dimension {}, this run's are of dimension {D}",
+            header.display(),
+            pieces.dim
+        ));
+    }
+    if axis != pieces.axis || pieces.layers.len() != grid.cells_per_axis()[axis] {
+        return Err(format!(
+            "{} divides its points in {} cell layers along axis {}, but this run's slabs are \
+             {} cell layers along axis {axis}: the grid differs",
+            header.display(),
+            pieces.layers.len(),
+            pieces.axis,
+            grid.cells_per_axis()[axis]
+        ));
+    }
+    let listed: u64 = pieces.files.iter().map(|piece| piece.points).sum();
+    let counted: u64 = pieces.layers.iter().sum();
+    if listed != counted {
+        return Err(format!(
+            "{} lists {listed} points in its pieces but {counted} in its cell layers: it is \
+             damaged",
+            header.display()
+        ));
+    }
+    let per_layer: Vec<usize> = pieces.layers.iter().map(|&n| n as usize).collect();
+    let owners = slab_owners(&per_layer, size);
+    let mine = |layer: usize| owners[layer] == rank;
+    let mut kept = Vec::new();
+    for piece in &pieces.files {
+        let meets = piece
+            .layers
+            .is_some_and(|(first, last)| (first..=last.min(owners.len() - 1)).any(mine));
+        if !meets {
+            continue;
+        }
+        let path = pieces.folder.join(&piece.file);
+        let numbers = read_piece(pieces, piece)?;
+        let records =
+            unpack_points::<D>(&numbers).map_err(|why| format!("{}: {why}", path.display()))?;
+        drop(numbers);
+        if records.len() as u64 != piece.points {
+            return Err(format!(
+                "{} holds {} points, but the checkpoint {} names {}: the piece is damaged",
+                path.display(),
+                records.len(),
+                header.display(),
+                piece.points
+            ));
+        }
+        kept.extend(
+            records
+                .into_iter()
+                .filter(|record| mine(layer_of(grid, axis, &record.position))),
+        );
+    }
+    Ok(kept)
 }

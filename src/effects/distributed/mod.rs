@@ -200,7 +200,7 @@ impl Plugin for DistributedModule {
             "the points are decomposed (each process holds the points of its slab of cells \
              along axis {axis}, balanced by points, and they move between the processes as \
              they cross slabs; each numbers and assembles only the grid nodes its points \
-             touch; a checkpoint gathers every point to process 0): the stages on points, \
+             touch; each process writes its points' piece of a checkpoint): the stages on points, \
              the assembly and the linear solve (PETSc MPIAIJ, CG or GMRES with GAMG unless \
              petsc_options say otherwise) are split"
         } else {
