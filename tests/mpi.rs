@@ -1808,6 +1808,57 @@ fn the_line_search_with_decomposed_points_equals_the_serial_run() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// The line search's natural level function needs the whole tangent's factor, which a divided
+/// grid has not: with decomposed points (`mpirun -n 2 --decompose`) the soft top with `merit:
+/// "natural"` warns once that it uses the residual test, and then does what the residual test
+/// does serially (the same Newton iterations and the same shortened and rejected trials).
+#[test]
+fn the_natural_line_search_with_decomposed_points_says_it_uses_the_residual_test() {
+    let natural = SOFT_TOP.replace(
+        "solver(#{ line_search: true });",
+        "solver(#{ line_search: true, merit: \"natural\" });",
+    );
+    assert_ne!(natural, SOFT_TOP);
+    let (dir, residual_scene) = scene_file("soft-top-natural", "soft_top.rhai", SOFT_TOP);
+    let natural_scene = dir.join("soft_top_natural.rhai");
+    std::fs::write(&natural_scene, &natural).unwrap();
+    let serial = dir.join("serial");
+    assert!(
+        run(None, &residual_scene, &[], &serial, &[])
+            .status
+            .success()
+    );
+    let Some(_one) = mpi_job_slot() else {
+        return;
+    };
+    let decomposed = dir.join("decomposed");
+    let output = run(Some(2), &natural_scene, &[], &decomposed, &["--decompose"]);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "{stderr}");
+    let (reference, got) = (read_summary(&serial), read_summary(&decomposed));
+    let warnings: Vec<&str> = got["warnings"]
+        .as_array()
+        .map(|w| w.iter().filter_map(|w| w.as_str()).collect())
+        .unwrap_or_default();
+    assert_eq!(
+        warnings
+            .iter()
+            .filter(
+                |w| w.contains("natural level function") && w.contains("divided among processes")
+            )
+            .count(),
+        1,
+        "{warnings:?}"
+    );
+    for key in ["iterations", "line_search"] {
+        assert_eq!(
+            got["steps"][0][key], reference["steps"][0][key],
+            "{key}: {got} against {reference}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// Modules that read other points (stress recovery) are refused with decomposed points,
 /// naming them, once, without an abort; `--decompose` outside mpirun is refused. (Point loads
 /// and tractions follow their points since 2026-11-26, and so do prescribed displacements'
